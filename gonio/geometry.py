@@ -1,0 +1,206 @@
+"""Directions in the sample frame, and the parameterizations that BRDF data uses.
+
+Conventions (see DESIGN.md): +z is the sample normal, +x the sample's reference direction. θ is the
+polar angle from +z, φ the azimuth counter-clockwise from +x seen from above. ωi points from the sample
+toward the light, ωo toward the detector. All angles here are radians; arrays broadcast; vectors are
+``(..., 3)`` float64 arrays.
+
+Rusinkiewicz half/difference angles: the half vector h = (ωi + ωo)/|ωi + ωo| has angles (θh, φh); the
+difference vector is ωi rotated by −φh about z and then by −θh about y, with angles (θd, φd).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "TWO_PI",
+    "MERL_SHAPE",
+    "sph_to_vec",
+    "vec_to_sph",
+    "wrap_2pi",
+    "mirror_angles",
+    "reflect",
+    "half_vector",
+    "to_half_diff",
+    "from_half_diff",
+    "merl_index",
+    "merl_unindex",
+    "merl_bin_centres",
+    "canonical_reciprocal",
+    "to_isotropic",
+    "canonical_isotropic",
+]
+
+TWO_PI = 2.0 * np.pi
+HALF_PI = 0.5 * np.pi
+#: MERL table shape: θh bins (square-root mapping), θd bins, φd bins (φd folded into [0, π)).
+MERL_SHAPE = (90, 90, 180)
+# Angles closer than this are "the same" when canonicalizing (grid values come from degrees).
+_ANGLE_EPS = 1e-9
+
+
+def sph_to_vec(theta, phi) -> np.ndarray:
+    """Unit vector(s) for polar angle ``theta`` and azimuth ``phi`` (radians)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    phi = np.asarray(phi, dtype=np.float64)
+    st = np.sin(theta)
+    return np.stack(np.broadcast_arrays(st * np.cos(phi), st * np.sin(phi), np.cos(theta)), axis=-1)
+
+
+def wrap_2pi(phi) -> np.ndarray:
+    """Azimuth folded into [0, 2π)."""
+    out = np.mod(np.asarray(phi, dtype=np.float64), TWO_PI)
+    # np.mod can return exactly 2π for tiny negative inputs.
+    return np.where(out >= TWO_PI, 0.0, out)
+
+
+def vec_to_sph(v) -> tuple[np.ndarray, np.ndarray]:
+    """(θ, φ) of vector(s) ``v`` (normalized here); φ in [0, 2π), and φ = 0 at the poles."""
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v, axis=-1)
+    z = np.clip(v[..., 2] / n, -1.0, 1.0)
+    rho = np.hypot(v[..., 0], v[..., 1]) / n
+    # atan2 of (rho, z) keeps full precision near the poles, where acos(z) loses it.
+    theta = np.arctan2(rho, z)
+    phi = np.where(rho > 1e-15, wrap_2pi(np.arctan2(v[..., 1], v[..., 0])), 0.0)
+    return theta, phi
+
+
+def mirror_angles(theta, phi) -> tuple[np.ndarray, np.ndarray]:
+    """The mirror (specular) direction of (θ, φ): (θ, φ + π)."""
+    return np.asarray(theta, dtype=np.float64), wrap_2pi(np.asarray(phi, dtype=np.float64) + np.pi)
+
+
+def reflect(v) -> np.ndarray:
+    """R(v) = −v + 2 (v·N) N with N = +z: the mirror direction of ``v``."""
+    v = np.asarray(v, dtype=np.float64)
+    return v * np.array([-1.0, -1.0, 1.0])
+
+
+def half_vector(wi, wo) -> np.ndarray:
+    """H = (ωi + ωo) / |ωi + ωo|. Undefined (NaN) for exactly opposite directions."""
+    h = np.asarray(wi, dtype=np.float64) + np.asarray(wo, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return h / np.linalg.norm(h, axis=-1, keepdims=True)
+
+
+def _rot_z(v, angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], v[..., 2]], axis=-1)
+
+
+def _rot_y(v, angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[..., 0] + s * v[..., 2], v[..., 1], -s * v[..., 0] + c * v[..., 2]], axis=-1)
+
+
+def to_half_diff(wi, wo) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rusinkiewicz angles (θh, φh, θd, φd) of direction pairs; φh, φd in [0, 2π)."""
+    wi = np.asarray(wi, dtype=np.float64)
+    h = half_vector(wi, wo)
+    theta_h, phi_h = vec_to_sph(h)
+    d = _rot_y(_rot_z(wi, -phi_h), -theta_h)
+    theta_d, phi_d = vec_to_sph(d)
+    return theta_h, phi_h, theta_d, phi_d
+
+
+def from_half_diff(theta_h, phi_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray]:
+    """(ωi, ωo) from Rusinkiewicz angles; the inverse of :func:`to_half_diff`."""
+    d = sph_to_vec(theta_d, phi_d)
+    theta_h, phi_h = np.broadcast_arrays(np.asarray(theta_h, float), np.asarray(phi_h, float))
+    wi = _rot_z(_rot_y(d, theta_h), phi_h)
+    h = sph_to_vec(theta_h, phi_h)
+    wo = 2.0 * np.sum(wi * h, axis=-1, keepdims=True) * h - wi
+    return wi, wo
+
+
+def merl_index(theta_h, theta_d, phi_d) -> np.ndarray:
+    """Flat MERL table index ``iφd + 180·(iθd + 90·iθh)`` of (θh, θd, φd).
+
+    θh bins follow the square-root mapping (dense near the specular peak); φd is folded into [0, π) by
+    reciprocity (φd and φd + π describe the same pair with ωi and ωo swapped).
+    """
+    nh, nd, nphi = MERL_SHAPE
+    theta_h = np.asarray(theta_h, dtype=np.float64)
+    theta_d = np.asarray(theta_d, dtype=np.float64)
+    phi_d = np.mod(np.asarray(phi_d, dtype=np.float64), np.pi)
+    ih = np.clip(np.floor(np.sqrt(np.clip(theta_h, 0.0, None) / HALF_PI) * nh), 0, nh - 1)
+    id_ = np.clip(np.floor(theta_d / HALF_PI * nd), 0, nd - 1)
+    ip = np.clip(np.floor(phi_d / np.pi * nphi), 0, nphi - 1)
+    return (ip + nphi * (id_ + nd * ih)).astype(np.int64)
+
+
+def merl_unindex(index) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bin numbers (iθh, iθd, iφd) of flat MERL indices."""
+    nh, nd, nphi = MERL_SHAPE
+    index = np.asarray(index, dtype=np.int64)
+    return index // (nphi * nd), (index // nphi) % nd, index % nphi
+
+
+def merl_bin_centres(i_theta_h, i_theta_d, i_phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(θh, θd, φd) at the centres of MERL bins (the θh centre is taken in the square-root domain)."""
+    nh, nd, nphi = MERL_SHAPE
+    u = (np.asarray(i_theta_h, dtype=np.float64) + 0.5) / nh
+    theta_h = u * u * HALF_PI
+    theta_d = (np.asarray(i_theta_d, dtype=np.float64) + 0.5) / nd * HALF_PI
+    phi_d = (np.asarray(i_phi_d, dtype=np.float64) + 0.5) / nphi * np.pi
+    return theta_h, theta_d, phi_d
+
+
+def _key_less(a, b):
+    """Lexicographic a < b over tuples of equal-shape arrays, with angle tolerance."""
+    less = np.zeros(np.broadcast(*a, *b).shape, dtype=bool)
+    equal = np.ones_like(less)
+    for x, y in zip(a, b, strict=True):
+        less |= equal & (x < y - _ANGLE_EPS)
+        equal &= np.abs(x - y) <= _ANGLE_EPS
+    return less
+
+
+def _collapse_pole(theta, phi):
+    return np.where(np.asarray(theta) <= _ANGLE_EPS, 0.0, wrap_2pi(phi))
+
+
+def canonical_reciprocal(theta_i, phi_i, theta_o, phi_o):
+    """Canonical representative of {(ωi, ωo), (ωo, ωi)} under Helmholtz reciprocity.
+
+    Keeps the ordering whose (θi, φi) is lexicographically smallest; φ is folded into [0, 2π) and set
+    to 0 at the pole. Returns (θi, φi, θo, φo, swapped).
+    """
+    ti, to = np.asarray(theta_i, float), np.asarray(theta_o, float)
+    pi_, po = _collapse_pole(ti, phi_i), _collapse_pole(to, phi_o)
+    swap = _key_less((to, po), (ti, pi_))
+    return (np.where(swap, to, ti), np.where(swap, po, pi_), np.where(swap, ti, to),
+            np.where(swap, pi_, po), swap)
+
+
+def to_isotropic(theta_i, phi_i, theta_o, phi_o):
+    """(θi, θo, Δφ = φo − φi) with Δφ in [0, 2π); Δφ = 0 where either direction is at the pole."""
+    ti, to = np.asarray(theta_i, float), np.asarray(theta_o, float)
+    dphi = wrap_2pi(np.asarray(phi_o, float) - np.asarray(phi_i, float))
+    pole = (ti <= _ANGLE_EPS) | (to <= _ANGLE_EPS)
+    return ti, to, np.where(pole, 0.0, dphi)
+
+
+def canonical_isotropic(theta_i, theta_o, dphi, reciprocity: bool = True, mirror: bool = False):
+    """Canonical (θi, θo, Δφ) of an isotropic configuration.
+
+    Reciprocity identifies (θi, θo, Δφ) with (θo, θi, −Δφ): θi <= θo is kept (and Δφ <= π when the
+    two are equal). ``mirror`` identifies Δφ with −Δφ (a BRDF symmetric about the plane of incidence):
+    Δφ in [0, π]. Δφ is 0 where either direction is at the pole.
+    """
+    ti, to = np.broadcast_arrays(np.asarray(theta_i, float), np.asarray(theta_o, float))
+    d = wrap_2pi(dphi)
+    d = np.where((ti <= _ANGLE_EPS) | (to <= _ANGLE_EPS), 0.0, d)
+    neg = wrap_2pi(-d)
+    if mirror:
+        d = np.minimum(d, neg)
+        neg = d
+    if reciprocity:
+        swap = ti > to + _ANGLE_EPS
+        same = np.abs(ti - to) <= _ANGLE_EPS
+        ti, to = np.where(swap, to, ti), np.where(swap, ti, to)
+        d = np.where(swap, neg, np.where(same, np.minimum(d, neg), d))
+    d = np.where(d >= TWO_PI - _ANGLE_EPS, 0.0, d)
+    return ti, to, d

@@ -1,0 +1,1 @@
+"""Kinematics: sample-frame directions (θi, φi, θo, φo) <-> axis positions, for real gantry designs."""

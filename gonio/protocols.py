@@ -1,0 +1,93 @@
+"""The small protocols each layer uses to talk to the one below (DESIGN.md, rule 2).
+
+Real drivers (``gonio.drivers``) and simulated devices (``gonio.sim``) satisfy the same protocols; the
+config decides which one runs. No I/O in constructors: ``connect()`` is explicit. Angles are degrees
+(axis positions are device quantities at the user boundary); times are seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+class DeviceFault(Exception):
+    """A device reported a fault. ``transient`` faults (a time-out, a corrupt reply) may be retried;
+    the others (a hardware error bit, an over-temperature, a limit switch) stop the campaign."""
+
+    def __init__(self, device: str, message: str, transient: bool = False):
+        super().__init__(f"{device}: {message}")
+        self.device = device
+        self.transient = transient
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """Time source. The simulated gantry runs on a virtual clock; hardware on the wall clock."""
+
+    def now(self) -> float: ...
+    def sleep(self, seconds: float) -> None: ...
+
+
+@runtime_checkable
+class Axis(Protocol):
+    name: str
+    limits_deg: tuple[float, float]
+
+    def connect(self) -> None: ...
+    def close(self) -> None: ...
+    def move_to(self, target_deg: float) -> None:
+        """Start a move and return at once; rejects targets outside ``limits_deg``."""
+    def position_deg(self) -> float: ...
+    def is_moving(self) -> bool: ...
+    def stop(self) -> None: ...
+
+
+@runtime_checkable
+class LightSource(Protocol):
+    name: str
+
+    def connect(self) -> None: ...
+    def close(self) -> None: ...
+    def set_on(self, on: bool) -> None: ...
+    def is_on(self) -> bool: ...
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One detector reading: ``signal`` per channel (mean over the frames) and its standard error."""
+
+    signal: np.ndarray
+    stderr: np.ndarray
+    exposure_s: float
+    frames: int = 1
+    extra: dict = field(default_factory=dict)
+
+
+@runtime_checkable
+class Detector(Protocol):
+    name: str
+    channels: tuple[str, ...]
+
+    def connect(self) -> None: ...
+    def close(self) -> None: ...
+    def measure(self, exposure_s: float, frames: int = 1) -> Reading: ...
+
+
+@runtime_checkable
+class Gantry(Protocol):
+    """Kinematics + axes + light + detector + clock, wired from a config."""
+
+    name: str
+    kinematics: object  # gonio.kinematics.Kinematics
+    axes: dict[str, Axis]
+    light: LightSource
+    detector: Detector
+    clock: Clock
+
+    def connect(self) -> None: ...
+    def close(self) -> None: ...
+    def set_target(self, target: str) -> None:
+        """Put ``"sample"`` or ``"reference"`` (the white standard) under the beam."""

@@ -1,0 +1,1 @@
+"""Dr.Jit reflectance models (placeholder until the material library lands)."""
