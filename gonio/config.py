@@ -47,6 +47,8 @@ class AxisConfig(_Strict):
     max_velocity_deg_s: float = Field(gt=0.0)
     max_accel_deg_s2: float = Field(gt=0.0)
     home_deg: float = 0.0
+    #: Encoder resolution: the simulated axis settles on a multiple of it (0: exact).
+    resolution_deg: float = Field(0.0, ge=0.0, le=1.0)
 
     @model_validator(mode="after")
     def _check(self):

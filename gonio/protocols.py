@@ -91,3 +91,7 @@ class Gantry(Protocol):
     def close(self) -> None: ...
     def set_target(self, target: str) -> None:
         """Put ``"sample"`` or ``"reference"`` (the white standard) under the beam."""
+    def stop(self) -> None:
+        """Stop every axis at once (after a fault)."""
+    def park(self) -> None:
+        """Move every axis to its home position and wait (the safe state; called in ``finally``)."""
