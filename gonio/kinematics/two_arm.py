@@ -1,0 +1,133 @@
+"""The two-arm gantry: a fixed sample, a light arm and a detector arm on one azimuth ring.
+
+Axes (degrees), in column order: ``light_azimuth``, ``light_tilt``, ``detector_azimuth``,
+``detector_tilt``. The sample frame is the lab frame (the sample does not move). Each arm's carriage
+rides the ring at its azimuth a (about the sample normal +z, counter-clockwise from +x seen from above);
+its tilt t is the arm's polar angle from +z, and a negative tilt swings the arm over the zenith, so
+(a, t) points along θ = |t|, φ = a (t ≥ 0) or φ = a + 180° (t < 0).
+
+Inverse branches per arm: (φ + 360k, θ) and (φ + 180° + 360k, −θ) for every turn k that the azimuth
+limits admit (limits of [−200°, 200°] admit two turns, so four branches per arm and S = 16 pairs).
+
+Arm collision: both carriages ride the one ring, so their azimuths may not come within
+``arm_collision_deg`` of each other (mod 360°), whatever the tilts. Flipping one arm over the zenith
+moves its carriage by 180°, which is how most close-azimuth poses (Δφ near 0° or 180°) stay reachable.
+
+Free azimuth: an arm at θ = 0 may sit at any azimuth. It keeps its current position (home when none
+is given) when that is within its limits and clear of the other carriage, and otherwise moves the
+shortest way to the nearest position that is. When both arms are at θ = 0, two branches are offered
+(the light keeps its azimuth and the detector steps aside, or the other way round) and
+:meth:`~gonio.kinematics.base.Kinematics.inverse` takes the quicker.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gonio.config import GonioConfig
+from gonio.kinematics.base import (
+    DEG_TOL,
+    POLE_EPS,
+    Kinematics,
+    arm_vector,
+    azimuth_wraps,
+    circular_distance_deg,
+    nearest_allowed_azimuth,
+    wrap_360,
+)
+
+__all__ = ["TwoArm", "arm_branches"]
+
+
+def arm_branches(theta, phi, wraps) -> tuple[np.ndarray, np.ndarray]:
+    """(azimuth, tilt) in degrees, each (N, 2K), of every way an arm can point along (θ, φ).
+
+    Parameters
+    ----------
+    theta, phi : ndarray, shape (N,)
+        The direction, radians.
+    wraps : ndarray, shape (K,)
+        The turns k to try (from :func:`~gonio.kinematics.base.azimuth_wraps`).
+
+    Returns
+    -------
+    azimuth, tilt : ndarray, shape (N, 2K)
+        The first K columns are (φ + 360k, θ); the last K the flipped (φ + 180° + 360k, −θ). At the
+        pole (θ < 1e-9 rad) the tilt is exactly 0 and the azimuth is meaningless (the caller frees it).
+    """
+    theta_deg = np.where(theta < POLE_EPS, 0.0, np.degrees(theta))
+    phi_deg = np.degrees(phi)
+    base = np.stack([wrap_360(phi_deg), wrap_360(phi_deg + 180.0)], axis=1)
+    azimuth = base[:, :, None] + 360.0 * wraps
+    # + 0.0 turns the flipped tilt at the pole from −0.0 into 0.0.
+    tilt = np.stack([theta_deg, -theta_deg + 0.0], axis=1)[:, :, None] + np.zeros_like(wraps)
+    shape = (theta.shape[0], 2 * wraps.size)
+    return azimuth.reshape(shape), tilt.reshape(shape)
+
+
+class TwoArm(Kinematics):
+    """Kinematics of the two-arm gantry (see the module docstring for frames, branches and rules).
+
+    Parameters
+    ----------
+    cfg : GonioConfig
+        A config whose ``kinematics.design`` is ``"two-arm"``.
+
+    Examples
+    --------
+    >>> from gonio.config import load_config
+    >>> kin = TwoArm(load_config())           # config/sim.toml
+    >>> kin.inverse(np.radians(30), 0.0, np.radians(45), np.pi).round(6).tolist()
+    [[0.0, 30.0, 180.0, 45.0]]
+    """
+
+    design = "two-arm"
+
+    def __init__(self, cfg: GonioConfig):
+        super().__init__(cfg)
+        self._wraps_light = azimuth_wraps(*self.limits_deg[0])
+        self._wraps_detector = azimuth_wraps(*self.limits_deg[2])
+        self.n_branches = 4 * len(self._wraps_light) * len(self._wraps_detector)
+
+    def _branches(self, theta_i, phi_i, theta_o, phi_o, current):
+        n = theta_i.shape[0]
+        (lo_l, hi_l), (lo_d, hi_d) = self.limits_deg[0], self.limits_deg[2]
+        col = self.arm_collision_deg
+        az_l, tilt_l = arm_branches(theta_i, phi_i, self._wraps_light)
+        az_d, tilt_d = arm_branches(theta_o, phi_o, self._wraps_detector)
+        n_l, n_d = az_l.shape[1], az_d.shape[1]
+        pole_l = theta_i < POLE_EPS
+        pole_d = theta_o < POLE_EPS
+        # Pair every light branch (axis 1) with every detector branch (axis 2).
+        pair_l = np.repeat(az_l[:, :, None], n_d, axis=2)
+        pair_d = np.repeat(az_d[:, None, :], n_l, axis=1)
+        cur_l = current[:, 0, None, None]
+        cur_d = current[:, 2, None, None]
+
+        # One arm at the pole: it steps aside from the other's carriage (if it has to). Only those
+        # poses are solved, so the common case pays nothing for the search.
+        one = pole_l & ~pole_d
+        pair_l[one] = nearest_allowed_azimuth(cur_l[one], lo_l, hi_l, az_d[one][:, None, :], col)
+        one = pole_d & ~pole_l
+        pair_d[one] = nearest_allowed_azimuth(cur_d[one], lo_d, hi_d, az_l[one][:, :, None], col)
+        # Both at the pole: the two sign branches of the light arm coincide there, so its first half
+        # carries "light stays, detector steps aside" and the second half the converse.
+        both = pole_l & pole_d
+        if both.any():
+            keep_l = np.clip(cur_l[both], lo_l, hi_l)
+            keep_d = np.clip(cur_d[both], lo_d, hi_d)
+            aside_d = nearest_allowed_azimuth(cur_d[both], lo_d, hi_d, keep_l, col)
+            aside_l = nearest_allowed_azimuth(cur_l[both], lo_l, hi_l, keep_d, col)
+            light_stays = (np.arange(n_l) < n_l // 2)[None, :, None]
+            pair_l[both] = np.where(light_stays, keep_l, aside_l)
+            pair_d[both] = np.where(light_stays, aside_d, keep_d)
+        az_l, az_d = pair_l, pair_d
+
+        collides = circular_distance_deg(az_l, az_d) < col - DEG_TOL
+        cands = np.stack(
+            np.broadcast_arrays(az_l, tilt_l[:, :, None], az_d, tilt_d[:, None, :]), axis=-1
+        )
+        return cands.reshape(n, n_l * n_d, 4), collides.reshape(n, n_l * n_d)
+
+    def _directions(self, axes_deg):
+        return arm_vector(axes_deg[:, 0], axes_deg[:, 1]), arm_vector(axes_deg[:, 2], axes_deg[:, 3])
