@@ -1,0 +1,93 @@
+"""A simulated light source: a lamp of finite angular size whose radiance drifts linearly in time.
+
+The lamp runs (and drifts) from ``connect()``; ``set_on`` opens and closes its shutter, so dark readings
+taken between white references do not reset the drift the references are there to track.
+"""
+
+from __future__ import annotations
+
+from gonio.config import LightConfig
+from gonio.protocols import Clock, DeviceFault
+
+__all__ = ["SimLight"]
+
+_SECONDS_PER_HOUR = 3600.0
+
+
+class SimLight:
+    """A simulated lamp satisfying :class:`gonio.protocols.LightSource`.
+
+    Parameters
+    ----------
+    cfg : gonio.config.LightConfig
+        ``radiance`` (arbitrary but consistent units) at power-on, ``half_angle_deg`` of the cone the
+        source subtends seen from the sample (°), ``drift_per_hour`` (relative change of radiance per
+        hour of clock time).
+    clock : gonio.protocols.Clock
+        Time source of the drift.
+    name : str
+        Device name used in messages.
+
+    Notes
+    -----
+    Radiance at clock time t is ``radiance · (1 + drift_per_hour · (t − t_on) / 3600 s)``, with t_on the
+    time of ``connect()``. The shutter starts closed.
+    """
+
+    def __init__(self, cfg: LightConfig, clock: Clock, name: str = "light"):
+        self.name = name
+        self.cfg = cfg
+        self.half_angle_deg = float(cfg.half_angle_deg)
+        self._clock = clock
+        self._connected = False
+        self._on = False
+        self._t_on = clock.now()
+
+    def connect(self) -> None:
+        """Power the lamp (the drift starts now) with the shutter closed; a no-op when connected."""
+        if self._connected:
+            return
+        self._t_on = self._clock.now()
+        self._connected = True
+        self._on = False
+
+    def close(self) -> None:
+        self._on = False
+        self._connected = False
+
+    def set_on(self, on: bool) -> None:
+        """Open (True) or close (False) the shutter."""
+        self._require_connected()
+        self._on = bool(on)
+
+    def is_on(self) -> bool:
+        self._require_connected()
+        return self._on
+
+    def lamp_radiance(self, t_s: float | None = None) -> float:
+        """Radiance the lamp emits at clock time ``t_s`` (default: now), shutter regardless.
+
+        Raises
+        ------
+        DeviceFault
+            The linear drift has brought the output to zero or below (a lamp that has burnt down);
+            the linear model no longer describes it.
+        """
+        t = self._clock.now() if t_s is None else float(t_s)
+        hours = (t - self._t_on) / _SECONDS_PER_HOUR
+        factor = 1.0 + self.cfg.drift_per_hour * hours
+        if factor <= 0.0:
+            raise DeviceFault(
+                self.name, f"lamp output drifted to zero after {hours:.2f} h "
+                f"(drift_per_hour = {self.cfg.drift_per_hour})", transient=False,
+            )
+        return self.cfg.radiance * factor
+
+    def radiance(self) -> float:
+        """Radiance reaching the sample now: the lamp's when the shutter is open, else 0."""
+        self._require_connected()
+        return self.lamp_radiance() if self._on else 0.0
+
+    def _require_connected(self) -> None:
+        if not self._connected:
+            raise DeviceFault(self.name, "not connected: call connect() first", transient=False)

@@ -1,0 +1,192 @@
+"""The material interface shared by every model, and the Dr.Jit helpers the models are written with.
+
+A material is evaluated over whole batches of direction pairs in the sample frame (N = +z). Models
+write one Dr.Jit function, :meth:`Material._eval_dr`, that is generic in the array type: it derives its
+types from its inputs, so the same code runs on LLVM float32 (the simulation path), LLVM float64 (the
+reference path of the tests) and CUDA when present.
+
+Kernel reuse: every model parameter is uploaded once per array type as an *opaque* array
+(:func:`drjit.opaque`), so Dr.Jit reads it from memory instead of baking its value into the generated
+code. Calls with new directions, a new batch size or another material of the same model and
+configuration (say gold and copper under the same Beckmann Cook-Torrance) therefore reuse one compiled
+kernel; only a change of structure (another model, another D or Fresnel form) compiles a new one.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import drjit as dr
+import numpy as np
+
+__all__ = ["Material", "positive_power", "check_directions", "INV_PI"]
+
+INV_PI = 1.0 / math.pi
+# Rows whose length differs from 1 by more than this are rejected by Material.eval (not renormalized).
+UNIT_TOLERANCE = 1e-4
+_PRECISIONS = ("float32", "float64")
+
+
+def positive_power(x, e):
+    """``x**e`` for ``x > 0`` and 0 for ``x <= 0`` (a cosine lobe clipped at 90°), with ``e >= 0``.
+
+    Written as exp(e·ln x) so that an opaque exponent does not specialize the kernel; the select
+    keeps the NaN of the log of a negative number out of the result. Not exp2/log2 (nor dr.power,
+    which uses them): Dr.Jit 1.5's float64 exp2 returns −inf for arguments in [−1024, −1023.5),
+    where the power underflows.
+    """
+    return dr.select(x > 0, dr.exp(e * dr.log(x)), 0)
+
+
+def check_directions(name: str, w) -> np.ndarray:
+    """``w`` as a float64 array of unit vectors of shape (..., 3); raises ValueError naming ``name``."""
+    w = np.asarray(w, dtype=np.float64)
+    if w.ndim == 0 or w.shape[-1] != 3:
+        raise ValueError(f"{name}: expected unit vectors of shape (..., 3), got shape {w.shape}")
+    flat = w.reshape(-1, 3)
+    bad = ~np.isfinite(flat).all(axis=1)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{name}: row {row} is not finite: {flat[row].tolist()}")
+    norm = np.linalg.norm(flat, axis=1)
+    off = np.abs(norm - 1.0) > UNIT_TOLERANCE
+    if off.any():
+        row = int(np.flatnonzero(off)[0])
+        raise ValueError(f"{name}: vectors must have unit length (within {UNIT_TOLERANCE}), row {row} has "
+                         f"length {norm[row]:.6g}")
+    return w
+
+
+def _aligned_column(v: np.ndarray, dtype) -> np.ndarray:
+    """A copy of ``v`` in a 64-byte aligned buffer.
+
+    Dr.Jit maps numpy memory without copying and compiles loads for the alignment it finds, so inputs
+    of varying alignment would compile a new kernel on every call; aligned buffers keep one kernel.
+    """
+    itemsize = np.dtype(dtype).itemsize
+    buffer = np.empty(v.shape[0] + 64 // itemsize, dtype=dtype)
+    start = (-buffer.ctypes.data % 64) // itemsize
+    out = buffer[start:start + v.shape[0]]
+    out[:] = v
+    return out
+
+
+def _llvm_vector_type(precision: str):
+    from drjit.llvm import Array3f, Array3f64
+
+    if precision not in _PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(_PRECISIONS)}, got {precision!r}")
+    return Array3f if precision == "float32" else Array3f64
+
+
+class Material:
+    """A BRDF model with its parameters.
+
+    Attributes
+    ----------
+    spec : str
+        The normalized MATERIAL string (every parameter, defaults included); ``load(spec)`` rebuilds it.
+    channels : tuple of str
+        Always ``("R", "G", "B")``.
+    reciprocal : bool
+        f(ωi, ωo) = f(ωo, ωi) holds for the model (class attribute).
+    energy_conserving : bool
+        The directional albedo ∫ f cos θo dωo is <= 1 for every ωi and every accepted parameter set
+        (class attribute).
+    isotropic : bool
+        f is unchanged by rotating both directions about the normal.
+    """
+
+    model: ClassVar[str] = ""
+    reciprocal: ClassVar[bool] = True
+    energy_conserving: ClassVar[bool] = False
+    channels = ("R", "G", "B")
+
+    def __init__(self, spec: str, *, isotropic: bool = True):
+        self.spec = spec
+        self.isotropic = isotropic
+        self._dr_cache: dict[type, dict] = {}
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.spec!r})"
+
+    # -- what a model supplies ------------------------------------------------------------------
+    def _parameters(self) -> dict:
+        """Parameter values to upload: a float (one value) or a 3-tuple (R, G, B) per name."""
+        raise NotImplementedError
+
+    def _eval_dr(self, wi, wo, p: dict):
+        """f_r for unit direction arrays ``wi``, ``wo`` with parameters ``p`` (opaque arrays)."""
+        raise NotImplementedError
+
+    # -- the interface --------------------------------------------------------------------------
+    def dr_parameters(self, vector_type) -> dict:
+        """The model's parameters as opaque arrays for ``vector_type`` (e.g. Array3f), cached.
+
+        Floats become opaque arrays of the scalar type (``dr.value_t``), 3-tuples opaque RGB vectors,
+        numpy arrays (tables) opaque arrays of the scalar type.
+        """
+        cached = self._dr_cache.get(vector_type)
+        if cached is None:
+            scalar = dr.value_t(vector_type)
+            cached = {}
+            for name, value in self._parameters().items():
+                if isinstance(value, tuple):
+                    cached[name] = vector_type(*(dr.opaque(scalar, float(v)) for v in value))
+                elif isinstance(value, np.ndarray):
+                    cached[name] = dr.opaque(scalar(value))
+                else:
+                    cached[name] = dr.opaque(scalar, float(value))
+            self._dr_cache[vector_type] = cached
+        return cached
+
+    def eval_dr(self, wi, wo):
+        """f_r in sr⁻¹ for batches of direction pairs, in Dr.Jit.
+
+        Parameters
+        ----------
+        wi, wo : Dr.Jit 3-vector (e.g. ``drjit.llvm.Array3f``, ``Array3f64``, ``drjit.cuda.Array3f``)
+            Unit vectors in the sample frame: ωi toward the light, ωo toward the detector. Not checked
+            (this is the hot path); both must have the same type.
+
+        Returns
+        -------
+        Dr.Jit 3-vector of the type of ``wi``
+            f_r per channel (R, G, B) in sr⁻¹; 0 where either direction is at or below the horizon.
+        """
+        return self._eval_dr(wi, wo, self.dr_parameters(type(wi)))
+
+    def eval(self, wi, wo, *, precision: str = "float32") -> np.ndarray:
+        """f_r in sr⁻¹ for numpy direction pairs, evaluated with :meth:`eval_dr` on the LLVM backend.
+
+        Parameters
+        ----------
+        wi, wo : array_like, shape (..., 3)
+            Unit vectors in the sample frame (broadcast against each other); rows that are not finite
+            or not of unit length (within 1e-4) raise ValueError.
+        precision : {"float32", "float64"}
+            Dr.Jit precision: float32 is the simulation path, float64 the reference path.
+
+        Returns
+        -------
+        numpy.ndarray, shape (..., 3), float64
+            f_r per channel (R, G, B) in sr⁻¹, without the cosine factor.
+        """
+        vector_type = _llvm_vector_type(precision)
+        wi, wo = np.broadcast_arrays(check_directions("wi", wi), check_directions("wo", wo))
+        shape = wi.shape[:-1]
+        flat_i, flat_o = wi.reshape(-1, 3), wo.reshape(-1, 3)
+        if flat_i.shape[0] == 0:
+            return np.zeros(shape + (3,))
+        scalar = dr.value_t(vector_type)
+        dtype = np.float32 if precision == "float32" else np.float64
+
+        def to_dr(v):
+            return vector_type(*(scalar(_aligned_column(v[:, j], dtype)) for j in range(3)))
+
+        result = self.eval_dr(to_dr(flat_i), to_dr(flat_o))
+        dr.eval(result)
+        # Per channel: Array3f.numpy() would run a small export kernel specialized to the batch size.
+        channels = [np.asarray(c.numpy(), dtype=np.float64) for c in (result.x, result.y, result.z)]
+        return np.stack(channels, axis=-1).reshape(shape + (3,))

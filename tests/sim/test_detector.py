@@ -1,0 +1,287 @@
+"""The simulated detector and lamp: aperture physics at the actual pose, the sensor's noise, seeding."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gonio.clock import VirtualClock
+from gonio.config import load_config, parse_config
+from gonio.motion.trapezoid import move_time
+from gonio.protocols import Detector, DeviceFault, LightSource
+from gonio.sim import materials
+from gonio.sim.gantry import SimGantry
+from gonio.sim.light import SimLight
+
+RADIANCE = 1000.0
+COOK_TORRANCE = "cook-torrance:d=beckmann,m=0.3,metal=gold,rho_s=0.9/0.6/0.3"  # rough, coloured
+GLOSSY = "cook-torrance:d=beckmann,m=0.1,metal=gold"
+
+
+def make_gantry(material="lambert:albedo=0.5", *, seed=0, light=None, detector=None, noise=None,
+                reference=None, on=True) -> SimGantry:
+    data = load_config().model_dump()
+    data["light"].update({"radiance": RADIANCE, **(light or {})})
+    data["detector"].update(detector or {})
+    data["detector"]["noise"].update(noise or {})
+    data["reference"].update(reference or {})
+    gantry = SimGantry.from_config(parse_config(data), material, seed=seed)
+    gantry.connect()
+    gantry.light.set_on(on)
+    return gantry
+
+
+def move(gantry: SimGantry, **targets_deg) -> None:
+    """Drive the named axes directly (not through the kinematics) and wait until they arrive."""
+    for name, target in targets_deg.items():
+        gantry.axes[name].move_to(target)
+    gantry.clock.sleep(max(a.arrival_time_s() for a in gantry.axes.values()) - gantry.clock.now())
+
+
+def actual_axes(gantry: SimGantry) -> np.ndarray:
+    return np.array([[gantry.axes[a].true_position_deg() for a in gantry.kinematics.axis_names]])
+
+
+def solid_angle(half_angle_deg: float) -> float:
+    return 2.0 * np.pi * (1.0 - np.cos(np.radians(half_angle_deg)))
+
+
+def lambert_signal(gantry: SimGantry, albedo: float, exposure_s: float, axes_deg=None) -> float:
+    """L_src · Ω_src · cos θi · ρ/π · exposure at ``axes_deg`` (default: the actual pose now): the
+    small-aperture closed form."""
+    wi, _ = gantry.kinematics.directions(actual_axes(gantry) if axes_deg is None else axes_deg)
+    omega = solid_angle(gantry.light.half_angle_deg)
+    return RADIANCE * omega * wi[0, 2] * albedo / np.pi * exposure_s
+
+
+def test_devices_satisfy_their_protocols():
+    gantry = make_gantry()
+    assert isinstance(gantry.detector, Detector) and isinstance(gantry.light, LightSource)
+    assert gantry.detector.channels == ("R", "G", "B")
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 30.0, 60.0, 75.0, -45.0])
+def test_lambert_reading_matches_the_closed_form(tilt_deg):
+    gantry = make_gantry()
+    move(gantry, light_tilt=tilt_deg, detector_azimuth=170.0, detector_tilt=40.0)
+    theta_i, *_ = gantry.kinematics.forward(actual_axes(gantry))
+    assert np.degrees(theta_i[0]) == pytest.approx(abs(tilt_deg))
+    for exposure in (0.1, 0.4):  # a linear detector: the signal scales with the exposure
+        reading = gantry.detector.measure(exposure)
+        assert reading.exposure_s == exposure and reading.frames == 1
+        np.testing.assert_allclose(reading.signal, lambert_signal(gantry, 0.5, exposure), rtol=5e-3)
+
+
+def test_reading_follows_the_actual_axis_position_during_a_move():
+    gantry = make_gantry()
+    axis = gantry.axes["light_tilt"]
+    cfg = axis.cfg
+    axis.move_to(60.0)
+    total = float(move_time(60.0, cfg.max_velocity_deg_s, cfg.max_accel_deg_s2))
+    gantry.clock.sleep(0.5 * total)
+    at_start = actual_axes(gantry)
+    mid = gantry.detector.measure(0.1)
+    # The pose of the reading is where the axis was when the exposure began: half-way, not the command.
+    assert mid.extra["axes_deg"]["light_tilt"] == pytest.approx(30.0)
+    assert list(mid.extra["axes_deg"].values()) == at_start[0].tolist()
+    np.testing.assert_allclose(mid.signal, lambert_signal(gantry, 0.5, 0.1, at_start), rtol=5e-3)
+    cos_ratio = np.cos(np.radians(30.0)) / np.cos(np.radians(60.0))
+    gantry.clock.sleep(total)
+    done = gantry.detector.measure(0.1)
+    np.testing.assert_allclose(done.signal, lambert_signal(gantry, 0.5, 0.1), rtol=5e-3)
+    np.testing.assert_allclose(mid.signal / done.signal, cos_ratio, rtol=1e-2)
+
+
+def test_reading_follows_axes_moved_directly_for_a_glossy_sample():
+    gantry = make_gantry(GLOSSY, light={"half_angle_deg": 0.05}, detector={"half_angle_deg": 0.05})
+    material = materials.load(GLOSSY)
+    omega = solid_angle(0.05)
+    readings = []
+    # Sweep the detector arm through the specular direction of a light at θi = 30°, φi = 0.
+    move(gantry, light_azimuth=0.0, light_tilt=30.0, detector_azimuth=180.0)
+    for detector_tilt in (10.0, 25.0, 30.0, 35.0, 60.0):
+        move(gantry, detector_tilt=detector_tilt)
+        wi, wo = gantry.kinematics.directions(actual_axes(gantry))
+        want = material.eval(wi, wo)[0] * wi[0, 2] * RADIANCE * omega * 0.1
+        reading = gantry.detector.measure(0.1)
+        np.testing.assert_allclose(reading.signal, want, rtol=1e-2)
+        readings.append(reading.signal[0])
+    # A glossy lobe (m = 0.1) peaks at the mirror direction. (A rough one, m = 0.3, would not: its
+    # 1/cos θo factor moves the peak of f·cos θi past the mirror, the off-specular peak.)
+    assert np.argmax(readings) == 2
+
+
+@pytest.mark.parametrize("pose", [(0.0, 30.0, 180.0, 30.0), (0.0, 20.0, 150.0, 50.0),
+                                  (40.0, 60.0, 200.0, 70.0), (0.0, 0.0, 90.0, 45.0)])
+def test_rough_cook_torrance_with_tiny_apertures_matches_the_brdf_at_the_centre(pose):
+    gantry = make_gantry(COOK_TORRANCE, light={"half_angle_deg": 0.05}, detector={"half_angle_deg": 0.05})
+    axes = np.array([pose])
+    wi, wo = gantry.kinematics.directions(axes)
+    fr_cos = materials.load(COOK_TORRANCE).eval(wi, wo)[0] * wi[0, 2]
+    got = gantry.detector.expected_signal(axes, exposure_s=1.0)[0]
+    np.testing.assert_allclose(got, fr_cos * RADIANCE * solid_angle(0.05), rtol=1e-2)
+    assert np.ptp(got) > 0.01 * got.max()  # a coloured conductor: the channels differ
+
+
+def test_wide_apertures_integrate_over_the_cones():
+    half_angle = 10.0
+    gantry = make_gantry(light={"half_angle_deg": half_angle},
+                         detector={"half_angle_deg": half_angle, "aperture_samples": 1 << 16})
+    alpha = np.radians(half_angle)
+    # Source cone: ∫_cone cos θ' dω' = cos θi · π sin²α exactly (the cone's mean direction is its axis
+    # scaled by (1 + cos α)/2), a little less than cos θi · Ω.
+    axes = np.array([[0.0, tilt, 180.0, 40.0] for tilt in (0.0, 30.0, 60.0)])
+    wi, _ = gantry.kinematics.directions(axes)
+    want = RADIANCE * 0.5 / np.pi * wi[:, 2] * np.pi * np.sin(alpha) ** 2
+    got = gantry.detector.expected_signal(axes, exposure_s=1.0)
+    np.testing.assert_allclose(got, np.repeat(want[:, None], 3, axis=1), rtol=1.5e-3)
+    # Detector cone centred on the horizon: half of it looks at the sample from below and sees nothing.
+    grazing = gantry.detector.expected_signal(np.array([[0.0, 30.0, 180.0, 90.0]]), exposure_s=1.0)
+    np.testing.assert_allclose(grazing[0], 0.5 * want[1], rtol=1e-2)
+
+
+def test_expected_signal_is_one_batch_of_what_measure_gives():
+    gantry = make_gantry(COOK_TORRANCE)
+    tilts = [(20.0, 40.0), (45.0, 45.0), (70.0, 10.0)]
+    axes = np.array([[0.0, ti, 180.0, to] for ti, to in tilts])
+    batch = gantry.detector.expected_signal(axes, exposure_s=0.2)
+    assert batch.shape == (3, 3)
+    for row, (ti, to) in zip(batch, tilts, strict=True):
+        move(gantry, light_azimuth=0.0, light_tilt=ti, detector_azimuth=180.0, detector_tilt=to)
+        np.testing.assert_allclose(gantry.detector.measure(0.2).signal, row, rtol=2e-2)
+    np.testing.assert_array_equal(gantry.detector.expected_signal(axes, exposure_s=0.2), batch)
+    with pytest.raises(ValueError, match=r"axes_deg: expected shape \(N, 4\)"):
+        gantry.detector.expected_signal(axes[:, :3])
+    with pytest.raises(ValueError, match="target: 'dark' is not one of 'sample', 'reference'"):
+        gantry.detector.expected_signal(axes, target="dark")
+
+
+def test_reference_target_reads_the_white_standard():
+    gantry = make_gantry(COOK_TORRANCE, reference={"albedo": 0.99})
+    move(gantry, light_tilt=20.0, detector_tilt=45.0)
+    gantry.set_target("reference")
+    white = gantry.detector.measure(0.1)
+    assert white.extra["target"] == "reference"
+    np.testing.assert_allclose(white.signal, lambert_signal(gantry, 0.99, 0.1), rtol=5e-3)
+    gantry.set_target("sample")
+    glossy = gantry.detector.measure(0.1).signal
+    assert np.all(np.abs(glossy / white.signal - 1.0) > 0.05)  # the sample is not the white standard
+
+
+def test_light_off_leaves_only_the_dark_offset():
+    gantry = make_gantry(noise={"dark_offset": 3.0}, on=False)
+    move(gantry, light_tilt=10.0, detector_tilt=30.0)
+    for exposure in (0.1, 2.0):
+        reading = gantry.detector.measure(exposure, frames=3)
+        np.testing.assert_array_equal(reading.signal, np.full(3, 3.0 * exposure))
+        np.testing.assert_array_equal(reading.stderr, np.zeros(3))
+    gantry.light.set_on(True)
+    assert np.all(gantry.detector.measure(0.1).signal > 0.3 + 1e-4)
+
+
+def test_noise_mean_and_spread_match_the_model():
+    k, read_sigma, dark = 2e4, 1.5e-3, 0.02  # per unit; signal units; signal units per second
+    gantry = make_gantry(noise={"shot_counts_per_unit": k, "read_sigma": read_sigma, "dark_offset": dark})
+    move(gantry, detector_tilt=45.0)
+    exposure = 1.0
+    clean = lambert_signal(gantry, 0.5, exposure)  # θi = 0: Monte Carlo error ~1e-5, negligible
+    sigma = np.sqrt(clean / k + read_sigma**2)
+    assert clean / k > 0.5 * read_sigma**2  # both noise terms matter, so dropping either fails
+    singles = np.array([gantry.detector.measure(exposure).signal for _ in range(600)])
+    # Standard error of the mean: sigma/√600; of a std: ~sigma/√1200 (≈3 %). Tolerances ≈ 4 of each.
+    np.testing.assert_allclose(singles.mean(axis=0), clean + dark * exposure, atol=4 * sigma / np.sqrt(600))
+    np.testing.assert_allclose(singles.std(axis=0, ddof=1), sigma, rtol=0.12)
+    many = gantry.detector.measure(exposure, frames=1000)
+    np.testing.assert_allclose(many.signal, clean + dark * exposure, atol=4 * sigma / np.sqrt(1000))
+    np.testing.assert_allclose(many.stderr, sigma / np.sqrt(1000), rtol=0.12)
+    single = gantry.detector.measure(exposure)
+    np.testing.assert_allclose(single.stderr, sigma, rtol=1e-3)  # one frame: the model's σ
+
+
+def test_shot_noise_is_poisson_in_counts():
+    k = 500.0
+    gantry = make_gantry(noise={"shot_counts_per_unit": k})
+    move(gantry, detector_tilt=45.0)
+    expected_counts = lambert_signal(gantry, 0.5, 1.0) * k  # ≈ 19 counts
+    counts = np.array([gantry.detector.measure(1.0).signal for _ in range(800)]) * k
+    # Poisson: whole counts, and variance = mean (s.e. of the variance ≈ 5 % here).
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-9)
+    np.testing.assert_allclose(counts.mean(axis=0), expected_counts, atol=4 * np.sqrt(expected_counts / 800))
+    np.testing.assert_allclose(counts.var(axis=0, ddof=1), expected_counts, rtol=0.2)
+
+
+def test_same_seed_same_readings_and_a_different_seed_differs():
+    def run(seed):
+        gantry = make_gantry(COOK_TORRANCE, seed=seed, light={"half_angle_deg": 3.0},
+                             detector={"half_angle_deg": 3.0}, noise={"read_sigma": 1e-3})
+        out = []
+        for tilt in (20.0, 40.0):
+            move(gantry, light_tilt=tilt, detector_tilt=30.0)
+            out.append(gantry.detector.measure(0.1, frames=4).signal)
+        return np.array(out)
+
+    np.testing.assert_array_equal(run(7), run(7))
+    assert not np.array_equal(run(7), run(8))
+
+
+def test_consecutive_readings_draw_fresh_aperture_samples():
+    gantry = make_gantry(COOK_TORRANCE, light={"half_angle_deg": 3.0}, detector={"half_angle_deg": 3.0})
+    move(gantry, light_tilt=30.0, detector_tilt=30.0)
+    first, second = gantry.detector.measure(0.1), gantry.detector.measure(0.1)
+    assert not np.array_equal(first.signal, second.signal)  # no noise: only the Monte Carlo differs
+    np.testing.assert_allclose(first.signal, second.signal, rtol=0.2)
+    assert (first.extra["reading"], second.extra["reading"]) == (0, 1)
+
+
+def test_measure_advances_the_clock_by_the_integration_time():
+    gantry = make_gantry()
+    t0 = gantry.clock.now()
+    reading = gantry.detector.measure(0.25, frames=4)
+    assert gantry.clock.now() == pytest.approx(t0 + 1.0)
+    assert reading.extra["t_s"] == t0
+
+
+def test_measure_rejects_bad_arguments_and_needs_a_connection():
+    gantry = make_gantry()
+    with pytest.raises(ValueError, match=r"exposure_s: must be in \(0, 3600\] s"):
+        gantry.detector.measure(0.0)
+    with pytest.raises(ValueError, match=r"frames: must be an integer in \[1, 1000\]"):
+        gantry.detector.measure(0.1, frames=0)
+    gantry.close()
+    with pytest.raises(DeviceFault, match="not connected"):
+        gantry.detector.measure(0.1)
+
+
+def test_lamp_drifts_linearly_from_power_on():
+    data = load_config().model_dump()
+    data["light"].update({"radiance": 800.0, "drift_per_hour": -0.1})
+    clock = VirtualClock(start=50.0)
+    light = SimLight(parse_config(data).light, clock)
+    with pytest.raises(DeviceFault, match="not connected"):
+        light.set_on(True)
+    light.connect()
+    assert not light.is_on() and light.radiance() == 0.0  # the shutter starts closed
+    light.set_on(True)
+    assert light.radiance() == 800.0
+    clock.sleep(1800.0)
+    assert light.radiance() == pytest.approx(800.0 * (1 - 0.05))
+    light.set_on(False)
+    clock.sleep(1800.0)
+    light.set_on(True)  # the shutter does not reset the drift
+    assert light.radiance() == pytest.approx(800.0 * (1 - 0.1))
+    clock.sleep(9 * 3600.0)
+    with pytest.raises(DeviceFault, match="drifted to zero"):
+        light.radiance()
+
+
+def test_readings_track_the_lamp_drift():
+    gantry = make_gantry(light={"drift_per_hour": 0.2})
+    move(gantry, detector_tilt=45.0)
+    before = gantry.detector.measure(0.1)
+    gantry.clock.sleep(3 * 3600.0)
+    after = gantry.detector.measure(0.1)
+    # The lamp was powered at connect(), t = 0.
+    hours = np.array([before.extra["t_s"], after.extra["t_s"]]) / 3600.0
+    want = (1 + 0.2 * hours[1]) / (1 + 0.2 * hours[0])
+    assert want == pytest.approx(1.6, rel=1e-3)
+    np.testing.assert_allclose(after.signal / before.signal, want, rtol=2e-3)
