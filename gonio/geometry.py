@@ -56,14 +56,18 @@ def wrap_2pi(phi) -> np.ndarray:
 
 
 def vec_to_sph(v) -> tuple[np.ndarray, np.ndarray]:
-    """(θ, φ) of vector(s) ``v`` (normalized here); φ in [0, 2π), and φ = 0 at the poles."""
+    """(θ, φ) of vector(s) ``v`` of any non-zero length; φ in [0, 2π), and φ = 0 at the poles.
+
+    θ is NaN for the zero vector (it has no direction).
+    """
     v = np.asarray(v, dtype=np.float64)
-    n = np.linalg.norm(v, axis=-1)
-    z = np.clip(v[..., 2] / n, -1.0, 1.0)
-    rho = np.hypot(v[..., 0], v[..., 1]) / n
-    # atan2 of (rho, z) keeps full precision near the poles, where acos(z) loses it.
-    theta = np.arctan2(rho, z)
-    phi = np.where(rho > 1e-15, wrap_2pi(np.arctan2(v[..., 1], v[..., 0])), 0.0)
+    z = v[..., 2]
+    rho = np.hypot(v[..., 0], v[..., 1])
+    # No explicit normalization: atan2 of (ρ, z) is scale-free (a norm would underflow for |v| < 1e-154
+    # and overflow for |v| > 1e154), and keeps full precision near the poles, where acos(z) loses it.
+    n = np.hypot(rho, z)
+    theta = np.where(n > 0.0, np.arctan2(rho, z), np.nan)
+    phi = np.where(rho > 1e-15 * n, wrap_2pi(np.arctan2(v[..., 1], v[..., 0])), 0.0)
     return theta, phi
 
 
@@ -159,7 +163,10 @@ def _key_less(a, b):
 
 
 def _collapse_pole(theta, phi):
-    return np.where(np.asarray(theta) <= _ANGLE_EPS, 0.0, wrap_2pi(phi))
+    """φ in [0, 2π), with 0 at the pole and for φ within the tolerance below 2π (which *is* φ = 0)."""
+    phi = wrap_2pi(phi)
+    phi = np.where(phi >= TWO_PI - _ANGLE_EPS, 0.0, phi)
+    return np.where(np.asarray(theta) <= _ANGLE_EPS, 0.0, phi)
 
 
 def canonical_reciprocal(theta_i, phi_i, theta_o, phi_o):
