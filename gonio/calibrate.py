@@ -18,11 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.store import Measurement
 
 __all__ = ["CalibrationError", "Calibrated", "calibrate"]
-
-STEP_POSE, STEP_DARK, STEP_REFERENCE = 0, 1, 2
 
 
 class CalibrationError(ValueError):

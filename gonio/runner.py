@@ -19,14 +19,13 @@ import numpy as np
 
 from gonio.config import GonioConfig
 from gonio.motion.trapezoid import move_time
+from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
 from gonio.protocols import DeviceFault, Gantry
 from gonio.store import Journal, Measurement
 
-__all__ = ["Runner", "State", "TRANSITIONS", "TransitionError", "STEP_POSE", "STEP_DARK", "STEP_REFERENCE"]
+__all__ = ["Runner", "State", "TRANSITIONS", "TransitionError"]
 
 log = logging.getLogger(__name__)
-
-STEP_POSE, STEP_DARK, STEP_REFERENCE = 0, 1, 2
 
 
 class State(StrEnum):
@@ -229,9 +228,9 @@ class Runner:
         """Move every axis whose target changed; wait; verify the positions within tolerance."""
         rc = self.cfg.runner
         clock = self.gantry.clock
-        current = self._current_positions()
-        moved = np.ones(len(self._axes), bool) if self._target is None else \
-            np.abs(target - self._target) > 0.0
+        # Where the axes stand: the last verified targets, or read back when unknown (start, retry).
+        current = self._current_positions() if self._target is None else self._target
+        moved = np.ones(len(self._axes), bool) if self._target is None else target != self._target
         for axis, t, m in zip(self._axes, target, moved, strict=True):
             if m:
                 axis.move_to(float(t))

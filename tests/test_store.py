@@ -15,7 +15,8 @@ def _steps(n=5, n_axes=4):
 
 
 def _m(step, kind=0, pose=0):
-    return Measurement(step=step, kind=kind, pose=pose, commanded_deg=np.zeros(4), actual_deg=np.ones(4) * 0.01,
+    return Measurement(step=step, kind=kind, pose=pose, commanded_deg=np.zeros(4),
+                       actual_deg=np.ones(4) * 0.01,
                        angles_deg=np.array([10.0, 0.0, 20.0, 180.0]), virtual_s=1.5 * step, exposure_s=0.1,
                        frames=1, signal=np.array([1.0, 2.0, 3.0]) * step, stderr=np.zeros(3))
 

@@ -114,7 +114,7 @@ class SampleStage(Kinematics):
         arc |φo + rotation − 270°| < arccos(cos(arm_collision) / sin θo)."""
         cos_col = np.cos(np.radians(self.arm_collision_deg))
         s = np.sin(theta_o)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # s -> 0: the arc vanishes
             ratio = np.where(s > 0.0, cos_col / s, np.copysign(np.inf, cos_col))
         half = np.degrees(np.arccos(np.clip(ratio, -1.0, 1.0)))
         centre = _SUPPORT_AZIMUTH_DEG - np.degrees(phi_o)

@@ -1,0 +1,154 @@
+"""The quickest choice of inverse-kinematics branches for poses in a fixed order.
+
+The greedy rule (:func:`gonio.motion.chain.chain_branches`: each pose on the branch nearest the last)
+cannot look ahead: it follows an azimuth to its limit and then pays a full unwinding, or flips an arm
+over the zenith for one pose and back for the next. Here the branches of each run (the poses between
+two white-reference readings, entered from and left to the reference pose) are chosen by dynamic
+programming (Viterbi) to minimize the run's total move time, reference trips included. For the same
+order that is never slower than the greedy chain, and on the shipped gantries it removes most of
+the branch flips (see BENCHMARKS.md).
+
+Runs are independent, so they are solved in lockstep: step l relaxes the l-th pose of every run at
+once over all pairs of branches (S × S per run). A pose whose azimuth is free (an arm at the pole, or
+a detector in line with the light) has, for each branch of the pose before it, the one position the
+kinematics gives from there (:meth:`Kinematics.inverse`), so the free axis stays where it is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gonio.motion.chain import free_azimuth
+from gonio.motion.metric import MoveMetric
+
+__all__ = ["best_branches"]
+
+# Poses whose branches and back-pointers are held at once (a few hundred MB at most).
+_GROUP_POSES = 1 << 16
+
+
+def best_branches(kin, theta_i, phi_i, theta_o, phi_o, run_starts, reference_deg) -> np.ndarray:
+    """Axis targets (P, n_axes) in degrees minimizing each run's move time, reference trips included.
+
+    Parameters
+    ----------
+    kin : Kinematics
+        Provides ``solutions``, ``inverse`` (with ``current_deg``), ``velocity_deg_s`` and
+        ``accel_deg_s2`` (see :mod:`gonio.kinematics`).
+    theta_i, phi_i, theta_o, phi_o : ndarray, shape (P,)
+        The poses in visiting order, radians; all must be reachable.
+    run_starts : array_like of int
+        Indices where a run begins; must include 0. Each run goes reference → its poses → reference.
+    reference_deg : array_like, shape (n_axes,)
+        Axis positions of the reference pose, degrees.
+
+    Returns
+    -------
+    ndarray, shape (P, n_axes)
+        Axis targets in degrees.
+
+    Raises
+    ------
+    ValueError
+        When a pose has no valid branch.
+    """
+    poses = [np.asarray(a, dtype=np.float64).reshape(-1) for a in (theta_i, phi_i, theta_o, phi_o)]
+    p = poses[0].shape[0]
+    ref = np.asarray(reference_deg, dtype=np.float64).reshape(-1)
+    if p == 0:
+        return np.empty((0, ref.size))
+    starts = np.unique(np.asarray(run_starts, dtype=np.int64))
+    if starts[0] != 0 or starts[-1] >= p:
+        raise ValueError(f"run_starts: must include 0 and lie in [0, {p}), got {starts[:3].tolist()}...")
+    ends = np.append(starts[1:], p)
+    metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
+    free = free_azimuth(*poses)
+    out = np.empty((p, ref.size))
+    first = 0
+    while first < starts.size:
+        last = int(np.searchsorted(ends, ends[first] + _GROUP_POSES, side="right"))
+        last = max(last, first + 1)
+        _solve_group(kin, metric, poses, free, starts[first:last], ends[first:last], ref, out)
+        first = last
+    return out
+
+
+def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out) -> None:
+    lo, hi = int(r_starts[0]), int(r_ends[-1])
+    sols = np.asarray(kin.solutions(*(a[lo:hi] for a in poses)), dtype=np.float64)
+    valid = ~np.isnan(sols[..., 0])
+    # Valid branches first, and only as many columns as the widest pose needs.
+    by_valid = np.argsort(~valid, axis=1, kind="stable")
+    width = max(int(valid.sum(axis=1).max()), 1)
+    sols = np.take_along_axis(sols, by_valid[:, :width, None], axis=1)
+    lengths = r_ends - r_starts
+    n_runs, n_axes = r_starts.size, ref.size
+    back = np.zeros((hi - lo, width), dtype=np.int16)
+    chosen = np.empty((hi - lo, width, n_axes))  # the candidates actually used at each pose
+    cost = np.zeros((n_runs, width))
+    prev = np.broadcast_to(ref, (n_runs, width, n_axes)).copy()
+    final = np.empty(n_runs, dtype=np.int64)
+    for step in range(int(lengths.max())):
+        active = np.flatnonzero(lengths > step)
+        rows = r_starts[active] + step - lo
+        cand = sols[rows]
+        is_free = free[lo + rows]
+        if is_free.any():
+            # A free pose's candidates depend on the branch before it: column s is reached from column s.
+            f = np.flatnonzero(is_free)
+            here = prev[active[f]].reshape(-1, n_axes)
+            # An invalid branch before has no successor that matters (its cost is inf): any start will do.
+            here = np.where(np.isnan(here).any(axis=1, keepdims=True), ref, here)
+            again = kin.inverse(*(np.repeat(a[lo + rows[f]], width) for a in poses), current_deg=here)
+            cand[f] = again.reshape(f.size, width, n_axes)
+        chosen[rows] = cand
+        # times[r, s_prev, s] of every pair of branches of consecutive poses.
+        times = _pair_times(prev[active], cand, metric)
+        if is_free.any():
+            # From branch s of the pose before, a free pose can only be where it goes from there.
+            diag = np.full((width, width), np.inf)
+            np.fill_diagonal(diag, 0.0)
+            times[is_free] += diag
+        if step == 0:
+            times = times[:, :1, :]  # every run starts from the one reference position
+            total = times[:, 0, :]
+            back[rows] = 0
+        else:
+            through = cost[active][:, :, None] + times
+            back[rows] = np.argmin(through, axis=1)
+            total = np.min(through, axis=1)
+        cost[active] = total
+        prev[active] = cand
+        done = lengths[active] == step + 1
+        if done.any():
+            d = active[done]
+            home = metric.time(prev[d], ref)
+            final[d] = np.argmin(np.where(np.isnan(home), np.inf, cost[d] + home), axis=1)
+    if not np.all(np.isfinite(cost[np.arange(n_runs), final])):
+        bad = int(np.flatnonzero(~np.isfinite(cost[np.arange(n_runs), final]))[0])
+        raise ValueError(f"poses {int(r_starts[bad])}..{int(r_ends[bad]) - 1}: some pose has no valid "
+                         "branch; plans keep only feasible poses")
+    # Walk the back-pointers from each run's last pose to its first.
+    state = final.copy()
+    for step in range(int(lengths.max()) - 1, -1, -1):
+        active = np.flatnonzero(lengths > step)
+        rows = r_starts[active] + step - lo
+        out[lo + rows] = chosen[rows, state[active]]
+        state[active] = back[rows, state[active]]
+
+
+def _pair_times(prev: np.ndarray, cand: np.ndarray, metric: MoveMetric) -> np.ndarray:
+    """Move times (B, W, W) from every branch in ``prev`` (B, W, n) to every one in ``cand``; inf for
+    invalid (NaN) branches."""
+    if metric.uniform:
+        # One axis at a time over contiguous (B, W, W) blocks: much quicker than reducing a last axis
+        # of length n, and this is the inner loop of the whole planner.
+        a = prev * metric.scale
+        b = cand * metric.scale
+        key = np.abs(a[:, :, None, 0] - b[:, None, :, 0])
+        for k in range(1, a.shape[-1]):
+            np.maximum(key, np.abs(a[:, :, None, k] - b[:, None, :, k]), out=key)
+        times = metric.time_from_key(key)
+    else:
+        times = metric.time(prev[:, :, None, :], cand[:, None, :, :])
+    return np.where(np.isnan(times), np.inf, times)

@@ -1,0 +1,334 @@
+"""Orders in which to visit poses: raster and serpentine for grids, nearest neighbour + 2-opt/Or-opt for
+scattered sets.
+
+Grid orders work on each pose's integer loop indices (outer loop first); they need no positions.
+Tour orders work on axis positions (degrees) under the move-time metric and treat the walk as a
+closed tour from and back to a depot (the reference pose, where every campaign starts and ends).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from gonio.motion.metric import MoveMetric
+
+__all__ = ["raster_order", "serpentine_order", "nearest_neighbour_tour", "improve_tour", "tour_time",
+           "neighbour_lists"]
+
+# s: a move must save more than this to be taken (float noise must not make the search cycle).
+_GAIN_EPS = 1e-9
+
+
+def raster_order(loops) -> np.ndarray:
+    """Plain nested-loop order: lexicographic in the loop indices (P, L), outer loop first."""
+    loops = _loops(loops)
+    if loops.shape[1] == 0:
+        return np.arange(loops.shape[0])
+    return np.lexsort(loops.T[::-1])
+
+
+def serpentine_order(loops) -> np.ndarray:
+    """Boustrophedon order of a (possibly ragged) grid given loop indices (P, L), outer loop first.
+
+    Every level alternates direction from one row to the next in the order rows are visited (not by
+    the parity of the row's own index), so consecutive rows always join end to end even when rows
+    differ in length or a level above has itself been reversed.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+        The permutation of poses (indices into ``loops``).
+
+    Examples
+    --------
+    >>> serpentine_order([[0, 0], [0, 1], [1, 0], [1, 1], [2, 0], [2, 1]]).tolist()
+    [0, 1, 3, 2, 4, 5]
+    """
+    loops = _loops(loops)
+    p, levels = loops.shape
+    if levels == 0 or p == 0:
+        return np.arange(p)
+    signed = loops.copy()
+    for level in range(1, levels):
+        # Rank the rows of this level (prefixes) in visiting order; odd-ranked rows run backward.
+        order = np.lexsort(signed[:, :level].T[::-1])
+        prefix = signed[order, :level]
+        new_row = np.empty(p, dtype=bool)
+        new_row[0] = True
+        new_row[1:] = np.any(prefix[1:] != prefix[:-1], axis=1)
+        rank = np.empty(p, dtype=np.int64)
+        rank[order] = np.cumsum(new_row) - 1
+        signed[:, level] = np.where(rank % 2 == 1, -loops[:, level], loops[:, level])
+    return np.lexsort(signed.T[::-1])
+
+
+def tour_time(points_deg, order, metric: MoveMetric, depot_deg) -> float:
+    """Move time in s of ``depot → points[order[0]] → … → points[order[-1]] → depot``."""
+    pts = np.asarray(points_deg, dtype=np.float64)[np.asarray(order)]
+    depot = np.asarray(depot_deg, dtype=np.float64).reshape(1, -1)
+    if pts.shape[0] == 0:
+        return 0.0
+    walk = np.concatenate([depot, pts, depot])
+    return float(np.sum(metric.time(walk[:-1], walk[1:])))
+
+
+def neighbour_lists(points_deg, metric: MoveMetric, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Each pose's ``k`` nearest other poses by move time, nearest first.
+
+    Candidates come from a k-d tree in the metric's scaled Chebyshev coordinates (exact when the
+    metric is uniform, a good approximation otherwise) and are re-ranked by the true move time.
+
+    Returns
+    -------
+    idx : ndarray of int64, shape (N, k')
+        Neighbour indices, k' = min(k, N - 1).
+    times : ndarray, shape (N, k')
+        Their move times in s.
+    """
+    pts = np.asarray(points_deg, dtype=np.float64)
+    n = pts.shape[0]
+    k = min(k, n - 1)
+    if k <= 0:
+        return np.empty((n, 0), dtype=np.int64), np.empty((n, 0))
+    extra = 0 if metric.uniform else k  # oversample when the tree's norm only approximates the metric
+    q = min(k + 1 + extra, n)
+    _, idx = cKDTree(pts * metric.scale).query(pts * metric.scale, k=q, p=np.inf, workers=-1)
+    times = metric.time(pts[:, None, :], pts[idx])
+    times[idx == np.arange(n)[:, None]] = np.inf
+    pick = np.argsort(times, axis=1, kind="stable")[:, :k]
+    return np.take_along_axis(idx, pick, axis=1), np.take_along_axis(times, pick, axis=1)
+
+
+def nearest_neighbour_tour(points_deg, metric: MoveMetric, depot_deg, neighbours=None) -> np.ndarray:
+    """Greedy tour: from the depot, always move to the nearest pose not yet visited.
+
+    Parameters
+    ----------
+    points_deg : array_like, shape (N, n_axes)
+        Axis positions in degrees.
+    metric : MoveMetric
+        The move-time metric.
+    depot_deg : array_like, shape (n_axes,)
+        Where the walk starts (degrees).
+    neighbours : ndarray, optional
+        Precomputed :func:`neighbour_lists` indices; computed when None.
+
+    Returns
+    -------
+    ndarray of int64, shape (N,)
+        The visiting order (a permutation of range(N)).
+    """
+    pts = np.asarray(points_deg, dtype=np.float64)
+    n = pts.shape[0]
+    if n == 0:
+        return np.empty(0, dtype=np.int64)
+    if neighbours is None:
+        neighbours = neighbour_lists(pts, metric)[0]
+    neigh = neighbours.tolist()
+    visited = np.zeros(n, dtype=bool)
+    remaining = np.arange(n)
+    order = np.empty(n, dtype=np.int64)
+    here = np.asarray(depot_deg, dtype=np.float64)
+    cur = -1
+    for step in range(n):
+        nxt = -1
+        if cur >= 0:
+            for c in neigh[cur]:
+                if not visited[c]:
+                    nxt = c
+                    break
+        if nxt < 0:
+            # The neighbourhood is used up: scan everything left (compacting the list as it empties).
+            if remaining.size > 2 * (n - step):
+                remaining = remaining[~visited[remaining]]
+            key = metric.key(here, pts[remaining])
+            key[visited[remaining]] = np.inf
+            nxt = int(remaining[np.argmin(key)])
+        order[step] = nxt
+        visited[nxt] = True
+        cur = nxt
+        here = pts[nxt]
+    return order
+
+
+def improve_tour(points_deg, order, metric: MoveMetric, depot_deg, neighbours=None,
+                 max_moves: int | None = None) -> np.ndarray:
+    """2-opt and Or-opt local search on the closed tour ``depot → order → depot``.
+
+    Moves are searched among each pose's nearest neighbours with a queue of poses to revisit
+    ("don't-look bits"), and one is taken only when it shortens the tour by more than 1 ns, so the
+    result is never longer than the input. 2-opt reverses a stretch of the tour; Or-opt moves a run
+    of one to three poses elsewhere (possibly reversed).
+
+    Parameters
+    ----------
+    points_deg : array_like, shape (N, n_axes)
+        Axis positions in degrees.
+    order : array_like of int, shape (N,)
+        The tour to improve (a permutation of range(N)).
+    metric : MoveMetric
+        The move-time metric.
+    depot_deg : array_like, shape (n_axes,)
+        Start and end of the tour (degrees).
+    neighbours : ndarray, optional
+        Precomputed :func:`neighbour_lists` indices.
+    max_moves : int, optional
+        Stop after this many improving moves (default: 50 N).
+
+    Returns
+    -------
+    ndarray of int64, shape (N,)
+        The improved order.
+    """
+    pts = np.asarray(points_deg, dtype=np.float64)
+    n = pts.shape[0]
+    order = np.asarray(order, dtype=np.int64)
+    if n < 3:
+        return order.copy()
+    if neighbours is None:
+        neighbours = neighbour_lists(pts, metric)[0]
+    depot = n  # the depot is node n of the cycle
+    allpts = np.concatenate([pts, np.asarray(depot_deg, dtype=np.float64).reshape(1, -1)])
+    dist = _scalar_metric(allpts, metric)
+    # The depot has no neighbour list of its own, but it is a neighbour of nobody either; tours pass
+    # through it like any other node.
+    neigh = neighbours.tolist() + [[]]
+    tour = np.concatenate([[depot], order]).astype(np.int64)
+    m = n + 1
+    pos = np.empty(m, dtype=np.int64)
+    pos[tour] = np.arange(m)
+    budget = 50 * n if max_moves is None else int(max_moves)
+
+    def succ(x):
+        return int(tour[(pos[x] + 1) % m])
+
+    def pred(x):
+        return int(tour[pos[x] - 1])
+
+    def reverse(x, y):
+        """Reverse the stretch of the cycle from node x forward to node y (both included)."""
+        i, j = int(pos[x]), int(pos[y])
+        length = (j - i) % m + 1
+        if 2 * length > m:  # reversing the complement gives the same cycle with less copying
+            i, j = (j + 1) % m, (i - 1) % m
+            length = m - length
+        idx = (i + np.arange(length)) % m
+        tour[idx] = tour[idx[::-1]]
+        pos[tour[idx]] = idx
+
+    def two_opt(a) -> list[int] | None:
+        for forward in (True, False):
+            b = succ(a) if forward else pred(a)
+            d_ab = dist(a, b)
+            for c in neigh[a]:
+                g1 = d_ab - dist(a, c)
+                if g1 <= _GAIN_EPS:
+                    break  # neighbours are sorted: no later c can do better
+                d = succ(c) if forward else pred(c)
+                if c == b or d == a:
+                    continue
+                if g1 + dist(c, d) - dist(b, d) > _GAIN_EPS:
+                    if forward:
+                        reverse(b, c)  # a b … c d …  ->  a c … b d …
+                    else:
+                        reverse(a, d)  # a … d c … b  ->  d … a c … b (joined b-d, a-c)
+                    return [a, b, c, d]
+        return None
+
+    def or_opt(a) -> list[int] | None:
+        for seg in (1, 2, 3):
+            # The run a .. e of `seg` poses going forward; the depot never moves.
+            run = [a]
+            for _ in range(seg - 1):
+                run.append(succ(run[-1]))
+            if depot in run:
+                return None
+            e = run[-1]
+            p, q = pred(a), succ(e)
+            if q == a or p == e:
+                return None
+            removed = dist(p, a) + dist(e, q) - dist(p, q)
+            if removed <= _GAIN_EPS:
+                continue
+            for end in (a, e):
+                for c in neigh[end]:
+                    if c in run:
+                        continue
+                    if dist(end, c) >= removed:
+                        break
+                    for d in (succ(c), pred(c)):
+                        if d in run:
+                            continue
+                        added = min(dist(c, a) + dist(e, d), dist(c, e) + dist(a, d)) - dist(c, d)
+                        if removed - added > _GAIN_EPS:
+                            move_run(run, c, d)
+                            return [p, q, c, d, a, e]
+        return None
+
+    def move_run(run, c, d):
+        """Take the run out and put it between the adjacent nodes c and d, in the better direction."""
+        nonlocal tour
+        a, e = run[0], run[-1]
+        keep = tour[np.isin(tour, run, invert=True)]
+        # c and d are still adjacent in the tour without the run.
+        kpos = np.empty(m, dtype=np.int64)
+        kpos[keep] = np.arange(keep.size)
+        ic, id_ = int(kpos[c]), int(kpos[d])
+        left, right = (c, d) if (id_ - ic) % keep.size == 1 else (d, c)
+        seq = np.array(run if dist(left, a) + dist(e, right) <= dist(left, e) + dist(a, right)
+                       else run[::-1], dtype=np.int64)
+        cut = int(kpos[left]) + 1
+        tour = np.concatenate([keep[:cut], seq, keep[cut:]])
+        pos[tour] = np.arange(m)
+
+    queue = deque(int(x) for x in order)
+    queued = np.ones(m, dtype=bool)
+    queued[depot] = False
+    moves = 0
+    while queue and moves < budget:
+        a = queue.popleft()
+        queued[a] = False
+        touched = two_opt(a) or or_opt(a)
+        if touched is None:
+            continue
+        moves += 1
+        for x in touched:
+            if x != depot and not queued[x]:
+                queued[x] = True
+                queue.append(x)
+    start = int(pos[depot])
+    return np.concatenate([tour[start + 1:], tour[:start]]).astype(np.int64)
+
+
+def _scalar_metric(points: np.ndarray, metric: MoveMetric):
+    """A plain-Python d(i, j) in s between rows of ``points``: far faster than numpy for one pair."""
+    if metric.uniform:
+        coords = [tuple(r) for r in (points * metric.scale).tolist()]
+        ratio = metric.time_from_key(1.0) / 2.0  # v/a, from τ(1) = 2
+
+        def dist(i, j):
+            u = max(abs(x - y) for x, y in zip(coords[i], coords[j], strict=True))
+            return ratio * (2.0 * math.sqrt(u) if u < 1.0 else u + 1.0)
+        return dist
+    coords = [tuple(r) for r in points.tolist()]
+    axes = list(zip(metric.velocity_deg_s.tolist(), metric.accel_deg_s2.tolist(), strict=True))
+
+    def dist(i, j):
+        worst = 0.0
+        for x, y, (v, acc) in zip(coords[i], coords[j], axes, strict=True):
+            d = abs(x - y)
+            t = 2.0 * math.sqrt(d / acc) if d < v * v / acc else d / v + v / acc
+            worst = max(worst, t)
+        return worst
+    return dist
+
+
+def _loops(loops) -> np.ndarray:
+    arr = np.asarray(loops, dtype=np.int64)
+    if arr.ndim != 2:
+        raise ValueError(f"loops: expected integer loop indices of shape (P, L), got shape {arr.shape}")
+    return arr

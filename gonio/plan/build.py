@@ -1,0 +1,311 @@
+"""Building a plan: grid → shortcuts → feasibility → order → branches → schedule → estimate and bound.
+
+A plan is data (numpy arrays and small dicts); building one does no I/O and moves nothing.
+
+Choices worth knowing:
+
+- Reciprocity and mirror keep one pose of each class. When the kept pose cannot be reached but
+  another member of its class can (the gantry is not symmetric under swapping light and detector),
+  the reachable member is measured instead; a class counts as infeasible only when no member is
+  reachable, under the reason of the kept pose.
+- Orders: ``serpentine`` and ``raster`` follow the grid's loops; ``tour`` is nearest neighbour then
+  2-opt/Or-opt on the branches nearest home, from and back to the reference pose. ``auto`` takes
+  serpentine for iso and full grids and a tour for merl grids up to :data:`TOUR_MAX_POSES` poses.
+- Branches: for the chosen order, each run's inverse-kinematics branches minimize its total move
+  time, trips from and back to the reference included (:func:`gonio.motion.branches.best_branches`,
+  dynamic programming). That is never slower than chaining each pose to the branch nearest the last
+  (:func:`gonio.motion.chain.chain_branches`, used to try serpentine cuts) and avoids its needless
+  unwinding and flips. The reference pose takes, of its branches, the one that makes the trips to and
+  from the runs shortest.
+- The lower bound is for the branches the plan uses (see :mod:`gonio.motion.bound`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gonio.config import GonioConfig
+from gonio.motion.branches import best_branches
+from gonio.motion.chain import nearest_branch
+from gonio.motion.cut import serpentine_loops
+from gonio.motion.estimate import campaign_estimate, campaign_lower_bound
+from gonio.motion.metric import MoveMetric
+from gonio.motion.order import (
+    improve_tour,
+    nearest_neighbour_tour,
+    neighbour_lists,
+    raster_order,
+    serpentine_order,
+)
+from gonio.plan.grids import GridSpec, class_members, enumerate_grid, parse_grid
+from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, run_starts, schedule_steps
+
+__all__ = ["Plan", "build_plan", "TOUR_MAX_POSES", "REASON_CAUSES"]
+
+#: Largest pose set ordered by a tour (nearest neighbour is O(N) scans in the worst case).
+TOUR_MAX_POSES = 50_000
+
+#: The config field behind each infeasibility reason (what to change when it removes every pose).
+REASON_CAUSES = {
+    "out_of_reach": "the axis limits (axes.<name>.min_deg / max_deg)",
+    "arm_collision": "kinematics.arm_collision_deg",
+    "occlusion": "kinematics.clearance_deg",
+    "beyond_theta_max": "kinematics.theta_max_deg",
+}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A campaign as data: which poses, in which order, on which axis targets, with which readings.
+
+    Attributes
+    ----------
+    grid : str
+        The GRID string with every option spelled out (theta_max and order as used).
+    symmetries : dict of str to bool
+        ``reciprocity``, ``isotropy`` and ``mirror`` as used.
+    counts : dict of str to int
+        Poses left after each stage, in order: the grid's stages (:mod:`gonio.plan.grids`) and then
+        ``feasible``.
+    infeasible : dict of str to int
+        Poses (classes) removed as unreachable, by reason (:data:`gonio.kinematics.REASONS`), nonzero
+        only.
+    theta_i, phi_i, theta_o, phi_o : ndarray, shape (P,)
+        Measurement poses in motion order, radians.
+    axes_deg : ndarray, shape (P, n_axes)
+        Axis targets of the poses, degrees: per run, the branches that make it quickest.
+    step_kind : ndarray of int8, shape (S,)
+        ``STEP_POSE``, ``STEP_DARK`` or ``STEP_REFERENCE``.
+    step_pose : ndarray of int64, shape (S,)
+        Index into the poses for pose steps, -1 otherwise.
+    reference_axes_deg : ndarray, shape (n_axes,)
+        Axis targets of the white-reference pose, degrees.
+    estimated_s : float
+        Estimated duration of the campaign, seconds.
+    lower_bound_s : float
+        A lower bound on that duration (same cost model, any order of these axis targets), seconds.
+    order : str
+        The order used (``serpentine``, ``raster`` or ``tour``).
+    axis_names : tuple of str
+        Columns of ``axes_deg``.
+    timing : dict
+        ``{"estimate": {...}, "lower_bound": {...}}``: the parts of both figures in seconds (see
+        :mod:`gonio.motion.estimate`), plus ``pose_motion_s``, the estimate's pose-to-pose moves.
+    """
+
+    grid: str
+    symmetries: dict[str, bool]
+    counts: dict[str, int]
+    infeasible: dict[str, int]
+    theta_i: np.ndarray
+    phi_i: np.ndarray
+    theta_o: np.ndarray
+    phi_o: np.ndarray
+    axes_deg: np.ndarray
+    step_kind: np.ndarray
+    step_pose: np.ndarray
+    reference_axes_deg: np.ndarray
+    estimated_s: float
+    lower_bound_s: float
+    order: str = "serpentine"
+    axis_names: tuple[str, ...] = ()
+    timing: dict = field(default_factory=dict)
+
+
+def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
+    """Plan a campaign over ``grid`` on the gantry ``cfg`` describes.
+
+    Parameters
+    ----------
+    grid : str
+        A GRID string (:func:`gonio.plan.grids.parse_grid`).
+    cfg : GonioConfig
+        The gantry: kinematics, axis speeds, settle time, exposure, reference schedule.
+    kin : Kinematics, optional
+        Defaults to ``gonio.kinematics.make_kinematics(cfg)``.
+
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    ValueError
+        For a bad GRID string, a grid too large, an unreachable reference pose, or when no pose of
+        the grid can be reached (naming the dominant reason and the config field behind it).
+    """
+    spec = parse_grid(grid)
+    if kin is None:
+        from gonio.kinematics import make_kinematics
+
+        kin = make_kinematics(cfg)
+    theta_max = spec.theta_max_deg if spec.theta_max_deg is not None else cfg.kinematics.theta_max_deg
+    poses = enumerate_grid(spec, theta_max)
+    counts = dict(poses.counts)
+    angles, loops, infeasible = _reachable(spec, kin, poses, theta_max)
+    counts["feasible"] = int(angles[0].size)
+    n = counts["feasible"]
+
+    home = np.asarray(kin.home_deg, dtype=np.float64)
+    metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
+    ref_angles = _reference_angles(cfg)
+    ref_options = _reference_branches(kin, ref_angles, home)
+    ref_first = np.asarray(kin.inverse(*ref_angles, current_deg=home), dtype=np.float64)[0]
+
+    order = _resolve_order(spec, n)
+    if order == "tour":
+        near_home = kin.inverse(*angles, current_deg=home)
+        neigh = neighbour_lists(near_home, metric)[0]
+        perm = nearest_neighbour_tour(near_home, metric, ref_first, neigh)
+        perm = improve_tour(near_home, perm, metric, ref_first, neigh)
+    elif order == "raster":
+        perm = raster_order(loops)
+    else:
+        perm = serpentine_order(_cut_loops(spec, kin, angles, loops, ref_first, metric, cfg.reference.every))
+    angles = tuple(a[perm] for a in angles)
+
+    every = int(cfg.reference.every)
+    starts = run_starts(n, every)
+    ref = _best_reference(kin, ref_options, angles, starts, home, metric)
+    axes = best_branches(kin, *angles, starts, ref)
+
+    step_kind, step_pose = schedule_steps(n, every)
+    targets = np.full((step_kind.size, axes.shape[1]), np.nan)
+    is_pose = step_kind == STEP_POSE
+    targets[is_pose] = axes[step_pose[is_pose]]
+    targets[step_kind == STEP_REFERENCE] = ref
+    reading_s = cfg.detector.exposure_s * cfg.detector.frames
+    settle_s = cfg.runner.settle_s
+    estimate = campaign_estimate(targets, step_kind != STEP_DARK, step_kind.size, home, metric,
+                                 settle_s, reading_s)
+    n_ref = int(np.count_nonzero(step_kind == STEP_REFERENCE))
+    n_dark = int(np.count_nonzero(step_kind == STEP_DARK))
+    bound = campaign_lower_bound(axes, ref, np.diff(np.append(starts, n)), n_ref, n_dark, home, metric,
+                                 settle_s, reading_s)
+    follows_pose = np.zeros(n, dtype=bool)
+    follows_pose[1:] = True
+    follows_pose[starts] = False
+    pose_motion = metric.time(axes[:-1], axes[1:])[follows_pose[1:]].sum() if n > 1 else 0.0
+    timing = {"estimate": estimate, "lower_bound": bound, "pose_motion_s": float(pose_motion)}
+
+    return Plan(
+        grid=spec.spelled(theta_max, order),
+        symmetries={"reciprocity": spec.reciprocity, "isotropy": spec.isotropy, "mirror": spec.mirror},
+        counts=counts,
+        infeasible=infeasible,
+        theta_i=angles[0], phi_i=angles[1], theta_o=angles[2], phi_o=angles[3],
+        axes_deg=axes,
+        step_kind=step_kind,
+        step_pose=step_pose,
+        reference_axes_deg=ref,
+        estimated_s=float(estimate["total_s"]),
+        lower_bound_s=float(bound["total_s"]),
+        order=order,
+        axis_names=tuple(kin.axis_names),
+        timing=timing,
+    )
+
+
+def _reachable(spec: GridSpec, kin, poses, theta_max: float):
+    """The reachable poses (a reachable class member standing in for an unreachable kept pose), their
+    loop indices, and the infeasible counts by reason."""
+    from gonio.kinematics import REASONS
+
+    angles = [poses.theta_i.copy(), poses.phi_i.copy(), poses.theta_o.copy(), poses.phi_o.copy()]
+    codes = np.asarray(kin.feasibility(*angles), dtype=np.int8)
+    bad = np.flatnonzero(codes != 0)
+    pending = np.ones(bad.size, dtype=bool)
+    for member in class_members(spec, *(a[bad] for a in angles)):
+        idx = np.flatnonzero(pending)
+        if idx.size == 0:
+            break
+        alt = [np.asarray(x)[idx] for x in member]
+        ok = np.asarray(kin.feasibility(*alt)) == 0
+        rows = bad[idx[ok]]
+        for a, x in zip(angles, alt, strict=True):
+            a[rows] = x[ok]
+        codes[rows] = 0
+        pending[idx[ok]] = False
+    reasons = np.bincount(codes, minlength=len(REASONS))
+    infeasible = {REASONS[i]: int(c) for i, c in enumerate(reasons) if i and c}
+    good = codes == 0
+    if not good.any():
+        worst = max(infeasible, key=infeasible.get)
+        cause = REASON_CAUSES.get(worst, "the gantry configuration")
+        total = codes.size
+        raise ValueError(
+            f"grid '{spec.spelled(theta_max)}': none of the {total:,} poses can be reached "
+            f"(mostly {worst}: {infeasible[worst]:,} of {total:,}); the cause is {cause}"
+        )
+    return [a[good] for a in angles], poses.loops[good], infeasible
+
+
+def _reference_angles(cfg: GonioConfig) -> tuple[np.ndarray, ...]:
+    r = cfg.reference
+    return tuple(np.radians(np.array([x])) for x in (r.theta_i_deg, 0.0, r.theta_o_deg, r.dphi_deg))
+
+
+def _reference_branches(kin, ref_angles, home) -> np.ndarray:
+    """The reference pose's valid branches (k, n_axes), or a ValueError naming the cause."""
+    from gonio.kinematics import REASONS
+
+    code = int(np.asarray(kin.feasibility(*ref_angles))[0])
+    if code != 0:
+        reason = REASONS[code]
+        raise ValueError(
+            f"reference pose (reference.theta_i_deg, theta_o_deg, dphi_deg = "
+            f"{', '.join(f'{np.degrees(a[0]):g}' for a in (ref_angles[0], ref_angles[2], ref_angles[3]))}°) "
+            f"cannot be reached: {reason} ({REASON_CAUSES.get(reason, 'the gantry configuration')}); "
+            "move the reference pose or change that setting")
+    sols = np.asarray(kin.solutions(*ref_angles, current_deg=home), dtype=np.float64)[0]
+    return sols[~np.isnan(sols).any(axis=1)]
+
+
+def _best_reference(kin, options: np.ndarray, angles, starts: np.ndarray, home: np.ndarray,
+                    metric: MoveMetric) -> np.ndarray:
+    """The reference branch with the shortest trips home → ref, ref ↔ runs, ref → home.
+
+    Each run's first and last pose are taken on their branch nearest that reference branch (the chain
+    will pick the first pose's branch that way; the last pose's is an estimate).
+    """
+    ends = np.unique(np.concatenate([starts, np.append(starts[1:], angles[0].size) - 1]))
+    sols = np.asarray(kin.solutions(*(a[ends] for a in angles)), dtype=np.float64)
+    cost = 2.0 * metric.time(home, options)
+    for k, option in enumerate(options):
+        here = np.broadcast_to(option, (ends.size, option.size))
+        near = nearest_branch(sols, here, metric)
+        cost[k] += np.nansum(metric.time(here, near))
+    return options[int(np.argmin(cost))].copy()
+
+
+def _cut_loops(spec: GridSpec, kin, angles, loops: np.ndarray, start: np.ndarray, metric: MoveMetric,
+               every: int) -> np.ndarray:
+    """Loop indices for the serpentine: the inner azimuth loop cut (and maybe split into arcs) where
+    sweeping it is cheapest (:func:`gonio.motion.cut.serpentine_loops`).
+
+    Full grids loop over θi, θo, Δφ and, innermost, φi (with φo = φi + Δφ).
+    """
+    if spec.kind == "merl":
+        return loops
+    period = round(360.0 / spec.step_deg)
+    loops = loops.copy()
+    if spec.kind == "full":
+        # Rows turn the whole configuration about the normal (φi and φo together, Δφ fixed): one
+        # rotation stage on a sample-stage gantry, both carriages in step on a two-arm one, which then
+        # never meet inside a row.
+        a_i, p_i, a_o, p_o = loops.T
+        loops = np.stack([a_i, a_o, (p_o - p_i) % period, p_i], axis=1)
+    return serpentine_loops(kin, angles, loops, period, start, metric, run_length=every)
+
+
+def _resolve_order(spec: GridSpec, n: int) -> str:
+    if spec.order == "tour" and n > TOUR_MAX_POSES:
+        raise ValueError(f"grid '{spec.kind}': option 'order=tour' handles at most {TOUR_MAX_POSES:,} "
+                         f"poses, this grid has {n:,}; use order=serpentine")
+    if spec.order != "auto":
+        return spec.order
+    if spec.kind == "merl" and n <= TOUR_MAX_POSES:
+        return "tour"
+    return "serpentine"

@@ -1,0 +1,370 @@
+"""GRID strings: parsing, validation and enumeration of the poses a campaign measures.
+
+Grammar: ``KIND:OPTION=VALUE[,OPTION=VALUE...]``, spaces ignored, each option at most once.
+
+=========  ==========================================================================================
+kind       poses
+=========  ==========================================================================================
+``iso``    θi, θo in {0, S, 2S, …} <= theta_max; Δφ = φo − φi in {0, S, …} < 360°; measured with
+           φi = 0, φo = Δφ (an isotropic sample). Options: ``step`` (required), ``theta_max``,
+           ``reciprocity``, ``mirror``, ``isotropy`` (true only), ``order``.
+``full``   θi, φi, θo, φo on the same S-degree lattice (an anisotropic sample). Options: ``step``
+           (required), ``theta_max``, ``reciprocity``, ``isotropy`` (false only), ``order``.
+``merl``   centres of every K-th MERL bin along θh, θd and φd, with φh = 0. Options: ``stride``
+           (required), ``theta_max``, ``reciprocity``, ``isotropy`` (true only), ``order``.
+=========  ==========================================================================================
+
+Options: ``step`` degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ + 180° stay on the grid);
+``stride`` an integer 1..90; ``theta_max`` degrees in (0, 90] (default: the config's
+``kinematics.theta_max_deg``); ``reciprocity`` true|false (default true): keep one pose of each
+Helmholtz pair (ωi, ωo) ~ (ωo, ωi); ``mirror`` true|false (iso only, default false): also identify
+Δφ with −Δφ; ``order`` auto|serpentine|raster|tour (default auto: serpentine for iso and full, a
+nearest-neighbour + 2-opt tour for merl).
+
+Count stages, in order (each the number of poses left after it): ``grid`` (the raw lattice), then
+``pole_collapse`` (iso, full: one azimuth where θ = 0), ``reciprocity`` (when on), ``mirror`` (iso, when
+on), ``horizon`` and ``theta_max`` (merl: both directions above the horizon and within theta_max).
+For merl the raw lattice spans φd over [0, 2π) (both members of each pair), so ``reciprocity`` halves it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gonio.geometry import MERL_SHAPE, from_half_diff, merl_bin_centres, vec_to_sph
+
+__all__ = ["GridSpec", "GridPoses", "parse_grid", "enumerate_grid", "class_members", "KINDS", "ORDERS",
+           "MAX_POSES"]
+
+KINDS = ("iso", "full", "merl")
+ORDERS = ("auto", "serpentine", "raster", "tour")
+#: A plan holds at most this many poses (memory and time stay within a workstation's reach).
+MAX_POSES = 3_000_000
+
+_OPTIONS = {
+    "iso": ("step", "theta_max", "reciprocity", "mirror", "isotropy", "order"),
+    "full": ("step", "theta_max", "reciprocity", "isotropy", "order"),
+    "merl": ("stride", "theta_max", "reciprocity", "isotropy", "order"),
+}
+_BOOLS = {"true": True, "false": False}
+# Tolerance on "step divides 360" and on θ <= theta_max for values that come from decimal degrees.
+_DIV_TOL = 1e-9
+_ANGLE_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """A validated GRID string (see the module docstring).
+
+    Attributes
+    ----------
+    kind : str
+        ``"iso"``, ``"full"`` or ``"merl"``.
+    step_deg : float or None
+        Lattice step in degrees (iso, full).
+    stride : int or None
+        MERL bin stride (merl).
+    theta_max_deg : float or None
+        Largest θi, θo in degrees; None means the config's ``kinematics.theta_max_deg``.
+    reciprocity, mirror : bool
+        Which shortcuts are on.
+    order : str
+        ``"auto"``, ``"serpentine"``, ``"raster"`` or ``"tour"``.
+    """
+
+    kind: str
+    step_deg: float | None = None
+    stride: int | None = None
+    theta_max_deg: float | None = None
+    reciprocity: bool = True
+    mirror: bool = False
+    order: str = "auto"
+
+    @property
+    def isotropy(self) -> bool:
+        """True for iso and merl grids (measured assuming an isotropic sample)."""
+        return self.kind != "full"
+
+    @property
+    def normalized(self) -> str:
+        """The GRID string with every option spelled out in a fixed order (``theta_max`` only when
+        given); it parses back to the same spec."""
+        return self.spelled()
+
+    def spelled(self, theta_max_deg: float | None = None, order: str | None = None) -> str:
+        """:attr:`normalized`, with ``theta_max`` and ``order`` resolved to the values a plan used."""
+        tmax = self.theta_max_deg if theta_max_deg is None else theta_max_deg
+        parts = [f"step={_num(self.step_deg)}"] if self.kind != "merl" else [f"stride={self.stride}"]
+        if tmax is not None:
+            parts.append(f"theta_max={_num(tmax)}")
+        parts.append(f"reciprocity={str(self.reciprocity).lower()}")
+        if self.kind == "iso":
+            parts.append(f"mirror={str(self.mirror).lower()}")
+        parts.append(f"order={order or self.order}")
+        return f"{self.kind}:" + ",".join(parts)
+
+
+@dataclass(frozen=True)
+class GridPoses:
+    """Poses of a grid after the symmetry shortcuts, before feasibility.
+
+    Attributes
+    ----------
+    theta_i, phi_i, theta_o, phi_o : ndarray, shape (P,)
+        Radians; φ in [0, 2π) and 0 where θ = 0.
+    loops : ndarray of int64, shape (P, L)
+        Each pose's indices in the grid's natural loops, outer first (θi, θo, Δφ for iso; θi, φi, θo,
+        φo for full; θh, θd, φd bins for merl): the input of serpentine and raster orders.
+    counts : dict of str to int
+        Poses left after each stage, in order (see the module docstring).
+    """
+
+    theta_i: np.ndarray
+    phi_i: np.ndarray
+    theta_o: np.ndarray
+    phi_o: np.ndarray
+    loops: np.ndarray
+    counts: dict[str, int]
+
+
+def parse_grid(grid: str) -> GridSpec:
+    """Parse and validate a GRID string.
+
+    Raises
+    ------
+    ValueError
+        Naming the kind, the option and what is allowed, e.g. ``grid 'iso': option 'step' must be
+        > 0 and <= 90 degrees, got 0``.
+
+    Examples
+    --------
+    >>> parse_grid("iso:step=5,mirror=true").normalized
+    'iso:step=5,reciprocity=true,mirror=true,order=auto'
+    """
+    if not isinstance(grid, str) or not grid.strip():
+        raise ValueError(f"grid: expected 'KIND:OPTION=VALUE,...' with KIND one of {', '.join(KINDS)}; "
+                         f"got {grid!r}")
+    text = "".join(grid.split())
+    kind, _, rest = text.partition(":")
+    if kind not in KINDS:
+        raise ValueError(f"grid kind '{kind}' is unknown; allowed: {', '.join(KINDS)}")
+    allowed = _OPTIONS[kind]
+    raw: dict[str, str] = {}
+    for item in filter(None, rest.split(",")):
+        key, eq, value = item.partition("=")
+        if key not in allowed:
+            raise ValueError(f"grid '{kind}': unknown option '{key}'; allowed: {', '.join(allowed)}")
+        if not eq or not value:
+            raise ValueError(f"grid '{kind}': option '{key}' needs a value ({key}=...)")
+        if key in raw:
+            raise ValueError(f"grid '{kind}': option '{key}' given twice")
+        raw[key] = value
+    fields: dict[str, object] = {"kind": kind}
+    if kind == "merl":
+        if "stride" not in raw:
+            raise ValueError("grid 'merl': option 'stride' is required (an integer from 1 to 90)")
+        stride = _parse_number(kind, "stride", raw["stride"])
+        if stride != int(stride) or not 1 <= stride <= 90:
+            raise ValueError(f"grid 'merl': option 'stride' must be an integer from 1 to 90, got "
+                             f"{raw['stride']}")
+        fields["stride"] = int(stride)
+    else:
+        if "step" not in raw:
+            raise ValueError(f"grid '{kind}': option 'step' is required (degrees, > 0 and <= 90, "
+                             "dividing 360)")
+        step = _parse_number(kind, "step", raw["step"])
+        if not 0.0 < step <= 90.0:
+            raise ValueError(f"grid '{kind}': option 'step' must be > 0 and <= 90 degrees, got {raw['step']}")
+        turns = 360.0 / step
+        if abs(turns - round(turns)) > _DIV_TOL * turns:
+            raise ValueError(f"grid '{kind}': option 'step' must divide 360 degrees evenly (e.g. 1, 2.5, 5, "
+                             f"15), got {raw['step']}")
+        fields["step_deg"] = step
+    if "theta_max" in raw:
+        tmax = _parse_number(kind, "theta_max", raw["theta_max"])
+        if not 0.0 < tmax <= 90.0:
+            raise ValueError(f"grid '{kind}': option 'theta_max' must be > 0 and <= 90 degrees, got "
+                             f"{raw['theta_max']}")
+        fields["theta_max_deg"] = tmax
+    for key in ("reciprocity", "mirror"):
+        if key in raw:
+            fields[key] = _parse_bool(kind, key, raw[key])
+    if "isotropy" in raw:
+        iso = _parse_bool(kind, "isotropy", raw["isotropy"])
+        if iso != (kind != "full"):
+            raise ValueError(
+                "grid 'full': option 'isotropy' must be false (use 'iso' for isotropic samples)"
+                if kind == "full" else
+                f"grid '{kind}': option 'isotropy' must be true ('{kind}' grids assume an isotropic "
+                "sample; use 'full' for anisotropic ones)")
+    if "order" in raw:
+        if raw["order"] not in ORDERS:
+            raise ValueError(f"grid '{kind}': option 'order' must be one of {', '.join(ORDERS)}, got "
+                             f"'{raw['order']}'")
+        fields["order"] = raw["order"]
+    return GridSpec(**fields)
+
+
+def enumerate_grid(spec: GridSpec, theta_max_deg: float) -> GridPoses:
+    """The poses of ``spec`` with θ up to ``theta_max_deg`` after the symmetry shortcuts.
+
+    Raises
+    ------
+    ValueError
+        When the grid would hold more than :data:`MAX_POSES` poses.
+    """
+    if not 0.0 < theta_max_deg <= 90.0:
+        raise ValueError(f"theta_max_deg: must be > 0 and <= 90 degrees, got {theta_max_deg}")
+    if spec.kind == "iso":
+        return _iso(spec, theta_max_deg)
+    if spec.kind == "full":
+        return _full(spec, theta_max_deg)
+    return _merl(spec, theta_max_deg)
+
+
+def class_members(spec: GridSpec, theta_i, phi_i, theta_o, phi_o) -> list[tuple[np.ndarray, ...]]:
+    """The other poses that the shortcuts of ``spec`` identify with each given pose.
+
+    A plan measures one pose per class; when the kept one cannot be reached, another member may be.
+    Iso members are rotated back to φi = 0 (isotropy makes the absolute azimuth irrelevant).
+
+    Returns
+    -------
+    list of (theta_i, phi_i, theta_o, phi_o)
+        One tuple of (P,) arrays per alternative member; empty when no shortcut is on.
+    """
+    ti, pi_, to, po = (np.asarray(a, dtype=np.float64) for a in (theta_i, phi_i, theta_o, phi_o))
+    two_pi = 2.0 * np.pi
+    out: list[tuple[np.ndarray, ...]] = []
+    if spec.kind == "iso":
+        dphi = np.mod(po - pi_, two_pi)
+        neg = np.mod(-dphi, two_pi)
+        zero = np.zeros_like(ti)
+        if spec.reciprocity:
+            out.append((to, zero, ti, _pole(ti, neg)))
+        if spec.mirror:
+            out.append((ti, zero, to, _pole(to, neg)))
+        if spec.reciprocity and spec.mirror:
+            out.append((to, zero, ti, _pole(ti, dphi)))
+    elif spec.reciprocity:
+        out.append((to, po, ti, pi_))
+    return out
+
+
+def _pole(theta, phi):
+    return np.where(theta <= _ANGLE_TOL, 0.0, phi)
+
+
+def _iso(spec: GridSpec, theta_max_deg: float) -> GridPoses:
+    step = spec.step_deg
+    n = _theta_count(step, theta_max_deg)
+    turns = round(360.0 / step)
+    _check_size(spec, _iso_size(n, turns, spec.reciprocity, spec.mirror))
+    idx = [np.arange(k, dtype=np.int32) for k in (n, n, turns)]
+    a, b, m = np.meshgrid(*idx, indexing="ij")
+    a, b, m = a.ravel(), b.ravel(), m.ravel()
+    counts = {"grid": a.size}
+    keep = ((a > 0) & (b > 0)) | (m == 0)
+    counts["pole_collapse"] = int(keep.sum())
+    if spec.reciprocity:
+        # (θi, θo, Δφ) ~ (θo, θi, −Δφ): keep θi < θo, and Δφ <= 180° when θi = θo.
+        keep &= (a < b) | ((a == b) & (2 * m <= turns))
+        counts["reciprocity"] = int(keep.sum())
+    if spec.mirror:
+        keep &= 2 * m <= turns
+        counts["mirror"] = int(keep.sum())
+    a, b, m = a[keep], b[keep], m[keep]
+    rad = np.radians(step)
+    theta_i, theta_o = a * rad, b * rad
+    phi_o = np.where(b > 0, m * rad, 0.0)
+    return GridPoses(theta_i, np.zeros_like(theta_i), theta_o, phi_o,
+                     np.stack([a, b, m], axis=1).astype(np.int64), counts)
+
+
+def _full(spec: GridSpec, theta_max_deg: float) -> GridPoses:
+    step = spec.step_deg
+    n = _theta_count(step, theta_max_deg)
+    turns = round(360.0 / step)
+    # Directions in lexicographic (θ, φ) order, the pole once: what canonical_reciprocal compares.
+    da = np.concatenate([[0], np.repeat(np.arange(1, n), turns)])
+    dp = np.concatenate([[0], np.tile(np.arange(turns), n - 1)])
+    nd = da.size
+    counts = {"grid": (n * turns) ** 2, "pole_collapse": nd * nd}
+    if spec.reciprocity:
+        counts["reciprocity"] = nd * (nd + 1) // 2
+    _check_size(spec, list(counts.values())[-1])
+    if spec.reciprocity:
+        i, j = np.triu_indices(nd)
+    else:
+        i, j = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
+    rad = np.radians(step)
+    return GridPoses(da[i] * rad, dp[i] * rad, da[j] * rad, dp[j] * rad,
+                     np.stack([da[i], dp[i], da[j], dp[j]], axis=1).astype(np.int64), counts)
+
+
+def _merl(spec: GridSpec, theta_max_deg: float) -> GridPoses:
+    k = spec.stride
+    nh, nd, nphi = MERL_SHAPE
+    ih, id_, ip, half = np.meshgrid(np.arange(0, nh, k), np.arange(0, nd, k), np.arange(0, nphi, k),
+                                    np.arange(2), indexing="ij")
+    ih, id_, ip, half = ih.ravel(), id_.ravel(), ip.ravel(), half.ravel()
+    counts = {"grid": ih.size}
+    keep = np.ones(ih.size, dtype=bool)
+    if spec.reciprocity:
+        # φd and φd + π are the two members of a Helmholtz pair (ωi and ωo swapped): keep [0, π).
+        keep &= half == 0
+        counts["reciprocity"] = int(keep.sum())
+    theta_h, theta_d, phi_d = merl_bin_centres(ih, id_, ip)
+    wi, wo = from_half_diff(theta_h, 0.0, theta_d, phi_d + np.pi * half)
+    keep &= (wi[:, 2] > _ANGLE_TOL) & (wo[:, 2] > _ANGLE_TOL)
+    counts["horizon"] = int(keep.sum())
+    theta_i, phi_i = vec_to_sph(wi)
+    theta_o, phi_o = vec_to_sph(wo)
+    tmax = np.radians(theta_max_deg) + _ANGLE_TOL
+    keep &= (theta_i <= tmax) & (theta_o <= tmax)
+    counts["theta_max"] = int(keep.sum())
+    _check_size(spec, counts["theta_max"])
+    loops = np.stack([ih, id_, ip + nphi * half], axis=1)[keep].astype(np.int64)
+    return GridPoses(theta_i[keep], phi_i[keep], theta_o[keep], phi_o[keep], loops, counts)
+
+
+def _iso_size(n: int, turns: int, reciprocity: bool, mirror: bool) -> int:
+    """Poses an iso grid keeps, counted without building it (to refuse huge grids up front)."""
+    arc = turns // 2 + 1 if mirror else turns  # Δφ values kept off the pole
+    if not reciprocity:
+        return (n - 1) ** 2 * arc + 2 * n - 1
+    half = turns // 2 + 1  # Δφ <= 180° where θi = θo
+    return (n - 1) * (n - 2) // 2 * arc + (n - 1) * half + n
+
+
+def _theta_count(step: float, theta_max_deg: float) -> int:
+    return int(np.floor(theta_max_deg / step + _DIV_TOL)) + 1
+
+
+def _check_size(spec: GridSpec, n: int) -> None:
+    if n > MAX_POSES:
+        opt = "stride" if spec.kind == "merl" else "step"
+        raise ValueError(f"grid '{spec.kind}': {n:,} poses exceed the {MAX_POSES:,} a plan can hold; use a "
+                         f"larger '{opt}' or a smaller 'theta_max'")
+
+
+def _parse_number(kind: str, key: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not np.isfinite(value):
+        raise ValueError(f"grid '{kind}': option '{key}' must be a finite number, got '{text}'")
+    return value
+
+
+def _parse_bool(kind: str, key: str, text: str) -> bool:
+    if text.lower() not in _BOOLS:
+        raise ValueError(f"grid '{kind}': option '{key}' must be true or false, got '{text}'")
+    return _BOOLS[text.lower()]
+
+
+def _num(x: float | None) -> str:
+    return "none" if x is None else format(float(x), ".12g")

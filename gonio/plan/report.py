@@ -1,0 +1,103 @@
+"""Reports of a plan: a JSON-ready summary and a human-readable text (what ``gonio plan`` prints)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gonio.plan.build import Plan
+from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
+
+__all__ = ["plan_summary", "format_plan", "hms"]
+
+
+def hms(seconds: float) -> str:
+    """``h:mm:ss`` of a duration in seconds (rounded to the second; hours unbounded).
+
+    Examples
+    --------
+    >>> hms(3725.4)
+    '1:02:05'
+    """
+    s = int(round(float(seconds)))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def plan_summary(plan: Plan) -> dict:
+    """A JSON-ready dict: grid, symmetries, counts, infeasible, poses, steps, durations and their parts.
+
+    ``steps`` counts the steps by kind (``pose``, ``dark``, ``reference``) and in ``total``. Durations
+    are seconds (``estimated_s``, ``lower_bound_s``) with ``h:mm:ss`` twins; ``timing`` holds the parts
+    of both (NaN parts, e.g. an MST skipped for a large plan, become None).
+    """
+    kinds = np.asarray(plan.step_kind)
+    steps = {"total": int(kinds.size), "pose": int(np.count_nonzero(kinds == STEP_POSE)),
+             "dark": int(np.count_nonzero(kinds == STEP_DARK)),
+             "reference": int(np.count_nonzero(kinds == STEP_REFERENCE))}
+    return {
+        "grid": plan.grid,
+        "symmetries": {k: bool(v) for k, v in plan.symmetries.items()},
+        "counts": {k: int(v) for k, v in plan.counts.items()},
+        "infeasible": {k: int(v) for k, v in plan.infeasible.items()},
+        "poses": int(len(plan.theta_i)),
+        "steps": steps,
+        "order": plan.order,
+        "axis_names": list(plan.axis_names),
+        "reference_axes_deg": [float(x) for x in plan.reference_axes_deg],
+        "estimated_s": float(plan.estimated_s),
+        "estimated_hms": hms(plan.estimated_s),
+        "lower_bound_s": float(plan.lower_bound_s),
+        "lower_bound_hms": hms(plan.lower_bound_s),
+        "timing": _jsonable(plan.timing),
+    }
+
+
+def format_plan(plan: Plan) -> str:
+    """A human report: counts after each stage (and what each removed), infeasible poses by reason,
+    the steps, and the estimated duration with its lower bound in h:mm:ss and seconds."""
+    s = plan_summary(plan)
+    lines = [f"plan         {s['grid']}",
+             "symmetries   " + ", ".join(f"{k} {'on' if v else 'off'}" for k, v in s["symmetries"].items()),
+             "", "poses after each stage"]
+    previous = None
+    for stage, count in s["counts"].items():
+        removed = "" if previous is None else f"   (-{previous - count:,})"
+        lines.append(f"  {stage:<16}{count:>12,}{removed}")
+        previous = count
+    if s["infeasible"]:
+        lines += ["", "infeasible by reason"]
+        lines += [f"  {reason:<16}{count:>12,}" for reason, count in s["infeasible"].items()]
+    st = s["steps"]
+    lines += ["", f"steps        {st['total']:,}: {st['pose']:,} poses, {st['dark']:,} dark, "
+                  f"{st['reference']:,} white reference",
+              f"order        {s['order']}", ""]
+    est, low = s["estimated_s"], s["lower_bound_s"]
+    ratio = f"   (estimate / bound = {est / low:.3f})" if low > 0 else ""
+    lines += [f"estimated    {hms(est):>10}   {est:,.1f} s",
+              f"lower bound  {hms(low):>10}   {low:,.1f} s{ratio}"]
+    parts = s["timing"].get("estimate") or {}
+    if parts:
+        lines.append(
+            "  estimate: moves {:,.1f} s (pose to pose {:,.1f} s), settle {:,.1f} s, readings {:,.1f} s, "
+            "return home {:,.1f} s".format(parts["move_s"], s["timing"].get("pose_motion_s") or 0.0,
+                                           parts["settle_s"], parts["reading_s"], parts["return_s"]))
+    bound = s["timing"].get("lower_bound") or {}
+    if bound:
+        lines.append("  bound: moves >= {:,.1f} s, settle {:,.1f} s, readings {:,.1f} s".format(
+            bound["move_s"], bound["settle_s"], bound["reading_s"]))
+    return "\n".join(lines)
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return None if not math.isfinite(float(value)) else float(value)
+    return value

@@ -1,0 +1,66 @@
+"""The step sequence of a campaign: measurement poses interleaved with dark and white-reference readings.
+
+A checkpoint is a dark reading (light off, where the gantry stands: no move) followed by a white
+reference reading (move to the reference pose, settle, measure the white standard). Checkpoints come
+at the start, after every ``every`` poses, and at the end (never twice in a row), so each run of at
+most ``every`` poses is bracketed by two references: the drift between them is what the runner
+interpolates, and a dark reading is never older than one run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["STEP_POSE", "STEP_DARK", "STEP_REFERENCE", "STEP_NAMES", "schedule_steps", "run_starts"]
+
+STEP_POSE, STEP_DARK, STEP_REFERENCE = 0, 1, 2
+STEP_NAMES = ("pose", "dark", "reference")
+
+
+def schedule_steps(n_poses: int, every: int) -> tuple[np.ndarray, np.ndarray]:
+    """Step kinds and pose indices of a campaign of ``n_poses`` poses in motion order.
+
+    Parameters
+    ----------
+    n_poses : int
+        Measurement poses, >= 0.
+    every : int
+        Poses between checkpoints, >= 1 (``cfg.reference.every``).
+
+    Returns
+    -------
+    step_kind : ndarray of int8, shape (S,)
+        ``STEP_POSE``, ``STEP_DARK`` or ``STEP_REFERENCE`` for each step.
+    step_pose : ndarray of int64, shape (S,)
+        Index into the poses for pose steps, -1 for the others.
+
+    Examples
+    --------
+    >>> kind, pose = schedule_steps(3, 2)
+    >>> kind.tolist(), pose.tolist()
+    ([1, 2, 0, 0, 1, 2, 0, 1, 2], [-1, -1, 0, 1, -1, -1, 2, -1, -1])
+    """
+    if n_poses < 0:
+        raise ValueError(f"n_poses: must be >= 0, got {n_poses}")
+    if every < 1:
+        raise ValueError(f"reference.every: must be >= 1 pose between references, got {every}")
+    runs = -(-n_poses // every)  # ceil
+    checkpoints = runs + 1
+    total = n_poses + 2 * checkpoints
+    # Run r (poses r*every .. r*every + len - 1) sits after r + 1 checkpoints of two steps each.
+    pose = np.arange(n_poses)
+    pose_step = pose + 2 * (pose // every + 1)
+    kind = np.full(total, STEP_REFERENCE, dtype=np.int8)
+    step_pose = np.full(total, -1, dtype=np.int64)
+    kind[pose_step] = STEP_POSE
+    step_pose[pose_step] = pose
+    # The first step of every checkpoint is the dark reading.
+    is_ref = kind == STEP_REFERENCE
+    first = is_ref & np.concatenate([[True], kind[:-1] == STEP_POSE])
+    kind[first] = STEP_DARK
+    return kind, step_pose
+
+
+def run_starts(n_poses: int, every: int) -> np.ndarray:
+    """Indices of the poses that start a run (come right after a reference reading)."""
+    return np.arange(0, n_poses, every, dtype=np.int64)

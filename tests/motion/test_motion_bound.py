@@ -1,0 +1,94 @@
+"""Lower bounds on motion: exact MST, nearest-neighbour degree bound, and the campaign bound."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import minimum_spanning_tree
+
+from gonio.motion.bound import motion_lower_bound, mst_edge_times, neighbour_times
+from gonio.motion.metric import MoveMetric
+
+UNIFORM = MoveMetric([60.0, 45.0, 60.0, 45.0], [120.0, 90.0, 120.0, 90.0])
+MIXED = MoveMetric([90.0, 30.0, 60.0, 10.0], [100.0, 60.0, 300.0, 5.0])
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(11)
+
+
+def dense(points, metric):
+    return metric.time(points[:, None, :], points[None, :, :])
+
+
+@pytest.mark.parametrize("metric", [UNIFORM, MIXED], ids=["uniform", "mixed"])
+@pytest.mark.parametrize("n", [2, 3, 40, 300])
+def test_prim_matches_scipy_mst(metric, n, rng):
+    pts = rng.uniform(-180, 180, (n, 4))
+    d = dense(pts, metric)
+    want = minimum_spanning_tree(d).sum()  # scipy treats 0 as "no edge"; no two points coincide here
+    edges = mst_edge_times(pts, metric)
+    assert edges.shape == (n - 1,)
+    assert edges.sum() == pytest.approx(want, rel=1e-12)
+
+
+@pytest.mark.parametrize("metric", [UNIFORM, MIXED], ids=["uniform", "mixed"])
+def test_neighbour_times(metric, rng):
+    pts = np.concatenate([rng.uniform(-180, 180, (400, 4)), rng.uniform(-5, 5, (100, 4))])
+    d = dense(pts, metric)
+    np.fill_diagonal(d, np.inf)
+    d.sort(axis=1)
+    nn1, nn2 = neighbour_times(pts, metric)
+    assert np.all(nn1 <= d[:, 0] + 1e-12) and np.all(nn2 <= d[:, 1] + 1e-12)
+    if metric.uniform:  # exact in a Chebyshev metric
+        np.testing.assert_allclose(nn1, d[:, 0], rtol=1e-12)
+        np.testing.assert_allclose(nn2, d[:, 1], rtol=1e-12)
+    else:  # a lower bound, and not a trivial one
+        assert np.mean(nn1 / d[:, 0]) > 0.5
+
+
+def walk_cost(pts, ref, order, lengths, metric):
+    order = np.asarray(order)
+    cost, i = 0.0, 0
+    for length in lengths:
+        run = pts[order[i:i + length]]
+        i += length
+        path = np.concatenate([ref[None], run, ref[None]])
+        cost += metric.time(path[:-1], path[1:]).sum()
+    return cost
+
+
+@pytest.mark.parametrize("metric", [UNIFORM, MIXED], ids=["uniform", "mixed"])
+@pytest.mark.parametrize("lengths", [[7], [4, 3], [3, 3, 1], [1] * 7])
+def test_bound_is_below_the_best_walk(metric, lengths, rng):
+    pts = rng.uniform(-90, 90, (7, 4))
+    ref = rng.uniform(-90, 90, 4)
+    best = min(walk_cost(pts, ref, perm, lengths, metric) for perm in itertools.permutations(range(7)))
+    got = motion_lower_bound(pts, ref, lengths, metric)
+    assert got["motion_s"] <= best + 1e-9
+    assert got["motion_s"] >= max(got["forest_s"], got["degree_s"]) - 1e-12
+    # and it is a useful bound, not zero
+    assert got["motion_s"] > 0.5 * best
+
+
+def test_bound_without_mst_is_still_below_a_walk(rng):
+    pts = rng.uniform(-90, 90, (500, 4))
+    ref = np.zeros(4)
+    lengths = [50] * 10
+    order = rng.permutation(500)
+    cost = walk_cost(pts, ref, order, lengths, UNIFORM)
+    got = motion_lower_bound(pts, ref, lengths, UNIFORM, mst_max_poses=0)
+    assert np.isnan(got["mst_s"]) and np.isnan(got["forest_s"])
+    assert 0 < got["motion_s"] <= cost
+
+
+def test_bad_run_lengths():
+    with pytest.raises(ValueError, match="run_lengths: need R >= 1 runs"):
+        motion_lower_bound(np.zeros((3, 4)) + np.arange(3)[:, None], np.zeros(4), [2], UNIFORM)
+    with pytest.raises(ValueError, match=r"points_deg: expected shape \(N, 4\)"):
+        mst_edge_times(np.zeros((3, 2)), UNIFORM)
+    with pytest.raises(ValueError, match="positions must be finite"):
+        mst_edge_times(np.full((3, 4), np.nan), UNIFORM)

@@ -1,0 +1,134 @@
+"""Benchmarks of planning and motion: build time, ordering time, and how close orders get to the bound.
+
+Prints a Markdown report (paste it into BENCHMARKS.md, "Planning and motion"). Wall-clock times are
+printed, never asserted: they depend on the machine and its load.
+
+    .venv/bin/python tools/bench_plan.py            # everything (a few minutes)
+    .venv/bin/python tools/bench_plan.py --quick    # skip iso:step=1 and the 20,000-pose tour
+
+Figures:
+
+- build time of ``build_plan(GRID, cfg)`` on both shipped gantries;
+- motion ratio: the plan's pose-to-pose moves (within its runs between white references) over a lower
+  bound on those of any order split into runs of the same lengths: the MST without its R - 1 longest
+  edges (the degree bound above 25,000 poses); neither side counts the trips to the reference;
+- total ratio: ``estimated_s / lower_bound_s`` (all moves, settle, exposures, dark and reference);
+- raster ratio: pose-to-pose moves of the plan over those of ``order=raster`` (no serpentine, no tour);
+- 20,000 scattered poses: random reachable poses (seeded), nearest neighbour + 2-opt/Or-opt on their
+  branches nearest home, timed, against the exact MST (motion only, and with each pose's settle and
+  exposure added to both sides).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import numpy as np
+
+from gonio.config import DEFAULT_CONFIG, load_config
+from gonio.kinematics import make_kinematics
+from gonio.motion.bound import mst_edge_times, neighbour_times
+from gonio.motion.metric import MoveMetric
+from gonio.motion.order import improve_tour, nearest_neighbour_tour, neighbour_lists, tour_time
+from gonio.plan import build_plan
+
+CONFIGS = {"two-arm (sim.toml)": DEFAULT_CONFIG,
+           "sample-stage (sample-stage.toml)": DEFAULT_CONFIG.parent / "sample-stage.toml"}
+
+
+def motion_bound(plan, metric: MoveMetric) -> tuple[float, str]:
+    """A lower bound on the pose-to-pose moves of any order of the plan's axis targets split into the
+    plan's runs (R paths): the MST without its R - 1 longest edges, or, above 25,000 poses, the degree
+    bound with 2R path ends."""
+    runs = int(np.count_nonzero(plan.step_kind == 1)) - 1
+    if len(plan.theta_i) <= 25_000:
+        edges = np.sort(mst_edge_times(plan.axes_deg, metric))
+        return float(edges[: len(edges) - (runs - 1)].sum()), "MST"
+    nn1, nn2 = neighbour_times(plan.axes_deg, metric)
+    return 0.5 * float(np.sum(nn1 + nn2)) - 0.5 * float(np.sort(nn2)[-2 * runs:].sum()), "degree"
+
+
+def plan_rows(grids, quick: bool) -> list[str]:
+    rows = ["| gantry | grid (order) | poses | build s | motion / bound | total est / bound "
+            "| motion / raster's |", "|---|---|---:|---:|---:|---:|---:|"]
+    print("\n".join(rows), flush=True)
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
+        for grid in grids:
+            if quick and grid == "iso:step=1":
+                continue
+            t0 = time.perf_counter()
+            plan = build_plan(grid, cfg, kin)
+            built = time.perf_counter() - t0
+            bound, kind = motion_bound(plan, metric)
+            motion = plan.timing["pose_motion_s"]
+            raster = ""
+            if len(plan.theta_i) <= 200_000:
+                rast = build_plan(grid + ",order=raster", cfg, kin)
+                raster = f"{motion / rast.timing['pose_motion_s']:.3f}"
+            rows.append(f"| {name} | `{grid}` ({plan.order}) | {len(plan.theta_i):,} | {built:.1f} | "
+                        f"{motion / bound:.3f} ({kind}) | {plan.estimated_s / plan.lower_bound_s:.3f} | "
+                        f"{raster} |")
+            print(rows[-1], flush=True)
+    return rows
+
+
+def scattered_rows(n: int, seed: int) -> list[str]:
+    rows = ["| gantry | poses | NN s | 2-opt/Or-opt s | MST s | tour / MST (motion) | NN / MST | "
+            "tour / MST (with settle + exposure) |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    print("\n".join(rows), flush=True)
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
+        rng = np.random.default_rng(seed)
+        tmax = np.radians(cfg.kinematics.theta_max_deg)
+        # Directions uniform in solid angle up to theta_max; keep the reachable ones.
+        m = 3 * n
+        ti = np.arccos(1 - rng.uniform(0, 1 - np.cos(tmax), m))
+        to = np.arccos(1 - rng.uniform(0, 1 - np.cos(tmax), m))
+        pi_, po = rng.uniform(0, 2 * np.pi, m), rng.uniform(0, 2 * np.pi, m)
+        ok = np.flatnonzero(kin.feasibility(ti, pi_, to, po) == 0)[:n]
+        pts = kin.inverse(ti[ok], pi_[ok], to[ok], po[ok], current_deg=kin.home_deg)
+        depot = kin.home_deg
+        t0 = time.perf_counter()
+        neigh = neighbour_lists(pts, metric)[0]
+        nn = nearest_neighbour_tour(pts, metric, depot, neigh)
+        t1 = time.perf_counter()
+        tour = improve_tour(pts, nn, metric, depot, neigh)
+        t2 = time.perf_counter()
+        mst = float(mst_edge_times(pts, metric).sum())
+        t3 = time.perf_counter()
+        # The tour is closed (depot and back): compare its pose-to-pose part with the MST.
+        path = float(np.sum(metric.time(pts[tour[:-1]], pts[tour[1:]])))
+        nn_path = float(np.sum(metric.time(pts[nn[:-1]], pts[nn[1:]])))
+        assert tour_time(pts, tour, metric, depot) <= tour_time(pts, nn, metric, depot) + 1e-9
+        fixed = len(ok) * (cfg.runner.settle_s + cfg.detector.exposure_s * cfg.detector.frames)
+        rows.append(f"| {name} | {len(ok):,} | {t1 - t0:.1f} | {t2 - t1:.1f} | {t3 - t2:.1f} | "
+                    f"{path / mst:.3f} | {nn_path / mst:.3f} | {(path + fixed) / (mst + fixed):.3f} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="skip iso:step=1 and use 5,000 scattered poses")
+    ap.add_argument("--seed", type=int, default=20240611)
+    args = ap.parse_args()
+    print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, python {platform.python_version()}, "
+          f"numpy {np.__version__}; load average at start {os.getloadavg()[0]:.2f}\n")
+    grids = ["iso:step=15", "iso:step=5", "iso:step=2", "iso:step=1", "full:step=15", "full:step=10",
+             "merl:stride=8", "merl:stride=4", "merl:stride=2"]
+    plan_rows(grids, args.quick)
+    print()
+    scattered_rows(5000 if args.quick else 20000, args.seed)
+    print(f"\nload average at end {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
