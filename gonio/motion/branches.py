@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.motion.chain import free_azimuth
+from gonio.motion.chain import free_azimuth, run_inputs
 from gonio.motion.metric import MoveMetric
 
 __all__ = ["best_branches"]
@@ -52,15 +52,10 @@ def best_branches(kin, theta_i, phi_i, theta_o, phi_o, run_starts, reference_deg
     ValueError
         When a pose has no valid branch.
     """
-    poses = [np.asarray(a, dtype=np.float64).reshape(-1) for a in (theta_i, phi_i, theta_o, phi_o)]
+    poses, ref, starts, ends = run_inputs(theta_i, phi_i, theta_o, phi_o, run_starts, reference_deg)
     p = poses[0].shape[0]
-    ref = np.asarray(reference_deg, dtype=np.float64).reshape(-1)
     if p == 0:
         return np.empty((0, ref.size))
-    starts = np.unique(np.asarray(run_starts, dtype=np.int64))
-    if starts[0] != 0 or starts[-1] >= p:
-        raise ValueError(f"run_starts: must include 0 and lie in [0, {p}), got {starts[:3].tolist()}...")
-    ends = np.append(starts[1:], p)
     metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
     free = free_azimuth(*poses)
     out = np.empty((p, ref.size))

@@ -22,7 +22,7 @@ import numpy as np
 
 from gonio.motion.metric import MoveMetric
 
-__all__ = ["chain_branches", "nearest_branch", "free_azimuth"]
+__all__ = ["chain_branches", "nearest_branch", "free_azimuth", "run_inputs"]
 
 # Poses whose branches are held in memory at once (about 64 MB of (poses, S, n_axes) float64).
 _GROUP_POSES = 1 << 17
@@ -89,15 +89,10 @@ def chain_branches(kin, theta_i, phi_i, theta_o, phi_o, run_starts, start_deg) -
     ValueError
         When a pose has no valid branch.
     """
-    poses = [np.asarray(a, dtype=np.float64).reshape(-1) for a in (theta_i, phi_i, theta_o, phi_o)]
+    poses, start, starts, run_ends = run_inputs(theta_i, phi_i, theta_o, phi_o, run_starts, start_deg)
     p = poses[0].shape[0]
-    start = np.asarray(start_deg, dtype=np.float64).reshape(-1)
     if p == 0:
         return np.empty((0, start.size))
-    starts = np.unique(np.asarray(run_starts, dtype=np.int64))
-    if starts[0] != 0 or starts[-1] >= p:
-        raise ValueError(f"run_starts: must include 0 and lie in [0, {p}), got {starts[:3].tolist()}...")
-    run_ends = np.append(starts[1:], p)
     prev = np.broadcast_to(start, (starts.size, start.size)).copy()
     metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
     pole = free_azimuth(*poses)
@@ -111,6 +106,18 @@ def chain_branches(kin, theta_i, phi_i, theta_o, phi_o, run_starts, start_deg) -
                      prev[first:last], out)
         first = last
     return out
+
+
+def run_inputs(theta_i, phi_i, theta_o, phi_o, run_starts, start_deg):
+    """Validated inputs of a branch choice over runs: flat pose arrays, the start axes, and the sorted
+    run starts and ends (empty runs when there are no poses)."""
+    poses = [np.asarray(a, dtype=np.float64).reshape(-1) for a in (theta_i, phi_i, theta_o, phi_o)]
+    p = poses[0].shape[0]
+    start = np.asarray(start_deg, dtype=np.float64).reshape(-1)
+    starts = np.unique(np.asarray(run_starts, dtype=np.int64))
+    if p and (starts.size == 0 or starts[0] != 0 or starts[-1] >= p):
+        raise ValueError(f"run_starts: must include 0 and lie in [0, {p}), got {starts[:3].tolist()}...")
+    return poses, start, starts, np.append(starts[1:], p)
 
 
 def free_azimuth(theta_i, phi_i, theta_o, phi_o) -> np.ndarray:
