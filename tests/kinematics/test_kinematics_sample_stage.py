@@ -19,7 +19,7 @@ from gonio.kinematics import (
     SampleStage,
     make_kinematics,
 )
-from gonio.kinematics.base import arm_vector, circular_distance_deg
+from gonio.kinematics.base import arm_vector
 
 PATH = DEFAULT_CONFIG.parent / "sample-stage.toml"
 KIN = make_kinematics(load_config(PATH))
@@ -93,29 +93,9 @@ currents = st.tuples(*(st.floats(lo, hi) for lo, hi in KIN.limits_deg))
 
 @settings(derandomize=True, max_examples=200, deadline=None)
 @given(poses=poses, current=currents)
-def test_round_trip_reaches_every_unoccluded_pose(poses, current):
+def test_round_trip_reaches_every_unoccluded_pose(poses, current, check_round_trip):
     ti, pi, to, po = np.array(poses).T
-    axes = KIN.inverse(ti, pi, to, po, current_deg=current)
-    codes = KIN.feasibility(ti, pi, to, po)
-    sep = angle_deg(sph_to_vec(ti, pi), sph_to_vec(to, po))
-    clear_cut = np.abs(sep - KIN.clearance_deg) > 1e-6
-    # With sample-stage.toml every pose up to theta_max is reachable unless the light hides the detector.
-    np.testing.assert_array_equal((codes == OK)[clear_cut], (sep >= KIN.clearance_deg)[clear_cut])
-    np.testing.assert_array_equal(codes[codes != OK], OCCLUSION)
-    ok = codes == OK
-    np.testing.assert_array_equal(np.isnan(axes).any(axis=1), ~ok)
-    lo, hi = KIN.limits_deg.T
-    assert np.all((axes[ok] >= lo) & (axes[ok] <= hi))
-    wi, wo = KIN.directions(axes[ok])
-    np.testing.assert_allclose(wi, sph_to_vec(ti[ok], pi[ok]), atol=1e-12)
-    np.testing.assert_allclose(wo, sph_to_vec(to[ok], po[ok]), atol=1e-12)
-    bi, qi, bo, qo = KIN.forward(axes[ok])
-    np.testing.assert_allclose(bi, ti[ok], atol=1e-12)
-    np.testing.assert_allclose(bo, to[ok], atol=1e-12)
-    for q, t, p in ((qi, ti[ok], pi[ok]), (qo, to[ok], po[ok])):
-        assert np.all((q >= 0.0) & (q < 2 * np.pi))
-        moved = t > 1e-6
-        np.testing.assert_allclose(circular_distance_deg(np.degrees(q), np.degrees(p))[moved], 0.0, atol=1e-9)
+    axes, ok = check_round_trip(KIN, ti, pi, to, po, current)
     # The detector keeps clear of the tilt-stage support on every returned pose.
     assert np.all(angle_deg(detector_lab(axes[ok]), MINUS_Y) >= KIN.arm_collision_deg - 1e-9)
 

@@ -66,29 +66,9 @@ currents = st.tuples(*(st.floats(lo, hi) for lo, hi in KIN.limits_deg))
 
 @settings(derandomize=True, max_examples=200, deadline=None)
 @given(poses=poses, current=currents)
-def test_round_trip_reaches_every_unoccluded_pose(poses, current):
+def test_round_trip_reaches_every_unoccluded_pose(poses, current, check_round_trip):
     ti, pi, to, po = np.array(poses).T
-    axes = KIN.inverse(ti, pi, to, po, current_deg=current)
-    codes = KIN.feasibility(ti, pi, to, po)
-    sep = separation_deg(ti, pi, to, po)
-    clear_cut = np.abs(sep - KIN.clearance_deg) > 1e-6
-    # With sim.toml every pose up to theta_max is reachable unless the light hides the detector.
-    np.testing.assert_array_equal((codes == OK)[clear_cut], (sep >= KIN.clearance_deg)[clear_cut])
-    np.testing.assert_array_equal(codes[~(codes == OK)], OCCLUSION)
-    ok = codes == OK
-    np.testing.assert_array_equal(np.isnan(axes).any(axis=1), ~ok)
-    lo, hi = KIN.limits_deg.T
-    assert np.all((axes[ok] >= lo) & (axes[ok] <= hi))
-    wi, wo = KIN.directions(axes[ok])
-    np.testing.assert_allclose(wi, sph_to_vec(ti[ok], pi[ok]), atol=1e-12)
-    np.testing.assert_allclose(wo, sph_to_vec(to[ok], po[ok]), atol=1e-12)
-    bi, qi, bo, qo = KIN.forward(axes[ok])
-    np.testing.assert_allclose(bi, ti[ok], atol=1e-12)
-    np.testing.assert_allclose(bo, to[ok], atol=1e-12)
-    for q, t, p in ((qi, ti[ok], pi[ok]), (qo, to[ok], po[ok])):
-        assert np.all((q >= 0.0) & (q < 2 * np.pi))
-        moved = t > 1e-6          # the azimuth of a pole direction means nothing
-        np.testing.assert_allclose(circular_distance_deg(np.degrees(q), np.degrees(p))[moved], 0.0, atol=1e-9)
+    axes, ok = check_round_trip(KIN, ti, pi, to, po, current)
     # Carriages stay apart on every returned pose.
     assert np.all(circular_distance_deg(axes[ok, 0], axes[ok, 2]) >= KIN.arm_collision_deg - 1e-9)
 

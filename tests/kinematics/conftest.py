@@ -1,0 +1,40 @@
+"""What every kinematic design must satisfy on a round trip, shared by the designs' tests."""
+
+import numpy as np
+import pytest
+
+from gonio.geometry import sph_to_vec
+from gonio.kinematics import OCCLUSION, OK
+from gonio.kinematics.base import circular_distance_deg
+
+
+def _round_trip(kin, ti, pi, to, po, current):
+    """inverse -> forward reaches every pose the light arm does not hide (the shipped configs reach
+    the whole hemisphere up to theta_max), within the limits. Returns (axes, ok) for design checks."""
+    axes = kin.inverse(ti, pi, to, po, current_deg=current)
+    codes = kin.feasibility(ti, pi, to, po)
+    cos_sep = np.clip(np.sum(sph_to_vec(ti, pi) * sph_to_vec(to, po), -1), -1, 1)
+    sep = np.degrees(np.arccos(cos_sep))
+    clear_cut = np.abs(sep - kin.clearance_deg) > 1e-6
+    np.testing.assert_array_equal((codes == OK)[clear_cut], (sep >= kin.clearance_deg)[clear_cut])
+    np.testing.assert_array_equal(codes[codes != OK], OCCLUSION)
+    ok = codes == OK
+    np.testing.assert_array_equal(np.isnan(axes).any(axis=1), ~ok)
+    lo, hi = kin.limits_deg.T
+    assert np.all((axes[ok] >= lo) & (axes[ok] <= hi))
+    wi, wo = kin.directions(axes[ok])
+    np.testing.assert_allclose(wi, sph_to_vec(ti[ok], pi[ok]), atol=1e-12)
+    np.testing.assert_allclose(wo, sph_to_vec(to[ok], po[ok]), atol=1e-12)
+    bi, qi, bo, qo = kin.forward(axes[ok])
+    np.testing.assert_allclose(bi, ti[ok], atol=1e-12)
+    np.testing.assert_allclose(bo, to[ok], atol=1e-12)
+    for q, t, p in ((qi, ti[ok], pi[ok]), (qo, to[ok], po[ok])):
+        assert np.all((q >= 0.0) & (q < 2 * np.pi))
+        moved = t > 1e-6  # the azimuth of a pole direction means nothing
+        np.testing.assert_allclose(circular_distance_deg(np.degrees(q), np.degrees(p))[moved], 0.0, atol=1e-9)
+    return axes, ok
+
+
+@pytest.fixture(scope="session")
+def check_round_trip():
+    return _round_trip
