@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import sqlite3
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -100,11 +101,15 @@ class Journal:
         self.path = path
         self._write_hook = write_hook
         self._writes = 0
+        # The runner writes from its thread; pause/abort requests and readers may come from others
+        # (the daemon). One lock serializes every use of the connection.
+        self._lock = threading.RLock()
 
     # -- opening ---------------------------------------------------------------------------------
     @staticmethod
     def _connect(path: Path) -> sqlite3.Connection:
-        conn = sqlite3.connect(str(path), isolation_level=None)  # transactions are explicit
+        # Transactions are explicit; the connection is shared between threads under Journal._lock.
+        conn = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
         conn.execute("PRAGMA journal_mode=WAL")
         # NORMAL in WAL mode: a committed transaction survives a crash of the process (what a
         # campaign must survive); only a power cut may lose the last few. See README.
@@ -156,7 +161,8 @@ class Journal:
         return cls(conn, path, write_hook)
 
     def close(self) -> None:
-        self._conn.close()
+        with self._lock:
+            self._conn.close()
 
     # -- writing ---------------------------------------------------------------------------------
     def _write(self, sql: str, params=()) -> None:
@@ -172,21 +178,30 @@ class Journal:
         self._conn.executemany(sql, rows)
 
     class _Txn:
-        def __init__(self, conn):
-            self.conn = conn
+        def __init__(self, conn, lock):
+            self.conn, self.lock = conn, lock
 
         def __enter__(self):
-            self.conn.execute("BEGIN IMMEDIATE")
+            self.lock.acquire()
+            try:
+                self.conn.execute("BEGIN IMMEDIATE")
+            except BaseException:
+                self.lock.release()
+                raise
 
         def __exit__(self, exc_type, exc, tb):
-            if exc_type is None:
-                self.conn.execute("COMMIT")
-            else:
-                self.conn.execute("ROLLBACK")
+            try:
+                self.conn.execute("COMMIT" if exc_type is None else "ROLLBACK")
+            finally:
+                self.lock.release()
             return False
 
     def _transaction(self):
-        return Journal._Txn(self._conn)
+        return Journal._Txn(self._conn, self._lock)
+
+    def _query(self, sql: str, params=()) -> list:
+        with self._lock:
+            return self._conn.execute(sql, params).fetchall()
 
     def commit_measurement(self, m: Measurement, events: list[tuple[str, str | None, str]] = ()) -> None:
         """Commit one step's measurement (and the events that go with it) in one transaction."""
@@ -215,14 +230,14 @@ class Journal:
 
     # -- reading ---------------------------------------------------------------------------------
     def meta(self) -> dict:
-        return {k: json.loads(v) for k, v in self._conn.execute("SELECT key, value FROM meta")}
+        return {k: json.loads(v) for k, v in self._query("SELECT key, value FROM meta")}
 
     def step_count(self) -> int:
-        return self._conn.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
+        return self._query("SELECT COUNT(*) FROM steps")[0][0]
 
     def steps(self) -> dict[str, np.ndarray]:
-        rows = self._conn.execute("SELECT kind, pose, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg, "
-                                  "axes_deg FROM steps ORDER BY step").fetchall()
+        rows = self._query("SELECT kind, pose, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg, "
+                           "axes_deg FROM steps ORDER BY step")
         cols = list(zip(*rows, strict=True)) if rows else [()] * 7
         return {
             "kind": np.array(cols[0], dtype=np.int8), "pose": np.array(cols[1], dtype=np.int64),
@@ -233,7 +248,7 @@ class Journal:
 
     def done_steps(self) -> np.ndarray:
         """Sorted step numbers that have a committed measurement."""
-        return np.array([r[0] for r in self._conn.execute("SELECT step FROM measurements ORDER BY step")],
+        return np.array([r[0] for r in self._query("SELECT step FROM measurements ORDER BY step")],
                         dtype=np.int64)
 
     def next_step(self) -> int:
@@ -244,7 +259,7 @@ class Journal:
 
     def measurements(self) -> list[Measurement]:
         out = []
-        for r in self._conn.execute(
+        for r in self._query(
             "SELECT step, kind, pose, commanded_deg, actual_deg, theta_i_deg, phi_i_deg, theta_o_deg, "
             "phi_o_deg, virtual_s, exposure_s, frames, signal, stderr, attempts "
             "FROM measurements ORDER BY step"
@@ -257,7 +272,6 @@ class Journal:
         return out
 
     def events(self) -> list[dict]:
-        cur = self._conn.execute("SELECT id, virtual_s, wall_s, kind, state, step, message FROM events "
-                                 "ORDER BY id")
-        names = [d[0] for d in cur.description]
-        return [dict(zip(names, r, strict=True)) for r in cur]
+        names = ("id", "virtual_s", "wall_s", "kind", "state", "step", "message")
+        rows = self._query(f"SELECT {', '.join(names)} FROM events ORDER BY id")
+        return [dict(zip(names, r, strict=True)) for r in rows]

@@ -146,3 +146,24 @@ def test_limit_violation_in_a_journal_is_a_fault_with_the_axis_name(tmp_path, cf
         r.run()
     assert r.state == State.FAULTED
     assert "97" in r.fault
+
+
+def test_pause_and_abort_requests_from_another_thread(tmp_path, cfg):
+    """The daemon asks from its own thread; the request must reach the runner and the journal."""
+    import threading
+
+    def on_step(runner, step):
+        if step == 1:
+            t = threading.Thread(target=runner.request_pause)
+            t.start()
+            t.join(timeout=10)
+            assert not t.is_alive()
+
+    c, g, r = _setup(tmp_path, cfg, on_step=on_step)
+    assert r.run() == State.PAUSED
+    assert len(_events(c, "pause")) == 1
+    t = threading.Thread(target=r.request_abort)
+    t.start()
+    t.join(timeout=10)
+    assert r.state == State.ABORTED
+    assert [e["state"] for e in _events(c, "state")][-1] == "aborted"
