@@ -8,15 +8,30 @@ Optics. The source subtends a cone of half-angle α_s around ωi and the detecto
 
 estimated by Monte Carlo: ``aperture_samples`` pairs (ωi', ωo') per pose, each uniform in its cone
 (cos θ uniform in [cos α, 1] about the cone's axis), so L ≈ L_src · Ω_s · mean(f_r · cos θi'), with
-Ω_s = 2π(1 − cos α_s). All poses of a batch are one Dr.Jit launch.
+Ω_s = 2π(1 − cos α_s). All poses of a batch are one Dr.Jit launch, which also returns the standard
+error of each pose's mean, Ω_s · s/√n from the sample variance s² of f_r · cos θi' over its n samples
+(sums and sums of squares accumulated in float64, so the variance survives the cancellation).
 
 Sensor. signal = L · exposure_s (linear), plus ``dark_offset · exposure_s``; shot noise is Poisson on
 ``signal · shot_counts_per_unit`` counts, converted back to signal units; read noise is Gaussian with
-σ = ``read_sigma`` per frame. Each is off when its setting is zero.
+σ = ``read_sigma`` per frame. Each is off when its setting is zero. All frames of one reading see the
+same aperture samples (the pose does not change during a reading): only the sensor noise differs
+between frames.
 
-Seeding. Reading number n of a detector seeded with s draws its aperture samples (PCG32) and its noise
-(numpy) from ``SeedSequence([s, stream, n])``: a campaign replays exactly from its seed, and the
-Monte Carlo samples of one reading are independent of every other's.
+Uncertainty. A reading's ``stderr`` is the standard error of its ``signal`` from both sources, added in
+quadrature: the integration error L_src · Ω_s · s/√n · exposure_s (shared by all frames, so averaging
+frames does not shrink it), and the sensor's, the spread of the frames over √frames (frames > 1) or the
+noise model's σ (one frame cannot estimate its own spread).
+
+Seeding. Every random number of a reading comes from streams named by ``np.random.SeedSequence([seed,
+stream, a, b])``: the aperture samples from a Philox4x32 keyed by that stream's state, with counters
+(sample, pose) so that every Monte Carlo lane is an independent draw, and the sensor noise from a numpy
+generator. For ``measure(..., key=(step, attempt))``, (a, b) = (step, attempt): the same reading of
+the same campaign is bit-identical whatever the process did before it, so a campaign resumed from its
+journal in a new process replays an uninterrupted one, and a retried step draws fresh samples. Without
+a key, (a, b) = (n, 0) on separate streams, n the number of readings this detector object has taken
+(keyed or not) since it was built: reproducible within one process only. ``expected_signal`` has its
+own fixed stream, so it returns the same values on every call.
 """
 
 from __future__ import annotations
@@ -25,7 +40,7 @@ from collections.abc import Mapping
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import PCG32, Array3f, Float, UInt32, UInt64
+from drjit.llvm import Array3f, Array3f64, Float, Philox4x32, UInt32, UInt64
 
 from gonio.config import DetectorConfig
 from gonio.protocols import Clock, DeviceFault, Reading
@@ -35,7 +50,9 @@ __all__ = ["SimDetector", "TARGETS", "aperture_radiance_factor"]
 #: What can be under the beam: the sample, or the white reference standard.
 TARGETS = ("sample", "reference")
 #: Seed-sequence streams: one per use, so a call of one kind never shifts the samples of another.
-_MC_STREAM, _NOISE_STREAM, _EXPECTED_STREAM = 0, 1, 2
+#: Keyed readings, ``expected_signal``, and readings without a key (by reading number) each have their
+#: own: SeedSequence pads short entropy with zeros, so [s, 0, n] would alias the key (n, 0).
+_MC_STREAM, _NOISE_STREAM, _EXPECTED_STREAM, _MC_COUNTER_STREAM, _NOISE_COUNTER_STREAM = 0, 1, 2, 3, 4
 #: Above this many expected counts numpy's Poisson sampler is replaced by its Gaussian limit.
 _POISSON_MAX = 1e15
 
@@ -59,8 +76,9 @@ def _cone_directions(axis: Array3f, one_minus_cos_max: Float, u1: Float, u2: Flo
 
 def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
                              detector_half_angle_deg: float, samples: int,
-                             seed_state: tuple[int, int]) -> np.ndarray:
-    """Reflected radiance per unit source radiance, for many poses in one Dr.Jit launch.
+                             seed_state: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Reflected radiance per unit source radiance and its Monte Carlo standard error, for many poses
+    in one Dr.Jit launch.
 
     Parameters
     ----------
@@ -71,39 +89,61 @@ def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_ha
     source_half_angle_deg, detector_half_angle_deg : float
         Half-angles (°) of the cone the source subtends and of the cone the detector sees.
     samples : int
-        Monte Carlo samples per pose.
+        Monte Carlo samples per pose, >= 2 (one sample cannot estimate its own error).
     seed_state : (int, int)
-        PCG32 initial state and sequence (64-bit); lane k of the launch uses (state + k, seq + k).
+        A 64-bit Philox4x32 key and a 32-bit stream word. Sample j of pose p draws its four uniforms
+        from the counter (j, p, word, 0) under that key: every lane is an independent draw, and the
+        same (key, word) gives pose p the same samples in any batch.
 
     Returns
     -------
-    ndarray, shape (N, 3)
+    factor : ndarray, shape (N, 3)
         Ω_s · mean(f_r(ωi', ωo') · cos θi') per pose: L / L_src, dimensionless (sr⁻¹ · sr).
+    stderr : ndarray, shape (N, 3)
+        Ω_s · s / √samples, s² the sample variance of f_r · cos θi' over the pose's samples: the
+        standard error of ``factor`` from the integration alone.
     """
     wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
     wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+    if isinstance(samples, bool) or not isinstance(samples, int | np.integer) or not 2 <= samples <= 1 << 20:
+        raise ValueError(f"samples: must be an integer in [2, {1 << 20}], got {samples!r}")
+    key, word = _check_seed_state(seed_state)
     n = wi.shape[0]
     if n == 0:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    if wo.shape[0] != n:
+        raise ValueError(f"wo: expected {n} directions like wi, got {wo.shape[0]}")
+    samples = int(samples)
     om_src = 1.0 - np.cos(np.radians(source_half_angle_deg))
     om_det = 1.0 - np.cos(np.radians(detector_half_angle_deg))
 
-    def to_dr(v):
-        return Array3f(*(Float(np.ascontiguousarray(v[:, k], dtype=np.float32)) for k in range(3)))
-
-    pose = dr.arange(UInt32, n * samples) // samples
-    wi_c = dr.gather(Array3f, to_dr(wi), pose)
-    wo_c = dr.gather(Array3f, to_dr(wo), pose)
-    # Opaque seeds and apertures: a new reading must not compile a new kernel.
-    rng = PCG32(n * samples, initstate=dr.opaque(UInt64, seed_state[0]),
-                initseq=dr.opaque(UInt64, seed_state[1]))
-    wi_s = _cone_directions(wi_c, dr.opaque(Float, om_src), rng.next_float32(), rng.next_float32())
-    wo_s = _cone_directions(wo_c, dr.opaque(Float, om_det), rng.next_float32(), rng.next_float32())
+    lane = dr.arange(UInt32, n * samples)
+    pose = lane // samples
+    # Both axes of every pose in one buffer, (N, 6) row-major: one input whatever N.
+    axes = Float(np.ascontiguousarray(np.hstack([wi, wo]), dtype=np.float32).ravel())
+    wi_c = dr.gather(Array3f, axes, 2 * pose)
+    wo_c = dr.gather(Array3f, axes, 2 * pose + 1)
+    # A counter-based generator keyed per reading: lane (j, p) is the cipher of its own counter, so
+    # neighbouring lanes are independent (PCG32 seeded with state + k, seq + k per lane is not: its
+    # error came out up to 1.3x the independent-sample figure). Opaque key and apertures: a new
+    # reading must not compile a new kernel.
+    rng = Philox4x32(dr.opaque(UInt64, key), lane - pose * samples, pose, dr.opaque(UInt32, word))
+    u1, u2, u3, u4 = rng.next_float32x4()
+    wi_s = _cone_directions(wi_c, dr.opaque(Float, om_src), u1, u2)
+    wo_s = _cone_directions(wo_c, dr.opaque(Float, om_det), u3, u4)
     fr_cos = material.eval_dr(wi_s, wo_s) * dr.maximum(wi_s.z, 0.0)
-    sums = [dr.block_sum(fr_cos[k], samples) for k in range(3)]
-    dr.eval(sums)
-    mean = np.stack([np.asarray(s, dtype=np.float64) for s in sums], axis=1) / samples
-    return 2.0 * np.pi * om_src * mean
+    # float64 sums: Σx² − (Σx)²/n cancels to the variance, which for a smooth lobe in a small cone is
+    # ~1e-8 of the mean squared, below float32's resolution.
+    x = Array3f64(fr_cos)
+    x2 = x * x
+    dr.eval(x, x2)  # one kernel for the samples; the block sums then only read memory
+    s1, s2 = (np.stack([np.asarray(s, dtype=np.float64) for s in dr.block_sum(v, samples)], axis=1)
+              for v in (x, x2))
+    mean = s1 / samples
+    # Rounding can leave a zero variance (a constant integrand) a hair below zero.
+    var = np.maximum(s2 - s1 * mean, 0.0) / (samples - 1)
+    omega = 2.0 * np.pi * om_src
+    return omega * mean, omega * np.sqrt(var / samples)
 
 
 class SimDetector:
@@ -125,7 +165,8 @@ class SimDetector:
     clock : gonio.protocols.Clock
         ``measure`` advances it by the integration time, exposure_s × frames.
     seed : int
-        Campaign seed (see the module docstring).
+        Campaign seed, >= 0: with the key of each reading it names every random number drawn (see the
+        module docstring).
     name : str
         Device name used in messages.
     """
@@ -145,6 +186,11 @@ class SimDetector:
             raise ValueError(f"axes: missing the axes {', '.join(missing)} that the kinematics drives")
         if not isinstance(seed, int | np.integer) or seed < 0:
             raise ValueError(f"seed: must be an integer >= 0, got {seed!r}")
+        if cfg.aperture_samples < 2:
+            raise ValueError(
+                f"detector.aperture_samples: the simulated detector needs at least 2 to estimate its "
+                f"integration error, got {cfg.aperture_samples}"
+            )
         self.name = name
         self.channels = tuple(cfg.channels)
         self.cfg = cfg
@@ -165,46 +211,72 @@ class SimDetector:
     def close(self) -> None:
         self._connected = False
 
-    def measure(self, exposure_s: float, frames: int = 1) -> Reading:
+    def measure(self, exposure_s: float, frames: int = 1, *,
+                key: tuple[int, int] | None = None) -> Reading:
         """Integrate ``frames`` frames of ``exposure_s`` seconds each at the current pose.
 
         The pose and the source radiance are those at the start of the integration; the clock then
         advances by exposure_s × frames. (The runner measures at rest, so motion blur is not modelled.)
 
+        Parameters
+        ----------
+        exposure_s : float
+            Exposure of each frame (s), in (0, 3600].
+        frames : int
+            Frames to average, in [1, 1000]. They share the reading's aperture samples.
+        key : (int, int), optional
+            (step, attempt), both >= 0: the aperture samples and the sensor noise come from streams
+            keyed by (seed, step, attempt), so the reading does not depend on anything this process
+            did before. Without it the streams are keyed by this detector's reading number.
+
         Returns
         -------
         Reading
-            ``signal``: mean over the frames per channel (signal units); ``stderr``: the standard error
-            of that mean (frames > 1), or for a single frame the standard deviation the noise model
-            predicts (one frame cannot estimate its own spread). ``extra`` holds the target, the actual
-            axis positions (°), the start time (s) and the reading number.
+            ``signal``: mean over the frames per channel (signal units). ``stderr``: its standard
+            error, the integration (Monte Carlo) error and the sensor's added in quadrature. The
+            sensor's is the spread of the frames over √frames when frames > 1 (it measures only the
+            sensor noise: every frame has the same aperture samples), or for a single frame the
+            standard deviation the noise model predicts (one frame cannot estimate its own spread).
+            ``extra`` holds the target, the actual axis positions (°), the start time (s), the
+            reading number, the key, and the two parts of ``stderr`` (``stderr_integration``,
+            ``stderr_sensor``).
         """
         self._require_connected()
         exposure_s = _check_exposure(exposure_s)
         if isinstance(frames, bool) or not isinstance(frames, int | np.integer) or not 1 <= frames <= 1000:
             raise ValueError(f"frames: must be an integer in [1, 1000], got {frames!r}")
+        key = _check_key(key)
         t0 = self._clock.now()
         axes_deg = self.actual_axes_deg()
         source = self._light.radiance()
         n = self._count
         self._count += 1
-        if source > 0.0:
-            mc_seed = _seed_state(self._seed, _MC_STREAM, n)
-            factor = self._radiance_factor(axes_deg[None, :], self._target, mc_seed)[0]
+        if key is None:
+            mc_id, noise_id = (_MC_COUNTER_STREAM, n, 0), (_NOISE_COUNTER_STREAM, n, 0)
         else:
-            factor = np.zeros(len(self.channels))  # shutter closed: skip the render
+            mc_id, noise_id = (_MC_STREAM, *key), (_NOISE_STREAM, *key)
+        if source > 0.0:
+            factor, factor_se = self._radiance_factor(axes_deg[None, :], self._target,
+                                                      _seed_state(self._seed, *mc_id))
+            factor, factor_se = factor[0], factor_se[0]
+        else:
+            # Shutter closed: skip the render; no light, no integration error.
+            factor = factor_se = np.zeros(len(self.channels))
         clean = source * factor * exposure_s
-        rng = np.random.default_rng(np.random.SeedSequence([self._seed, _NOISE_STREAM, n]))
+        rng = np.random.default_rng(np.random.SeedSequence([self._seed, *noise_id]))
         frame_values = self._noisy_frames(clean, exposure_s, int(frames), rng)
         mean = frame_values.mean(axis=0)
         if frames > 1:
-            stderr = frame_values.std(axis=0, ddof=1) / np.sqrt(frames)
+            sensor_se = frame_values.std(axis=0, ddof=1) / np.sqrt(frames)
         else:
-            stderr = self.noise_sigma(clean)
+            sensor_se = self.noise_sigma(clean)
+        integration_se = source * factor_se * exposure_s
+        stderr = np.hypot(integration_se, sensor_se)
         self._clock.sleep(exposure_s * frames)
         extra = {"target": self._target, "axes_deg": dict(zip(self._kinematics.axis_names,
                                                               axes_deg.tolist(), strict=True)),
-                 "t_s": t0, "reading": n}
+                 "t_s": t0, "reading": n, "key": key,
+                 "stderr_integration": integration_se, "stderr_sensor": sensor_se}
         return Reading(signal=mean, stderr=stderr, exposure_s=exposure_s, frames=int(frames), extra=extra)
 
     # -- simulation-only ----------------------------------------------------------------------------
@@ -239,8 +311,9 @@ class SimDetector:
         -------
         ndarray, shape (N, C)
             (L_src · L/L_src + dark_offset) · exposure_s per channel, with the source radiance now (0
-            with the shutter closed). The aperture samples are drawn from a fixed seed of this
-            detector, so repeated calls return the same values.
+            with the shutter closed). The aperture samples come from this detector's fixed
+            ``expected_signal`` stream, so repeated calls return the same values (and pose p of a
+            batch gets the same samples whatever the batch).
         """
         self._require_connected()
         target = self._target if target is None else target
@@ -255,7 +328,7 @@ class SimDetector:
         dark = self.cfg.noise.dark_offset * exposure_s
         if source == 0.0:
             return np.full((axes_deg.shape[0], len(self.channels)), dark)
-        factor = self._radiance_factor(axes_deg, target, _seed_state(self._seed, _EXPECTED_STREAM, 0))
+        factor, _ = self._radiance_factor(axes_deg, target, _seed_state(self._seed, _EXPECTED_STREAM, 0, 0))
         return source * factor * exposure_s + dark
 
     def noise_sigma(self, clean_signal) -> np.ndarray:
@@ -267,7 +340,8 @@ class SimDetector:
         return np.sqrt(var)
 
     # -- internals ----------------------------------------------------------------------------------
-    def _radiance_factor(self, axes_deg: np.ndarray, target: str, seed_state) -> np.ndarray:
+    def _radiance_factor(self, axes_deg: np.ndarray, target: str,
+                         seed_state) -> tuple[np.ndarray, np.ndarray]:
         wi, wo = self._kinematics.directions(axes_deg)
         return aperture_radiance_factor(
             self._materials[target], wi, wo, self._light.half_angle_deg, self.cfg.half_angle_deg,
@@ -301,6 +375,27 @@ def _check_exposure(exposure_s) -> float:
     return value
 
 
-def _seed_state(seed: int, stream: int, counter: int) -> tuple[int, int]:
-    state, seq = np.random.SeedSequence([seed, stream, counter]).generate_state(2, np.uint64)
-    return int(state), int(seq)
+def _check_key(key) -> tuple[int, int] | None:
+    if key is None:
+        return None
+    ok = (isinstance(key, tuple | list) and len(key) == 2
+          and all(isinstance(k, int | np.integer) and not isinstance(k, bool) and k >= 0 for k in key))
+    if not ok:
+        raise ValueError(f"key: must be (step, attempt), two integers >= 0, got {key!r}")
+    return int(key[0]), int(key[1])
+
+
+def _check_seed_state(seed_state) -> tuple[int, int]:
+    ok = (isinstance(seed_state, tuple | list) and len(seed_state) == 2
+          and all(isinstance(k, int | np.integer) and not isinstance(k, bool) for k in seed_state)
+          and 0 <= seed_state[0] < 1 << 64 and 0 <= seed_state[1] < 1 << 32)
+    if not ok:
+        raise ValueError(f"seed_state: must be (key, word), integers in [0, 2**64) and [0, 2**32), "
+                         f"got {seed_state!r}")
+    return int(seed_state[0]), int(seed_state[1])
+
+
+def _seed_state(seed: int, stream: int, a: int, b: int) -> tuple[int, int]:
+    """The Philox4x32 (key, word) of stream ``stream`` for (a, b): (step, attempt) or (n, 0)."""
+    key, word = np.random.SeedSequence([seed, stream, a, b]).generate_state(2, np.uint64)
+    return int(key), int(word) >> 32
