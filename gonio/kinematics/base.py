@@ -164,6 +164,9 @@ class Kinematics:
         self.arm_collision_deg = float(cfg.kinematics.arm_collision_deg)
         #: S: set by each design once it knows how many azimuth wraps its limits admit.
         self.n_branches = 0
+        self._limits_list = [tuple(r) for r in self.limits_deg.tolist()]
+        self._velocity_list = self.velocity_deg_s.tolist()
+        self._accel_list = self.accel_deg_s2.tolist()
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(axes={self.axis_names}, theta_max_deg={self.theta_max_deg})"
@@ -249,6 +252,85 @@ class Kinematics:
         """(ωi, ωo): unit vectors (N, 3) in the sample frame of axis positions ``axes_deg`` (N, n_axes)
         or (n_axes,) in degrees."""
         return self._directions(self._axes(axes_deg, "axes_deg"))
+
+    # --- moves in transit -------------------------------------------------------------------------
+
+    #: One line naming the collision rule a blocked move breaks (set by each design).
+    collision_rule: str = ""
+
+    def sweep_clearance(self, start_deg, end_deg) -> tuple[np.ndarray, np.ndarray]:
+        """Whether each move is clear over its whole swept path, certified (not merely sampled).
+
+        Every axis starts at the same instant on its own rest-to-rest trapezoid (per-axis maximum
+        velocity and acceleration) and holds its target once its profile ends, as the runner and the
+        simulated axes move them. A move is clear when both ends are within the axis limits (axes move
+        monotonically, so the limits then hold throughout) and the design's collision rule holds at
+        every instant (see :mod:`gonio.kinematics.sweep` for how that is proved).
+
+        Parameters
+        ----------
+        start_deg, end_deg : array_like, shape (M, n_axes) or (n_axes,)
+            Rest positions before and after each move, degrees (finite).
+
+        Returns
+        -------
+        clear : ndarray of bool, shape (M,)
+            True when the move can be made as it is.
+        min_margin_deg : ndarray, shape (M,)
+            The smallest margin to the collision rule over the move, degrees (negative: it collides);
+            exact on the two-arm gantry, a certified lower bound on the sample-stage gantry (within
+            1e-3° of the true minimum when negative). Limits are not part of it.
+        """
+        start = self._axes(start_deg, "start_deg")
+        end = self._axes(end_deg, "end_deg")
+        if start.shape != end.shape:
+            if start.shape[0] == 1:
+                start = np.broadcast_to(start, end.shape)
+            elif end.shape[0] == 1:
+                end = np.broadcast_to(end, start.shape)
+            else:
+                raise ValueError(f"start_deg, end_deg: {start.shape[0]} and {end.shape[0]} rows; give equal "
+                                 "counts or one row")
+        margin = self._sweep_margin(start, end) if start.shape[0] else np.empty(0)
+        return (margin >= -DEG_TOL) & self.within_limits(start) & self.within_limits(end), margin
+
+    def sweep_clear_one(self, start_deg, end_deg) -> tuple[bool, float]:
+        """:meth:`sweep_clearance` of one move given as two sequences of floats (unvalidated), in plain
+        Python: the runner asks this before every move, where numpy's per-call cost would dominate."""
+        start = [float(x) for x in start_deg]
+        end = [float(x) for x in end_deg]
+        margin = self._sweep_margin_one(start, end)
+        inside = all(lo - DEG_TOL <= x <= hi + DEG_TOL and lo - DEG_TOL <= y <= hi + DEG_TOL
+                     for (lo, hi), x, y in zip(self._limits_list, start, end, strict=True))
+        return margin >= -DEG_TOL and inside, margin
+
+    def within_limits(self, axes_deg) -> np.ndarray:
+        """Rows (N,) of ``axes_deg`` (N, n_axes) inside every axis limit (within round-off)."""
+        axes = np.asarray(axes_deg, dtype=np.float64).reshape(-1, len(self.axis_names))
+        lo, hi = self.limits_deg[:, 0], self.limits_deg[:, 1]
+        return np.all((axes >= lo - DEG_TOL) & (axes <= hi + DEG_TOL), axis=1)
+
+    def free_component(self, axes_deg) -> np.ndarray:
+        """Label (N,) of the connected part of the collision-free axis space each row lies in.
+
+        Two positions with different labels cannot be joined by any collision-free motion (the two
+        carriages of a two-arm gantry cannot pass each other); equal labels can. Meaningful only for
+        positions that are themselves clear.
+        """
+        return np.zeros(np.asarray(axes_deg).reshape(-1, len(self.axis_names)).shape[0], dtype=np.int64)
+
+    def detours(self) -> list[tuple[int, float]]:
+        """(axis, value) pairs worth trying as a via position for one axis when a move is blocked: a
+        value where that axis keeps the parts clear whatever the others do (none by default)."""
+        return []
+
+    def _sweep_margin(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """Smallest collision margin (M,) in degrees over moves (M, n_axes) -> (M, n_axes)."""
+        raise NotImplementedError
+
+    def _sweep_margin_one(self, start: list, end: list) -> float:
+        """:meth:`_sweep_margin` of one move in plain floats."""
+        return float(self._sweep_margin(np.array([start]), np.array([end]))[0])
 
     # --- machinery ------------------------------------------------------------------------------
 

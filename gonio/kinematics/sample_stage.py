@@ -27,6 +27,14 @@ The detector may not come within ``arm_collision_deg`` of lab −y, where it wou
 Because the other tilt sign moves the detector a half turn about lab z, away from the support, only a
 pose whose tilt cannot flip (limits, or θi = 0) can be lost to it.
 
+In transit: the support is fixed in the lab and so is the detector arm's mount, so only the two
+detector axes matter. The angle from the detector to lab −y changes by at most |Δazimuth| + |Δtilt|
+(degrees) as the axes move, which certifies a bisection of the move in time
+(:func:`~gonio.kinematics.sweep.lipschitz_min`). The blocked regions are two small caps of axis space
+(around azimuth −90°, tilt 90° and azimuth 90°, tilt −90° with the shipped limits), so the free axis
+space is connected: a blocked move goes round a cap, e.g. by lowering the detector tilt first
+(:meth:`SampleStage.detours`).
+
 Free azimuths. At θi = 0 the rotation is free: it keeps its current value (home when none is given)
 when that is within limits and keeps the detector clear of the support, else it turns the shortest way
 to the nearest rotation that does. A detector straight overhead (only possible with clearance_deg = 0)
@@ -36,6 +44,8 @@ detector falls outside that range is reported out of reach even if another rotat
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -51,6 +61,7 @@ from gonio.kinematics.base import (
     nearest_allowed_azimuth,
     wrap_360,
 )
+from gonio.kinematics.sweep import lipschitz_min
 from gonio.kinematics.two_arm import arm_branches
 
 __all__ = ["SampleStage", "SUPPORT_LAB"]
@@ -163,3 +174,40 @@ class SampleStage(Kinematics):
         light_lab = np.broadcast_to(np.array([0.0, 0.0, 1.0]), axes_deg[:, :3].shape)
         detector_lab = arm_vector(axes_deg[:, 2], axes_deg[:, 3])
         return lab_to_sample(light_lab, rotation, tilt), lab_to_sample(detector_lab, rotation, tilt)
+
+    @property
+    def collision_rule(self) -> str:
+        return (f"the detector may not come within kinematics.arm_collision_deg = "
+                f"{self.arm_collision_deg:g}° of the tilt-stage support (lab −y)")
+
+    def support_margin(self, axes_deg) -> np.ndarray:
+        """Angle (N,) in degrees from the detector arm to the support (lab −y), minus arm_collision_deg."""
+        axes = np.asarray(axes_deg, dtype=np.float64).reshape(-1, 4)
+        u = arm_vector(axes[:, 2], axes[:, 3])
+        return np.degrees(np.arctan2(np.hypot(u[:, 0], u[:, 2]), -u[:, 1])) - self.arm_collision_deg
+
+    def _support_margin_one(self, azimuth_deg: float, tilt_deg: float) -> float:
+        a, t = math.radians(azimuth_deg), math.radians(tilt_deg)
+        st = math.sin(t)
+        return math.degrees(math.atan2(math.hypot(st * math.cos(a), math.cos(t)), -st * math.sin(a))) \
+            - self.arm_collision_deg
+
+    def _sweep_margin(self, start, end):
+        return lipschitz_min(self.support_margin, start, end, self.velocity_deg_s, self.accel_deg_s2, (2, 3))
+
+    def _sweep_margin_one(self, start, end):
+        # Most moves are proved clear by the bound over the whole move; only the others pay for numpy.
+        g0 = self._support_margin_one(start[2], start[3])
+        g1 = self._support_margin_one(end[2], end[3])
+        bound = 0.5 * (g0 + g1 - abs(end[2] - start[2]) - abs(end[3] - start[3]))
+        if bound >= 0.0:
+            return min(bound, g0, g1)
+        return float(self._sweep_margin(np.array([start]), np.array([end]))[0])
+
+    def detours(self):
+        """Detector tilts that keep it clear of the support at any azimuth: the zenith, and just inside
+        and outside the band |tilt ∓ 90°| < arm_collision_deg where the support can be met."""
+        lo, hi = self.limits_deg[3]
+        gap = self.arm_collision_deg + 1.0
+        values = [0.0, 90.0 - gap, -(90.0 - gap), 90.0 + gap, -(90.0 + gap)]
+        return [(3, v) for v in values if lo <= v <= hi]

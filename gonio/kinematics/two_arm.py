@@ -13,14 +13,24 @@ Arm collision: both carriages ride the one ring, so their azimuths may not come 
 ``arm_collision_deg`` of each other (mod 360°), whatever the tilts. Flipping one arm over the zenith
 moves its carriage by 180°, which is how most close-azimuth poses (Δφ near 0° or 180°) stay reachable.
 
+In transit: the carriage azimuth difference d(t) = a_light(t) − a_detector(t) is piecewise quadratic in
+t, so its range over a move is found exactly (:func:`~gonio.kinematics.sweep.difference_range`); the
+move is clear when that range keeps ``arm_collision_deg`` from every multiple of 360°. The free
+axis space falls into strips of d between consecutive multiples of 360° (the carriages' order around
+the ring and the cable wrap): no motion leaves its strip (:meth:`TwoArm.free_component`).
+
 Free azimuth: an arm at θ = 0 may sit at any azimuth. It keeps its current position (home when none
 is given) when that is within its limits and clear of the other carriage, and otherwise moves the
-shortest way to the nearest position that is. When both arms are at θ = 0, two branches are offered
+shortest way to the nearest position that is on its side of the other carriage (it cannot pass it);
+only when the limits leave no such position does it take the nearest clear one anywhere. When both
+arms are at θ = 0, two branches are offered
 (the light keeps its azimuth and the detector steps aside, or the other way round) and
 :meth:`~gonio.kinematics.base.Kinematics.inverse` takes the quicker.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -35,6 +45,7 @@ from gonio.kinematics.base import (
     nearest_allowed_azimuth,
     wrap_360,
 )
+from gonio.kinematics.sweep import difference_range, difference_range_scalar
 
 __all__ = ["TwoArm", "arm_branches"]
 
@@ -106,18 +117,19 @@ class TwoArm(Kinematics):
 
         # One arm at the pole: it steps aside from the other's carriage (if it has to). Only those
         # poses are solved, so the common case pays nothing for the search.
+        strip = np.floor((cur_l - cur_d) / 360.0)
         one = pole_l & ~pole_d
-        pair_l[one] = nearest_allowed_azimuth(cur_l[one], lo_l, hi_l, az_d[one][:, None, :], col)
+        pair_l[one] = self._aside(cur_l[one], az_d[one][:, None, :], strip[one], True)
         one = pole_d & ~pole_l
-        pair_d[one] = nearest_allowed_azimuth(cur_d[one], lo_d, hi_d, az_l[one][:, :, None], col)
+        pair_d[one] = self._aside(cur_d[one], az_l[one][:, :, None], strip[one], False)
         # Both at the pole: the two sign branches of the light arm coincide there, so its first half
         # carries "light stays, detector steps aside" and the second half the converse.
         both = pole_l & pole_d
         if both.any():
             keep_l = np.clip(cur_l[both], lo_l, hi_l)
             keep_d = np.clip(cur_d[both], lo_d, hi_d)
-            aside_d = nearest_allowed_azimuth(cur_d[both], lo_d, hi_d, keep_l, col)
-            aside_l = nearest_allowed_azimuth(cur_l[both], lo_l, hi_l, keep_d, col)
+            aside_d = self._aside(cur_d[both], keep_l, strip[both], False)
+            aside_l = self._aside(cur_l[both], keep_d, strip[both], True)
             light_stays = (np.arange(n_l) < n_l // 2)[None, :, None]
             pair_l[both] = np.where(light_stays, keep_l, aside_l)
             pair_d[both] = np.where(light_stays, aside_d, keep_d)
@@ -129,5 +141,54 @@ class TwoArm(Kinematics):
         )
         return cands.reshape(n, n_l * n_d, 4), collides.reshape(n, n_l * n_d)
 
+    def _aside(self, current, other, strip, is_light):
+        """Where a free carriage goes (broadcast shape of the inputs, degrees): the position nearest
+        ``current`` that keeps clear of the other carriage at ``other`` and on the same side of it as
+        now (strip k of the difference light − detector, from the current axes), since it cannot pass
+        the other carriage on the way. When the limits leave no such position, the nearest clear one
+        anywhere (the move there then needs the other carriage out of the way, or is refused)."""
+        col = self.arm_collision_deg
+        j = 0 if is_light else 2
+        lo, hi = self.limits_deg[j]
+        if is_light:   # a_light − other in [360k + col, 360k + 360 − col]
+            low, high = other + 360.0 * strip + col, other + 360.0 * strip + 360.0 - col
+        else:          # other − a_detector in the same band
+            low, high = other - 360.0 * strip - 360.0 + col, other - 360.0 * strip - col
+        low, high = np.maximum(low, lo), np.minimum(high, hi)
+        fallback = nearest_allowed_azimuth(current, lo, hi, other, col)
+        return np.where(low <= high, np.clip(current, low, np.maximum(low, high)), fallback)
+
     def _directions(self, axes_deg):
         return arm_vector(axes_deg[:, 0], axes_deg[:, 1]), arm_vector(axes_deg[:, 2], axes_deg[:, 3])
+
+    @property
+    def collision_rule(self) -> str:
+        return (f"the light and detector carriages share one ring and may not come within "
+                f"kinematics.arm_collision_deg = {self.arm_collision_deg:g}° of each other, nor pass")
+
+    def free_component(self, axes_deg):
+        """Strip k of the carriage difference d = a_light − a_detector: d in (360k, 360(k + 1))."""
+        axes = np.asarray(axes_deg, dtype=np.float64).reshape(-1, 4)
+        return np.floor((axes[:, 0] - axes[:, 2]) / 360.0).astype(np.int64)
+
+    def _sweep_margin(self, start, end):
+        v, a = self.velocity_deg_s, self.accel_deg_s2
+        lo, hi = difference_range(start[:, 0], end[:, 0], start[:, 2], end[:, 2], v[0], a[0], v[2], a[2])
+        return _ring_margin(lo, hi, self.arm_collision_deg)
+
+    def _sweep_margin_one(self, start, end):
+        v, a = self._velocity_list, self._accel_list
+        lo, hi = difference_range_scalar(start[0], end[0], start[2], end[2], v[0], a[0], v[2], a[2])
+        # The smallest distance to a multiple of 360° over [lo, hi]: zero when one lies inside.
+        if math.ceil(lo / 360.0) * 360.0 <= hi:
+            sep = 0.0
+        else:
+            sep = min(min(x % 360.0, 360.0 - x % 360.0) for x in (lo, hi))
+        return sep - self.arm_collision_deg
+
+
+def _ring_margin(lo, hi, collision_deg):
+    """Smallest carriage separation minus ``collision_deg`` over a difference range [lo, hi] (degrees)."""
+    crosses = np.ceil(lo / 360.0) * 360.0 <= hi
+    sep = np.minimum(circular_distance_deg(lo, 0.0), circular_distance_deg(hi, 0.0))
+    return np.where(crosses, 0.0, sep) - collision_deg

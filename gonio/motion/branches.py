@@ -21,14 +21,22 @@ import numpy as np
 from gonio.motion.chain import free_azimuth, run_inputs
 from gonio.motion.metric import MoveMetric
 
-__all__ = ["best_branches"]
+__all__ = ["best_branches", "COLLISION_PENALTY_S"]
+
+#: s: what a move that collides costs on top of its time when ``check_moves`` is on. Far above any
+#: campaign's motion, so fewer colliding moves always win; the time decides among equals.
+COLLISION_PENALTY_S = 1e7
 
 # Poses whose branches and back-pointers are held at once (a few hundred MB at most).
 _GROUP_POSES = 1 << 16
 
 
-def best_branches(kin, theta_i, phi_i, theta_o, phi_o, run_starts, reference_deg) -> np.ndarray:
+def best_branches(kin, theta_i, phi_i, theta_o, phi_o, run_starts, reference_deg,
+                  check_moves: bool = False) -> np.ndarray:
     """Axis targets (P, n_axes) in degrees minimizing each run's move time, reference trips included.
+
+    Only branches in the reference's part of the collision-free axis space are used
+    (:meth:`Kinematics.free_component`): the others cannot be reached from it without a collision.
 
     Parameters
     ----------
@@ -41,6 +49,11 @@ def best_branches(kin, theta_i, phi_i, theta_o, phi_o, run_starts, reference_deg
         Indices where a run begins; must include 0. Each run goes reference → its poses → reference.
     reference_deg : array_like, shape (n_axes,)
         Axis positions of the reference pose, degrees.
+    check_moves : bool
+        Also check every candidate move's swept path (:meth:`Kinematics.sweep_clearance`) and price
+        the colliding ones at :data:`COLLISION_PENALTY_S` extra, so that a run uses as few of them as
+        it can (each then needs via points) and otherwise the quickest branches. Costs a sweep check
+        per pair of branches: for re-solving the few runs where the plain choice collides.
 
     Returns
     -------
@@ -63,15 +76,18 @@ def best_branches(kin, theta_i, phi_i, theta_o, phi_o, run_starts, reference_deg
     while first < starts.size:
         last = int(np.searchsorted(ends, ends[first] + _GROUP_POSES, side="right"))
         last = max(last, first + 1)
-        _solve_group(kin, metric, poses, free, starts[first:last], ends[first:last], ref, out)
+        _solve_group(kin, metric, poses, free, starts[first:last], ends[first:last], ref, out, check_moves)
         first = last
     return out
 
 
-def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out) -> None:
+def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out, check_moves) -> None:
     lo, hi = int(r_starts[0]), int(r_ends[-1])
     sols = np.asarray(kin.solutions(*(a[lo:hi] for a in poses)), dtype=np.float64)
+    home_part = kin.free_component(ref)[0]
     valid = ~np.isnan(sols[..., 0])
+    valid &= kin.free_component(np.where(valid[..., None], sols, 0.0)).reshape(valid.shape) == home_part
+    sols[~valid] = np.nan
     # Valid branches first, and only as many columns as the widest pose needs.
     by_valid = np.argsort(~valid, axis=1, kind="stable")
     width = max(int(valid.sum(axis=1).max()), 1)
@@ -95,6 +111,8 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out) -> None:
             # An invalid branch before has no successor that matters (its cost is inf): any start will do.
             here = np.where(np.isnan(here).any(axis=1, keepdims=True), ref, here)
             again = kin.inverse(*(np.repeat(a[lo + rows[f]], width) for a in poses), current_deg=here)
+            elsewhere = kin.free_component(np.nan_to_num(again)) != home_part
+            again[elsewhere] = np.nan
             cand[f] = again.reshape(f.size, width, n_axes)
         chosen[rows] = cand
         # times[r, s_prev, s] of every pair of branches of consecutive poses.
@@ -106,6 +124,9 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out) -> None:
             times[is_free] += diag
         if step == 0:
             times = times[:, :1, :]  # every run starts from the one reference position
+        if check_moves:
+            _price_collisions(kin, times, prev[active][:, :times.shape[1]], cand)
+        if step == 0:
             total = times[:, 0, :]
             back[rows] = 0
         else:
@@ -118,6 +139,10 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out) -> None:
         if done.any():
             d = active[done]
             home = metric.time(prev[d], ref)
+            if check_moves:
+                finite = np.flatnonzero(~np.isnan(home.reshape(-1)))
+                clear, _ = kin.sweep_clearance(prev[d].reshape(-1, n_axes)[finite], ref)
+                home.reshape(-1)[finite[~clear]] += COLLISION_PENALTY_S
             final[d] = np.argmin(np.where(np.isnan(home), np.inf, cost[d] + home), axis=1)
     if not np.all(np.isfinite(cost[np.arange(n_runs), final])):
         bad = int(np.flatnonzero(~np.isfinite(cost[np.arange(n_runs), final]))[0])
@@ -130,6 +155,17 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out) -> None:
         rows = r_starts[active] + step - lo
         out[lo + rows] = chosen[rows, state[active]]
         state[active] = back[rows, state[active]]
+
+
+def _price_collisions(kin, times, prev, cand) -> None:
+    """Add the penalty to ``times`` (B, W', W) where the move from ``prev`` (B, W', n) to ``cand``
+    (B, W, n) collides in transit (finite entries only)."""
+    finite = np.isfinite(times)
+    if not finite.any():
+        return
+    b, i, j = np.nonzero(finite)
+    clear, _ = kin.sweep_clearance(prev[b, i], cand[b, j])
+    times[b[~clear], i[~clear], j[~clear]] += COLLISION_PENALTY_S
 
 
 def _pair_times(prev: np.ndarray, cand: np.ndarray, metric: MoveMetric) -> np.ndarray:

@@ -12,6 +12,10 @@ The estimate adds these up over the actual step sequence. The lower bound keeps 
 exactly (they do not depend on the order) and replaces the moves between the reference and the poses
 by :func:`gonio.motion.bound.motion_lower_bound`; the two moves between home and the reference are
 fixed and counted exactly in both.
+
+Moves that collide in transit go through via points (:mod:`gonio.motion.safe`); the estimate adds
+the time they cost. The bound needs no change: a path through via points is never quicker than the
+direct move (the move time is a metric), so bounding direct moves still bounds the campaign.
 """
 
 from __future__ import annotations
@@ -57,7 +61,7 @@ def step_move_times(targets_deg, start_deg, metric: MoveMetric) -> np.ndarray:
 
 
 def campaign_estimate(targets_deg, settles, n_readings: int, home_deg, metric: MoveMetric,
-                      settle_s: float, reading_s: float) -> dict[str, float]:
+                      settle_s: float, reading_s: float, extra_move_s=None) -> dict[str, float]:
     """Estimated duration of a step sequence that starts and ends at home.
 
     Parameters
@@ -74,22 +78,32 @@ def campaign_estimate(targets_deg, settles, n_readings: int, home_deg, metric: M
         The move-time metric.
     settle_s, reading_s : float
         Settle time after a move, and exposure × frames per reading, seconds.
+    extra_move_s : array_like, shape (S + 1,), optional
+        Seconds each move takes beyond the direct move (via points; :mod:`gonio.motion.safe`), the last
+        entry for the return home. The gantry passes via points at rest but does not settle there.
 
     Returns
     -------
     dict
-        ``move_s`` (all moves into steps), ``return_s`` (back home), ``settle_s``, ``reading_s`` and
-        ``total_s``, all seconds.
+        ``move_s`` (all moves into steps, via points included), ``return_s`` (back home),
+        ``settle_s``, ``reading_s`` and ``total_s``, all seconds, and ``via_s`` (the part of
+        ``move_s`` and ``return_s`` spent going round through via points).
     """
     targets = np.asarray(targets_deg, dtype=np.float64)
     moves = step_move_times(targets, home_deg, metric)
     moving = ~np.isnan(targets).any(axis=1)
     last = targets[moving][-1] if moving.any() else np.asarray(home_deg, dtype=np.float64)
     back = float(metric.time(last, home_deg))
+    extra = np.zeros(targets.shape[0] + 1) if extra_move_s is None else np.asarray(extra_move_s, float)
+    if extra.shape != (targets.shape[0] + 1,):
+        raise ValueError(f"extra_move_s: expected shape ({targets.shape[0] + 1},), got {extra.shape}")
+    moves = moves + extra[:-1]
+    back += float(extra[-1])
     parts = {"move_s": float(moves.sum()), "return_s": back,
              "settle_s": float(np.count_nonzero(settles)) * settle_s,
              "reading_s": float(n_readings) * reading_s}
     parts["total_s"] = sum(parts.values())
+    parts["via_s"] = float(extra.sum())
     return parts
 
 

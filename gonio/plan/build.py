@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gonio.config import GonioConfig
-from gonio.motion.branches import best_branches
+from gonio.motion.branches import COLLISION_PENALTY_S, best_branches
 from gonio.motion.chain import nearest_branch
 from gonio.motion.cut import serpentine_loops
 from gonio.motion.estimate import campaign_estimate, campaign_lower_bound
@@ -40,7 +40,8 @@ from gonio.motion.order import (
     serpentine_order,
 )
 from gonio.plan.grids import GridSpec, class_members, enumerate_grid, parse_grid
-from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, run_starts, schedule_steps
+from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE, run_starts, schedule_steps
+from gonio.plan.transit import colliding_runs, secure_branches, step_targets, via_points
 
 __all__ = ["Plan", "build_plan", "TOUR_MAX_POSES", "REASON_CAUSES"]
 
@@ -92,7 +93,15 @@ class Plan:
         Columns of ``axes_deg``.
     timing : dict
         ``{"estimate": {...}, "lower_bound": {...}}``: the parts of both figures in seconds (see
-        :mod:`gonio.motion.estimate`), plus ``pose_motion_s``, the estimate's pose-to-pose moves.
+        :mod:`gonio.motion.estimate`), plus ``pose_motion_s``, the estimate's pose-to-pose moves,
+        ``via_moves`` (moves that need via points, the park included) and ``resolved_runs`` (runs
+        whose branches were chosen again because a move collided).
+    via_deg : dict of int to ndarray, shape (k, n_axes)
+        Step index -> the waypoints (degrees) the gantry passes at rest before that step's target,
+        for the moves that would collide in transit if made directly; exactly
+        ``gonio.motion.safe.safe_path(kin, previous target, target)[:-1]`` (from home for the first).
+    park_deg : ndarray, shape (K, n_axes)
+        The path home after the last step (``gonio.motion.safe.park_path``); its last row is home.
     """
 
     grid: str
@@ -112,6 +121,8 @@ class Plan:
     order: str = "serpentine"
     axis_names: tuple[str, ...] = ()
     timing: dict = field(default_factory=dict)
+    via_deg: dict[int, np.ndarray] = field(default_factory=dict)
+    park_deg: np.ndarray | None = None
 
 
 def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
@@ -152,7 +163,14 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
     metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
     ref_angles = _reference_angles(cfg)
     ref_options = _reference_branches(kin, ref_angles, home)
-    ref_first = np.asarray(kin.inverse(*ref_angles, current_deg=home), dtype=np.float64)[0]
+    # Where ordering and cut trials start: the reference branch nearest home among those reachable
+    # from home (only they share home's part of the collision-free axis space).
+    reachable = ref_options[kin.free_component(ref_options) == kin.free_component(home)[0]]
+    if reachable.size == 0:
+        raise ValueError(f"reference pose: no branch can be reached from home without a collision "
+                         f"({kin.collision_rule}); move the reference pose (reference.*) or home "
+                         "(axes.<name>.home_deg)")
+    ref_first = reachable[int(np.argmin(metric.time(home, reachable)))].copy()
 
     order = _resolve_order(spec, n)
     if order == "tour":
@@ -172,14 +190,16 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
     axes = best_branches(kin, *angles, starts, ref)
 
     step_kind, step_pose = schedule_steps(n, every)
-    targets = np.full((step_kind.size, axes.shape[1]), np.nan)
-    is_pose = step_kind == STEP_POSE
-    targets[is_pose] = axes[step_pose[is_pose]]
-    targets[step_kind == STEP_REFERENCE] = ref
+    # Moves, not only poses, must be clear: runs with a colliding move choose their branches again
+    # with every move checked; what still collides goes through via points.
+    runs = colliding_runs(kin, step_kind, step_pose, axes, ref, home, starts)
+    axes = secure_branches(kin, angles, starts, ref, axes, runs)
+    targets = step_targets(step_kind, step_pose, axes, ref)
+    via, park, extra = via_points(kin, targets, home)
     reading_s = cfg.detector.exposure_s * cfg.detector.frames
     settle_s = cfg.runner.settle_s
     estimate = campaign_estimate(targets, step_kind != STEP_DARK, step_kind.size, home, metric,
-                                 settle_s, reading_s)
+                                 settle_s, reading_s, extra)
     n_ref = int(np.count_nonzero(step_kind == STEP_REFERENCE))
     n_dark = int(np.count_nonzero(step_kind == STEP_DARK))
     bound = campaign_lower_bound(axes, ref, np.diff(np.append(starts, n)), n_ref, n_dark, home, metric,
@@ -188,7 +208,8 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
     follows_pose[1:] = True
     follows_pose[starts] = False
     pose_motion = metric.time(axes[:-1], axes[1:])[follows_pose[1:]].sum() if n > 1 else 0.0
-    timing = {"estimate": estimate, "lower_bound": bound, "pose_motion_s": float(pose_motion)}
+    timing = {"estimate": estimate, "lower_bound": bound, "pose_motion_s": float(pose_motion),
+              "via_moves": len(via) + int(park.shape[0] > 1), "resolved_runs": int(len(runs))}
 
     return Plan(
         grid=spec.spelled(theta_max, order),
@@ -205,6 +226,8 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
         order=order,
         axis_names=tuple(kin.axis_names),
         timing=timing,
+        via_deg=via,
+        park_deg=park,
     )
 
 
@@ -273,6 +296,10 @@ def _best_reference(kin, options: np.ndarray, angles, starts: np.ndarray, home: 
     ends = np.unique(np.concatenate([starts, np.append(starts[1:], angles[0].size) - 1]))
     sols = np.asarray(kin.solutions(*(a[ends] for a in angles)), dtype=np.float64)
     cost = 2.0 * metric.time(home, options)
+    # A branch the gantry cannot reach from home without a collision is no option; one whose move
+    # from home collides only as made directly would need via points: the last resort.
+    cost[kin.free_component(options) != kin.free_component(home)[0]] = np.inf
+    cost[~kin.sweep_clearance(np.broadcast_to(home, options.shape), options)[0]] += COLLISION_PENALTY_S
     for k, option in enumerate(options):
         here = np.broadcast_to(option, (ends.size, option.size))
         near = nearest_branch(sols, here, metric)

@@ -163,8 +163,11 @@ def test_free_light_azimuth_steps_aside_from_the_detector_carriage():
     current = [5.0, 0.0, 180.0, 0.0]
     sols = KIN.solutions(0.0, 0.0, R(45), R(3), current_deg=current)[0]
     rows = {tuple(r) for r in np.round(sols[~np.isnan(sols[:, 0])], 9)}
-    # Detector carriage at 3°: the light leaves for the nearer edge 13°; at 183° the light stays.
-    assert (13.0, 0.0, 3.0, 45.0) in rows and (5.0, 0.0, 183.0, -45.0) in rows
+    # Detector carriage at 3°: it comes from 180° (light − detector = −175°, the detector ahead
+    # counter-clockwise), so the light gives way clockwise to −7° rather than to the nearer edge 13°
+    # on the far side, which the detector could only reach by passing it; at 183° the light stays.
+    assert (-7.0, 0.0, 3.0, 45.0) in rows and (5.0, 0.0, 183.0, -45.0) in rows
+    assert (13.0, 0.0, 3.0, 45.0) not in rows
     np.testing.assert_allclose(KIN.inverse(0.0, 0.0, R(45), R(3), current_deg=current),
                                [[5.0, 0.0, 183.0, -45.0]], atol=1e-9)
 
