@@ -1,0 +1,221 @@
+"""The wire under an emulator: a pty pair with a stable name, faults to inject, and the serving thread.
+
+A driver opens :attr:`PtyLink.port` (a symlink in a private folder, like ``/dev/serial/by-id/...``) as if
+it were a USB serial adapter; the emulator reads and writes the pty master. :meth:`PtyLink.unplug` closes
+both ends, as pulling the cable does (the driver's next read or flush fails), and :meth:`PtyLink.replug`
+makes a fresh pty behind the same name, so a driver can reconnect by reopening the port.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import tempfile
+import threading
+import time
+import tty
+from collections import deque
+from dataclasses import dataclass
+
+__all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "mangle"]
+
+#: Kinds of fault an emulator applies to its next matching reply.
+FAULT_KINDS = ("drop", "corrupt", "truncate", "delay", "disconnect")
+
+
+class PtyLink:
+    """A pseudo-terminal whose slave side is reachable under a stable path.
+
+    Parameters
+    ----------
+    name : str
+        Base name of the symlink (e.g. ``"ttyDXL"``).
+    """
+
+    def __init__(self, name: str = "ttyEMU"):
+        self._dir = tempfile.mkdtemp(prefix="gonio-emu-")
+        self.port = os.path.join(self._dir, name)
+        self.master: int | None = None
+        self._slave: int | None = None
+        self.replug()
+
+    def replug(self) -> None:
+        """Make a fresh pty pair behind :attr:`port` (closing any previous one)."""
+        self.unplug()
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        tmp = self.port + ".new"
+        os.symlink(os.ttyname(slave), tmp)
+        os.replace(tmp, self.port)
+        # The emulator keeps the slave open too: the master never sees EIO while a driver reopens.
+        self.master, self._slave = master, slave
+
+    def unplug(self) -> None:
+        """Close both ends: the driver's open port stops working, as when a cable is pulled."""
+        for fd in (self.master, self._slave):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self.master = self._slave = None
+
+    @property
+    def plugged(self) -> bool:
+        return self.master is not None
+
+    def read(self, timeout_s: float) -> bytes:
+        """Bytes the driver wrote, waiting at most ``timeout_s`` s (b"" when none, or unplugged)."""
+        fd = self.master
+        if fd is None:
+            return b""
+        try:
+            ready, _, _ = select.select([fd], [], [], timeout_s)
+            if not ready:
+                return b""
+            return os.read(fd, 4096)
+        except (OSError, ValueError):
+            return b""
+
+    def write(self, data: bytes) -> None:
+        fd = self.master
+        if fd is None or not data:
+            return
+        view = memoryview(data)
+        deadline = time.monotonic() + 1.0
+        while view and time.monotonic() < deadline:
+            try:
+                n = os.write(fd, view)
+            except BlockingIOError:
+                select.select([], [fd], [], 0.01)
+                continue
+            except OSError:
+                return
+            view = view[n:]
+
+    def close(self) -> None:
+        self.unplug()
+        try:
+            os.unlink(self.port)
+        except OSError:
+            pass
+        try:
+            os.rmdir(self._dir)
+        except OSError:
+            pass
+
+
+@dataclass
+class Fault:
+    """One injected fault: what happens to the next reply that matches.
+
+    ``kind`` is one of :data:`FAULT_KINDS`; ``match`` narrows which replies it applies to (an emulator
+    compares it with its own key, e.g. a servo ID or a command word; None matches any); ``delay_s`` is
+    the hold-back for ``"delay"``.
+    """
+
+    kind: str
+    match: object = None
+    delay_s: float = 0.0
+
+
+class FaultPlan:
+    """A thread-safe queue of faults, consumed one per matching reply, in order."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._queue: deque[Fault] = deque()
+        #: Faults applied so far, as (kind, key) pairs: tests check what actually happened.
+        self.applied: list[tuple[str, object]] = []
+
+    def add(self, kind: str, *, match: object = None, times: int = 1, delay_s: float = 0.0) -> None:
+        """Queue ``times`` faults of ``kind`` for replies matching ``match`` (None: any reply)."""
+        if kind not in FAULT_KINDS:
+            raise ValueError(f"fault kind {kind!r} is not one of {', '.join(FAULT_KINDS)}")
+        if not isinstance(times, int) or times < 1:
+            raise ValueError(f"fault times must be an integer >= 1, got {times!r}")
+        if kind == "delay" and not 0.0 < delay_s <= 10.0:
+            raise ValueError(f"fault delay_s must be in (0, 10] s, got {delay_s!r}")
+        with self._lock:
+            self._queue.extend(Fault(kind, match, delay_s) for _ in range(times))
+
+    def take(self, *keys: object) -> Fault | None:
+        """The first queued fault whose ``match`` is None or equals one of ``keys`` (removed from the
+        queue), or None. An emulator passes its keys from coarse to fine, e.g. ``(id, (id, inst))``."""
+        with self._lock:
+            for i, fault in enumerate(self._queue):
+                if fault.match is None or fault.match in keys:
+                    del self._queue[i]
+                    self.applied.append((fault.kind, keys[0] if keys else None))
+                    return fault
+        return None
+
+    def clear(self) -> None:
+        with self._lock:
+            self._queue.clear()
+
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._queue)
+
+
+def mangle(reply: bytes, fault: Fault | None) -> bytes | None:
+    """Apply a byte-level fault to a reply: None to drop it, else the bytes to send (after any delay)."""
+    if fault is None:
+        return reply
+    if fault.kind == "drop":
+        return None
+    if fault.kind == "corrupt":
+        # Flip the last byte: the checksum (or the line terminator's neighbour) no longer matches.
+        return reply[:-1] + bytes([reply[-1] ^ 0x5A]) if reply else reply
+    if fault.kind == "truncate":
+        return reply[: max(1, len(reply) // 2)]
+    if fault.kind == "delay":
+        time.sleep(fault.delay_s)  # the emulator's own thread: holding the reply back is the point
+    return reply
+
+
+class EmulatorThread:
+    """A daemon thread running ``step()`` until :meth:`stop`; each step waits at most ``poll_s``."""
+
+    poll_s = 0.02
+
+    def __init__(self, name: str):
+        self._name = name
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+
+    def start(self) -> None:
+        if self._thread is not None:
+            raise RuntimeError(f"emulator '{self._name}' is already running")
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"emu-{self._name}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                self.step()
+        except BaseException as exc:  # kept for the test to see; the thread must not die silently
+            self.error = exc
+
+    def step(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop the thread and wait for it (at most ``timeout_s`` s)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                raise RuntimeError(f"emulator '{self._name}' did not stop within {timeout_s} s")
+        self._thread = None
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
