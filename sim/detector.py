@@ -132,8 +132,9 @@ def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_ha
     wi_s = _cone_directions(wi_c, dr.opaque(Float, om_src), u1, u2)
     wo_s = _cone_directions(wo_c, dr.opaque(Float, om_det), u3, u4)
     fr_cos = material.eval_dr(wi_s, wo_s) * dr.maximum(wi_s.z, 0.0)
-    # float64 sums: Σx² − (Σx)²/n cancels to the variance, which for a smooth lobe in a small cone is
-    # ~1e-8 of the mean squared, below float32's resolution.
+    # float64 sums: Σx² − (Σx)²/n cancels down to the variance, which can be ~1e-10 of the squared
+    # mean (a Lambertian in a 0.5° cone), far below float32's resolution: float32 sums gave 100x the
+    # true error there (tools/bench_detector.py).
     x = Array3f64(fr_cos)
     x2 = x * x
     dr.eval(x, x2)  # one kernel for the samples; the block sums then only read memory
