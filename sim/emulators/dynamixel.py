@@ -293,7 +293,9 @@ class DynamixelBusEmulator(EmulatorThread):
         self.link = link or PtyLink("ttyDXL")
         self.faults = FaultPlan()
         self.received: list[bytes] = []
+        self.handled = 0
         self.lock = threading.RLock()
+        self._heard = threading.Condition(self.lock)
         self._reader = PacketReader()
 
     @property
@@ -327,6 +329,14 @@ class DynamixelBusEmulator(EmulatorThread):
                 self.received.append(packet.raw)
                 for dxl_id, reply in self._handle(packet):
                     self._send(dxl_id, packet.inst, reply)
+                self.handled += 1
+                self._heard.notify_all()
+
+    def wait_received(self, count: int, timeout_s: float = 2.0) -> bool:
+        """Wait until ``count`` packets in all have been received and answered (replies sent, delays
+        served): for packets that get no reply, and before asserting on what a late reply did."""
+        with self._heard:
+            return self._heard.wait_for(lambda: self.handled >= count, timeout_s)
 
     def _send(self, dxl_id: int, inst: int, reply: bytes) -> None:
         fault = self.faults.take(dxl_id, (dxl_id, inst))
