@@ -42,6 +42,7 @@ ggx                      alpha > 0, or alpha_u > 0 and alpha_v > 0, required; Fr
                          smith: separable | correlated [separable]; rho_d RGB [0, 1] [0];
                          rho_s RGB [0, 1] [1]; rho_d + rho_s <= 1 per channel
 merl                     merl:PATH, a MERL .binary table                                  R
+bsdf                     bsdf:PATH, a Mitsuba 3 / pbrt-v4 measured-BSDF tensor file       –
 ======================== ================================================================ ==========
 
 R: reciprocal, E: energy conserving (the class attributes ``reciprocal``, ``energy_conserving``).
@@ -62,6 +63,7 @@ maps numpy memory as it is and specializes the kernel to the alignment it finds.
 from __future__ import annotations
 
 from .base import Material
+from .bsdf_file import MeasuredTensor
 from .cook_torrance import CookTorrance, CookTorranceEnergyConserving
 from .ggx import GGX
 from .lambert import Lambert
@@ -71,11 +73,12 @@ from .spec import split_spec
 from .ward import Ward
 
 __all__ = ["load", "Material", "MODELS", "Lambert", "Phong", "ModifiedPhong", "BlinnPhong",
-           "NormalizedBlinnPhong", "Ward", "CookTorrance", "CookTorranceEnergyConserving", "GGX", "Merl"]
+           "NormalizedBlinnPhong", "Ward", "CookTorrance", "CookTorranceEnergyConserving", "GGX", "Merl",
+           "MeasuredTensor"]
 
 #: Model name → class; each class has ``parse(text)`` for the part of the spec after ``name:``.
 MODELS = {cls.model: cls for cls in (Lambert, Phong, ModifiedPhong, BlinnPhong, NormalizedBlinnPhong,
-                                     Ward, CookTorrance, GGX, Merl)}
+                                     Ward, CookTorrance, GGX, Merl, MeasuredTensor)}
 
 
 def load(spec: str) -> Material:

@@ -1,6 +1,7 @@
 """A measured material from a MERL ``.binary`` table, looked up bin by bin in Dr.Jit.
 
-File format (shared/references/FORMATS.md): three little-endian int32 bin counts 90 (θh), 90 (θd),
+File format (shared/references/FORMATS.md; read by :func:`gonio.formats.merl.read_merl`, shared with the
+exporters): three little-endian int32 bin counts 90 (θh), 90 (θd),
 180 (φd), then three float64 planes R, G, B of 1,458,000 values each, flat index
 ``iφd + 180·(iθd + 90·iθh)``. Values are scaled on read, R × 1/1500, G × 1.15/1500, B × 1.66/1500, to
 f_r in sr⁻¹; a negative value means "no data" and evaluates to 0 (per channel).
@@ -21,44 +22,16 @@ are resolved against the working directory when loading).
 from __future__ import annotations
 
 import math
-import os
 
 import drjit as dr
 import numpy as np
 
+from gonio.formats.merl import MERL_SCALE, read_merl
 from gonio.geometry import MERL_SHAPE
 
 from .base import Material
 
 __all__ = ["Merl", "read_merl", "merl_index_dr", "MERL_SCALE"]
-
-#: Multipliers from stored values to f_r in sr⁻¹, per channel (R, G, B).
-MERL_SCALE = (1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0)
-_BINS = MERL_SHAPE[0] * MERL_SHAPE[1] * MERL_SHAPE[2]
-_HEADER_BYTES = 12
-_FILE_BYTES = _HEADER_BYTES + 3 * _BINS * 8
-
-
-def read_merl(path: str) -> np.ndarray:
-    """The scaled table of a MERL file: float64 array of shape (3, 1458000), f_r in sr⁻¹ (R, G, B).
-
-    Negative (no-data) entries stay negative. Raises ValueError naming the file when it cannot be read,
-    has the wrong size or the wrong header.
-    """
-    try:
-        size = os.path.getsize(path)
-        if size != _FILE_BYTES:
-            raise ValueError(f"merl: file {path!r} has {size} bytes; a MERL table has {_FILE_BYTES} "
-                             f"(12-byte header, 3 × {_BINS} float64)")
-        with open(path, "rb") as fh:
-            header = np.frombuffer(fh.read(_HEADER_BYTES), dtype="<i4")
-            if tuple(header) != MERL_SHAPE:
-                raise ValueError(f"merl: file {path!r} has header {tuple(int(v) for v in header)}, "
-                                 f"expected {MERL_SHAPE}")
-            planes = np.frombuffer(fh.read(), dtype="<f8").reshape(3, _BINS)
-    except OSError as exc:
-        raise ValueError(f"merl: cannot read file {path!r}: {exc.strerror or exc}") from exc
-    return planes * np.asarray(MERL_SCALE)[:, None]
 
 
 def merl_index_dr(wi, wo):

@@ -1,0 +1,93 @@
+"""MERL ``.binary`` BRDF tables: read and write.
+
+Layout (shared/references/FORMATS.md; wdas/brdf ``BRDFMeasuredMERL.cpp``): three little-endian int32 bin
+counts 90 (θh), 90 (θd), 180 (φd), then three float64 planes R, G, B of 1,458,000 values each, flat index
+``iφd + 180·(iθd + 90·iθh)`` (:func:`gonio.geometry.merl_index`). Stored values are scaled on read,
+R × 1/1500, G × 1.15/1500, B × 1.66/1500, to f_r in sr⁻¹ (no cosine factor); writers divide by the same
+factors. A negative value means "no data" (below the horizon, or not measured). The format has no room for
+metadata: units, cosine convention and provenance go in the export report instead.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from gonio.geometry import MERL_SHAPE
+
+from . import atomic_path
+
+__all__ = ["MERL_SCALE", "MERL_BINS", "MERL_FILE_BYTES", "read_merl", "write_merl"]
+
+#: Multipliers from stored values to f_r in sr⁻¹, per channel (R, G, B).
+MERL_SCALE = (1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0)
+#: Bins per channel: 90 · 90 · 180.
+MERL_BINS = MERL_SHAPE[0] * MERL_SHAPE[1] * MERL_SHAPE[2]
+_HEADER_BYTES = 12
+#: Size of a whole file in bytes (12-byte header, 3 × 1,458,000 float64).
+MERL_FILE_BYTES = _HEADER_BYTES + 3 * MERL_BINS * 8
+
+
+def read_merl(path: str | Path) -> np.ndarray:
+    """The scaled table of a MERL file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.binary`` file of exactly :data:`MERL_FILE_BYTES` bytes.
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 1458000), float64
+        f_r in sr⁻¹ per channel (R, G, B), flat MERL index order. No-data entries stay negative.
+
+    Raises
+    ------
+    ValueError
+        Naming the file, when it cannot be read, has the wrong size or the wrong header.
+    """
+    path = os.fspath(path)
+    try:
+        size = os.path.getsize(path)
+        if size != MERL_FILE_BYTES:
+            raise ValueError(f"merl: file {path!r} has {size} bytes; a MERL table has {MERL_FILE_BYTES} "
+                             f"(12-byte header, 3 × {MERL_BINS} float64)")
+        with open(path, "rb") as fh:
+            header = np.frombuffer(fh.read(_HEADER_BYTES), dtype="<i4")
+            if tuple(int(v) for v in header) != MERL_SHAPE:
+                raise ValueError(f"merl: file {path!r} has header {tuple(int(v) for v in header)}, "
+                                 f"expected {MERL_SHAPE}")
+            planes = np.frombuffer(fh.read(), dtype="<f8").reshape(3, MERL_BINS)
+    except OSError as exc:
+        raise ValueError(f"merl: cannot read file {path!r}: {exc.strerror or exc}") from exc
+    return planes * np.asarray(MERL_SCALE)[:, None]
+
+
+def write_merl(path: str | Path, fr: np.ndarray) -> Path:
+    """Write a MERL table (atomically: a temporary file in the same folder, then a rename).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (conventionally ``*.binary``).
+    fr : array_like, shape (3, 1458000)
+        f_r in sr⁻¹ per channel (R, G, B) in flat MERL index order. NaN and negative entries are
+        written as −1 (stored units), MERL's "no data".
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    fr = np.asarray(fr, dtype=np.float64)
+    if fr.shape != (3, MERL_BINS):
+        raise ValueError(f"merl: table must have shape (3, {MERL_BINS}) (R, G, B × bins), got {fr.shape}")
+    stored = fr / np.asarray(MERL_SCALE)[:, None]
+    stored = np.where(np.isfinite(stored) & (stored >= 0.0), stored, -1.0)
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(np.asarray(MERL_SHAPE, dtype="<i4").tobytes())
+        fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
+    return path
