@@ -27,7 +27,9 @@ def hms(seconds: float) -> str:
 def plan_summary(plan: Plan) -> dict:
     """A JSON-ready dict: grid, symmetries, counts, infeasible, poses, steps, durations and their parts.
 
-    ``steps`` counts the steps by kind (``pose``, ``dark``, ``reference``) and in ``total``. Durations
+    ``steps`` counts the steps by kind (``pose``, ``dark``, ``reference``) and in ``total``; ``moves``
+    counts the moves (every step but the darks, and the park) and ``via_moves`` those that go through
+    via points to stay clear in transit. Durations
     are seconds (``estimated_s``, ``lower_bound_s``) with ``h:mm:ss`` twins; ``timing`` holds the parts
     of both (NaN parts, e.g. an MST skipped for a large plan, become None).
     """
@@ -50,6 +52,8 @@ def plan_summary(plan: Plan) -> dict:
         "lower_bound_s": float(plan.lower_bound_s),
         "lower_bound_hms": hms(plan.lower_bound_s),
         "timing": _jsonable(plan.timing),
+        "moves": int(np.count_nonzero(kinds != STEP_DARK)) + 1,
+        "via_moves": int(plan.timing.get("via_moves", len(plan.via_deg))),
     }
 
 
@@ -71,7 +75,9 @@ def format_plan(plan: Plan) -> str:
     st = s["steps"]
     lines += ["", f"steps        {st['total']:,}: {st['pose']:,} poses, {st['dark']:,} dark, "
                   f"{st['reference']:,} white reference",
-              f"order        {s['order']}", ""]
+              f"order        {s['order']}",
+              f"via points   {s['via_moves']:,} of {s['moves']:,} moves (the park included) go round a "
+              "collision in transit", ""]
     est, low = s["estimated_s"], s["lower_bound_s"]
     ratio = f"   (estimate / bound = {est / low:.3f})" if low > 0 else ""
     lines += [f"estimated    {hms(est):>10}   {est:,.1f} s",
