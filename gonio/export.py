@@ -1,0 +1,272 @@
+"""Exports of a measured BRDF to the files renderers and tools read.
+
+``export(source, fmt, out)`` takes a campaign folder, a ``brdf.h5``, a SampledBRDF or an open
+:class:`~gonio.brdf.MeasuredBRDF`, writes ``out`` (atomically; a folder for ``radiance``) and returns an
+:class:`ExportReport`: how many cells came from the data as measured, how many were interpolated through
+:mod:`gonio.brdf`, how many are empty (no support: below the horizon, beyond the measured range, gaps).
+
+======================  =====================================================================================
+format                  what is written
+======================  =====================================================================================
+``merl``                MERL ``.binary`` (f_r; empty cells −1, MERL's "no data"). A ``merl:stride=1``
+                        campaign fills its cells exactly; other campaigns are resampled at bin centres.
+``bsdf``                Mitsuba 3 / pbrt-v4 measured-BSDF tensor file, RGB (:mod:`gonio.formats.rgl`).
+``bsdf-spectral``       The same with ``spectra`` and ``wavelengths`` (360–830 nm every 10 nm) from R, G, B by
+                        a fixed linear basis (:func:`gonio.formats.rgl.rgb_to_spectrum`).
+``radiance``            A folder of PAB-Opto files, one per incidence (CIE-Y), for ``pabopto2bsdf``.
+``csv``                 The measured samples, one row each (no interpolation).
+``h5``                  The sampled dataset itself (``brdf.h5`` layout).
+======================  =====================================================================================
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from gonio.brdf import MeasuredBRDF, Reason, open_brdf
+from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
+from gonio.formats import atomic_path
+from gonio.formats.csv import write_csv
+from gonio.formats.merl import MERL_BINS, write_merl
+from gonio.formats.radiance import LUMINANCE_WEIGHTS, write_pabopto
+from gonio.formats.rgl import build_measured
+from gonio.formats.tensor import write_tensor
+from gonio.geometry import from_half_diff, merl_bin_centres, merl_unindex
+
+__all__ = ["export", "ExportReport", "FORMATS"]
+
+FORMATS = ("merl", "bsdf", "bsdf-spectral", "radiance", "csv", "h5")
+#: Wavelengths of ``bsdf-spectral`` files, nm.
+SPECTRAL_NM = tuple(float(x) for x in range(360, 831, 10))
+
+
+@dataclass
+class ExportReport:
+    """What an export wrote.
+
+    Attributes
+    ----------
+    format : str
+    paths : list of Path
+        Files written.
+    cells : int
+        Cells (values) the format holds.
+    from_data, interpolated, empty : int
+        Cells filled by a measured sample as it is, by interpolation, and left without data.
+    seconds : float
+        Wall time of the export.
+    notes : list of str
+        Conventions of the file (units, cosine) and anything worth knowing.
+    """
+
+    format: str
+    paths: list = field(default_factory=list)
+    cells: int = 0
+    from_data: int = 0
+    interpolated: int = 0
+    empty: int = 0
+    seconds: float = 0.0
+    notes: list = field(default_factory=list)
+
+    def __str__(self) -> str:
+        where = str(self.paths[0]) + (f" (+{len(self.paths) - 1} files)" if len(self.paths) > 1 else "")
+        return (f"{self.format}: {where}: {self.cells} cells, {self.from_data} from data, "
+                f"{self.interpolated} interpolated, {self.empty} empty ({self.seconds:.2f} s)")
+
+
+def _software_version() -> str:
+    try:
+        return version("gonio")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def _metadata(brdf: MeasuredBRDF, source, cosine: str) -> dict:
+    a = brdf.attrs
+    return {"units": "sr^-1", "cosine": cosine, "angles": "degrees; theta from +z, phi from the sample's +x",
+            "symmetries": json.dumps(brdf.symmetries, sort_keys=True),
+            "source": "in-memory dataset" if isinstance(source, SampledBRDF | MeasuredBRDF) else str(source),
+            "material": str(a.get("material", "")), "grid": str(a.get("grid", "")),
+            "gantry": str(a.get("gantry", "")), "interpolation": f"{brdf.domain}/{brdf.method} (gonio.brdf)",
+            "software": f"gonio {_software_version()}"}
+
+
+def export(source, fmt: str, out, *, method: str = "auto", theta_step_deg: float = 5.0,
+           resolution: int = 32) -> ExportReport:
+    """Export a measured BRDF.
+
+    Parameters
+    ----------
+    source : str, Path, SampledBRDF or MeasuredBRDF
+        A campaign folder, a ``brdf.h5``, data already read, or an open BRDF.
+    fmt : str
+        One of :data:`FORMATS`.
+    out : str or Path
+        Output file (a folder, created if needed, for ``radiance``). Its folder must exist.
+    method : {"auto", "grid", "scattered"}
+        Interpolation of :func:`gonio.brdf.open_brdf`.
+    theta_step_deg : float
+        Spacing of θi slices (``bsdf``) and of θi, θo, φo (``radiance``), degrees (> 0).
+    resolution : int
+        N of the N × N values per incidence of ``bsdf`` files (>= 4).
+
+    Returns
+    -------
+    ExportReport
+    """
+    if fmt not in FORMATS:
+        raise ValueError(f"export format {fmt!r} is unknown; allowed: {', '.join(FORMATS)}")
+    if not theta_step_deg > 0:
+        raise ValueError(f"theta_step_deg: must be > 0 degrees, got {theta_step_deg}")
+    if int(resolution) < 4:
+        raise ValueError(f"resolution: must be an integer >= 4, got {resolution}")
+    start = time.perf_counter()
+    out = Path(out)
+    if isinstance(source, MeasuredBRDF):
+        brdf, data = source, None
+    else:
+        data = source if isinstance(source, SampledBRDF) else read_brdf(_h5_path(source))
+        brdf = open_brdf(data, method=method) if fmt not in ("csv", "h5") else None
+    if fmt == "merl":
+        report = _merl(brdf, out)
+    elif fmt in ("bsdf", "bsdf-spectral"):
+        report = _bsdf(brdf, out, fmt, source, theta_step_deg, int(resolution))
+    elif fmt == "radiance":
+        report = _radiance(brdf, out, source, theta_step_deg)
+    else:
+        if data is None:
+            raise ValueError(f"export format {fmt!r} needs the sampled data (a campaign folder, a brdf.h5 "
+                             "or a SampledBRDF), not an open MeasuredBRDF")
+        report = _csv(data, out, source) if fmt == "csv" else _h5(data, out, source)
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _h5_path(source) -> Path:
+    path = Path(source)
+    return path / BRDF_NAME if path.is_dir() else path
+
+
+def _tally(report: ExportReport, ev) -> None:
+    ok = ev.reason == Reason.OK
+    report.from_data += int(np.count_nonzero(ok & ev.exact))
+    report.interpolated += int(np.count_nonzero(ok & ~ev.exact))
+    report.empty += int(np.count_nonzero(~ok))
+
+
+def _merl(brdf: MeasuredBRDF, out: Path) -> ExportReport:
+    if len(brdf.channels) != 3:
+        raise ValueError(f"merl: the format holds R, G, B; the dataset has channels {brdf.channels}")
+    ih, id_, ip = merl_unindex(np.arange(MERL_BINS))
+    th, td, pd = merl_bin_centres(ih, id_, ip)
+    wi, wo = from_half_diff(th, 0.0, td, pd)
+    ev = brdf.eval(wi, wo)
+    report = ExportReport("merl", cells=MERL_BINS,
+                          notes=["f_r in sr^-1, no cosine; stored = f_r * 1500/(1, 1.15, 1.66); -1 = no data",
+                                 "MERL files carry no metadata"])
+    _tally(report, ev)
+    report.paths.append(write_merl(out, ev.value.T))
+    return report
+
+
+def _theta_slices(brdf: MeasuredBRDF, step: float) -> np.ndarray:
+    top = min(brdf.theta_max_deg, 89.0)
+    n = max(2, int(np.ceil(top / step - 1e-9)) + 1)
+    return np.linspace(0.0, top, n)
+
+
+def _bsdf(brdf, out, fmt, source, step, resolution) -> ExportReport:
+    if len(brdf.channels) != 3:
+        raise ValueError(f"{fmt}: written from R, G, B; the dataset has channels {brdf.channels}")
+    report = ExportReport(fmt)
+
+    def fr(wi, wo):
+        ev = brdf.eval(wi, wo)
+        _tally(report, ev)
+        return ev.value
+
+    meta = _metadata(brdf, source, "values are f_r*cos(theta_o)*4*sigma(wi)/D(m), jacobian=1 (Mitsuba 3 "
+                                   "'measured' convention)")
+    meta["ndf"] = "estimated from retro-reflection by fixed-point iteration (gonio.formats.rgl)"
+    phi = (0.0,) if brdf.symmetries["isotropy"] else tuple(np.linspace(-180.0, 180.0, 25))
+    fields, counts = build_measured(fr, theta_i_deg=_theta_slices(brdf, step), phi_i_deg=phi,
+                                    resolution=resolution,
+                                    spectral_nm=SPECTRAL_NM if fmt == "bsdf-spectral" else None,
+                                    description=meta)
+    # The retro-reflection probes of the NDF estimate are not cells of the file: count the grid only.
+    report.from_data = report.interpolated = 0
+    report.empty = 0
+    report.cells = counts["points"]
+    report.interpolated = counts["filled"]
+    report.empty = counts["empty"]
+    report.notes = [meta["cosine"], meta["ndf"]]
+    report.paths.append(write_tensor(out, fields))
+    return report
+
+
+def _radiance(brdf, out: Path, source, step) -> ExportReport:
+    out.mkdir(exist_ok=True)
+    meta = _metadata(brdf, source, "none: BRDF (f_r); a DSF would include cos(theta_o)")
+    top = min(brdf.theta_max_deg, 89.0)
+    thetas = np.arange(0.0, top + 1e-9, step)
+    phis = np.arange(0.0, 360.0 - 1e-9, step)
+    to, po = (a.ravel() for a in np.meshgrid(thetas, phis, indexing="ij"))
+    keep = (to > 0) | (po == 0)  # one azimuth at the pole
+    to, po = to[keep], po[keep]
+    incidences = [(t, 0.0) for t in thetas] if brdf.symmetries["isotropy"] else \
+        [(t, p) for t in thetas for p in (phis if t > 0 else [0.0])]
+    report = ExportReport("radiance", notes=[f"CIE-Y = {LUMINANCE_WEIGHTS} . (R, G, B)", meta["cosine"]])
+    weights = np.asarray(LUMINANCE_WEIGHTS) if len(brdf.channels) == 3 else None
+    for t, p in incidences:
+        ev = brdf.eval_deg(t, p, to, po)
+        _tally(report, ev)
+        y = ev.value @ weights if weights is not None else ev.value[:, 0]
+        name = out / f"incidence_t{t:05.1f}_p{p:05.1f}.pabopto.dat"
+        report.paths.append(write_pabopto(name, t, p, to, po, y, sample_name=meta["material"] or "gonio",
+                                          metadata=meta))
+    report.cells = report.from_data + report.interpolated + report.empty
+    return report
+
+
+def _csv(data: SampledBRDF, out: Path, source) -> ExportReport:
+    angles = np.stack([np.asarray(a, dtype=np.float64).ravel() for a in
+                       (data.theta_i, data.phi_i, data.theta_o, data.phi_o)], axis=1)
+    value = np.asarray(data.value, dtype=np.float64).reshape(len(angles), -1)
+    channels = data.attrs.get("channels")
+    channels = [str(c) for c in channels] if channels is not None and len(channels) == value.shape[1] else \
+        [f"c{i}" for i in range(value.shape[1])]
+    symmetries = data.attrs.get("symmetries", {})
+    meta = {"cosine": "none (f_r)", "symmetries": json.dumps(symmetries, sort_keys=True) if isinstance(
+        symmetries, dict) else str(symmetries), "source": str(source) if not isinstance(source, SampledBRDF)
+        else "in-memory dataset", "material": str(data.attrs.get("material", "")),
+        "grid": str(data.attrs.get("grid", "")), "software": f"gonio {_software_version()}"}
+    path = write_csv(out, angles, value, data.stddev, channels=channels, metadata=meta)
+    finite = np.isfinite(value).all(axis=1)
+    return ExportReport("csv", [path], len(angles), int(finite.sum()), 0, int((~finite).sum()),
+                        notes=["one row per measured sample; f_r in sr^-1, no cosine"])
+
+
+def _h5(data: SampledBRDF, out: Path, source) -> ExportReport:
+    n = int(np.asarray(data.theta_i).size)
+    if not isinstance(source, SampledBRDF):
+        with atomic_path(out) as tmp:
+            shutil.copyfile(_h5_path(source), tmp)
+    else:
+        with atomic_path(out) as tmp, h5py.File(tmp, "w") as f:
+            g = f.create_group("samples")
+            for name in ("theta_i", "phi_i", "theta_o", "phi_o", "value", "stddev"):
+                g.create_dataset(name, data=np.asarray(getattr(data, name), dtype=np.float64))
+            attrs = {"format": "gonio-brdf", "units": "sr^-1", "angles_units": "degrees",
+                     "software_version": _software_version()}
+            for key, val in data.attrs.items():
+                attrs[key] = json.dumps(val) if isinstance(val, dict) else val
+            f.attrs.update(attrs)
+    return ExportReport("h5", [out], n, n, 0, 0, notes=["the sampled dataset (brdf.h5 layout) as it is"])
