@@ -1,0 +1,236 @@
+"""A Modbus motor controller as a gonio axis, driven entirely by a :class:`MotorProfile`.
+
+Errors: an exception response becomes :class:`ModbusExceptionError` carrying the exception code
+(transient only for 5 acknowledge / 6 device busy); no reply, a bad CRC or a lost connection
+(pymodbus raises after ``timeout_s × (retries + 1)``) becomes :class:`ModbusCommError` (transient) after
+one reconnection attempt; a status word with the alarm bit becomes :class:`ModbusAlarmError` with the
+controller's alarm code, latched until :meth:`ModbusAxis.clear_fault`.
+"""
+
+from __future__ import annotations
+
+import math
+from urllib.parse import parse_qs, urlparse
+
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException
+
+from gonio.clock import WallClock
+from gonio.drivers.modbus.profile import Command, MotorProfile, load_profile
+from gonio.protocols import DeviceFault
+
+__all__ = ["ModbusAxis", "ModbusCommError", "ModbusExceptionError", "ModbusAlarmError", "make_client"]
+
+
+class ModbusCommError(DeviceFault):
+    def __init__(self, device: str, message: str):
+        super().__init__(device, message, transient=True)
+
+
+class ModbusExceptionError(DeviceFault):
+    """The controller answered with exception ``code`` (1 illegal function, 2 illegal address, 3 illegal
+    value, 4 device failure, 5 acknowledge, 6 busy, ...)."""
+
+    def __init__(self, device: str, message: str, code: int):
+        super().__init__(device, message, transient=code in (5, 6))
+        self.code = code
+
+
+class ModbusAlarmError(DeviceFault):
+    def __init__(self, device: str, message: str, alarm_code: int):
+        super().__init__(device, message, transient=False)
+        self.alarm_code = alarm_code
+
+
+def make_client(url: str, *, timeout_s: float = 0.5, retries: int = 1):
+    """An unconnected pymodbus sync client for ``tcp://host:port`` or ``rtu:///dev/ttyX?baudrate=N``."""
+    u = urlparse(url)
+    if u.scheme == "tcp":
+        return ModbusTcpClient(u.hostname or "127.0.0.1", port=u.port or 502, timeout=timeout_s,
+                               retries=retries, reconnect_delay=0.1)
+    if u.scheme == "rtu":
+        q = parse_qs(u.query)
+        return ModbusSerialClient(u.path, baudrate=int(q.get("baudrate", ["115200"])[0]),
+                                  parity=q.get("parity", ["N"])[0], timeout=timeout_s, retries=retries)
+    raise ValueError(f"modbus url {url!r}: scheme {u.scheme!r} is not one of tcp, rtu")
+
+
+class ModbusAxis:
+    """One motor on a Modbus controller, as a :class:`gonio.protocols.Axis`.
+
+    Parameters
+    ----------
+    name : str
+        Axis name, in every error message.
+    client : pymodbus sync client
+        Unconnected (see :func:`make_client`); its timeout and retries are the transaction's.
+    profile : MotorProfile or str
+        The register map, or the name/path of one.
+    device_id : int
+        Modbus unit (1..247).
+    limits_deg : tuple of float
+        Axis travel (°).
+    gear_ratio : float
+        Motor revolutions per axis revolution.
+    direction : int
+        +1 or -1.
+    zero_steps : int
+        Controller position (steps) at axis 0°.
+    velocity_deg_s, accel_deg_s2 : float
+        Axis speed (°/s) and acceleration (°/s²).
+    start_timeout_s : float
+        How long :meth:`move_to` waits for the moving bit to rise (or the target to be reached).
+    clock : Clock
+        Time source for that wait.
+    """
+
+    def __init__(self, name: str, client, profile: MotorProfile | str, *, device_id: int = 1,
+                 limits_deg: tuple[float, float], gear_ratio: float = 1.0, direction: int = 1,
+                 zero_steps: int = 0, velocity_deg_s: float = 20.0, accel_deg_s2: float = 40.0,
+                 start_timeout_s: float = 0.5, clock=None):
+        self.name = name
+        self.client = client
+        self.profile = profile if isinstance(profile, MotorProfile) else load_profile(profile)
+        if not 1 <= int(device_id) <= 247:
+            raise ValueError(f"axis '{name}': device_id {device_id} is outside [1, 247]")
+        if direction not in (1, -1):
+            raise ValueError(f"axis '{name}': direction {direction!r} is not one of 1, -1")
+        if not (math.isfinite(gear_ratio) and gear_ratio > 0):
+            raise ValueError(f"axis '{name}': gear_ratio {gear_ratio} must be > 0")
+        lo, hi = float(limits_deg[0]), float(limits_deg[1])
+        if not lo < hi:
+            raise ValueError(f"axis '{name}': limits_deg {limits_deg} must be increasing")
+        for key, v in (("velocity_deg_s", velocity_deg_s), ("accel_deg_s2", accel_deg_s2)):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"axis '{name}': {key} {v} must be > 0")
+        self.device_id = int(device_id)
+        self.limits_deg = (lo, hi)
+        self.gear_ratio = float(gear_ratio)
+        self.direction = direction
+        self.zero_steps = int(zero_steps)
+        self.steps_per_deg = self.profile.steps_per_rev * self.gear_ratio / 360.0
+        motor_rev_s = velocity_deg_s * self.gear_ratio / 360.0
+        self.velocity_value = self.profile.velocity_value(motor_rev_s)
+        self.accel_value = self.profile.accel_value(accel_deg_s2 * self.gear_ratio / 360.0)
+        for key, reg in (("velocity_deg_s", "velocity"), ("accel_deg_s2", "acceleration")):
+            value = self.velocity_value if reg == "velocity" else self.accel_value
+            self.profile[reg].encode(value, "big")  # raises ValueError naming the register and range
+            if value < 1:
+                raise ValueError(f"axis '{name}': {key} gives register {reg} = {value}, below 1")
+        self.start_timeout_s = float(start_timeout_s)
+        self.clock = clock or WallClock()
+        self._fault: str | None = None
+        self._alarm = 0
+
+    # -- transport --------------------------------------------------------------------------------------
+    def connect(self) -> None:
+        if not self.client.connect():
+            raise ModbusCommError(self.name, f"cannot connect to the controller ({self._where()})")
+        self._check_status(self._read("status")[0])
+
+    def close(self) -> None:
+        self.client.close()
+
+    def _where(self) -> str:
+        p = self.client.comm_params
+        return f"{p.host}:{p.port}" if p.host else str(p.port)
+
+    def _call(self, what: str, fn):
+        last = None
+        for attempt in range(2):
+            try:
+                response = fn()
+            except ConnectionException as exc:
+                last = exc
+                self.client.close()
+                if attempt == 0 and self.client.connect():
+                    continue
+                break
+            except ModbusException as exc:  # no reply / bad CRC after the client's own retries
+                raise ModbusCommError(self.name, f"{what}: {exc}") from exc
+            if response.isError():
+                code = int(getattr(response, "exception_code", 4))
+                raise ModbusExceptionError(self.name, f"{what}: exception response, code {code}", code)
+            return response
+        raise ModbusCommError(self.name, f"{what}: connection lost ({last})")
+
+    def _read(self, name: str) -> list[int]:
+        reg = self.profile[name]
+        r = self._call(f"read {name} at {reg.address:#06x}", lambda: self.client.read_holding_registers(
+            reg.address, count=reg.count, device_id=self.device_id))
+        return list(r.registers)
+
+    def _read_value(self, name: str) -> int:
+        return self.profile[name].decode(self._read(name), self.profile.word_order)
+
+    def _write(self, name: str, value: int) -> None:
+        reg = self.profile[name]
+        words = reg.encode(value, self.profile.word_order)
+        if len(words) == 1:
+            self._call(f"write {name}", lambda: self.client.write_register(reg.address, words[0],
+                                                                          device_id=self.device_id))
+        else:
+            self._call(f"write {name}", lambda: self.client.write_registers(reg.address, words,
+                                                                           device_id=self.device_id))
+
+    def _command(self, cmd: Command) -> None:
+        self._write(cmd.register, cmd.value)
+        if cmd.release is not None:
+            self._write(cmd.register, cmd.release)
+
+    # -- status and faults ------------------------------------------------------------------------------
+    def _check_status(self, status: int) -> int:
+        if status >> self.profile.alarm_bit & 1 and self._fault is None:
+            self._alarm = self._read_value("alarm_code")
+            self._fault = f"controller alarm {self._alarm:#06x}"
+            raise ModbusAlarmError(self.name, f"{self._fault} (latched; clear_fault() resets)", self._alarm)
+        return status
+
+    def fault(self) -> str | None:
+        return self._fault
+
+    def clear_fault(self) -> None:
+        """Send the profile's alarm reset; raises ModbusAlarmError if the alarm persists."""
+        self._command(self.profile.alarm_reset)
+        self._fault = None
+        self._check_status(self._read("status")[0])
+
+    # -- the Axis protocol ------------------------------------------------------------------------------
+    def steps_for(self, target_deg: float) -> int:
+        lo, hi = self.limits_deg
+        t = float(target_deg)
+        if not (math.isfinite(t) and lo <= t <= hi):
+            raise ValueError(f"axis '{self.name}': target {t:.1f}° is outside the limit [{lo:g}°, {hi:g}°]")
+        return self.zero_steps + round(self.direction * t * self.steps_per_deg)
+
+    def move_to(self, target_deg: float) -> None:
+        """Write the profile's move block (one Write Multiple Registers that also triggers), then wait
+        until the moving bit rises or the position equals the target (at most ``start_timeout_s``)."""
+        steps = self.steps_for(target_deg)
+        if self._fault is not None:
+            raise ModbusAlarmError(self.name, f"{self._fault} (latched; clear_fault() resets)",
+                                   self._alarm)
+        p = self.profile
+        values = dict(p.move_constants, target_position=steps, velocity=self.velocity_value,
+                      acceleration=self.accel_value, deceleration=self.accel_value)
+        words = [w for name in p.move_block for w in p[name].encode(values[name], p.word_order)]
+        self._call(f"write move block at {p.block_start:#06x}", lambda: self.client.write_registers(
+            p.block_start, words, device_id=self.device_id))
+        deadline = self.clock.now() + self.start_timeout_s
+        while True:
+            status = self._check_status(self._read("status")[0])
+            if status >> p.moving_bit & 1 or self._read_value("actual_position") == steps:
+                return
+            if self.clock.now() >= deadline:
+                raise ModbusCommError(self.name, f"move to {target_deg}° did not start within "
+                                      f"{self.start_timeout_s} s (moving bit never rose)")
+            self.clock.sleep(0.002)
+
+    def position_deg(self) -> float:
+        return self.direction * (self._read_value("actual_position") - self.zero_steps) / self.steps_per_deg
+
+    def is_moving(self) -> bool:
+        return bool(self._check_status(self._read("status")[0]) >> self.profile.moving_bit & 1)
+
+    def stop(self) -> None:
+        self._command(self.profile.stop)

@@ -1,0 +1,252 @@
+"""An emulated Modbus motor controller: a pymodbus server (TCP on 127.0.0.1, or RTU over a pty) whose
+registers follow a :class:`gonio.drivers.modbus.profile.MotorProfile` and whose position moves over time.
+
+Writing the profile's move block with its trigger value starts a trapezoidal move on the injected clock;
+reads see the actual position and the status word (ready, moving, alarm bits) of that instant. Faults:
+:attr:`ModbusMotorEmulator.faults` mangles replies (drop, corrupt, truncate, delay, disconnect; match by
+function code), :meth:`fail_next` answers the next request with an exception code, :meth:`raise_alarm`
+trips an alarm (the motor stops, the alarm bit and code are set until the profile's alarm reset).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+from collections import deque
+
+from pymodbus.constants import ExcCodes
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from gonio.clock import WallClock
+from gonio.drivers.modbus.profile import MotorProfile, load_profile
+from gonio.motion.trapezoid import move_time, position_at
+from gonio.sim.emulators.link import FaultPlan, PtyLink, mangle
+
+__all__ = ["ModbusMotorEmulator"]
+
+
+class ModbusMotorEmulator:
+    """A motor controller following ``profile`` (a MotorProfile or a shipped profile's name).
+
+    Parameters
+    ----------
+    profile : MotorProfile or str
+    clock : Clock, optional
+        Time source of the motion (default: the wall clock).
+    device_id : int
+        The unit id it answers.
+    """
+
+    def __init__(self, profile: MotorProfile | str = "generic", clock=None, device_id: int = 1):
+        self.profile = profile if isinstance(profile, MotorProfile) else load_profile(profile)
+        self.clock = clock or WallClock()
+        self.device_id = device_id
+        self.faults = FaultPlan()
+        self.requests: list[bytes] = []  # raw request frames, for byte-exact tests
+        self._exceptions: deque[tuple[int, int | None]] = deque()
+        self._lock = threading.Lock()
+        self.alarm_code = 0
+        self._move = (0.0, 0.0, 0.0, 1.0, 1.0)
+        top = max(r.address + r.count for r in self.profile.registers.values())
+        self._base = min(r.address for r in self.profile.registers.values())
+        self._regs = [0] * (top - self._base)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server = None
+        self._thread: threading.Thread | None = None
+        self._links: list[PtyLink] = []
+        self._relay_stop = threading.Event()
+        self._relay: threading.Thread | None = None
+        self.address: tuple[str, int] | None = None
+        self.port: str | None = None
+
+    # -- the motor ------------------------------------------------------------------------------------
+    def position_steps(self) -> int:
+        t0, start, goal, v, a = self._move
+        if start == goal:
+            return int(round(goal))
+        return int(round(position_at(self.clock.now() - t0, start, goal, v, a)))
+
+    def moving(self) -> bool:
+        t0, start, goal, v, a = self._move
+        return start != goal and self.clock.now() - t0 < float(move_time(goal - start, v, a))
+
+    def _hold(self) -> None:
+        p = float(self.position_steps())
+        self._move = (self.clock.now(), p, p, 1.0, 1.0)
+
+    def raise_alarm(self, code: int) -> None:
+        """Trip alarm ``code``: the motor stops where it is; the alarm bit stays until a reset."""
+        with self._lock:
+            self._hold()
+            self.alarm_code = code
+
+    def fail_next(self, code: int = ExcCodes.ILLEGAL_ADDRESS, *, address: int | None = None,
+                  times: int = 1) -> None:
+        """Answer the next ``times`` requests (at ``address``, or any) with exception ``code``."""
+        with self._lock:
+            self._exceptions.extend([(int(code), address)] * times)
+
+    def _get(self, name: str) -> int:
+        reg = self.profile[name]
+        off = reg.address - self._base
+        return reg.decode(self._regs[off:off + reg.count], self.profile.word_order)
+
+    def _set(self, name: str, value: int) -> None:
+        reg = self.profile[name]
+        off = reg.address - self._base
+        self._regs[off:off + reg.count] = reg.encode(value, self.profile.word_order)
+
+    def _refresh(self) -> None:
+        p = self.profile
+        self._set("actual_position", self.position_steps())
+        status = (int(self.moving()) << p.moving_bit) | (int(bool(self.alarm_code)) << p.alarm_bit)
+        if p.ready_bit is not None and not self.alarm_code:
+            status |= 1 << p.ready_bit
+        self._set("status", status)
+        self._set("alarm_code", self.alarm_code)
+
+    def _written(self, address: int, count: int) -> None:
+        """React to registers just written: a trigger starts a move, stop and alarm reset commands."""
+        p = self.profile
+        touched = {n for n, r in p.registers.items()
+                   if r.address < address + count and address < r.address + r.count}
+        last = p.move_block[-1]
+        if last in touched and self._get(last) == p.move_constants.get(last) and not self.alarm_code:
+            start = float(self.position_steps())
+            v = p.velocity_rev_s(self._get("velocity")) * p.steps_per_rev
+            a = p.accel_rev_s2(self._get("acceleration")) * p.steps_per_rev
+            self._move = (self.clock.now(), start, float(self._get("target_position")), max(v, 1e-9),
+                          max(a, 1e-9))
+        if p.stop.register in touched and self._get(p.stop.register) == p.stop.value:
+            self._hold()
+        if p.alarm_reset.register in touched and self._get(p.alarm_reset.register) == p.alarm_reset.value:
+            self.alarm_code = 0
+
+    async def _action(self, function_code, start_address, address, count, registers, set_values):
+        with self._lock:
+            if self._exceptions:
+                code, match = self._exceptions[0]
+                if match is None or match == address:
+                    self._exceptions.popleft()
+                    return ExcCodes(code)
+            off = address - self._base
+            if off < 0 or off + count > len(self._regs):
+                return ExcCodes.ILLEGAL_ADDRESS
+            if set_values is None:
+                self._refresh()
+                at = address - start_address
+                registers[at:at + count] = self._regs[off:off + count]
+                return None
+            self._regs[off:off + count] = [int(v) for v in set_values]
+            self._written(address, count)
+            return None
+
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        if not sending:
+            self.requests.append(bytes(data))
+            return data
+        fc = data[7] if self.address is not None else data[1]
+        fault = self.faults.take(fc & 0x7F)
+        if fault is not None and fault.kind == "disconnect":
+            self._disconnect()
+            return b""
+        out = mangle(data, fault)
+        return b"" if out is None else out
+
+    def _disconnect(self) -> None:
+        if self.address is not None and self._server is not None:
+            for conn in list(self._server.active_connections.values()):
+                conn.close()
+        elif self._links:
+            self._links[0].unplug()
+
+    def replug(self) -> None:
+        """After a serial disconnect: a fresh pty behind the same port name."""
+        if self._links:
+            self._links[0].replug()
+
+    # -- serving ---------------------------------------------------------------------------------------------
+    def _device(self) -> SimDevice:
+        return SimDevice(self.device_id, simdata=[SimData(address=self._base, count=len(self._regs), values=0,
+                                                          datatype=DataType.REGISTERS)], action=self._action)
+
+    def _serve(self, make_server, ready: threading.Event) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        asyncio.set_event_loop(loop)
+
+        async def main():
+            self._server = make_server()
+            await self._server.serve_forever(background=True)
+            ready.set()
+            while self._server is not None and not self._stopping:
+                await asyncio.sleep(0.02)
+            await self._server.shutdown()
+
+        self._stopping = False
+        try:
+            loop.run_until_complete(main())
+        finally:
+            ready.set()
+            loop.close()
+
+    def _start(self, make_server) -> None:
+        if self._thread is not None:
+            raise RuntimeError("modbus emulator is already running")
+        ready = threading.Event()
+        self._thread = threading.Thread(target=self._serve, args=(make_server, ready), daemon=True,
+                                        name="emu-modbus")
+        self._thread.start()
+        if not ready.wait(5.0) or self._server is None:
+            self.stop()
+            raise RuntimeError("modbus emulator did not start within 5 s")
+
+    def start_tcp(self) -> tuple[str, int]:
+        """Serve Modbus TCP on 127.0.0.1 (a free port); returns (host, port)."""
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        self.address = ("127.0.0.1", port)
+        self._start(lambda: ModbusTcpServer(self._device(), address=self.address, trace_packet=self._trace))
+        return self.address
+
+    def start_rtu(self, baudrate: int = 115200) -> str:
+        """Serve Modbus RTU on a pty; returns the port name a client opens."""
+        client_side, server_side = PtyLink("ttyMB"), PtyLink("ttyMBsrv")
+        self._links = [client_side, server_side]
+        self._relay_stop.clear()
+        self._relay = threading.Thread(target=self._bridge, daemon=True, name="emu-modbus-relay")
+        self._relay.start()
+        self.port = client_side.port
+        self._start(lambda: ModbusSerialServer(self._device(), port=server_side.port, baudrate=baudrate,
+                                               trace_packet=self._trace))
+        return self.port
+
+    def _bridge(self) -> None:
+        a, b = self._links
+        while not self._relay_stop.is_set():
+            data = a.read(0.01)
+            if data:
+                b.write(data)
+            data = b.read(0.0)
+            if data:
+                a.write(data)
+            if not a.plugged:
+                self._relay_stop.wait(0.01)
+
+    def stop(self) -> None:
+        self._stopping = True
+        if self._thread is not None:
+            self._thread.join(5.0)
+            if self._thread.is_alive():
+                raise RuntimeError("modbus emulator did not stop within 5 s")
+        self._thread = None
+        self._server = None
+        self._relay_stop.set()
+        if self._relay is not None:
+            self._relay.join(5.0)
+        for link in self._links:
+            link.close()
+        self._links = []
