@@ -3,11 +3,13 @@
 Every query flushes the input first (a late reply must not be taken for this one's answer), then reads
 until the terminator under one deadline for the whole reply; a reply without its terminator is an
 error (pyserial's ``read_until`` returns a partial line on time-out without raising). A lost port is
-reopened with exponential back-off before the query is retried once.
+reopened with exponential back-off before the query is retried once; after a time-out the port is
+reopened at the next query (a dead port can swallow writes without an error).
 """
 
 from __future__ import annotations
 
+import termios
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -153,6 +155,9 @@ class LineInstrument:
             chunk = ser.read_until(self.terminator)
             buf += chunk
         if not buf.endswith(self.terminator):
+            # A silent port may be a dead one (a pty or USB adapter gone without an error on write):
+            # the next query reopens it.
+            self._drop()
             what = "no reply" if not buf else f"reply {bytes(buf)!r} without its terminator"
             raise InstrumentCommError(self.name, f"{line!r}: {what} within {self.timeout_s:g} s")
         try:
@@ -166,11 +171,11 @@ class LineInstrument:
             self._reopen_with_backoff()  # a port lost earlier (connect() was called before)
         try:
             reply = self._exchange(line)
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, termios.error) as exc:
             self._reopen_with_backoff()
             try:
                 reply = self._exchange(line)
-            except (serial.SerialException, OSError):
+            except (serial.SerialException, OSError, termios.error):
                 raise InstrumentCommError(self.name, f"{line!r}: port {self.port} lost ({exc})") from exc
         if reply.startswith(self.commands.error_prefix):
             code = None

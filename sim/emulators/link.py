@@ -37,10 +37,16 @@ class PtyLink:
         self.port = os.path.join(self._dir, name)
         self.master: int | None = None
         self._slave: int | None = None
+        # The emulator thread unplugs (an injected disconnect) while a test may replug: one at a time.
+        self._lock = threading.RLock()
         self.replug()
 
     def replug(self) -> None:
         """Make a fresh pty pair behind :attr:`port` (closing any previous one)."""
+        with self._lock:
+            self._replug()
+
+    def _replug(self) -> None:
         self.unplug()
         master, slave = os.openpty()
         tty.setraw(slave)
@@ -53,13 +59,14 @@ class PtyLink:
 
     def unplug(self) -> None:
         """Close both ends: the driver's open port stops working, as when a cable is pulled."""
-        for fd in (self.master, self._slave):
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
-        self.master = self._slave = None
+        with self._lock:
+            for fd in (self.master, self._slave):
+                if fd is not None:
+                    try:
+                        os.close(fd)
+                    except OSError:
+                        pass
+            self.master = self._slave = None
 
     @property
     def plugged(self) -> bool:
