@@ -11,6 +11,7 @@ trips an alarm (the motor stops, the alarm bit and code are set until the profil
 from __future__ import annotations
 
 import asyncio
+import select
 import socket
 import threading
 from collections import deque
@@ -225,16 +226,22 @@ class ModbusMotorEmulator:
         return self.port
 
     def _bridge(self) -> None:
+        """Copy bytes between the client's pty and the server's, waiting on both at once."""
         a, b = self._links
         while not self._relay_stop.is_set():
-            data = a.read(0.01)
-            if data:
-                b.write(data)
-            data = b.read(0.0)
-            if data:
-                a.write(data)
-            if not a.plugged:
+            fds = {fd: (src, dst) for src, dst in ((a, b), (b, a)) if (fd := src.master) is not None}
+            if len(fds) < 2:
                 self._relay_stop.wait(0.01)
+                continue
+            try:
+                ready, _, _ = select.select(list(fds), [], [], 0.02)
+            except (OSError, ValueError):
+                continue
+            for fd in ready:
+                src, dst = fds[fd]
+                data = src.read(0.0)
+                if data:
+                    dst.write(data)
 
     def stop(self) -> None:
         self._stopping = True
