@@ -5,6 +5,7 @@ printed, never asserted: they depend on the machine and its load.
 
     .venv/bin/python tools/bench_plan.py            # everything (a few minutes)
     .venv/bin/python tools/bench_plan.py --quick    # skip iso:step=1 and the 20,000-pose tour
+    .venv/bin/python tools/bench_plan.py --transit  # iso:step=1 and the swept-path check alone
 
 Figures:
 
@@ -14,6 +15,10 @@ Figures:
   edges (the degree bound above 25,000 poses); neither side counts the trips to the reference;
 - total ratio: ``estimated_s / lower_bound_s`` (all moves, settle, exposures, dark and reference);
 - raster ratio: pose-to-pose moves of the plan over those of ``order=raster`` (no serpentine, no tour);
+- moves needing via points and runs re-solved because a move collided in transit (each plan's swept-path
+  check of every move, :mod:`gonio.plan.transit`); ``--transit`` times ``iso:step=1`` alone;
+- the swept-path check of a single move (``Kinematics.sweep_clear_one``, what the runner asks before
+  every move, and ``safe_path`` around it) in µs, and the vectorized check per move on a million;
 - 20,000 scattered poses: random reachable poses (seeded), nearest neighbour + 2-opt/Or-opt on their
   branches nearest home, timed, against the exact MST (motion only, and with each pose's settle and
   exposure added to both sides).
@@ -53,7 +58,8 @@ def motion_bound(plan, metric: MoveMetric) -> tuple[float, str]:
 
 def plan_rows(grids, quick: bool) -> list[str]:
     rows = ["| gantry | grid (order) | poses | build s | motion / bound | total est / bound "
-            "| motion / raster's |", "|---|---|---:|---:|---:|---:|---:|"]
+            "| motion / raster's | via moves | re-solved runs |",
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     print("\n".join(rows), flush=True)
     for name, path in CONFIGS.items():
         cfg = load_config(path)
@@ -73,7 +79,7 @@ def plan_rows(grids, quick: bool) -> list[str]:
                 raster = f"{motion / rast.timing['pose_motion_s']:.3f}"
             rows.append(f"| {name} | `{grid}` ({plan.order}) | {len(plan.theta_i):,} | {built:.1f} | "
                         f"{motion / bound:.3f} ({kind}) | {plan.estimated_s / plan.lower_bound_s:.3f} | "
-                        f"{raster} |")
+                        f"{raster} | {plan.timing['via_moves']} | {plan.timing['resolved_runs']} |")
             print(rows[-1], flush=True)
     return rows
 
@@ -115,18 +121,80 @@ def scattered_rows(n: int, seed: int) -> list[str]:
     return rows
 
 
+def sweep_rows(seed: int) -> list[str]:
+    """Single-move and vectorized costs of the swept-path check on the moves of a real plan."""
+    from gonio.motion.safe import safe_path
+    from gonio.plan.transit import step_targets
+
+    rows = ["| gantry | sweep_clear_one µs (median of plan moves) | safe_path µs (direct clear) "
+            "| sweep_clearance per move, 1e6 moves, µs |", "|---|---:|---:|---:|"]
+    print("\n".join(rows), flush=True)
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        plan = build_plan("iso:step=5", cfg, kin)
+        t = step_targets(plan.step_kind, plan.step_pose, plan.axes_deg, plan.reference_axes_deg)
+        t = t[~np.isnan(t).any(axis=1)]
+        a, b = [r.tolist() for r in t[:-1]], [r.tolist() for r in t[1:]]
+        per = []
+        for x, y in zip(a, b, strict=True):
+            t0 = time.perf_counter()
+            kin.sweep_clear_one(x, y)
+            per.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        for x, y in zip(t[:-1], t[1:], strict=True):
+            safe_path(kin, x, y)
+        sp = (time.perf_counter() - t0) / (len(t) - 1)
+        rng = np.random.default_rng(seed)
+        idx = rng.integers(0, len(t) - 1, 1_000_000)
+        t0 = time.perf_counter()
+        kin.sweep_clearance(t[idx], t[idx + 1])
+        vec = (time.perf_counter() - t0) / idx.size
+        rows.append(f"| {name} | {1e6 * float(np.median(per)):.1f} | {1e6 * sp:.1f} | {1e6 * vec:.2f} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
+def transit_rows() -> list[str]:
+    """``build_plan("iso:step=1")`` with the swept-path check of every move, on both gantries."""
+    rows = ["| gantry | poses | moves | build s | via moves | re-solved runs |",
+            "|---|---:|---:|---:|---:|---:|"]
+    print("\n".join(rows), flush=True)
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        t0 = time.perf_counter()
+        plan = build_plan("iso:step=1", cfg, kin)
+        built = time.perf_counter() - t0
+        moves = int(np.count_nonzero(plan.step_kind != 1)) + 1
+        rows.append(f"| {name} | {len(plan.theta_i):,} | {moves:,} | {built:.1f} | "
+                    f"{plan.timing['via_moves']} | {plan.timing['resolved_runs']} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip iso:step=1 and use 5,000 scattered poses")
     ap.add_argument("--seed", type=int, default=20240611)
+    ap.add_argument("--transit", action="store_true",
+                    help="only the swept-path figures: iso:step=1 build and the single-move check cost")
     args = ap.parse_args()
     print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, python {platform.python_version()}, "
           f"numpy {np.__version__}; load average at start {os.getloadavg()[0]:.2f}\n")
+    if args.transit:
+        transit_rows()
+        print()
+        sweep_rows(args.seed)
+        print(f"\nload average at end {os.getloadavg()[0]:.2f}")
+        return
     grids = ["iso:step=15", "iso:step=5", "iso:step=2", "iso:step=1", "full:step=15", "full:step=10",
              "merl:stride=8", "merl:stride=4", "merl:stride=2"]
     plan_rows(grids, args.quick)
     print()
     scattered_rows(5000 if args.quick else 20000, args.seed)
+    print()
+    sweep_rows(args.seed)
     print(f"\nload average at end {os.getloadavg()[0]:.2f}")
 
 
