@@ -1,15 +1,22 @@
 """Absolute BRDF from raw readings: dark subtraction and a white reference of known albedo.
 
-A detector that sees reflected radiance reads S = K · f_r · cos θi (plus the dark signal D), where K
-folds together the source's irradiance at normal incidence, the detector's responsivity and the
-exposure. The white standard, a Lambertian of hemispherical reflectance ρ_ref, read at incidence
-θi_ref, gives R − D = K · (ρ_ref / π) · cos θi_ref, so
+Every reading is first turned into a rate, signal / exposure_s, so that poses, darks and references read
+at different exposures compare (the detector is linear and its dark signal is a dark current, which
+grows with the exposure). A detector that sees reflected radiance then reads the rate S = K · f_r · cos θi
+(plus the dark rate D), where K folds together the source's irradiance at normal incidence and the
+detector's responsivity. The white standard, a Lambertian of hemispherical reflectance ρ_ref, read at
+incidence θi_ref, gives R − D = K · (ρ_ref / π) · cos θi_ref, so
 
     f_r = (S − D) / (R − D_R) · (ρ_ref / π) · cos θi_ref / cos θi      [sr⁻¹]
 
 Dark and reference readings are taken periodically; each pose uses the dark interpolated linearly in
-time between the dark readings around it, and K interpolated between the reference readings around
-it, which tracks a slowly drifting source. Uncertainties add in quadrature (first order).
+campaign time between the dark readings around it, and K interpolated between the reference readings
+around it, which tracks a slowly drifting source. The campaign clock (``Measurement.campaign_s``)
+continues across resumes; a journal whose clock goes backwards is refused, since interpolating on it
+would silently mix up which references bracket which poses.
+
+Uncertainty (first order, independent errors): an interpolated quantity (1 − w)·a + w·b has variance
+(1 − w)²σa² + w²σb²; the relative errors of the net pose signal and of K add in quadrature.
 """
 
 from __future__ import annotations
@@ -35,15 +42,27 @@ class Calibrated:
     stddev: np.ndarray       # (N, C)
     steps: np.ndarray        # (N,) journal step of each sample
     poses: np.ndarray        # (N,) plan pose index
+    campaign_s: np.ndarray   # (N,) campaign clock at each sample's reading
 
 
-def _interp(t, tk, yk):
-    """Per-channel linear interpolation in time, constant beyond the ends."""
-    return np.stack([np.interp(t, tk, yk[:, c]) for c in range(yk.shape[1])], axis=1)
+def _interp(t, tk, yk, ek):
+    """Linear interpolation in time of values ``yk`` (K, C) with standard errors ``ek`` (K, C) at the
+    times ``t`` (N,); constant beyond the ends. Returns (value, stddev), each (N, C)."""
+    hi = np.clip(np.searchsorted(tk, t, side="right"), 1, max(len(tk) - 1, 1))
+    lo = hi - 1
+    if len(tk) == 1:
+        return np.repeat(yk, len(t), axis=0), np.repeat(ek, len(t), axis=0)
+    span = tk[hi] - tk[lo]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(span > 0.0, (t - tk[lo]) / span, 0.0)
+    w = np.clip(w, 0.0, 1.0)[:, None]
+    value = (1.0 - w) * yk[lo] + w * yk[hi]
+    stddev = np.hypot((1.0 - w) * ek[lo], w * ek[hi])
+    return value, stddev
 
 
 def calibrate(measurements: list[Measurement], reference_albedo: float) -> Calibrated:
-    """Calibrated BRDF samples of every pose measurement in ``measurements``."""
+    """Calibrated BRDF samples of every pose measurement in ``measurements`` (in step order)."""
     if not 0.0 < reference_albedo <= 1.0:
         raise CalibrationError(f"reference_albedo must be in (0, 1], got {reference_albedo}")
     kind = np.array([m.kind for m in measurements], dtype=np.int8)
@@ -51,37 +70,45 @@ def calibrate(measurements: list[Measurement], reference_albedo: float) -> Calib
         raise CalibrationError("no dark reading in the journal: cannot subtract the dark signal")
     if not np.any(kind == STEP_REFERENCE):
         raise CalibrationError("no white-reference reading in the journal: cannot calibrate to sr^-1")
-    t = np.array([m.virtual_s for m in measurements])
-    sig = np.stack([m.signal for m in measurements])
-    err = np.stack([m.stderr for m in measurements])
+    t = np.array([m.campaign_s for m in measurements], dtype=np.float64)
+    back = np.flatnonzero(np.diff(t) < 0.0)
+    if back.size:
+        i = int(back[0])
+        raise CalibrationError(
+            f"campaign time goes backwards from step {measurements[i].step} ({t[i]:.3f} s) to step "
+            f"{measurements[i + 1].step} ({t[i + 1]:.3f} s): the drift correction cannot order these "
+            "readings (a journal of gonio < 0.2 that was resumed?)")
+    exposure = np.array([m.exposure_s for m in measurements], dtype=np.float64)[:, None]
+    if not np.all(exposure > 0.0):
+        raise CalibrationError("a reading has exposure_s <= 0: cannot turn it into a rate")
+    rate = np.stack([m.signal for m in measurements]) / exposure
+    err = np.stack([m.stderr for m in measurements]) / exposure
     theta_i = np.radians([m.angles_deg[0] for m in measurements])
 
     dk = kind == STEP_DARK
-    dark = _interp(t, t[dk], sig[dk])
-    dark_err = _interp(t, t[dk], err[dk])
+    dark, dark_err = _interp(t, t[dk], rate[dk], err[dk])
 
     rk = kind == STEP_REFERENCE
-    ref_net = sig[rk] - dark[rk]
+    ref_net = rate[rk] - dark[rk]
     ref_cos = np.cos(theta_i[rk])[:, None]
-    # K: signal per unit of f_r·cos θi.
+    # K: signal rate per unit of f_r·cos θi.
     k_ref = ref_net / (reference_albedo / np.pi * ref_cos)
     if np.any(k_ref <= 0.0):
         raise CalibrationError("a white-reference reading is not above the dark signal: check the light "
                                "source and the reference standard")
-    k_rel_err = np.hypot(err[rk], dark_err[rk]) / ref_net
+    k_ref_err = k_ref * np.hypot(err[rk], dark_err[rk]) / ref_net
 
     pk = kind == STEP_POSE
-    k = _interp(t[pk], t[rk], k_ref)
-    k_err = _interp(t[pk], t[rk], k_rel_err)
+    k, k_err = _interp(t[pk], t[rk], k_ref, k_ref_err)
     cos_i = np.cos(theta_i[pk])[:, None]
-    net = sig[pk] - dark[pk]
+    net = rate[pk] - dark[pk]
+    net_err = np.hypot(err[pk], dark_err[pk])
     value = net / (k * cos_i)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.where(net != 0.0, np.hypot(err[pk], dark_err[pk]) / np.abs(net), 0.0)
-    stddev = np.abs(value) * np.hypot(rel, k_err) + np.where(net == 0.0, np.hypot(err[pk], dark_err[pk])
-                                                             / (k * cos_i), 0.0)
+    # σ_f² = (σ_net / (K cos))² + (f σ_K / K)²: well defined also where the net signal is 0.
+    stddev = np.hypot(net_err / (k * cos_i), value * k_err / k)
     return Calibrated(
         angles_deg=np.stack([m.angles_deg for m, p in zip(measurements, pk, strict=True) if p]),
         value=value, stddev=stddev,
         steps=np.array([m.step for m in measurements])[pk],
-        poses=np.array([m.pose for m in measurements])[pk])
+        poses=np.array([m.pose for m in measurements])[pk],
+        campaign_s=t[pk])

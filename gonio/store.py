@@ -2,8 +2,17 @@
 
 Crash safety (DESIGN.md, rule 5): the file is in WAL mode and every measurement is committed in its own
 transaction before the runner moves on, so a crash at any instant loses at most the step in flight;
-``Journal.open`` on the same file resumes from what was committed. The schema version lives in
-``PRAGMA user_version`` and is upgraded by numbered functions (none yet: version 1 is the first).
+``Journal.open`` on the same file resumes from what was committed. A journal is created whole or not at
+all: it is written under a temporary name in the same folder and renamed into place, so a kill during
+creation (which for a fine grid writes for a while) leaves either no journal or a complete one.
+
+Time. Every measurement and event carries ``campaign_s``, the campaign clock: seconds since the campaign
+started, continuing across resumes (the runner starts each run where the journal left off, plus the
+downtime when the gantry runs on the wall clock). The drift correction interpolates on it, so it must
+never go backwards. ``clock_s`` is the gantry's own clock at the reading (virtual in simulation).
+
+The schema version lives in ``PRAGMA user_version`` and older journals are upgraded in place by the
+numbered functions in ``_UPGRADES`` (N -> N + 1) when opened for writing.
 
 Angles are stored in degrees (a user boundary: anyone may open the file with ``sqlite3``), signals as
 little-endian float64 blobs of one value per channel.
@@ -12,6 +21,7 @@ little-endian float64 blobs of one value per channel.
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import threading
 import time
@@ -23,7 +33,7 @@ import numpy as np
 
 __all__ = ["Journal", "JournalError", "Measurement", "SCHEMA_VERSION", "JOURNAL_NAME"]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 JOURNAL_NAME = "campaign.sqlite"
 
 _SCHEMA = """
@@ -43,21 +53,41 @@ CREATE TABLE measurements (
     actual_deg TEXT NOT NULL,       -- JSON list, read back from the axes after settling
     theta_i_deg REAL NOT NULL, phi_i_deg REAL NOT NULL,   -- actual directions (forward kinematics)
     theta_o_deg REAL NOT NULL, phi_o_deg REAL NOT NULL,
-    virtual_s REAL NOT NULL,        -- gantry clock (virtual in simulation) at the reading
+    clock_s REAL NOT NULL,          -- gantry clock (virtual in simulation) at the end of the reading
     wall_s REAL NOT NULL,           -- Unix time of the commit
     exposure_s REAL NOT NULL,
     frames INTEGER NOT NULL,
     signal BLOB NOT NULL,           -- float64 per channel, dark not subtracted
     stderr BLOB NOT NULL,
-    attempts INTEGER NOT NULL       -- 1 + retries it took
+    attempts INTEGER NOT NULL,      -- 1 + retries it took
+    campaign_s REAL NOT NULL        -- campaign clock at the end of the reading (continues across resumes)
 );
 CREATE TABLE events (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
-    virtual_s REAL, wall_s REAL NOT NULL,
-    kind TEXT NOT NULL,             -- state, fault, retry, pause, resume, ...
-    state TEXT, step INTEGER, message TEXT
+    campaign_s REAL, wall_s REAL NOT NULL,
+    kind TEXT NOT NULL,             -- state, fault, retry, pause, halt, park, signal, ...
+    state TEXT, step INTEGER, message TEXT,
+    axes_deg TEXT                   -- JSON list: where the axes stood, when the event says (park, halt)
 );
 """
+
+_MEASUREMENT_COLUMNS = ("step", "kind", "pose", "commanded_deg", "actual_deg", "theta_i_deg", "phi_i_deg",
+                        "theta_o_deg", "phi_o_deg", "clock_s", "campaign_s", "wall_s", "exposure_s",
+                        "frames", "signal", "stderr", "attempts")
+_EVENT_COLUMNS = ("id", "campaign_s", "wall_s", "kind", "state", "step", "message", "axes_deg")
+
+
+def _upgrade_1_to_2(conn: sqlite3.Connection) -> None:
+    # Version 1 named the gantry clock virtual_s and had no campaign clock. Its clock restarted at 0 on
+    # every resume, so the copied campaign_s can go backwards: calibration then refuses it, as it should.
+    conn.execute("ALTER TABLE measurements RENAME COLUMN virtual_s TO clock_s")
+    conn.execute("ALTER TABLE measurements ADD COLUMN campaign_s REAL NOT NULL DEFAULT 0")
+    conn.execute("UPDATE measurements SET campaign_s = clock_s")
+    conn.execute("ALTER TABLE events RENAME COLUMN virtual_s TO campaign_s")
+    conn.execute("ALTER TABLE events ADD COLUMN axes_deg TEXT")
+
+
+_UPGRADES: dict[int, Callable[[sqlite3.Connection], None]] = {1: _upgrade_1_to_2}
 
 
 class JournalError(RuntimeError):
@@ -72,7 +102,8 @@ class Measurement:
     commanded_deg: np.ndarray
     actual_deg: np.ndarray
     angles_deg: np.ndarray  # (θi, φi, θo, φo) actual
-    virtual_s: float
+    clock_s: float          # gantry clock at the end of the reading
+    campaign_s: float       # campaign clock at the end of the reading (continues across resumes)
     exposure_s: float
     frames: int
     signal: np.ndarray
@@ -88,6 +119,37 @@ def _unblob(b: bytes) -> np.ndarray:
     return np.frombuffer(b, dtype="<f8").copy()
 
 
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # a platform without directory handles: the rename is still atomic
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _is_stub(path: Path) -> bool:
+    """True for a journal that an old gonio left empty when killed during creation (no schema)."""
+    try:
+        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            tables = conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0]
+        finally:
+            conn.close()
+    except sqlite3.DatabaseError:
+        return False
+    return version == 0 and tables == 0
+
+
+def _remove_db(path: Path) -> None:
+    for p in (path, path.with_name(path.name + "-wal"), path.with_name(path.name + "-shm"),
+              path.with_name(path.name + "-journal")):
+        p.unlink(missing_ok=True)
+
+
 class Journal:
     """An open campaign journal. Create with :meth:`create`, reopen (resume) with :meth:`open`.
 
@@ -96,13 +158,14 @@ class Journal:
     """
 
     def __init__(self, conn: sqlite3.Connection, path: Path,
-                 write_hook: Callable[[int], None] | None = None):
+                 write_hook: Callable[[int], None] | None = None, readonly: bool = False):
         self._conn = conn
         self.path = path
+        self.readonly = readonly
         self._write_hook = write_hook
         self._writes = 0
-        # The runner writes from its thread; pause/abort requests and readers may come from others
-        # (the daemon). One lock serializes every use of the connection.
+        # The runner writes from its thread; pause/abort/halt requests and readers may come from others
+        # (signal handlers, the daemon). One lock serializes every use of the connection.
         self._lock = threading.RLock()
 
     # -- opening ---------------------------------------------------------------------------------
@@ -118,47 +181,95 @@ class Journal:
         return conn
 
     @classmethod
+    def partial_paths(cls, path: str | Path) -> list[Path]:
+        """Temporary files a creation killed before its rename may have left beside ``path``."""
+        path = Path(path)
+        return sorted(path.parent.glob(f".{path.name}.*.partial*"))
+
+    @classmethod
     def create(cls, path: str | Path, meta: dict, steps: dict, *,
                write_hook: Callable[[int], None] | None = None) -> Journal:
         """A new journal holding the campaign ``meta`` (JSON-able values) and the ordered plan.
 
         ``steps`` holds equal-length arrays: kind, pose, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg
-        and axes_deg (S, n_axes). The whole set-up is one transaction: a crash leaves no journal.
+        and axes_deg (S, n_axes). The journal is built under a temporary name in the same folder and
+        renamed into place: a crash at any instant leaves no journal or a complete one. Temporary files
+        of an earlier creation that was killed are removed (the caller holds the campaign's lock), and
+        so is an empty journal that gonio before schema 2 left behind when killed during creation.
         """
         path = Path(path)
         if path.exists():
-            raise JournalError(f"{path}: a campaign journal already exists (resume it instead)")
-        conn = cls._connect(path)
-        j = cls(conn, path, write_hook)
-        with j._transaction():
-            for stmt in _SCHEMA.split(";"):
-                if stmt.strip():
-                    j._write(stmt)
-            j._write(f"PRAGMA user_version={SCHEMA_VERSION}")
-            for k, v in meta.items():
-                j._write("INSERT INTO meta VALUES (?, ?)", (k, json.dumps(v)))
-            rows = zip(
-                range(len(steps["kind"])), (int(k) for k in steps["kind"]), (int(p) for p in steps["pose"]),
-                *(np.asarray(steps[c], float).tolist()
-                  for c in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")),
-                (json.dumps(a) for a in np.asarray(steps["axes_deg"], float).tolist()),
-                strict=True,
-            )
-            j._write_many("INSERT INTO steps VALUES (?, ?, ?, ?, ?, ?, ?, ?)", rows)
-        return j
+            if not _is_stub(path):
+                raise JournalError(f"{path}: a campaign journal already exists (resume it instead)")
+            _remove_db(path)
+        for stale in cls.partial_paths(path):
+            stale.unlink(missing_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        # A rollback journal (not WAL) while building: one file to rename, nothing beside it.
+        conn = sqlite3.connect(str(tmp), isolation_level=None)
+        j = cls(conn, tmp, write_hook)
+        try:
+            with j._transaction():
+                for stmt in _SCHEMA.split(";"):
+                    if stmt.strip():
+                        j._write(stmt)
+                j._write(f"PRAGMA user_version={SCHEMA_VERSION}")
+                for k, v in meta.items():
+                    j._write("INSERT INTO meta VALUES (?, ?)", (k, json.dumps(v)))
+                rows = zip(
+                    range(len(steps["kind"])), (int(k) for k in steps["kind"]),
+                    (int(p) for p in steps["pose"]),
+                    *(np.asarray(steps[c], float).tolist()
+                      for c in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")),
+                    (json.dumps(a) for a in np.asarray(steps["axes_deg"], float).tolist()),
+                    strict=True,
+                )
+                j._write_many("INSERT INTO steps VALUES (?, ?, ?, ?, ?, ?, ?, ?)", rows)
+        finally:
+            conn.close()
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+        _fsync_dir(path.parent)
+        return cls.open(path, write_hook=write_hook)
 
     @classmethod
-    def open(cls, path: str | Path, *, write_hook: Callable[[int], None] | None = None) -> Journal:
+    def open(cls, path: str | Path, *, write_hook: Callable[[int], None] | None = None,
+             readonly: bool = False) -> Journal:
+        """Open a journal to resume it, or ``readonly`` to look at it while another process runs it."""
         path = Path(path)
-        if not path.exists():
+        if not path.is_file():
             raise JournalError(f"{path}: no campaign journal here")
-        conn = cls._connect(path)
-        version = conn.execute("PRAGMA user_version").fetchone()[0]
+        if readonly:
+            conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True, isolation_level=None,
+                                   check_same_thread=False)
+        else:
+            conn = cls._connect(path)
+        try:
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+        except sqlite3.DatabaseError as err:
+            conn.close()
+            raise JournalError(f"{path}: not a campaign journal ({err})") from None
+        if version == 0 and _is_stub(path):
+            conn.close()
+            raise JournalError(f"{path}: an empty journal left by a creation that was interrupted; "
+                               "run the same command again to create the campaign afresh")
+        if version < SCHEMA_VERSION and version in _UPGRADES and not readonly:
+            with conn:
+                conn.execute("BEGIN IMMEDIATE")
+                for v in range(version, SCHEMA_VERSION):
+                    _UPGRADES[v](conn)
+                conn.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+            version = SCHEMA_VERSION
         if version != SCHEMA_VERSION:
             conn.close()
             raise JournalError(f"{path}: journal schema version {version}; this gonio reads "
-                               f"version {SCHEMA_VERSION}")
-        return cls(conn, path, write_hook)
+                               f"version {SCHEMA_VERSION}" + (" (open it for writing to upgrade it)"
+                                                              if version in _UPGRADES else ""))
+        return cls(conn, path, write_hook, readonly=readonly)
 
     def close(self) -> None:
         with self._lock:
@@ -197,36 +308,49 @@ class Journal:
             return False
 
     def _transaction(self):
+        if self.readonly:
+            raise JournalError(f"{self.path}: opened read-only")
         return Journal._Txn(self._conn, self._lock)
 
     def _query(self, sql: str, params=()) -> list:
         with self._lock:
             return self._conn.execute(sql, params).fetchall()
 
-    def commit_measurement(self, m: Measurement, events: list[tuple[str, str | None, str]] = ()) -> None:
-        """Commit one step's measurement (and the events that go with it) in one transaction."""
-        wall = time.time()
+    def commit_measurement(self, m: Measurement) -> None:
+        """Commit one step's measurement in its own transaction."""
+        values = (m.step, m.kind, m.pose, json.dumps(np.asarray(m.commanded_deg, float).tolist()),
+                  json.dumps(np.asarray(m.actual_deg, float).tolist()), *(float(a) for a in m.angles_deg),
+                  float(m.clock_s), float(m.campaign_s), time.time(), float(m.exposure_s), int(m.frames),
+                  _blob(m.signal), _blob(m.stderr), int(m.attempts))
         with self._transaction():
-            self._write(
-                "INSERT INTO measurements VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (m.step, m.kind, m.pose, json.dumps(np.asarray(m.commanded_deg, float).tolist()),
-                 json.dumps(np.asarray(m.actual_deg, float).tolist()),
-                 *(float(a) for a in m.angles_deg), m.virtual_s, wall, m.exposure_s, m.frames,
-                 _blob(m.signal), _blob(m.stderr), m.attempts),
-            )
-            for kind, state, message in events:
-                self._write("INSERT INTO events (virtual_s, wall_s, kind, state, step, message) "
-                            "VALUES (?, ?, ?, ?, ?, ?)", (m.virtual_s, wall, kind, state, m.step, message))
+            self._write(f"INSERT INTO measurements ({', '.join(_MEASUREMENT_COLUMNS)}) "
+                        f"VALUES ({', '.join('?' * len(_MEASUREMENT_COLUMNS))})", values)
 
     def log_event(self, kind: str, *, state: str | None = None, step: int | None = None,
-                  message: str = "", virtual_s: float | None = None) -> None:
+                  message: str = "", campaign_s: float | None = None, axes_deg=None) -> None:
+        axes = None if axes_deg is None else json.dumps(np.asarray(axes_deg, float).tolist())
         with self._transaction():
-            self._write("INSERT INTO events (virtual_s, wall_s, kind, state, step, message) "
-                        "VALUES (?, ?, ?, ?, ?, ?)", (virtual_s, time.time(), kind, state, step, message))
+            self._write("INSERT INTO events (campaign_s, wall_s, kind, state, step, message, axes_deg) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                        (campaign_s, time.time(), kind, state, step, message, axes))
 
     def set_meta(self, key: str, value) -> None:
         with self._transaction():
             self._write("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, json.dumps(value)))
+
+    def delete_meta(self, key: str) -> None:
+        with self._transaction():
+            self._write("DELETE FROM meta WHERE key = ?", (key,))
+
+    # -- latched faults --------------------------------------------------------------------------
+    def latch_fault(self, reason: str, devices: list[str]) -> None:
+        """Record a fault that only an operator may clear (it survives restarts of gonio)."""
+        self.set_meta("latched_fault", {"reason": reason, "devices": list(devices)})
+
+    def latched_fault(self) -> dict | None:
+        """``{"reason": str, "devices": [names]}`` of the latched fault, or None."""
+        rows = self._query("SELECT value FROM meta WHERE key = 'latched_fault'")
+        return json.loads(rows[0][0]) if rows else None
 
     # -- reading ---------------------------------------------------------------------------------
     def meta(self) -> dict:
@@ -251,6 +375,9 @@ class Journal:
         return np.array([r[0] for r in self._query("SELECT step FROM measurements ORDER BY step")],
                         dtype=np.int64)
 
+    def done_count(self) -> int:
+        return self._query("SELECT COUNT(*) FROM measurements")[0][0]
+
     def next_step(self) -> int:
         """The first step with no measurement (== step_count() when the campaign is complete)."""
         done = self.done_steps()
@@ -259,19 +386,60 @@ class Journal:
 
     def measurements(self) -> list[Measurement]:
         out = []
-        for r in self._query(
-            "SELECT step, kind, pose, commanded_deg, actual_deg, theta_i_deg, phi_i_deg, theta_o_deg, "
-            "phi_o_deg, virtual_s, exposure_s, frames, signal, stderr, attempts "
-            "FROM measurements ORDER BY step"
-        ):
+        names = [c for c in _MEASUREMENT_COLUMNS if c != "wall_s"]
+        for r in self._query(f"SELECT {', '.join(names)} FROM measurements ORDER BY step"):
+            d = dict(zip(names, r, strict=True))
             out.append(Measurement(
-                step=r[0], kind=r[1], pose=r[2], commanded_deg=np.array(json.loads(r[3])),
-                actual_deg=np.array(json.loads(r[4])), angles_deg=np.array(r[5:9], float),
-                virtual_s=r[9], exposure_s=r[10], frames=r[11], signal=_unblob(r[12]),
-                stderr=_unblob(r[13]), attempts=r[14]))
+                step=d["step"], kind=d["kind"], pose=d["pose"],
+                commanded_deg=np.array(json.loads(d["commanded_deg"])),
+                actual_deg=np.array(json.loads(d["actual_deg"])),
+                angles_deg=np.array([d[k] for k in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")],
+                                    float),
+                clock_s=d["clock_s"], campaign_s=d["campaign_s"], exposure_s=d["exposure_s"],
+                frames=d["frames"], signal=_unblob(d["signal"]), stderr=_unblob(d["stderr"]),
+                attempts=d["attempts"]))
         return out
 
-    def events(self) -> list[dict]:
-        names = ("id", "virtual_s", "wall_s", "kind", "state", "step", "message")
-        rows = self._query(f"SELECT {', '.join(names)} FROM events ORDER BY id")
-        return [dict(zip(names, r, strict=True)) for r in rows]
+    def events(self, after_id: int = 0) -> list[dict]:
+        rows = self._query(f"SELECT {', '.join(_EVENT_COLUMNS)} FROM events WHERE id > ? ORDER BY id",
+                           (after_id,))
+        out = [dict(zip(_EVENT_COLUMNS, r, strict=True)) for r in rows]
+        for e in out:
+            if e["axes_deg"] is not None:
+                e["axes_deg"] = json.loads(e["axes_deg"])
+        return out
+
+    def last_event(self, kind: str) -> dict | None:
+        rows = self._query(f"SELECT {', '.join(_EVENT_COLUMNS)} FROM events WHERE kind = ? "
+                           "ORDER BY id DESC LIMIT 1", (kind,))
+        return self._event_dict(rows[0]) if rows else None
+
+    @staticmethod
+    def _event_dict(row) -> dict:
+        e = dict(zip(_EVENT_COLUMNS, row, strict=True))
+        if e["axes_deg"] is not None:
+            e["axes_deg"] = json.loads(e["axes_deg"])
+        return e
+
+    def campaign_clock(self) -> tuple[float, float | None]:
+        """(campaign_s, wall_s) of the latest record (measurement or event): where the campaign clock
+        stands, and the Unix time it stood there; (0, None) for a campaign that never ran."""
+        rows = self._query(
+            "SELECT campaign_s, wall_s FROM (SELECT campaign_s, wall_s FROM measurements UNION ALL "
+            "SELECT campaign_s, wall_s FROM events WHERE campaign_s IS NOT NULL) "
+            "ORDER BY campaign_s DESC, wall_s DESC LIMIT 1")
+        return (float(rows[0][0]), float(rows[0][1])) if rows else (0.0, None)
+
+    def last_known_axes(self) -> tuple[np.ndarray, float] | None:
+        """(axis positions in degrees, campaign_s) the journal last recorded, or None: the latest of
+        the last measurement's read-back positions and the last event that recorded positions (a
+        park, a halt). It is where a gantry that no process drove since stands."""
+        m = self._query("SELECT actual_deg, campaign_s FROM measurements ORDER BY campaign_s DESC, step DESC "
+                        "LIMIT 1")
+        e = self._query("SELECT axes_deg, campaign_s FROM events WHERE axes_deg IS NOT NULL "
+                        "ORDER BY id DESC LIMIT 1")
+        best = None
+        for rows in (m, e):
+            if rows and (best is None or rows[0][1] >= best[1]):
+                best = (np.array(json.loads(rows[0][0]), float), float(rows[0][1]))
+        return best

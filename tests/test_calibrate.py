@@ -5,11 +5,11 @@ from gonio.calibrate import CalibrationError, calibrate
 from gonio.store import Measurement
 
 
-def _reading(step, kind, t, theta_i_deg, signal, stderr=None):
+def _reading(step, kind, t, theta_i_deg, signal, stderr=None, exposure_s=0.1):
     s = np.asarray(signal, float)
     return Measurement(step=step, kind=kind, pose=step if kind == 0 else -1, commanded_deg=np.zeros(4),
                        actual_deg=np.zeros(4), angles_deg=np.array([theta_i_deg, 0.0, 30.0, 90.0]),
-                       virtual_s=t, exposure_s=0.1, frames=1, signal=s,
+                       clock_s=t, campaign_s=t, exposure_s=exposure_s, frames=1, signal=s,
                        stderr=np.zeros_like(s) if stderr is None else np.asarray(stderr, float))
 
 
@@ -36,7 +36,44 @@ def test_recovers_brdf_through_dark_and_drifting_source():
     cal = calibrate(ms, rho)
     np.testing.assert_allclose(cal.value, f, rtol=1e-12)
     assert cal.steps.tolist() == [2, 3, 4]
+    assert cal.campaign_s.tolist() == [2.0, 3.0, 4.0]
     np.testing.assert_array_equal(cal.stddev, 0.0)
+
+
+def test_mixed_exposures_calibrate_to_the_truth():
+    """A pose read at 0.25 s against darks at 0.05 s and references at 0.1 s: every reading is a rate
+    (a dark current grows with the exposure), so f comes out exact, not 2.5x too bright."""
+    rho, k_rate, dark_rate = 0.99, 2000.0, 40.0
+    f = np.array([0.2, 0.3, 0.4])
+    ti = 30.0
+
+    def sig(rate, exposure):
+        return np.full(3, rate * exposure) if np.ndim(rate) == 0 else rate * exposure
+
+    ms = [
+        _reading(0, 1, 0.0, 0.0, sig(dark_rate, 0.05), exposure_s=0.05),
+        _reading(1, 2, 1.0, 0.0, sig(k_rate * rho / np.pi + dark_rate, 0.1), exposure_s=0.1),
+        _reading(2, 0, 2.0, ti, sig(k_rate * f * np.cos(np.radians(ti)) + dark_rate, 0.25), exposure_s=0.25),
+        _reading(3, 0, 3.0, ti, sig(k_rate * f * np.cos(np.radians(ti)) + dark_rate, 0.02), exposure_s=0.02),
+    ]
+    cal = calibrate(ms, rho)
+    np.testing.assert_allclose(cal.value, [f, f], rtol=1e-12)
+
+
+def test_time_that_goes_backwards_is_refused_with_the_steps():
+    ms = [_reading(0, 1, 0.0, 0.0, [1.0]), _reading(1, 2, 5.0, 0.0, [101.0]),
+          _reading(2, 0, 3.0, 0.0, [51.0]), _reading(3, 2, 6.0, 0.0, [101.0])]
+    with pytest.raises(CalibrationError, match=r"goes backwards from step 1 \(5.000 s\) to step 2"):
+        calibrate(ms, 1.0)
+
+
+def test_interpolated_reference_carries_its_own_uncertainty():
+    """Halfway between two references of relative error e each, K has relative error e/√2."""
+    ms = [_reading(0, 1, 0.0, 0.0, [0.0], [0.0]), _reading(1, 2, 0.0, 0.0, [100.0], [1.0]),
+          _reading(2, 0, 1.0, 0.0, [50.0], [0.0]), _reading(3, 2, 2.0, 0.0, [100.0], [1.0])]
+    cal = calibrate(ms, 1.0)
+    np.testing.assert_allclose(cal.value[0, 0], 0.5 / np.pi)
+    np.testing.assert_allclose(cal.stddev[0, 0], 0.5 / np.pi * 0.01 / np.sqrt(2.0))
 
 
 def test_uncertainty_propagates():
