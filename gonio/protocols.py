@@ -42,7 +42,12 @@ class Axis(Protocol):
         """Start a move and return at once; rejects targets outside ``limits_deg``."""
     def position_deg(self) -> float: ...
     def is_moving(self) -> bool: ...
-    def stop(self) -> None: ...
+    def stop(self) -> None:
+        """Stop at once (brake at the maximum deceleration); safe to call from any thread, at rest too."""
+    def fault(self) -> str | None:
+        """The latched hardware fault (an error bit, an alarm), or None. A latched axis refuses moves."""
+    def clear_fault(self) -> None:
+        """Clear a latched fault (a reboot or alarm reset): only ever on an operator's explicit request."""
 
 
 @runtime_checkable
@@ -73,7 +78,11 @@ class Detector(Protocol):
 
     def connect(self) -> None: ...
     def close(self) -> None: ...
-    def measure(self, exposure_s: float, frames: int = 1) -> Reading: ...
+    def measure(self, exposure_s: float, frames: int = 1, *, key: tuple[int, int] | None = None) -> Reading:
+        """Integrate ``frames`` frames of ``exposure_s`` s. ``key`` = (step, attempt) names the reading
+        within its campaign: a simulated detector draws every random number of the reading from a stream
+        keyed by (seed, step, attempt), so a resumed campaign replays an uninterrupted one exactly; a real
+        detector may record it."""
 
 
 @runtime_checkable
@@ -92,6 +101,7 @@ class Gantry(Protocol):
     def set_target(self, target: str) -> None:
         """Put ``"sample"`` or ``"reference"`` (the white standard) under the beam."""
     def stop(self) -> None:
-        """Stop every axis at once (after a fault)."""
-    def park(self) -> None:
-        """Move every axis to its home position and wait (the safe state; called in ``finally``)."""
+        """Stop every axis at once (a halt, a fault); safe to call from any thread, mid-move too.
+
+        Parking is not the gantry's job: the runner plans a collision-free path home
+        (:func:`gonio.motion.safe.safe_path`) and moves it like any other step."""

@@ -1,23 +1,48 @@
 """The runner: executes a journaled plan on a gantry, one committed step at a time.
 
-An explicit state machine (``TRANSITIONS``) guards every change of state; pause, resume and abort take
-effect at step boundaries. For each step: move the axes whose target changed, wait (the expected
-trapezoid time, then poll), verify the positions within tolerance, settle, measure, commit. Transient
-device faults are retried; a hardware fault stops every axis and leaves the campaign ``faulted`` with
-the reason. The gantry is parked (light off, axes home) in a ``finally``. The runner never sees bytes:
-it talks to the gantry through the protocols in :mod:`gonio.protocols`.
+An explicit state machine (``TRANSITIONS``) guards every change of state. For each step: check every
+target against the limits and plan a collision-free path to it from where the axes stand
+(:func:`gonio.motion.safe.safe_path`), move leg by leg (only the axes whose target changed), wait in
+slices of ``poll_s`` so that a halt acts mid-move, verify the positions, settle, measure, commit.
+
+Stops, and what each leaves behind:
+
+``pause`` (any thread; SIGINT/SIGTERM in the CLI)
+    Finishes the step in flight, then parks along a safe path; ``paused``. Resume continues.
+``abort``
+    At the next step boundary: parks, ``aborted`` (final). A paused, halted or faulted campaign aborts
+    at once and nothing moves.
+``halt`` (emergency stop, any thread)
+    Every axis is stopped at once, mid-move too; nothing further is commanded and nothing is parked;
+    ``halted``. Resume continues from the step in flight.
+fault
+    A device fault that is not transient (an error bit, an alarm), an axis that stopped short of its
+    target (stopped by someone else, or blocked), a target beyond a limit or a move with no safe path:
+    every axis is stopped and left where it is, the campaign is ``faulted`` and the fault is latched
+    in the journal. It stays latched across restarts until an operator clears it
+    (:meth:`Runner.clear_fault`, ``--clear-fault``); only then does the campaign run again.
+
+Transient faults (a time-out, a corrupt reply, a small position error) are retried up to
+``runner.retries`` times, after waiting until every axis is still. The runner never sees bytes: it
+talks to the gantry through the protocols in :mod:`gonio.protocols`.
+
+Time: ``campaign_s`` continues across resumes: each run starts where the journal's clock left off (plus
+the downtime, when the gantry's clock is the wall clock), so the drift correction never sees time go
+backwards.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from enum import StrEnum
 
 import numpy as np
 
 from gonio.config import GonioConfig
+from gonio.motion.safe import check_targets, safe_path
 from gonio.motion.trapezoid import move_time
 from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
 from gonio.protocols import DeviceFault, Gantry
@@ -33,17 +58,19 @@ class State(StrEnum):
     RUNNING = "running"
     PAUSING = "pausing"
     PAUSED = "paused"
+    HALTED = "halted"
     DONE = "done"
     ABORTED = "aborted"
     FAULTED = "faulted"
 
 
-#: from-state -> the states it may go to. ``faulted`` may resume once the cause is cleared.
+#: from-state -> the states it may go to. ``faulted`` runs again only once the fault is cleared.
 TRANSITIONS: dict[State, frozenset[State]] = {
     State.IDLE: frozenset({State.RUNNING, State.ABORTED}),
-    State.RUNNING: frozenset({State.PAUSING, State.DONE, State.ABORTED, State.FAULTED}),
-    State.PAUSING: frozenset({State.PAUSED, State.DONE, State.ABORTED, State.FAULTED}),
+    State.RUNNING: frozenset({State.PAUSING, State.DONE, State.ABORTED, State.FAULTED, State.HALTED}),
+    State.PAUSING: frozenset({State.PAUSED, State.DONE, State.ABORTED, State.FAULTED, State.HALTED}),
     State.PAUSED: frozenset({State.RUNNING, State.ABORTED}),
+    State.HALTED: frozenset({State.RUNNING, State.ABORTED}),
     State.FAULTED: frozenset({State.RUNNING, State.ABORTED}),
     State.DONE: frozenset(),
     State.ABORTED: frozenset(),
@@ -52,6 +79,18 @@ TRANSITIONS: dict[State, frozenset[State]] = {
 
 class TransitionError(RuntimeError):
     pass
+
+
+class _Halted(Exception):
+    """Raised inside the runner's thread when a halt was requested; never leaves :meth:`Runner.run`."""
+
+
+class _Fault(Exception):
+    """A fault that stops the campaign and latches (not a device's transient hiccup)."""
+
+    def __init__(self, device: str, message: str):
+        super().__init__(f"{device}: {message}")
+        self.device = device
 
 
 class Runner:
@@ -69,20 +108,36 @@ class Runner:
         self.on_step = on_step
         self._state = State.IDLE
         self._lock = threading.Lock()
+        # Held while axes are being commanded: a halt waits for a batch of commands to be sent, then
+        # stops every axis; no batch starts once the halt flag is set.
+        self._command_lock = threading.RLock()
         self._pause = threading.Event()
         self._abort = threading.Event()
+        self._halt = threading.Event()
         self.fault: str | None = None
+        self.stop_reason: str = ""
         self._steps = journal.steps()
         kin = gantry.kinematics
+        self._kin = kin
         self._vmax = np.asarray(kin.velocity_deg_s, float)
         self._amax = np.asarray(kin.accel_deg_s2, float)
         self._axes = [gantry.axes[n] for n in kin.axis_names]
-        self._target: np.ndarray | None = None  # last commanded targets
+        self._home = np.asarray(kin.home_deg, float)
+        self._base_s = 0.0
+        self._t0 = 0.0
+        latched = journal.latched_fault()
+        if latched is not None:
+            self._state = State.FAULTED
+            self.fault = latched["reason"]
 
     # -- state -----------------------------------------------------------------------------------
     @property
     def state(self) -> State:
         return self._state
+
+    def campaign_s(self) -> float:
+        """The campaign clock now: seconds since the campaign began, continuing across resumes."""
+        return self._base_s + (self.gantry.clock.now() - self._t0)
 
     def _to(self, new: State, message: str = "") -> None:
         with self._lock:
@@ -91,39 +146,76 @@ class Runner:
                 raise TransitionError(f"runner: cannot go from '{old}' to '{new}'")
             self._state = new
         self.journal.log_event("state", state=str(new), message=message or f"{old} -> {new}",
-                               virtual_s=self.gantry.clock.now())
+                               campaign_s=self.campaign_s())
         log.info("campaign %s -> %s %s", old, new, message)
 
-    def request_pause(self) -> None:
-        """Pause at the next step boundary (from any thread)."""
+    def request_pause(self, reason: str = "pause requested") -> None:
+        """Pause at the next step boundary, then park (from any thread)."""
         self._pause.set()
         with self._lock:
             pausing = self._state == State.RUNNING
             if pausing:
                 self._state = State.PAUSING
         if pausing:
-            self.journal.log_event("pause", state=str(State.PAUSING), message="pause requested")
+            self.journal.log_event("pause", state=str(State.PAUSING), message=reason,
+                                   campaign_s=self.campaign_s())
 
     def request_abort(self) -> None:
-        """Abort at the next step boundary; a paused, faulted or idle campaign aborts at once."""
+        """Abort at the next step boundary and park; a paused, halted, faulted or idle campaign aborts at
+        once and nothing moves."""
         self._abort.set()
-        if self._state in (State.PAUSED, State.FAULTED, State.IDLE):
+        if self._state in (State.PAUSED, State.FAULTED, State.IDLE, State.HALTED):
             self._to(State.ABORTED, "abort requested")
+
+    def request_halt(self, reason: str = "halt requested") -> None:
+        """Emergency stop (from any thread): every axis stops now, mid-move too; nothing is parked.
+
+        The runner's thread notices within one ``poll_s`` slice and ends the run ``halted``.
+        """
+        self._halt.set()
+        with self._command_lock:
+            try:
+                self.gantry.stop()
+            except Exception as err:  # the halt stands; a failing stop is recorded beside it
+                self.journal.log_event("fault", message=f"stop failed during halt: {err}",
+                                       campaign_s=self.campaign_s())
+        self.journal.log_event("halt", message=reason, campaign_s=self.campaign_s())
+
+    def clear_fault(self, operator_note: str = "cleared by the operator") -> None:
+        """Clear a latched fault: the devices' own latches (reboot, alarm reset) and the journal's."""
+        if self._state not in (State.FAULTED, State.IDLE):
+            raise TransitionError(f"runner: campaign is {self._state}; there is no fault to clear")
+        for axis in self._axes:
+            if axis.fault() is not None:
+                axis.clear_fault()
+        if self.journal.latched_fault() is not None:
+            self.journal.delete_meta("latched_fault")
+        self.journal.log_event("fault-cleared", message=f"{self.fault or 'no fault'}: {operator_note}",
+                               campaign_s=self.journal.campaign_clock()[0])
+        self.fault = None
 
     # -- running ---------------------------------------------------------------------------------
     def run(self) -> State:
         """Run (or resume) from the first step the journal has no measurement for.
 
-        Returns the state it stopped in: done, paused, aborted or faulted.
+        Returns the state it stopped in: done, paused, halted, aborted or faulted. A campaign whose
+        fault is latched returns ``faulted`` at once without touching the gantry.
         """
         if self._state in (State.DONE, State.ABORTED):
             raise TransitionError(f"runner: campaign is {self._state}; nothing to run")
+        latched = self.journal.latched_fault()
+        if latched is not None:
+            self.fault = latched["reason"]
+            self._state = State.FAULTED
+            return self._state
         self._pause.clear()
+        self._halt.clear()
+        self._start_clock()
         step = self.journal.next_step()
-        resumed = step > 0
-        self._to(State.RUNNING, f"{'resume' if resumed else 'start'} at step {step}")
-        self.fault = None
         n = self.journal.step_count()
+        self._to(State.RUNNING, f"{'resume' if step > 0 else 'start'} at step {step}")
+        self.fault = None
+        park = True
         try:
             self.gantry.light.set_on(True)
             self.gantry.set_target("sample")
@@ -134,123 +226,212 @@ class Runner:
                 if self._pause.is_set():
                     self._to(State.PAUSED, f"paused before step {step}")
                     return self._state
-                if not self._run_step(step):
-                    return self._state
+                self._run_step(step)
                 if self.on_step is not None:
                     self.on_step(self, step)
                 step += 1
             self._to(State.DONE, f"{n} steps measured")
             return self._state
-        except DeviceFault as err:
-            self._fail(str(err))
+        except _Halted:
+            park = False
+            self._to(State.HALTED, f"halted during step {step}")
             return self._state
+        except _Fault as err:
+            park = False
+            self._fail(str(err), [err.device])
+            return self._state
+        except KeyboardInterrupt:
+            # Not through the CLI's handlers (a library user's Ctrl-C): stop everything where it is.
+            park = False
+            self.request_halt("interrupted (KeyboardInterrupt)")
+            self._to(State.HALTED, f"interrupted during step {step}")
+            raise
         except Exception as err:
-            self._fail(f"{type(err).__name__}: {err}")
+            park = False
+            self._fail(f"{type(err).__name__}: {err}", ["gantry"])
             raise
         finally:
-            self._park()
+            self._finish(park)
 
-    def _fail(self, reason: str) -> None:
+    def _start_clock(self) -> None:
+        base, last_wall = self.journal.campaign_clock()
+        if getattr(self.gantry.clock, "real_time", False) and last_wall is not None:
+            base += max(0.0, time.time() - last_wall)  # a lamp drifts while nobody runs the gantry
+        self._base_s = base
+        self._t0 = self.gantry.clock.now()
+
+    def _fail(self, reason: str, devices: list[str]) -> None:
         self.fault = reason
-        try:
-            self.gantry.stop()
-        except Exception as err:  # the fault is what matters; a failing stop is logged beside it
-            self.journal.log_event("fault", message=f"stop failed: {err}")
-        self.journal.log_event("fault", message=reason, virtual_s=self.gantry.clock.now())
+        self._stop_all()
+        self.journal.latch_fault(reason, devices)
+        self.journal.log_event("fault", message=reason, campaign_s=self.campaign_s())
         if self._state in (State.RUNNING, State.PAUSING):
             self._to(State.FAULTED, reason)
 
-    def _park(self) -> None:
+    def _finish(self, park: bool) -> None:
+        """Light off; park along a safe path after done, pause and abort; record where the axes stand."""
         try:
             self.gantry.light.set_on(False)
-            self.gantry.park()
-            self._target = None
         except Exception as err:
-            self.journal.log_event("fault", message=f"park failed: {err}",
-                                   virtual_s=self.gantry.clock.now())
+            self.journal.log_event("fault", message=f"light off failed: {err}", campaign_s=self.campaign_s())
+        try:
+            if park:
+                self._goto(self._home)
+            self.journal.log_event("park" if park else "stopped", message="axes home" if park else
+                                   "axes left where they stopped", campaign_s=self.campaign_s(),
+                                   axes_deg=self._positions())
+        except Exception as err:
+            self.journal.log_event("fault", message=f"park failed: {err}", campaign_s=self.campaign_s())
 
-    def _run_step(self, step: int) -> bool:
-        """Measure and commit one step, retrying transient faults. False when the campaign faulted."""
+    def _run_step(self, step: int) -> None:
+        """Measure and commit one step, retrying transient faults."""
         retries = self.cfg.runner.retries
-        events: list[tuple[str, str | None, str]] = []
         for attempt in range(1, retries + 2):
             try:
                 m = self._measure_step(step, attempt)
             except DeviceFault as err:
-                if err.transient and attempt <= retries:
-                    msg = f"step {step}, attempt {attempt}: {err}; retrying"
-                    events.append(("retry", None, msg))
-                    self.journal.log_event("retry", step=step, message=msg,
-                                           virtual_s=self.gantry.clock.now())
-                    self._target = None  # re-command every axis on the next attempt
-                    continue
-                self._fail(f"step {step}: {err}")
-                return False
+                if not err.transient:
+                    raise _Fault(err.device, str(err).removeprefix(f"{err.device}: ")) from None
+                self._stop_all()
+                if attempt > retries:
+                    raise _Fault(err.device, f"step {step}: {str(err).removeprefix(f'{err.device}: ')} "
+                                 f"(gave up after {retries} retries)") from None
+                self.journal.log_event("retry", step=step, campaign_s=self.campaign_s(),
+                                       message=f"step {step}, attempt {attempt}: {err}; retrying")
+                continue
+            if self._halt.is_set():
+                raise _Halted  # the reading is whole, but a halt means nothing more is committed
             self.journal.commit_measurement(m)
-            return True
+            return
         raise AssertionError("unreachable")  # pragma: no cover
 
     def _measure_step(self, step: int, attempt: int) -> Measurement:
         s = self._steps
         kind = int(s["kind"][step])
         g = self.gantry
+        det = self.cfg.detector
+        key = (step, attempt)
         if kind == STEP_DARK:
-            commanded = self._current_positions() if self._target is None else self._target
+            commanded = self._positions()
             g.light.set_on(False)
             try:
-                reading = g.detector.measure(self.cfg.detector.exposure_s, self.cfg.detector.frames)
+                reading = g.detector.measure(det.exposure_s, det.frames, key=key)
             finally:
                 g.light.set_on(True)
         else:
             commanded = s["axes_deg"][step]
-            self._move(commanded)
-            g.clock.sleep(self.cfg.runner.settle_s)
+            self._goto(commanded)
+            self._wait(self.cfg.runner.settle_s)
             if kind == STEP_REFERENCE:
                 g.set_target("reference")
                 try:
-                    reading = g.detector.measure(self.cfg.detector.exposure_s, self.cfg.detector.frames)
+                    reading = g.detector.measure(det.exposure_s, det.frames, key=key)
                 finally:
                     g.set_target("sample")
             else:
-                reading = g.detector.measure(self.cfg.detector.exposure_s, self.cfg.detector.frames)
-        actual = self._current_positions()
-        ti, pi_, to, po = g.kinematics.forward(actual[None, :])
+                reading = g.detector.measure(det.exposure_s, det.frames, key=key)
+        actual = self._positions()
+        ti, pi_, to, po = self._kin.forward(actual[None, :])
         angles = np.degrees([ti[0], pi_[0], to[0], po[0]])
         return Measurement(
             step=step, kind=kind, pose=int(s["pose"][step]), commanded_deg=np.asarray(commanded, float),
-            actual_deg=actual, angles_deg=angles, virtual_s=g.clock.now(), exposure_s=reading.exposure_s,
-            frames=reading.frames, signal=reading.signal, stderr=reading.stderr, attempts=attempt)
+            actual_deg=actual, angles_deg=angles, clock_s=g.clock.now(), campaign_s=self.campaign_s(),
+            exposure_s=reading.exposure_s, frames=reading.frames, signal=reading.signal,
+            stderr=reading.stderr, attempts=attempt)
 
-    def _current_positions(self) -> np.ndarray:
+    # -- motion ----------------------------------------------------------------------------------
+    def _positions(self) -> np.ndarray:
         return np.array([a.position_deg() for a in self._axes], dtype=float)
 
-    def _move(self, target: np.ndarray) -> None:
-        """Move every axis whose target changed; wait; verify the positions within tolerance."""
+    def _goto(self, target: np.ndarray) -> None:
+        """Move to ``target`` along a collision-free path, leg by leg; every target is checked against
+        the limits and the sweep check before any axis is commanded."""
+        target = np.asarray(target, dtype=float)
+        try:
+            check_targets(self._kin, target)
+            start = self._positions()
+            path = safe_path(self._kin, start, target)
+        except ValueError as err:
+            raise _Fault("gantry", str(err)) from None
+        for leg in path:
+            self._move_leg(start, leg)
+            start = leg
+
+    def _move_leg(self, start: np.ndarray, target: np.ndarray) -> None:
         rc = self.cfg.runner
-        clock = self.gantry.clock
-        # Where the axes stand: the last verified targets, or read back when unknown (start, retry).
-        current = self._current_positions() if self._target is None else self._target
-        moved = np.ones(len(self._axes), bool) if self._target is None else target != self._target
-        for axis, t, m in zip(self._axes, target, moved, strict=True):
-            if m:
-                axis.move_to(float(t))
-        self._target = np.array(target, float)
-        # Sleep the time the profile needs, then poll: a handful of polls per move, not thousands.
-        expected = float(np.max(move_time(target - current, self._vmax, self._amax), initial=0.0))
-        clock.sleep(min(expected, rc.move_timeout_s))
+        moved = target != start
+        with self._command_lock:
+            if self._halt.is_set():
+                raise _Halted
+            try:
+                for axis, t, m in zip(self._axes, target, moved, strict=True):
+                    if m:
+                        axis.move_to(float(t))
+            except BaseException:
+                # One axis refused: none of the others may go on moving toward a half-made pose.
+                self._stop_all()
+                raise
+        # Wait the time the profile needs in short slices (a halt acts within one), then poll.
+        expected = float(np.max(move_time(target - start, self._vmax, self._amax), initial=0.0))
+        self._wait(min(expected, rc.move_timeout_s))
         waited = expected
         while any(a.is_moving() for a in self._axes):
             if waited >= rc.move_timeout_s:
-                self.gantry.stop()
+                self._stop_all()
                 raise DeviceFault("gantry", f"axes did not arrive within move_timeout_s={rc.move_timeout_s}",
                                   transient=True)
-            clock.sleep(rc.poll_s)
+            self._wait(rc.poll_s)
             waited += rc.poll_s
-        actual = self._current_positions()
+        if self._halt.is_set():
+            raise _Halted
+        actual = self._positions()
         err = np.abs(actual - target)
         bad = np.flatnonzero(err > rc.position_tolerance_deg)
         if bad.size:
             i = int(bad[0])
-            raise DeviceFault(self._axes[i].name,
-                              f"position {actual[i]:.4f}° is {err[i]:.4f}° from target {target[i]:.4f}° "
-                              f"(position_tolerance_deg={rc.position_tolerance_deg})", transient=True)
+            name = self._axes[i].name
+            lo, hi = sorted((start[i], target[i]))
+            if lo + rc.position_tolerance_deg < actual[i] < hi - rc.position_tolerance_deg:
+                # Between start and target: stopped by someone else, or blocked. Never retried blindly.
+                raise _Fault(name, f"stopped at {actual[i]:.4f}°, {err[i]:.4f}° short of its target "
+                             f"{target[i]:.4f}° (stopped by another client, or blocked): inspect the "
+                             "gantry, then clear the fault to resume")
+            raise DeviceFault(name, f"position {actual[i]:.4f}° is {err[i]:.4f}° from target "
+                              f"{target[i]:.4f}° (position_tolerance_deg={rc.position_tolerance_deg})",
+                              transient=True)
+
+    def _wait(self, seconds: float) -> None:
+        """Sleep ``seconds`` on the gantry clock in slices of ``poll_s``, raising at a halt."""
+        poll = self.cfg.runner.poll_s
+        clock = self.gantry.clock
+        remaining = seconds
+        while remaining > 0.0:
+            if self._halt.is_set():
+                raise _Halted
+            dt = min(poll, remaining)
+            clock.sleep(dt)
+            remaining -= dt
+        if self._halt.is_set():
+            raise _Halted
+
+    def _stop_all(self) -> None:
+        """Stop every axis, then wait (bounded) until all are still, so nothing is commanded mid-brake."""
+        rc = self.cfg.runner
+        with self._command_lock:
+            try:
+                self.gantry.stop()
+            except Exception as err:
+                self.journal.log_event("fault", message=f"stop failed: {err}", campaign_s=self.campaign_s())
+                return
+        waited = 0.0
+        clock = self.gantry.clock
+        while waited < rc.move_timeout_s:
+            try:
+                if not any(a.is_moving() for a in self._axes):
+                    return
+            except DeviceFault:
+                return  # an axis that cannot be asked cannot be waited for; the fault says why
+            clock.sleep(rc.poll_s)
+            waited += rc.poll_s
+        self.journal.log_event("fault", message=f"axes still moving {rc.move_timeout_s} s after stop",
+                               campaign_s=self.campaign_s())

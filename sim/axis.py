@@ -125,10 +125,12 @@ class SimAxis:
     commanded and reported positions differ by up to half a count, as on a real servo.
     :meth:`true_position_deg` is the unquantized shaft angle: what the simulated optics see.
 
-    The axis powers up at rest at ``home_deg`` (rounded to a count).
+    The axis powers up at rest at ``start_deg`` (default ``home_deg``; rounded to a count): a gantry
+    that no process drives stays where it was, so a resumed simulation starts where the journal last
+    saw the axes.
     """
 
-    def __init__(self, name: str, cfg: AxisConfig, clock: Clock):
+    def __init__(self, name: str, cfg: AxisConfig, clock: Clock, start_deg: float | None = None):
         self.name = name
         self.cfg = cfg
         self.limits_deg = (float(cfg.min_deg), float(cfg.max_deg))
@@ -136,8 +138,12 @@ class SimAxis:
         self._connected = False
         self._fault: str | None = None
         self._pending: deque[str] = deque()
-        home = self._settle_point(cfg.home_deg)
-        self._motion: _Move | _Brake = _Brake(clock.now(), home, 0.0, cfg.max_accel_deg_s2, home)
+        start = float(cfg.home_deg if start_deg is None else start_deg)
+        if not (np.isfinite(start) and self.limits_deg[0] <= start <= self.limits_deg[1]):
+            raise ValueError(f"axis '{name}': start_deg {start!r} is outside the limit "
+                             f"[{self.limits_deg[0]:g}°, {self.limits_deg[1]:g}°]")
+        rest = self._settle_point(start)
+        self._motion: _Move | _Brake = _Brake(clock.now(), rest, 0.0, cfg.max_accel_deg_s2, rest)
 
     # -- connection -------------------------------------------------------------------------------
     def connect(self) -> None:
@@ -235,7 +241,6 @@ class SimAxis:
         self._require_connected()
         self._fault = None
 
-    @property
     def fault(self) -> str | None:
         """The latched fault message, or None."""
         return self._fault

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from gonio.clock import VirtualClock
 from gonio.config import GonioConfig
 from gonio.kinematics import make_kinematics
-from gonio.protocols import Clock, DeviceFault
+from gonio.protocols import Clock
 from gonio.sim import materials as _materials
 from gonio.sim.axis import SimAxis
 from gonio.sim.detector import TARGETS, SimDetector
@@ -43,12 +43,12 @@ class SimGantry:
     >>> gantry = SimGantry.from_config(load_config(), "lambert:albedo=0.5", seed=1)
     >>> gantry.connect()
     >>> gantry.light.set_on(True)
-    >>> gantry.axes["light_tilt"].move_to(60.0)
-    >>> gantry.park()               # lets the move finish, then brings the arm home (at the zenith)
-    >>> gantry.detector.measure(0.1).signal.round(5)    # 1000 · Ω(0.5°) · 0.5/π · 0.1 s
-    array([0.00381, 0.00381, 0.00381])
-    >>> round(gantry.clock.now(), 3)           # virtual seconds: 1.833 out, 1.833 back, 0.1 exposure
-    3.767
+    >>> gantry.axes["light_tilt"].move_to(30.0)
+    >>> gantry.wait_until_still()              # advances the virtual clock until the move is over
+    >>> gantry.detector.measure(0.1).signal.round(5)    # 1000 · Ω(0.5°) · 0.5/π · cos 30° · 0.1 s
+    array([0.0033, 0.0033, 0.0033])
+    >>> round(gantry.clock.now(), 3)           # virtual seconds: a 1.167 s move, a 0.1 s exposure
+    1.267
     """
 
     def __init__(self, name: str, kinematics, axes: Mapping[str, SimAxis], light: SimLight,
@@ -69,8 +69,8 @@ class SimGantry:
         self.clock = clock
 
     @classmethod
-    def from_config(cls, cfg: GonioConfig, material, *, seed: int = 0,
-                    clock: Clock | None = None) -> SimGantry:
+    def from_config(cls, cfg: GonioConfig, material, *, seed: int = 0, clock: Clock | None = None,
+                    start_deg=None) -> SimGantry:
         """Wire a simulated gantry from a config.
 
         Parameters
@@ -85,12 +85,20 @@ class SimGantry:
             Campaign seed of the detector's Monte Carlo and noise (>= 0).
         clock : Clock, optional
             Defaults to a new :class:`gonio.clock.VirtualClock` at t = 0.
+        start_deg : array_like, shape (n_axes,), optional
+            Where the axes stand at power-up (default: home). A resumed campaign passes the positions the
+            journal last recorded: a real gantry stays where it was while no process drives it.
         """
         clock = VirtualClock() if clock is None else clock
         sample = _materials.load(material) if isinstance(material, str) else material
         reference = _materials.load(f"lambert:albedo={cfg.reference.albedo!r}")
         kinematics = make_kinematics(cfg)
-        axes = {a: SimAxis(a, cfg.axes[a], clock) for a in kinematics.axis_names}
+        start = [None] * len(kinematics.axis_names) if start_deg is None else [float(x) for x in start_deg]
+        if len(start) != len(kinematics.axis_names):
+            raise ValueError(f"start_deg: {len(start)} positions for the axes "
+                             f"{', '.join(kinematics.axis_names)}")
+        axes = {a: SimAxis(a, cfg.axes[a], clock, x)
+                for a, x in zip(kinematics.axis_names, start, strict=True)}
         light = SimLight(cfg.light, clock)
         detector = SimDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics,
                                materials={"sample": sample, "reference": reference}, clock=clock,
@@ -127,35 +135,15 @@ class SimGantry:
         self.detector.set_target(target)
 
     def stop(self) -> None:
-        """Brake every axis (see :meth:`SimAxis.stop`); they come to rest within v_max / a_max."""
+        """Brake every axis (see :meth:`SimAxis.stop`); they come to rest within v_max / a_max.
+
+        Safe from any thread: each axis's motion is one attribute replaced at once."""
         for axis in self.axes.values():
             axis.stop()
 
-    def park(self) -> None:
-        """Move every axis to its home position and advance the clock until all have arrived.
-
-        Axes still braking are first let come to rest. An axis that refuses the move (a latched or
-        injected fault) does not keep the others from parking: they all move, then the first
-        fault is raised.
-
-        Raises
-        ------
-        DeviceFault
-            The first axis that refused its move.
-        """
-        self._wait_until_still()
-        first: DeviceFault | None = None
-        for axis in self.axes.values():
-            try:
-                axis.move_to(axis.cfg.home_deg)
-            except DeviceFault as err:
-                first = first or err
-        self._wait_until_still()
-        if first is not None:
-            raise first
-
-    # -- internals ----------------------------------------------------------------------------------
-    def _wait_until_still(self) -> None:
+    # -- simulation-only ----------------------------------------------------------------------------
+    def wait_until_still(self) -> None:
+        """Advance the clock until every axis has finished its move or brake (tests, doctests)."""
         arrival = max(axis.arrival_time_s() for axis in self.axes.values())
         now = self.clock.now()
         if arrival > now:

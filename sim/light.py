@@ -1,6 +1,7 @@
 """A simulated light source: a lamp of finite angular size whose radiance drifts linearly in time.
 
-The lamp runs (and drifts) from ``connect()``; ``set_on`` opens and closes its shutter, so dark readings
+The lamp was switched on when the campaign began (clock time 0, the campaign clock's origin) and drifts
+from then on, across resumes of the campaign; ``set_on`` opens and closes its shutter, so dark readings
 taken between white references do not reset the drift the references are there to track.
 """
 
@@ -30,8 +31,9 @@ class SimLight:
 
     Notes
     -----
-    Radiance at clock time t is ``radiance · (1 + drift_per_hour · (t − t_on) / 3600 s)``, with t_on the
-    time of ``connect()``. The shutter starts closed.
+    Radiance at clock time t is ``radiance · (1 + drift_per_hour · t / 3600 s)``: the clock is the
+    campaign clock (a resumed simulation starts its virtual clock where the journal left off). The
+    shutter starts closed.
     """
 
     def __init__(self, cfg: LightConfig, clock: Clock, name: str = "light"):
@@ -41,13 +43,11 @@ class SimLight:
         self._clock = clock
         self._connected = False
         self._on = False
-        self._t_on = clock.now()
 
     def connect(self) -> None:
-        """Power the lamp (the drift starts now) with the shutter closed; a no-op when connected."""
+        """Open the (simulated) link with the shutter closed; a no-op when connected."""
         if self._connected:
             return
-        self._t_on = self._clock.now()
         self._connected = True
         self._on = False
 
@@ -74,7 +74,7 @@ class SimLight:
             the linear model no longer describes it.
         """
         t = self._clock.now() if t_s is None else float(t_s)
-        hours = (t - self._t_on) / _SECONDS_PER_HOUR
+        hours = t / _SECONDS_PER_HOUR
         factor = 1.0 + self.cfg.drift_per_hour * hours
         if factor <= 0.0:
             raise DeviceFault(

@@ -1,10 +1,14 @@
-"""The runner on the simulated gantry: state machine, faults, retries, pause/resume/abort, parking."""
+"""The runner on the simulated gantry: state machine, faults, retries, pause/resume/abort/halt, parking."""
+
+import threading
 
 import numpy as np
 import pytest
 
 from gonio.campaign import create_campaign
+from gonio.clock import VirtualClock
 from gonio.config import load_config
+from gonio.protocols import DeviceFault
 from gonio.runner import TRANSITIONS, Runner, State, TransitionError
 from gonio.wiring import build_gantry
 
@@ -31,8 +35,9 @@ def test_transition_table_is_closed_and_terminal_states_are_final():
     for dsts in TRANSITIONS.values():
         assert set(dsts) <= set(State)
     assert TRANSITIONS[State.DONE] == frozenset() and TRANSITIONS[State.ABORTED] == frozenset()
-    # a pause is only ever left by resuming or aborting, never straight to done
+    # a pause or a halt is only ever left by resuming or aborting, never straight to done
     assert TRANSITIONS[State.PAUSED] == frozenset({State.RUNNING, State.ABORTED})
+    assert TRANSITIONS[State.HALTED] == frozenset({State.RUNNING, State.ABORTED})
     assert set(TRANSITIONS) == set(State)
 
 
@@ -92,31 +97,54 @@ def test_abort_while_paused_is_immediate(tmp_path, cfg):
     assert r.state == State.ABORTED
 
 
-@pytest.mark.parametrize("kind", ["timeout", "stall"])
-def test_transient_faults_are_retried(tmp_path, cfg, kind):
+def test_timeout_is_retried_after_the_axes_are_still(tmp_path, cfg):
     c, g, r = _setup(tmp_path, cfg)
-    g.axes["detector_tilt"].fail_next(kind)
+    g.axes["detector_tilt"].fail_next("timeout")
+    seen = {"timed_out": False, "moving_at_retry": None}
+    for axis in g.axes.values():
+        real = axis.move_to
+
+        def move_to(t, real=real):
+            if seen["timed_out"] and seen["moving_at_retry"] is None:
+                seen["moving_at_retry"] = [a.name for a in g.axes.values() if a.is_moving()]
+            try:
+                real(t)
+            except DeviceFault:
+                seen["timed_out"] = True
+                raise
+
+        axis.move_to = move_to
     assert r.run() == State.DONE
-    retries = _events(c, "retry")
-    assert len(retries) == 1
-    if kind == "stall":
-        assert "position_tolerance_deg" in retries[0]["message"]
+    assert len(_events(c, "retry")) == 1
     assert sorted(m.attempts for m in c.journal.measurements())[-1] == 2
     assert c.journal.done_steps().size == c.journal.step_count()
+    # The axes commanded before the time-out were braking; the retry waited until all were still.
+    assert seen["moving_at_retry"] == []
+
+
+def test_an_axis_that_stops_short_is_a_latched_fault_never_a_silent_retry(tmp_path, cfg):
+    c, g, r = _setup(tmp_path, cfg)
+    g.axes["detector_tilt"].fail_next("stall")
+    assert r.run() == State.FAULTED
+    assert "detector_tilt" in r.fault and "short of its target" in r.fault
+    assert _events(c, "retry") == []
+    assert c.journal.latched_fault()["devices"] == ["detector_tilt"]
+    assert r.run() == State.FAULTED  # latched: nothing runs until an operator clears it
+    r.clear_fault()
+    assert r.run() == State.DONE
 
 
 def test_retries_exhausted_is_a_fault(tmp_path, cfg):
     c, g, r = _setup(tmp_path, cfg)
     g.axes["light_tilt"].fail_next("timeout", times=cfg.runner.retries + 1)
     assert r.run() == State.FAULTED
-    assert "light_tilt" in r.fault
+    assert "light_tilt" in r.fault and f"gave up after {cfg.runner.retries} retries" in r.fault
     assert len(_events(c, "retry")) == cfg.runner.retries
 
 
-def test_hardware_fault_stops_faults_and_resumes_after_clearing(tmp_path, cfg):
+def test_hardware_fault_stops_leaves_axes_and_stays_latched_across_a_restart(tmp_path, cfg):
     c, g, r = _setup(tmp_path, cfg)
     axis = g.axes["detector_azimuth"]
-    # Fault on the 3rd move command of the campaign.
     real_move = axis.move_to
     calls = {"n": 0}
 
@@ -128,24 +156,198 @@ def test_hardware_fault_stops_faults_and_resumes_after_clearing(tmp_path, cfg):
 
     axis.move_to = move_to
     assert r.run() == State.FAULTED
-    assert "detector_azimuth" in r.fault
+    assert "detector_azimuth" in r.fault and "overload" in r.fault
     assert not any(a.is_moving() for a in g.axes.values())
     done = c.journal.done_steps().size
     assert 0 < done < c.journal.step_count()
-    assert any("park failed" in e["message"] for e in _events(c, "fault"))  # the axis refuses to move
-    axis.clear_fault()
+    # Left where they are: no park after a fault.
+    assert _events(c, "park") == [] and _events(c, "stopped")
+    # A new process (new runner, new simulated gantry whose power cycle cleared the servo's error bit)
+    # still finds the fault latched in the journal and refuses to move.
+    g2 = build_gantry(cfg, "lambert:albedo=0.5", seed=1)
+    g2.connect()
+    r2 = Runner(g2, c.journal, cfg)
+    assert r2.state == State.FAULTED and "overload" in r2.fault
+    commands = []
+    for a in g2.axes.values():
+        a.move_to = lambda t, a=a: commands.append(a.name)
+    assert r2.run() == State.FAULTED and commands == []
+    assert c.journal.done_steps().size == done
+    r.clear_fault()  # the operator
+    assert [e["kind"] for e in c.journal.events()].count("fault-cleared") == 1
     assert r.run() == State.DONE
     assert c.journal.done_steps().tolist() == list(range(c.journal.step_count()))
     assert [e["state"] for e in _events(c, "state")] == ["running", "faulted", "running", "done"]
 
 
-def test_limit_violation_in_a_journal_is_a_fault_with_the_axis_name(tmp_path, cfg):
+def test_limit_violation_in_a_journal_faults_before_any_axis_moves(tmp_path, cfg):
     c, g, r = _setup(tmp_path, cfg)
     r._steps["axes_deg"][3, 1] = 97.0  # a corrupted plan: light_tilt beyond its limit
-    with pytest.raises(ValueError, match="light_tilt"):
-        r.run()
-    assert r.state == State.FAULTED
-    assert "97" in r.fault
+    positions = {}
+
+    def on_step(runner, step):
+        if step == 2:
+            positions.update({n: a.position_deg() for n, a in g.axes.items()})
+
+    r.on_step = on_step
+    assert r.run() == State.FAULTED
+    assert "light_tilt" in r.fault and "97" in r.fault
+    # Step 3 was refused before anything moved: the axes stand where step 2 left them.
+    assert {n: a.position_deg() for n, a in g.axes.items()} == positions
+
+
+def test_a_target_one_axis_rejects_stops_the_axes_commanded_before_it(tmp_path, cfg):
+    c, g, r = _setup(tmp_path, cfg)
+    commanded = {}
+    for name in cfg.axis_names[:3]:
+        axis = g.axes[name]
+        real = axis.move_to
+
+        def move_to(t, real=real, axis=axis):
+            if not any(a.is_moving() for a in g.axes.values()):
+                commanded.clear()  # a new batch of commands
+            commanded[axis.name] = (axis.position_deg(), t)
+            real(t)
+
+        axis.move_to = move_to
+
+    tilt = g.axes["detector_tilt"]
+    real_tilt = tilt.move_to
+
+    def refuse(t):  # detector_tilt is commanded last: refuse once the others are on their way
+        if any(a.is_moving() for a in g.axes.values()):
+            raise DeviceFault("detector_tilt", "refused: hardware error: input voltage")
+        commanded.clear()
+        real_tilt(t)
+
+    tilt.move_to = refuse
+    assert r.run() == State.FAULTED and "input voltage" in r.fault
+    assert not any(a.is_moving() for a in g.axes.values())
+    long_moves = {n: v for n, v in commanded.items() if abs(v[1] - v[0]) > 1.0}
+    assert long_moves, "the refused batch should have sent some other axis on its way"
+    for name, (start, _target) in long_moves.items():
+        # Braked at once (at the very instant of the refusal): none went on toward its target.
+        assert g.axes[name].position_deg() == pytest.approx(start, abs=1e-9)
+
+
+class _HaltingClock(VirtualClock):
+    """A virtual clock that calls ``hook(now)`` from inside the runner's sleeps."""
+
+    def __init__(self):
+        super().__init__()
+        self.hook = None
+
+    def sleep(self, seconds):
+        super().sleep(seconds)
+        if self.hook is not None:
+            self.hook(self.now())
+
+
+def _halt_setup(tmp_path, cfg):
+    c = create_campaign(tmp_path / "c", cfg, grid=GRID, material="lambert:albedo=0.5", seed=1)
+    clock = _HaltingClock()
+    g = build_gantry(cfg, "lambert:albedo=0.5", seed=1, clock=clock)
+    g.connect()
+    return c, g, clock, Runner(g, c.journal, cfg)
+
+
+def test_halt_from_another_thread_stops_every_axis_mid_move(tmp_path, cfg):
+    c, g, clock, r = _halt_setup(tmp_path, cfg)
+    halted_at = {}
+    commands_after = []
+
+    def hook(now):
+        moving = [a for a in g.axes.values() if a.is_moving()]
+        if not halted_at and len(moving) >= 2 and c.journal.done_count() >= 4:
+            halted_at["t"] = now
+            halted_at["targets"] = {a.name: a._motion.target_deg for a in moving}
+            t = threading.Thread(target=r.request_halt, args=("emergency stop button",))
+            t.start()
+            t.join(timeout=10)
+            assert not t.is_alive()
+            for a in g.axes.values():
+                a.move_to = lambda target, a=a: commands_after.append(a.name)
+
+    clock.hook = hook
+    assert r.run() == State.HALTED
+    assert halted_at, "the campaign never had two axes moving at once"
+    clock.hook = None
+    # The runner noticed within one poll interval of the halt.
+    halt_event = _events(c, "halt")[0]
+    assert halt_event["message"] == "emergency stop button"
+    state_event = _events(c, "state")[-1]
+    assert state_event["state"] == "halted"
+    assert state_event["campaign_s"] - halted_at["t"] <= cfg.runner.poll_s + 1e-9
+    g.wait_until_still()
+    for name, target in halted_at["targets"].items():
+        assert abs(g.axes[name].position_deg() - target) > cfg.runner.position_tolerance_deg
+    assert commands_after == []  # nothing further reached any axis: no park either
+    assert _events(c, "park") == []
+    assert not g.light.is_on()
+    # A halted campaign resumes where it stopped and finishes.
+    for a in g.axes.values():
+        del a.move_to
+    assert r.run() == State.DONE
+    assert c.journal.done_steps().tolist() == list(range(c.journal.step_count()))
+
+
+def test_a_stop_from_another_thread_is_a_fault_not_a_retry(tmp_path, cfg):
+    c, g, clock, r = _halt_setup(tmp_path, cfg)
+    fired = []
+
+    def hook(now):
+        if not fired and any(a.is_moving() for a in g.axes.values()) and c.journal.done_count() >= 4:
+            fired.append(now)
+            t = threading.Thread(target=g.stop)  # someone else's client, not the runner's halt
+            t.start()
+            t.join(timeout=10)
+
+    clock.hook = hook
+    assert r.run() == State.FAULTED
+    assert "short of its target" in r.fault and "stopped by another client" in r.fault
+    assert _events(c, "retry") == []
+
+
+def test_campaign_clock_continues_across_pause_and_resume(tmp_path, cfg):
+    c, g, r = _setup(tmp_path, cfg, on_step=lambda run, s: s == 5 and run.request_pause())
+    assert r.run() == State.PAUSED
+    # A new process: a fresh gantry whose clock starts at 0 again.
+    r.on_step = None
+    g2 = build_gantry(cfg, "lambert:albedo=0.5", seed=1)
+    g2.connect()
+    assert g2.clock.now() == 0.0
+    assert Runner(g2, c.journal, cfg).run() == State.DONE
+    t = [m.campaign_s for m in c.journal.measurements()]
+    assert all(b > a for a, b in zip(t, t[1:], strict=False))
+    park = _events(c, "park")[0]
+    assert t[5] < park["campaign_s"] < t[6]  # the pause parked, then the clock went on from there
+
+
+def test_pause_parks_along_a_collision_free_path_home(tmp_path, cfg):
+    from gonio.motion.safe import safe_path
+
+    c, g, r = _setup(tmp_path, cfg, on_step=lambda run, s: s == 6 and run.request_pause())
+    legs = []
+    real = safe_path
+
+    import gonio.runner as runner_module
+
+    def spy(kin, start, target):
+        path = real(kin, start, target)
+        legs.append((np.array(start), np.array(target), path))
+        return path
+
+    runner_module.safe_path = spy
+    try:
+        assert r.run() == State.PAUSED
+    finally:
+        runner_module.safe_path = real
+    start, target, path = legs[-1]
+    np.testing.assert_array_equal(target, g.kinematics.home_deg)
+    clear, _ = g.kinematics.sweep_clearance(np.vstack([start, path[:-1]]), path)
+    assert clear.all()
+    home = np.array([g.axes[a].position_deg() for a in cfg.axis_names])
+    np.testing.assert_allclose(home, g.kinematics.home_deg, atol=1e-9)
 
 
 def test_pause_and_abort_requests_from_another_thread(tmp_path, cfg):

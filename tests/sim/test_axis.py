@@ -192,7 +192,7 @@ def test_hardware_fault_latches_until_cleared_or_reconnected():
     with pytest.raises(DeviceFault) as err:
         axis.move_to(30.0)
     assert not err.value.transient
-    assert "overload" in str(err.value) and axis.fault is not None
+    assert "overload" in str(err.value) and axis.fault() is not None
     with pytest.raises(DeviceFault, match="latched") as err:
         axis.move_to(30.0)  # no more injected faults, but the error bit is still set
     assert not err.value.transient
@@ -207,7 +207,7 @@ def test_hardware_fault_latches_until_cleared_or_reconnected():
         axis.move_to(0.0)
     axis.close()
     axis.connect()  # a power cycle clears the error bit too
-    assert axis.fault is None
+    assert axis.fault() is None
     axis.move_to(0.0)
     clock.sleep(10.0)
     assert axis.position_deg() == 0.0

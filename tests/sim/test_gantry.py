@@ -1,4 +1,4 @@
-"""The simulated gantry: wiring from a config, target selection, stop, park, close."""
+"""The simulated gantry: wiring from a config, target selection, stop, power-up position, close."""
 
 from __future__ import annotations
 
@@ -90,45 +90,40 @@ def test_stop_brakes_every_axis_short_of_its_target():
         assert min(home, target) < axis.position_deg() < max(home, target)
 
 
-def test_park_moves_home_and_waits_exactly_as_long_as_the_slowest_axis():
+def test_wait_until_still_waits_exactly_as_long_as_the_slowest_axis():
     gantry = connected()
     gantry.axes["light_tilt"].move_to(60.0)
     gantry.axes["detector_azimuth"].move_to(-100.0)
-    gantry.clock.sleep(100.0)
     t0 = gantry.clock.now()
-    gantry.park()
+    gantry.wait_until_still()
     tilt, azimuth = gantry.axes["light_tilt"].cfg, gantry.axes["detector_azimuth"].cfg
     expect = max(float(move_time(60.0, tilt.max_velocity_deg_s, tilt.max_accel_deg_s2)),
                  float(move_time(280.0, azimuth.max_velocity_deg_s, azimuth.max_accel_deg_s2)))
     assert gantry.clock.now() - t0 == pytest.approx(expect, rel=1e-12)
-    for axis in gantry.axes.values():
-        assert not axis.is_moving() and axis.position_deg() == axis.cfg.home_deg
+    assert gantry.axes["light_tilt"].position_deg() == 60.0
+    assert gantry.axes["detector_azimuth"].position_deg() == -100.0
 
 
-def test_park_after_stop_waits_for_the_brakes_first():
+def test_wait_until_still_lets_a_brake_finish():
     gantry = connected()
     gantry.axes["light_azimuth"].move_to(190.0)
     gantry.clock.sleep(1.5)
     gantry.stop()
     assert gantry.axes["light_azimuth"].is_moving()
-    gantry.park()  # would be refused mid-brake; park lets the brake finish
-    assert gantry.axes["light_azimuth"].position_deg() == 0.0
+    gantry.wait_until_still()
+    assert not gantry.axes["light_azimuth"].is_moving()
+    assert 0.0 < gantry.axes["light_azimuth"].position_deg() < 190.0
 
 
-def test_park_brings_healthy_axes_home_despite_a_faulted_one():
-    gantry = connected()
-    for name in ("light_tilt", "detector_tilt"):
-        gantry.axes[name].move_to(40.0)
-    gantry.clock.sleep(100.0)
-    gantry.axes["light_tilt"].fail_next("hardware")
-    with pytest.raises(DeviceFault) as err:
-        gantry.park()
-    assert err.value.device == "light_tilt" and not err.value.transient
-    assert gantry.axes["detector_tilt"].position_deg() == 0.0
-    assert gantry.axes["light_tilt"].position_deg() == 40.0
-    gantry.axes["light_tilt"].clear_fault()
-    gantry.park()
-    assert gantry.axes["light_tilt"].position_deg() == 0.0
+def test_axes_power_up_where_they_are_told_and_refuse_a_start_beyond_the_limits():
+    cfg = load_config()
+    start = [10.0, -20.0, 150.0, 30.0]
+    gantry = connected(cfg, start_deg=start)
+    assert [a.position_deg() for a in gantry.axes.values()] == start
+    with pytest.raises(ValueError, match="light_tilt.*start_deg 97.0 is outside the limit"):
+        SimGantry.from_config(cfg, "lambert:albedo=0.5", start_deg=[0.0, 97.0, 180.0, 0.0])
+    with pytest.raises(ValueError, match="start_deg: 3 positions"):
+        SimGantry.from_config(cfg, "lambert:albedo=0.5", start_deg=[0.0, 0.0, 0.0])
 
 
 def test_close_closes_every_device():
@@ -146,7 +141,6 @@ def test_the_sample_stage_design_wires_its_own_axes():
     assert tuple(gantry.axes) == cfg.axis_names
     gantry.light.set_on(True)
     assert np.all(gantry.detector.measure(0.1).signal >= 0.0)
-    gantry.park()
     for axis in gantry.axes.values():
         assert axis.position_deg() == axis.cfg.home_deg
 
