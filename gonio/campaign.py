@@ -3,10 +3,18 @@
 ``create_campaign`` plans and journals a campaign (no hardware touched); ``run_campaign`` runs it (or
 resumes it) on a gantry and, once every step is measured, writes ``brdf.h5``. The CLI and the daemon
 both go through here.
+
+A folder is run by one process at a time: :class:`CampaignLock` holds an exclusive ``flock`` on
+``campaign.lock`` for as long as the campaign is open for writing (the kernel releases it when the
+process dies, however it dies).
 """
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
+import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,9 +29,12 @@ from gonio.dataset import BRDF_NAME, write_brdf
 from gonio.plan import STEP_POSE, STEP_REFERENCE, Plan, build_plan, parse_grid
 from gonio.protocols import Gantry
 from gonio.runner import Runner, State
-from gonio.store import JOURNAL_NAME, Journal
+from gonio.store import JOURNAL_NAME, Journal, JournalError
 
-__all__ = ["Campaign", "create_campaign", "open_campaign", "run_campaign", "software_version"]
+__all__ = ["Campaign", "CampaignLock", "create_campaign", "open_campaign", "run_campaign",
+           "software_version", "config_hash", "compare_campaign", "LOCK_NAME"]
+
+LOCK_NAME = "campaign.lock"
 
 
 def software_version() -> str:
@@ -33,11 +44,46 @@ def software_version() -> str:
         return "0+unknown"
 
 
+def config_hash(cfg: GonioConfig) -> str:
+    """SHA-256 of the validated config (canonical JSON): what a campaign was planned with."""
+    text = json.dumps(cfg.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+class CampaignLock:
+    """An exclusive lock on a campaign folder (``campaign.lock``, ``flock``), held until :meth:`release`."""
+
+    def __init__(self, folder: str | Path):
+        self.path = Path(folder) / LOCK_NAME
+        self._fd: int | None = None
+
+    def acquire(self) -> CampaignLock:
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise JournalError(f"{self.path.parent}: another gonio process (pid {holder}) is running this "
+                               "campaign; wait for it, or stop it first") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        if self._fd is not None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+
 @dataclass
 class Campaign:
     folder: Path
     journal: Journal
     cfg: GonioConfig
+    lock: CampaignLock | None = None
 
     @property
     def meta(self) -> dict:
@@ -45,19 +91,16 @@ class Campaign:
 
     def close(self) -> None:
         self.journal.close()
+        if self.lock is not None:
+            self.lock.release()
 
 
-def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material: str, seed: int = 0,
-                    plan: Plan | None = None, write_hook=None) -> Campaign:
-    """Plan the campaign and journal it in ``folder`` (created; must not hold a campaign already)."""
-    folder = Path(folder)
-    plan = plan if plan is not None else build_plan(grid, cfg)
-    folder.mkdir(parents=True, exist_ok=True)
+def _steps_of(plan: Plan, cfg: GonioConfig) -> dict:
+    """Per step: planned directions and commanded axes. A dark is read where the gantry stands, so it
+    inherits the previous step's targets (home before the first move)."""
     kind = plan.step_kind
     pose = plan.step_pose
     n_axes = plan.axes_deg.shape[1]
-    # Per step: planned directions and commanded axes. A dark is read where the gantry stands, so it
-    # inherits the previous step's targets (home before the first move).
     angles = np.full((len(kind), 4), np.nan)
     axes = np.empty((len(kind), n_axes))
     last = np.array([cfg.axes[a].home_deg for a in cfg.axis_names], float)
@@ -71,27 +114,97 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
             last = plan.reference_axes_deg
             angles[s] = ref_angles
         axes[s] = last
+    return {"kind": kind, "pose": pose, "theta_i_deg": angles[:, 0], "phi_i_deg": angles[:, 1],
+            "theta_o_deg": angles[:, 2], "phi_o_deg": angles[:, 3], "axes_deg": axes}
+
+
+def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material: str, seed: int = 0,
+                    plan: Plan | None = None, write_hook=None, sample: str | None = None) -> Campaign:
+    """Plan the campaign and journal it in ``folder`` (created; must not hold a campaign already).
+
+    Everything is validated and planned before anything is written; the journal then appears whole or
+    not at all (:meth:`gonio.store.Journal.create`). ``material`` is the simulated material's spec
+    (normalized by the caller), ``sample`` the name of a real sample.
+    """
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed: must be an integer >= 0, got {seed!r}")
+    folder = Path(folder)
+    plan = plan if plan is not None else build_plan(grid, cfg)
     meta = {
         "grid": plan.grid, "grid_requested": parse_grid(grid).normalized, "material": material,
-        "seed": int(seed), "symmetries": plan.symmetries,
+        "sample": sample, "seed": int(seed), "symmetries": plan.symmetries,
         "counts": plan.counts, "infeasible": plan.infeasible, "poses": int(len(plan.theta_i)),
         "estimated_s": float(plan.estimated_s), "lower_bound_s": float(plan.lower_bound_s),
         "axis_names": list(cfg.axis_names), "channels": list(cfg.detector.channels),
-        "gantry": cfg.name, "config": cfg.model_dump(mode="json"),
+        "gantry": cfg.name, "config": cfg.model_dump(mode="json"), "config_sha256": config_hash(cfg),
         "software_version": software_version(), "created_unix": time.time(),
     }
-    steps = {"kind": kind, "pose": pose, "theta_i_deg": angles[:, 0], "phi_i_deg": angles[:, 1],
-             "theta_o_deg": angles[:, 2], "phi_o_deg": angles[:, 3], "axes_deg": axes}
-    journal = Journal.create(folder / JOURNAL_NAME, meta, steps, write_hook=write_hook)
-    return Campaign(folder, journal, cfg)
+    steps = _steps_of(plan, cfg)
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = CampaignLock(folder).acquire()
+    try:
+        journal = Journal.create(folder / JOURNAL_NAME, meta, steps, write_hook=write_hook)
+    except BaseException:
+        lock.release()
+        raise
+    return Campaign(folder, journal, cfg, lock)
 
 
-def open_campaign(folder: str | Path, *, write_hook=None) -> Campaign:
-    """Reopen a campaign (to resume it or export it): the config is the snapshot it was planned with."""
+def open_campaign(folder: str | Path, *, write_hook=None, readonly: bool = False) -> Campaign:
+    """Reopen a campaign (to resume it, or ``readonly`` to look at it while it runs): the config is the
+    snapshot it was planned with. For writing, the folder's lock is taken first."""
     folder = Path(folder)
-    journal = Journal.open(folder / JOURNAL_NAME, write_hook=write_hook)
-    cfg = parse_config(journal.meta()["config"], f"{folder / JOURNAL_NAME} (config snapshot)")
-    return Campaign(folder, journal, cfg)
+    lock = None if readonly else CampaignLock(folder).acquire()
+    try:
+        journal = Journal.open(folder / JOURNAL_NAME, write_hook=write_hook, readonly=readonly)
+        cfg = parse_config(journal.meta()["config"], f"{folder / JOURNAL_NAME} (config snapshot)")
+    except BaseException:
+        if lock is not None:
+            lock.release()
+        raise
+    return Campaign(folder, journal, cfg, lock)
+
+
+def _first_difference(a, b, path: str = "") -> str | None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            d = _first_difference(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))
+            if d is not None:
+                return d
+        return None
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            d = _first_difference(x, y, f"{path}[{i}]")
+            if d is not None:
+                return d
+        return None
+    return None if a == b else f"{path}: {json.dumps(a)} in the campaign, {json.dumps(b)} now"
+
+
+def compare_campaign(meta: dict, *, material: str | None, grid: str, seed: int, cfg: GonioConfig,
+                     sample: str | None = None) -> str | None:
+    """Which field of a new request differs from the campaign in ``meta`` (all normalized), or None.
+
+    ``material`` is the normalized spec (compared with the journal's after normalizing it too, so that
+    ``albedo=0.50`` and ``albedo=0.5`` are one campaign).
+    """
+    if material is not None:
+        from gonio.sim.materials import load
+
+        theirs = load(meta["material"]).spec if meta.get("material") else None
+        if theirs != material:
+            return f"material: '{theirs}' in the campaign, '{material}' now"
+    if sample is not None and meta.get("sample") != sample:
+        return f"sample: '{meta.get('sample')}' in the campaign, '{sample}' now"
+    requested = parse_grid(grid).normalized
+    if meta["grid_requested"] != requested:
+        return f"grid: '{meta['grid_requested']}' in the campaign, '{requested}' now"
+    if int(meta["seed"]) != int(seed):
+        return f"seed: {meta['seed']} in the campaign, {seed} now"
+    diff = _first_difference(meta["config"], cfg.model_dump(mode="json"))
+    if diff is not None:
+        return f"config: {diff}"
+    return None
 
 
 def finish_campaign(c: Campaign) -> Path:
@@ -99,16 +212,32 @@ def finish_campaign(c: Campaign) -> Path:
     meta = c.meta
     cal = calibrate(c.journal.measurements(), c.cfg.reference.albedo)
     return write_brdf(c.folder / BRDF_NAME, cal, channels=meta["channels"], symmetries=meta["symmetries"],
-                      grid=meta["grid"], material=meta["material"], gantry=meta["gantry"],
-                      software_version=software_version())
+                      grid=meta["grid"], material=meta["material"] or "", gantry=meta["gantry"],
+                      software_version=software_version(), seed=int(meta["seed"]),
+                      sample=meta.get("sample") or "", config_sha256=meta.get("config_sha256", ""))
+
+
+def gantry_state(c: Campaign) -> tuple[np.ndarray, float] | None:
+    """Where the journal last saw the gantry: (axis positions in degrees, campaign_s), or None."""
+    return c.journal.last_known_axes()
 
 
 def run_campaign(c: Campaign, gantry: Gantry,
-                 on_step: Callable[[Runner, int], None] | None = None) -> tuple[State, Runner]:
-    """Run (or resume) ``c`` on ``gantry``; writes ``brdf.h5`` when the campaign is done."""
+                 on_step: Callable[[Runner, int], None] | None = None,
+                 on_runner: Callable[[Runner], None] | None = None,
+                 clear_fault: bool = False) -> tuple[State, Runner]:
+    """Run (or resume) ``c`` on ``gantry``; writes ``brdf.h5`` when the campaign is done.
+
+    ``on_runner(runner)`` is called once the runner exists and before it starts (signal handlers, the
+    daemon). ``clear_fault`` is the operator's explicit clearing of a latched fault.
+    """
     runner = Runner(gantry, c.journal, c.cfg, on_step=on_step)
+    if on_runner is not None:
+        on_runner(runner)
     gantry.connect()
     try:
+        if clear_fault and runner.state == State.FAULTED:
+            runner.clear_fault()
         state = runner.run()
     finally:
         gantry.close()

@@ -1,14 +1,24 @@
 """The ``gonio`` command line.
 
 ``gonio plan`` counts and times a plan without moving anything; ``gonio simulate`` runs a whole
-campaign on the simulated gantry (resuming one left in the output folder).
+campaign on the simulated gantry (resuming one left in the output folder); ``gonio status`` reads a
+campaign's journal (read-only, safe while it runs); ``gonio config`` lists and prints the shipped
+gantry configs.
+
+A user's mistake (a bad GRID, MATERIAL, config key, path or seed) is one line on stderr naming the field
+or path and what is allowed, exit code 2, and nothing written. SIGINT and SIGTERM during a campaign
+finish the step in flight, park, journal the interruption and say how to resume (exit code 130); a
+second one halts at once. ``--debug`` shows the traceback of an unexpected error.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -16,7 +26,22 @@ import numpy as np
 
 from gonio.config import ConfigError, load_config
 
-__all__ = ["main"]
+__all__ = ["main", "build_parser"]
+
+#: Seconds between progress lines when stderr is not a terminal (logs, CI, a daemon's journal).
+PLAIN_PROGRESS_EVERY_S = 5.0
+
+
+class UsageError(ValueError):
+    """A mistake in the command line: printed as one line, exit code 2."""
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM before a campaign runs (start-up, planning, creating the journal)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
 
 
 def _hms(seconds: float) -> str:
@@ -24,6 +49,30 @@ def _hms(seconds: float) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {value}")
+    return value
+
+
+class _Out:
+    """Messages to stderr: rich styles on a terminal, never rich markup (paths may hold ``[...]``)."""
+
+    def __init__(self, quiet: bool = False):
+        from rich.console import Console
+
+        self.console = Console(stderr=True, soft_wrap=True, highlight=False)
+        self.quiet = quiet
+
+    def __call__(self, message: str, style: str | None = None) -> None:
+        self.console.print(message, style=style, markup=False)
+
+
+# -- gonio plan -----------------------------------------------------------------------------------
 def cmd_plan(args) -> int:
     from gonio.plan import build_plan, format_plan, plan_summary
 
@@ -36,6 +85,25 @@ def cmd_plan(args) -> int:
     return 0
 
 
+# -- gonio config ---------------------------------------------------------------------------------
+def cmd_config(args) -> int:
+    from gonio.config import packaged_configs, resolve_config
+
+    if args.action == "list":
+        for name, path in packaged_configs().items():
+            cfg = load_config(path)
+            print(f"{name:<16} {cfg.kinematics.design:<14} {cfg.name}")
+        return 0
+    if not args.name:
+        raise UsageError("gonio config show: give NAME (one of: "
+                         f"{', '.join(packaged_configs())}) or a path")
+    path = resolve_config(args.name)
+    load_config(path)  # validated before it is shown
+    print(path.read_text(), end="")
+    return 0
+
+
+# -- gonio simulate -------------------------------------------------------------------------------
 def _model_check(folder: Path, material) -> str:
     """Simulation only: how far the calibrated samples are from the material they simulate."""
     from gonio.dataset import read_brdf
@@ -51,99 +119,313 @@ def _model_check(folder: Path, material) -> str:
             f"{100 * np.median(rel):.2f} %, 95th percentile {100 * np.percentile(rel, 95):.2f} %")
 
 
-def cmd_simulate(args) -> int:
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+def _check_out(out: Path) -> None:
+    """--out must be a folder we can write, or a path where one can be made; checked before writing."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out: {out} is a file, not a folder; give a folder for the campaign")
+    probe = out
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise UsageError(f"--out: {probe} is a file, so {out} cannot be a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise UsageError(f"--out: {probe} is not writable (permission denied); choose another folder")
 
-    from gonio.campaign import create_campaign, open_campaign, run_campaign
+
+def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
+    """A live rich progress bar on a terminal, a plain line every few seconds otherwise."""
+    t0 = time.perf_counter()
+    if quiet:
+        return None, (lambda runner, step: None)
+    if out.console.is_terminal:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("gantry {task.fields[sim]}"), TextColumn("wall"), TimeElapsedColumn(),
+                            TextColumn("ETA {task.fields[eta]}"), console=out.console, transient=False)
+        task = progress.add_task("measuring", total=total, completed=done0, sim="0:00:00", eta="?")
+
+        def on_step(runner, step):
+            now = time.perf_counter() - t0
+            done = step + 1 - done0
+            eta = now / done * (total - step - 1) if done > 0 else 0.0
+            progress.update(task, completed=step + 1, sim=_hms(runner.campaign_s()), eta=_hms(eta))
+
+        return progress, on_step
+    last = [-PLAIN_PROGRESS_EVERY_S]
+
+    def on_step(runner, step):
+        now = time.perf_counter() - t0
+        if now - last[0] < PLAIN_PROGRESS_EVERY_S and step + 1 < total:
+            return
+        last[0] = now
+        done = step + 1 - done0
+        eta = now / done * (total - step - 1) if done > 0 else 0.0
+        out(f"measuring: {step + 1}/{total} steps ({100 * (step + 1) / total:.0f} %), gantry "
+            f"{_hms(runner.campaign_s())}, wall {now:.1f} s, ETA {_hms(eta)}")
+
+    return None, on_step
+
+
+def cmd_simulate(args) -> int:
+    from gonio.campaign import compare_campaign, create_campaign, gantry_state, open_campaign, run_campaign
+    from gonio.dataset import BRDF_NAME
     from gonio.plan import parse_grid
     from gonio.runner import State
     from gonio.sim.materials import load as load_material
     from gonio.store import JOURNAL_NAME
     from gonio.wiring import build_gantry
 
-    console = Console(stderr=True, soft_wrap=True)
-    out = Path(args.out)
+    out = _Out(args.quiet)
+    folder = Path(args.out)
+    # Everything the user typed is validated before anything is written.
     material = load_material(args.material)
-    if (out / JOURNAL_NAME).exists():
-        c = open_campaign(out)
-        meta = c.meta
-        if meta["material"] != args.material or meta["grid_requested"] != parse_grid(args.grid).normalized:
-            console.print(f"[red]{out} holds another campaign ({meta['material']}, {meta['grid']}); "
-                          f"choose another --out[/red]")
+    parse_grid(args.grid)
+    cfg = load_config(args.config)
+    _check_out(folder)
+    if (folder / JOURNAL_NAME).exists():
+        c = open_campaign(folder)
+        diff = compare_campaign(c.meta, material=material.spec, grid=args.grid, seed=args.seed, cfg=cfg)
+        if diff is not None:
             c.close()
-            return 2
-        console.print(f"resuming the campaign in {out} at step {c.journal.next_step()}")
-        seed = meta["seed"]
+            raise UsageError(f"--out: {folder} holds another campaign ({diff}); repeat the original "
+                             "command to resume it, or choose another --out")
+        if c.journal.next_step() == c.journal.step_count() and (folder / BRDF_NAME).exists():
+            out(f"the campaign in {folder} is complete: {folder / BRDF_NAME}")
+            c.close()
+            return 0
+        out(f"resuming the campaign in {folder} at step {c.journal.next_step()}")
     else:
-        cfg = load_config(args.config)
-        c = create_campaign(out, cfg, grid=args.grid, material=args.material, seed=args.seed)
-        seed = args.seed
+        c = create_campaign(folder, cfg, grid=args.grid, material=material.spec, seed=args.seed)
     meta = c.meta
     n_steps = c.journal.step_count()
-    gantry = build_gantry(c.cfg, material, seed=seed)
-    console.print(f"[bold]{meta['gantry']}[/bold]: {meta['poses']} poses of {meta['grid']} "
-                  f"({n_steps} steps with dark and white-reference readings), estimated "
-                  f"{_hms(meta['estimated_s'])} of gantry time (lower bound {_hms(meta['lower_bound_s'])})")
+    gantry = build_gantry(c.cfg, material, seed=meta["seed"], state=gantry_state(c))
+    out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} ({n_steps} steps with dark and "
+        f"white-reference readings), estimated {_hms(meta['estimated_s'])} of gantry time (lower bound "
+        f"{_hms(meta['lower_bound_s'])})")
     t0 = time.perf_counter()
-    with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("gantry {task.fields[sim]}"), TextColumn("wall"), TimeElapsedColumn(),
-                  TextColumn("ETA {task.fields[eta]}"), console=console, transient=False,
-                  disable=args.quiet) as progress:
-        done0 = c.journal.next_step()
-        task = progress.add_task("measuring", total=n_steps, completed=done0, sim="0:00:00", eta="?")
+    progress, on_step = _progress(out, n_steps, c.journal.next_step(), gantry, args.quiet)
+    signals: list[str] = []
 
-        def on_step(runner, step):
-            now = time.perf_counter() - t0
-            done = step + 1 - done0
-            eta = now / done * (n_steps - step - 1) if done else 0.0
-            progress.update(task, completed=step + 1, sim=_hms(gantry.clock.now()), eta=_hms(eta))
+    def on_runner(runner):
+        def handler(signum, frame):
+            name = signal.Signals(signum).name
+            signals.append(name)
+            if len(signals) == 1:
+                runner.request_pause(f"{name}: finishing the step in flight, then parking")
+                runner.journal.log_event("signal", message=f"{name} received", campaign_s=runner.campaign_s())
+            else:
+                runner.request_halt(f"{name} again: halt")
 
-        state, runner = run_campaign(c, gantry, on_step=on_step)
-    wall = time.perf_counter() - t0
-    console.print(f"campaign {state}: {len(c.journal.done_steps())}/{n_steps} steps, gantry time "
-                  f"{_hms(gantry.clock.now())}, wall time {wall:.1f} s")
-    if state != State.DONE:
-        if runner.fault:
-            console.print(f"[red]fault: {runner.fault}[/red]")
-        console.print(f"the journal keeps every committed step: run the same command to resume ({out})")
+        if _in_main_thread():
+            signal.signal(signal.SIGINT, handler)
+            signal.signal(signal.SIGTERM, handler)
+
+    try:
+        if progress is not None:
+            with progress:
+                state, runner = run_campaign(c, gantry, on_step=on_step, on_runner=on_runner,
+                                             clear_fault=args.clear_fault)
+        else:
+            state, runner = run_campaign(c, gantry, on_step=on_step, on_runner=on_runner,
+                                         clear_fault=args.clear_fault)
+    finally:
+        _install_startup_handlers()
+        c_done = c.journal.done_count()
         c.close()
+    wall = time.perf_counter() - t0
+    out(f"campaign {state}: {c_done}/{n_steps} steps, gantry time {_hms(runner.campaign_s())}, "
+        f"wall time {wall:.1f} s")
+    if state == State.DONE:
+        out(f"wrote {folder / 'brdf.h5'} and {folder / JOURNAL_NAME}")
+        out(_model_check(folder, material))
+        return 0
+    if runner.fault:
+        out(f"fault: {runner.fault}", style="red")
+        out("the fault is latched: fix its cause, then run the same command with --clear-fault to resume")
         return 1
-    console.print(f"wrote {out / 'brdf.h5'} and {out / JOURNAL_NAME}")
-    console.print(_model_check(out, material))
-    c.close()
+    if signals:
+        out(f"interrupted ({signals[0]}): {state} at step {c_done}; every committed step is kept: run the "
+            "same command to resume")
+        return 130
+    out(f"campaign {state}; the journal keeps every committed step: run the same command to resume")
+    return 1
+
+
+# -- gonio status ---------------------------------------------------------------------------------
+def _lock_holder(folder: Path) -> int | None:
+    """The pid holding the campaign's lock (running it now), or None."""
+    import fcntl
+
+    from gonio.campaign import LOCK_NAME
+
+    path = folder / LOCK_NAME
+    if not path.exists():
+        return None
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        text = os.read(fd, 64).decode(errors="replace").strip()
+        return int(text) if text.isdigit() else -1
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
+def campaign_status(folder: Path) -> dict:
+    """A campaign's state, progress, ETA and last fault, read from its journal (read-only)."""
+    from gonio.store import JOURNAL_NAME, Journal
+
+    if not folder.is_dir():
+        raise UsageError(f"{folder}: no such folder")
+    if not (folder / JOURNAL_NAME).is_file():
+        raise UsageError(f"{folder}: not a campaign folder (no {JOURNAL_NAME})")
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        meta = j.meta()
+        total = j.step_count()
+        done = j.done_count()
+        state_event = j.last_event("state")
+        latched = j.latched_fault()
+        fault_event = j.last_event("fault")
+        campaign_s, last_wall = j.campaign_clock()
+    finally:
+        j.close()
+    pid = _lock_holder(folder)
+    state = state_event["state"] if state_event else "created"
+    if pid is not None and state in ("running", "pausing"):
+        state = f"{state} (pid {pid})"
+    elif state in ("running", "pausing"):
+        state = "interrupted (no process is running it: run the same command to resume)"
+    remaining = meta["estimated_s"] * (total - done) / total if total else 0.0
+    return {
+        "folder": str(folder), "state": state, "steps_done": done, "steps": total, "poses": meta["poses"],
+        "grid": meta["grid"], "material": meta.get("material"), "sample": meta.get("sample"),
+        "gantry": meta["gantry"], "seed": meta["seed"], "campaign_s": campaign_s,
+        "estimated_remaining_s": remaining, "last_update_unix": last_wall,
+        "latched_fault": latched["reason"] if latched else None,
+        "last_fault": fault_event["message"] if fault_event else None,
+    }
+
+
+def cmd_status(args) -> int:
+    st = campaign_status(Path(args.dir))
+    if args.json:
+        print(json.dumps(st, indent=2))
+        return 0
+    what = st["material"] or st["sample"]
+    pct = 100.0 * st["steps_done"] / st["steps"] if st["steps"] else 100.0
+    lines = [
+        f"{st['folder']}: {st['state']}",
+        f"  {what} on {st['gantry']}, grid {st['grid']}, seed {st['seed']}",
+        f"  progress: {st['steps_done']}/{st['steps']} steps ({pct:.1f} %), campaign time "
+        f"{_hms(st['campaign_s'])}",
+        f"  ETA: about {_hms(st['estimated_remaining_s'])} of gantry time left (the plan's estimate)",
+    ]
+    if st["latched_fault"]:
+        lines.append(f"  latched fault: {st['latched_fault']} (resume with --clear-fault once fixed)")
+    elif st["last_fault"]:
+        lines.append(f"  last fault: {st['last_fault']}")
+    print("\n".join(lines))
     return 0
 
 
+# -- the parser -----------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gonio", description="Control and acquisition for gonio-reflectometers.")
-    sub = p.add_subparsers(dest="command", required=True)
+    from gonio.campaign import software_version
 
-    sp = sub.add_parser("plan", help="count and time a plan without moving anything")
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    p = argparse.ArgumentParser(prog="gonio", formatter_class=fmt,
+                                description="Control and acquisition for gonio-reflectometers.")
+    p.add_argument("--version", action="version", version=f"gonio {software_version()}")
+    p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    sp = sub.add_parser("plan", formatter_class=fmt, help="count and time a plan without moving anything")
     sp.add_argument("--grid", required=True, help="GRID, e.g. iso:step=5, full:step=15, merl:stride=4")
-    sp.add_argument("--config", default=None, help="gantry config TOML (default: the simulated gantry)")
+    sp.add_argument("--config", default=None,
+                    help="gantry config: a TOML file or a shipped config's name (default: sim)")
     sp.add_argument("--json", action="store_true", help="one JSON object instead of the report")
     sp.set_defaults(func=cmd_plan)
 
-    ss = sub.add_parser("simulate", help="run a whole campaign on the simulated gantry")
+    ss = sub.add_parser("simulate", formatter_class=fmt, help="run a whole campaign on the simulated gantry")
     ss.add_argument("material",
                     help="MATERIAL, e.g. lambert:albedo=0.8 or cook-torrance:d=beckmann,m=0.2,metal=gold")
-    ss.add_argument("--grid", required=True)
+    ss.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
     ss.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
-    ss.add_argument("--config", default=None)
-    ss.add_argument("--seed", type=int, default=0)
-    ss.add_argument("--quiet", action="store_true", help="no progress bar")
+    ss.add_argument("--config", default=None,
+                    help="gantry config: a TOML file or a shipped config's name (default: sim)")
+    ss.add_argument("--seed", type=_seed, default=0, help="seed of the simulated detector's random numbers")
+    ss.add_argument("--clear-fault", action="store_true",
+                    help="clear the campaign's latched fault (after fixing its cause) and resume")
+    ss.add_argument("--quiet", action="store_true", help="no progress output")
     ss.set_defaults(func=cmd_simulate)
+
+    st = sub.add_parser("status", formatter_class=fmt,
+                        help="a campaign's state, progress, ETA and last fault (read-only, safe while it "
+                             "runs)")
+    st.add_argument("dir", metavar="DIR", help="campaign folder")
+    st.add_argument("--json", action="store_true", help="one JSON object")
+    st.set_defaults(func=cmd_status)
+
+    sc = sub.add_parser("config", formatter_class=fmt, help="list or print the shipped gantry configs")
+    sc.add_argument("action", choices=["list", "show"])
+    sc.add_argument("name", nargs="?", help="config name (for show) or a path")
+    sc.set_defaults(func=cmd_config)
     return p
 
 
+def _user_error(err: BaseException) -> str:
+    if isinstance(err, OSError) and err.filename is not None:
+        return f"{err.filename}: {err.strerror or err}"
+    return str(err)
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
+def _in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+def _install_startup_handlers() -> None:
+    """Before and after a campaign runs, SIGINT and SIGTERM end the command cleanly (no traceback).
+    Signal handlers belong to the main thread; called from another (a test, an embedding), nothing."""
+    if _in_main_thread():
+        signal.signal(signal.SIGINT, _raise_interrupted)
+        signal.signal(signal.SIGTERM, _raise_interrupted)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    from gonio.calibrate import CalibrationError
+    from gonio.store import JournalError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    main_thread = _in_main_thread()
+    previous = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) if main_thread else None
+    _install_startup_handlers()
     try:
         return args.func(args)
-    except (ConfigError, ValueError) as err:
-        print(f"gonio {args.command}: {err}", file=sys.stderr)
+    except (ConfigError, UsageError, JournalError, CalibrationError, ValueError, OSError) as err:
+        if args.debug:
+            raise
+        print(f"gonio {args.command}: {_user_error(err)}", file=sys.stderr)
         return 2
+    except Interrupted as err:
+        out = getattr(args, "out", None)
+        where = f"; the journal in {out} keeps every committed step: run the same command to resume" \
+            if out and Path(out, "campaign.sqlite").exists() else "; nothing was written"
+        print(f"gonio {args.command}: interrupted ({err}){where}", file=sys.stderr)
+        return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous[0])
+            signal.signal(signal.SIGTERM, previous[1])
 
 
 if __name__ == "__main__":

@@ -7,14 +7,18 @@ that names the file, the field and what is allowed. Nothing is clamped.
 from __future__ import annotations
 
 import tomllib
+from importlib.resources import files
 from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-__all__ = ["ConfigError", "GonioConfig", "load_config", "DEFAULT_CONFIG", "DESIGN_AXES"]
+__all__ = ["ConfigError", "GonioConfig", "load_config", "DEFAULT_CONFIG", "DESIGN_AXES", "CONFIG_DIR",
+           "packaged_configs", "resolve_config"]
 
-DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "sim.toml"
+#: The configs shipped inside the installed package (``config/`` in the source tree).
+CONFIG_DIR = Path(str(files("gonio.configs")))
+DEFAULT_CONFIG = CONFIG_DIR / "sim.toml"
 
 #: The axes each kinematic design drives, in the order of axis arrays everywhere (columns of (N, 4)).
 DESIGN_AXES: dict[str, tuple[str, ...]] = {
@@ -150,13 +154,39 @@ def parse_config(data: dict, source: str = "<config>") -> GonioConfig:
         raise ConfigError(_format(err, source)) from None
 
 
+def packaged_configs() -> dict[str, Path]:
+    """The configs shipped with gonio: name (file name without ``.toml``) -> path."""
+    return {p.stem: p for p in sorted(CONFIG_DIR.glob("*.toml"))}
+
+
+def resolve_config(path_or_name: str | Path | None = None) -> Path:
+    """The config file meant by a path, or by the name of a shipped config (``sample-stage``)."""
+    if path_or_name is None:
+        return DEFAULT_CONFIG
+    path = Path(path_or_name)
+    if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
+        return path
+    shipped = packaged_configs()
+    if str(path_or_name) in shipped:
+        return shipped[str(path_or_name)]
+    raise ConfigError(f"--config: '{path_or_name}' is neither a file nor a shipped config; shipped: "
+                      f"{', '.join(shipped)}")
+
+
 def load_config(path: str | Path | None = None) -> GonioConfig:
-    """Read and validate a gantry config (the simulated two-arm gantry when ``path`` is None)."""
-    path = Path(path) if path is not None else DEFAULT_CONFIG
+    """Read and validate a gantry config: a file, the name of a shipped config, or (None) the simulated
+    two-arm gantry."""
+    path = resolve_config(path)
     try:
         data = tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a config file") from None
+    except PermissionError:
+        raise ConfigError(f"{path}: permission denied") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from None
     return parse_config(data, str(path))

@@ -4,9 +4,11 @@ Layout (read it with any HDF5 reader):
 - ``samples/theta_i``, ``samples/phi_i``, ``samples/theta_o``, ``samples/phi_o``: (N,) float64, degrees,
   the actual measured directions (forward kinematics of the read-back axis positions);
 - ``samples/value``, ``samples/stddev``: (N, C) float64, f_r in sr⁻¹ (no cosine factor);
-- ``samples/pose``: (N,) the plan's pose index of each sample;
+- ``samples/pose``: (N,) the plan's pose index of each sample; ``samples/step``: (N,) its journal step;
+- ``samples/campaign_s``: (N,) float64, the campaign clock at the reading (s, continuous across resumes);
 - attributes ``units`` ("sr^-1"), ``channels``, ``symmetries`` (JSON: the shortcuts the plan used),
-  ``grid``, ``material``, ``gantry``, ``software_version``, ``format`` ("gonio-brdf"), ``format_version``.
+  ``grid``, ``material`` (simulated) or ``sample`` (real), ``seed``, ``config_sha256``, ``gantry``,
+  ``software_version``, ``format`` ("gonio-brdf"), ``format_version``.
 """
 
 from __future__ import annotations
@@ -38,7 +40,8 @@ class SampledBRDF:
 
 
 def write_brdf(path: str | Path, cal: Calibrated, *, channels, symmetries: dict, grid: str, material: str,
-               gantry: str, software_version: str) -> Path:
+               gantry: str, software_version: str, seed: int = 0, sample: str = "",
+               config_sha256: str = "") -> Path:
     path = Path(path)
     tmp = path.with_suffix(".h5.partial")
     with h5py.File(tmp, "w") as f:
@@ -48,10 +51,13 @@ def write_brdf(path: str | Path, cal: Calibrated, *, channels, symmetries: dict,
         g.create_dataset("value", data=cal.value.astype(np.float64))
         g.create_dataset("stddev", data=cal.stddev.astype(np.float64))
         g.create_dataset("pose", data=cal.poses.astype(np.int64))
+        g.create_dataset("step", data=cal.steps.astype(np.int64))
+        g.create_dataset("campaign_s", data=cal.campaign_s.astype(np.float64))
         f.attrs.update({
             "format": "gonio-brdf", "format_version": FORMAT_VERSION, "units": "sr^-1",
             "channels": list(channels), "symmetries": json.dumps(symmetries), "grid": grid,
-            "material": material, "gantry": gantry, "software_version": software_version,
+            "material": material, "sample": sample, "seed": int(seed), "config_sha256": config_sha256,
+            "gantry": gantry, "software_version": software_version,
             "angles_units": "degrees",
         })
     tmp.replace(path)  # never leave a half-written brdf.h5 behind

@@ -1,17 +1,13 @@
 """gonio.brdf: symmetries applied as declared, exact at measured pairs, honest NaN with reasons."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from brdf_samples import sampled
 
 from gonio.brdf import Reason, open_brdf
 from gonio.geometry import sph_to_vec
 from gonio.sim.materials import load
-
-sys.path.insert(0, str(Path(__file__).parent / "formats"))
-from conftest import sampled  # noqa: E402
 
 SPEC = "ggx:alpha=0.3,metal=gold"
 

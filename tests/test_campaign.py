@@ -21,7 +21,11 @@ def _run(folder, cfg, material, grid, seed=1, write_hook=None):
     if write_hook is not None:
         c.close()
         c = open_campaign(folder, write_hook=write_hook)
-    state, _ = run_campaign(c, build_gantry(c.cfg, material, seed=seed))
+    try:
+        state, _ = run_campaign(c, build_gantry(c.cfg, material, seed=seed))
+    except Crash:
+        c.close()  # the process died: its connection and its lock on the folder go with it
+        raise
     return c, state
 
 
@@ -43,7 +47,8 @@ def test_lambert_campaign_is_albedo_over_pi_within_1_percent(tmp_path):
     assert attrs["units"] == "sr^-1" and list(attrs["channels"]) == ["R", "G", "B"]
     assert attrs["material"] == "lambert:albedo=0.5" and attrs["gantry"] == "sim-two-arm"
     assert '"reciprocity": true' in attrs["symmetries"]
-    np.testing.assert_array_equal(stddev, 0.0)  # the noise model is off in sim.toml
+    # The noise model is off in sim.toml: what is left is the aperture integration's Monte Carlo error.
+    assert np.all(stddev > 0.0) and np.all(stddev < 2e-3 * value)
 
 
 def test_rough_cook_torrance_matches_its_eval_at_the_stored_directions(tmp_path):
@@ -59,21 +64,46 @@ def test_rough_cook_torrance_matches_its_eval_at_the_stored_directions(tmp_path)
     assert np.median(rel) < 0.01
 
 
-def test_noise_gives_honest_stddev(tmp_path):
-    cfg = load_config()
-    data = cfg.model_dump()
-    data["detector"]["noise"] = {"shot_counts_per_unit": 50.0, "read_sigma": 0.05, "dark_offset": 2.0}
-    data["detector"]["frames"] = 4
-    data["light"]["radiance"] = 1e6  # white reference ~ 7.5 signal units per 0.1 s exposure
+def _noisy_config(frames=1):
     from gonio.config import parse_config
 
-    noisy = parse_config(data)
-    _, state = _run(tmp_path / "n", noisy, "lambert:albedo=0.5", "iso:step=30")
+    data = load_config().model_dump()
+    data["detector"]["noise"] = {"shot_counts_per_unit": 50.0, "read_sigma": 0.05, "dark_offset": 2.0}
+    data["detector"]["frames"] = frames
+    data["light"]["radiance"] = 1e6  # white reference ~ 7.5 signal units per 0.1 s exposure
+    return parse_config(data)
+
+
+def test_noise_gives_stddev_that_scatters_the_values_about_the_truth(tmp_path):
+    _, state = _run(tmp_path / "n", _noisy_config(), "lambert:albedo=0.5", "iso:step=30")
+    assert state == State.DONE
     ang, value, stddev, _ = _h5(tmp_path / "n")
     assert np.all(stddev > 0)
     z = (value - 0.5 / np.pi) / stddev
-    # the calibrated values scatter about the truth as their stddev says (a loose, seeded check)
-    assert 0.3 < np.std(z) < 3.0 and abs(np.mean(z)) < 1.0
+    # Samples of one run share their white references, so their z are correlated: the mean may sit a
+    # few tenths of a sigma off 0, the spread about it is the honest part.
+    assert 0.8 < np.std(z) < 1.25 and abs(np.mean(z)) < 1.0
+
+
+@pytest.mark.parametrize("material, noisy", [
+    ("ggx:alpha=0.15,metal=gold", False),     # integration error only, on a glossy lobe
+    ("lambert:albedo=0.5", True),             # sensor noise dominates
+])
+def test_reported_stddev_matches_the_spread_across_seeds(tmp_path, material, noisy):
+    """The quality bar: across seeds, the observed spread of each calibrated sample divided by the
+    stddev brdf.h5 reports lies in [0.8, 1.25]."""
+    cfg = _noisy_config() if noisy else load_config()
+    values, stddevs = [], []
+    for seed in range(8):
+        _run(tmp_path / f"s{seed}", cfg, material, "iso:step=30", seed=seed)
+        _, value, stddev, _ = _h5(tmp_path / f"s{seed}")
+        values.append(value)
+        stddevs.append(stddev)
+    values, stddevs = np.array(values), np.array(stddevs)
+    keep = np.mean(values, axis=0) > 1e-3 * values.max()  # where the lobe has signal
+    spread = np.sqrt(np.mean(np.var(values, axis=0, ddof=1)[keep]))
+    reported = np.sqrt(np.mean((stddevs**2)[:, keep]))
+    assert 0.8 <= spread / reported <= 1.25, spread / reported
 
 
 @pytest.mark.slow

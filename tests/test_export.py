@@ -8,6 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from brdf_samples import sampled
 
 from gonio.brdf import open_brdf
 from gonio.export import FORMATS, export
@@ -16,9 +17,6 @@ from gonio.formats.radiance import read_pabopto
 from gonio.formats.tensor import read_tensor
 from gonio.geometry import sph_to_vec
 from gonio.sim.materials import load
-
-sys.path.insert(0, str(Path(__file__).parent / "formats"))
-from conftest import sampled  # noqa: E402
 
 SPEC = "ggx:alpha=0.4,metal=copper,rho_d=0.1,rho_s=0.9"
 

@@ -62,6 +62,7 @@ def test_model_flags():
         "lambert": (True, True), "phong": (False, False), "modified-phong": (True, True),
         "blinn-phong": (False, False), "normalized-blinn-phong": (True, True), "ward": (True, False),
         "cook-torrance": (True, False), "ggx": (True, True), "merl": (True, False),
+        "bsdf": (False, False),
     }
     modern = load("cook-torrance:m=0.2,metal=gold,denom=4")
     assert isinstance(modern, CookTorranceEnergyConserving) and modern.energy_conserving
@@ -69,7 +70,7 @@ def test_model_flags():
 
 
 ERRORS = [
-    ("lamber:albedo=0.5", r"unknown material model 'lamber' .*allowed: blinn-phong, cook-torrance, ggx, "
+    ("lamber:albedo=0.5", r"unknown material model 'lamber' .*allowed: blinn-phong, bsdf, cook-torrance, ggx, "
                           r"lambert, merl, modified-phong, normalized-blinn-phong, phong, ward"),
     ("lambert", r"lambert: parameter 'albedo' is required \(one number in \[0, 1\] or three as R/G/B\)"),
     ("lambert:albedo=1.2", r"lambert: parameter 'albedo' must be in \[0, 1\], got 1.2$"),

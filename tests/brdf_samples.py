@@ -1,7 +1,6 @@
 """Sampled BRDFs built from a material's own eval on a plan's grid (a campaign without the gantry)."""
 
 import numpy as np
-import pytest
 
 from gonio.dataset import SampledBRDF
 from gonio.geometry import sph_to_vec
@@ -17,8 +16,3 @@ def sampled(spec: str, grid: str, theta_max_deg: float = 85.0, rel_sd: float = 0
                        attrs={"grid": gs.normalized, "material": spec, "channels": ["R", "G", "B"],
                               "symmetries": {"reciprocity": gs.reciprocity, "isotropy": gs.isotropy,
                                              "mirror": gs.mirror}})
-
-
-@pytest.fixture
-def make_sampled():
-    return sampled
