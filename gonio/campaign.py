@@ -25,14 +25,14 @@ import numpy as np
 
 from gonio.calibrate import calibrate
 from gonio.config import GonioConfig, parse_config
-from gonio.dataset import BRDF_NAME, write_brdf
+from gonio.dataset import BRDF_NAME, campaign_dataset, write_brdf
 from gonio.plan import STEP_POSE, STEP_REFERENCE, Plan, build_plan, parse_grid
 from gonio.protocols import Gantry
 from gonio.runner import Runner, State
 from gonio.store import JOURNAL_NAME, Journal, JournalError
 
 __all__ = ["Campaign", "CampaignLock", "create_campaign", "open_campaign", "run_campaign",
-           "software_version", "config_hash", "compare_campaign", "LOCK_NAME"]
+           "software_version", "config_hash", "config_snapshot", "compare_campaign", "LOCK_NAME"]
 
 LOCK_NAME = "campaign.lock"
 
@@ -44,9 +44,15 @@ def software_version() -> str:
         return "0+unknown"
 
 
+def config_snapshot(cfg: GonioConfig) -> dict:
+    """The validated config as the journal keeps it: every setting that differs from its default (the
+    defaults fill back in when it is parsed again, so the snapshot round-trips whatever the schema adds)."""
+    return cfg.model_dump(mode="json", exclude_defaults=True)
+
+
 def config_hash(cfg: GonioConfig) -> str:
-    """SHA-256 of the validated config (canonical JSON): what a campaign was planned with."""
-    text = json.dumps(cfg.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    """SHA-256 of the config snapshot (canonical JSON): what a campaign was planned with."""
+    text = json.dumps(config_snapshot(cfg), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -136,7 +142,7 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
         "counts": plan.counts, "infeasible": plan.infeasible, "poses": int(len(plan.theta_i)),
         "estimated_s": float(plan.estimated_s), "lower_bound_s": float(plan.lower_bound_s),
         "axis_names": list(cfg.axis_names), "channels": list(cfg.detector.channels),
-        "gantry": cfg.name, "config": cfg.model_dump(mode="json"), "config_sha256": config_hash(cfg),
+        "gantry": cfg.name, "config": config_snapshot(cfg), "config_sha256": config_hash(cfg),
         "software_version": software_version(), "created_unix": time.time(),
     }
     steps = _steps_of(plan, cfg)
@@ -201,20 +207,23 @@ def compare_campaign(meta: dict, *, material: str | None, grid: str, seed: int, 
         return f"grid: '{meta['grid_requested']}' in the campaign, '{requested}' now"
     if int(meta["seed"]) != int(seed):
         return f"seed: {meta['seed']} in the campaign, {seed} now"
-    diff = _first_difference(meta["config"], cfg.model_dump(mode="json"))
+    planned = parse_config(meta["config"], "config snapshot")
+    diff = _first_difference(planned.model_dump(mode="json"), cfg.model_dump(mode="json"))
     if diff is not None:
         return f"config: {diff}"
     return None
 
 
 def finish_campaign(c: Campaign) -> Path:
-    """Calibrate every measured pose and write ``brdf.h5``."""
+    """Calibrate every measured pose and write ``brdf.h5`` (format version 2: measured and planned
+    angles, grid indices, steps, exposures, campaign times; see :mod:`gonio.dataset`)."""
     meta = c.meta
-    cal = calibrate(c.journal.measurements(), c.cfg.reference.albedo)
-    return write_brdf(c.folder / BRDF_NAME, cal, channels=meta["channels"], symmetries=meta["symmetries"],
-                      grid=meta["grid"], material=meta["material"] or "", gantry=meta["gantry"],
-                      software_version=software_version(), seed=int(meta["seed"]),
-                      sample=meta.get("sample") or "", config_sha256=meta.get("config_sha256", ""))
+    measurements = c.journal.measurements()
+    cal = calibrate(measurements, c.cfg.reference.albedo)
+    exposure = {m.step: m.exposure_s for m in measurements}
+    data = campaign_dataset(cal, c.journal.steps(), meta, exposure_s=[exposure[int(s)] for s in cal.steps],
+                            reference_albedo=c.cfg.reference.albedo, software_version=software_version())
+    return write_brdf(c.folder / BRDF_NAME, data)
 
 
 def gantry_state(c: Campaign) -> tuple[np.ndarray, float] | None:

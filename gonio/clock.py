@@ -5,17 +5,32 @@ from __future__ import annotations
 import time
 
 
+def _check_sleep(seconds: float) -> float:
+    value = float(seconds)
+    if not value >= 0.0 or value == float("inf"):  # also NaN
+        raise ValueError(f"sleep: seconds must be a finite number >= 0, got {seconds!r}")
+    return value
+
+
 class WallClock:
+    """The wall clock of real hardware. ``real_time``: time goes on while no process runs the gantry
+    (the runner adds that downtime to the campaign clock, so a lamp's drift stays on the right scale)."""
+
+    real_time = True
+
     def now(self) -> float:
         return time.monotonic()
 
     def sleep(self, seconds: float) -> None:
+        seconds = _check_sleep(seconds)
         if seconds > 0:
             time.sleep(seconds)
 
 
 class VirtualClock:
     """A clock that only moves when told to: ``sleep`` advances it at once, nothing waits."""
+
+    real_time = False
 
     def __init__(self, start: float = 0.0):
         self._t = float(start)
@@ -24,6 +39,4 @@ class VirtualClock:
         return self._t
 
     def sleep(self, seconds: float) -> None:
-        if seconds < 0:
-            raise ValueError(f"sleep: seconds must be >= 0, got {seconds}")
-        self._t += seconds
+        self._t += _check_sleep(seconds)

@@ -119,19 +119,40 @@ def from_half_diff(theta_h, phi_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarr
     return wi, wo
 
 
+#: rad: round-off allowed outside [0, π/2] for θh and θd (taken as the edge), beyond which merl_index refuses.
+MERL_ANGLE_TOL = 1e-9
+
+
 def merl_index(theta_h, theta_d, phi_d) -> np.ndarray:
     """Flat MERL table index ``iφd + 180·(iθd + 90·iθh)`` of (θh, θd, φd).
 
     θh bins follow the square-root mapping (dense near the specular peak); φd is folded into [0, π) by
     reciprocity (φd and φd + π describe the same pair with ωi and ωo swapped).
+
+    Raises
+    ------
+    ValueError
+        For NaN or infinite angles, and for θh or θd outside [0, π/2] by more than round-off
+        (``MERL_ANGLE_TOL``): the table has no bin for them, and none is made up.
     """
     nh, nd, nphi = MERL_SHAPE
     theta_h = np.asarray(theta_h, dtype=np.float64)
     theta_d = np.asarray(theta_d, dtype=np.float64)
-    phi_d = np.mod(np.asarray(phi_d, dtype=np.float64), np.pi)
-    ih = np.clip(np.floor(np.sqrt(np.clip(theta_h, 0.0, None) / HALF_PI) * nh), 0, nh - 1)
-    id_ = np.clip(np.floor(theta_d / HALF_PI * nd), 0, nd - 1)
-    ip = np.clip(np.floor(phi_d / np.pi * nphi), 0, nphi - 1)
+    phi_d = np.asarray(phi_d, dtype=np.float64)
+    for name, value in (("theta_h", theta_h), ("theta_d", theta_d), ("phi_d", phi_d)):
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"merl_index: {name} holds NaN or inf; give finite radians")
+    for name, value in (("theta_h", theta_h), ("theta_d", theta_d)):
+        bad = (value < -MERL_ANGLE_TOL) | (value > HALF_PI + MERL_ANGLE_TOL)
+        if np.any(bad):
+            worst = float(value[bad].flat[0]) if value.ndim else float(value)
+            raise ValueError(f"merl_index: {name} = {worst:.6g} rad is outside [0, π/2] (the MERL table "
+                             "covers the upper hemisphere only)")
+    phi_d = np.mod(phi_d, np.pi)
+    # Round-off at the edges only: π/2 itself belongs to the last bin, −1e-17 to the first.
+    ih = np.minimum(np.floor(np.sqrt(np.clip(theta_h, 0.0, HALF_PI) / HALF_PI) * nh), nh - 1)
+    id_ = np.minimum(np.floor(np.clip(theta_d, 0.0, HALF_PI) / HALF_PI * nd), nd - 1)
+    ip = np.minimum(np.floor(phi_d / np.pi * nphi), nphi - 1)
     return (ip + nphi * (id_ + nd * ih)).astype(np.int64)
 
 

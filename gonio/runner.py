@@ -123,8 +123,7 @@ class Runner:
         self._amax = np.asarray(kin.accel_deg_s2, float)
         self._axes = [gantry.axes[n] for n in kin.axis_names]
         self._home = np.asarray(kin.home_deg, float)
-        self._base_s = 0.0
-        self._t0 = 0.0
+        self._offset_s = 0.0  # campaign clock − gantry clock
         latched = journal.latched_fault()
         if latched is not None:
             self._state = State.FAULTED
@@ -137,7 +136,9 @@ class Runner:
 
     def campaign_s(self) -> float:
         """The campaign clock now: seconds since the campaign began, continuing across resumes."""
-        return self._base_s + (self.gantry.clock.now() - self._t0)
+        # One offset, added once: a gantry clock that already runs on campaign time (a resumed
+        # simulation) has offset 0.0 and gives its own readings bit for bit.
+        return self.gantry.clock.now() + self._offset_s
 
     def _to(self, new: State, message: str = "") -> None:
         with self._lock:
@@ -257,8 +258,7 @@ class Runner:
         base, last_wall = self.journal.campaign_clock()
         if getattr(self.gantry.clock, "real_time", False) and last_wall is not None:
             base += max(0.0, time.time() - last_wall)  # a lamp drifts while nobody runs the gantry
-        self._base_s = base
-        self._t0 = self.gantry.clock.now()
+        self._offset_s = base - self.gantry.clock.now()
 
     def _fail(self, reason: str, devices: list[str]) -> None:
         self.fault = reason

@@ -421,6 +421,15 @@ def test_merl_index_extremes_stay_in_range():
     assert 0 <= int(g.merl_index(HALF_PI + 1e-12, HALF_PI + 1e-12, TWO_PI)) < MERL_SIZE
 
 
+@pytest.mark.parametrize("args, field", [
+    ((HALF_PI + 1e-3, 0.1, 0.0), "theta_h"), ((0.1, -0.01, 0.0), "theta_d"),
+    ((float("nan"), 0.1, 0.0), "theta_h"), ((0.1, 0.1, float("inf")), "phi_d"),
+])
+def test_merl_index_refuses_angles_the_table_has_no_bin_for(args, field):
+    with pytest.raises(ValueError, match=f"merl_index: {field}"):
+        g.merl_index(*args)
+
+
 @SETTINGS
 @given(direction, direction)
 def test_merl_index_of_vectors_matches_reference_reader(di, do):

@@ -1,0 +1,26 @@
+"""The clocks: a virtual one that only moves when told, the wall clock of hardware; both refuse nonsense."""
+
+import math
+
+import pytest
+
+from gonio.clock import VirtualClock, WallClock
+
+
+def test_virtual_clock_moves_only_by_sleep_and_starts_where_told():
+    c = VirtualClock(start=12.5)
+    assert c.now() == 12.5
+    c.sleep(0.25)
+    c.sleep(0)
+    assert c.now() == 12.75
+    assert VirtualClock.real_time is False and WallClock.real_time is True
+
+
+@pytest.mark.parametrize("clock", [VirtualClock(), WallClock()], ids=["virtual", "wall"])
+@pytest.mark.parametrize("bad", [-1.0, -1e-12, math.nan, math.inf])
+def test_sleep_refuses_negative_nan_and_infinite_durations(clock, bad):
+    before = clock.now() if isinstance(clock, VirtualClock) else None
+    with pytest.raises(ValueError, match="sleep: seconds must be a finite number >= 0"):
+        clock.sleep(bad)
+    if before is not None:
+        assert clock.now() == before
