@@ -120,6 +120,18 @@ class Material:
         """f_r for unit direction arrays ``wi``, ``wo`` with parameters ``p`` (opaque arrays)."""
         raise NotImplementedError
 
+    def values(self) -> dict:
+        """The model's numeric spec parameters: a float or an (R, G, B) tuple per canonical key.
+
+        Canonical keys are the anisotropic forms (``alpha_u``/``alpha_v``, ``alpha_x``/``alpha_y``) and
+        ``eta``/``k`` for a ``metal``; models without free numbers (tables) return ``{}``.
+        """
+        return {}
+
+    def _parameters_dr(self, v: dict) -> dict:
+        """What :meth:`_parameters` derives, from :meth:`values`-shaped Dr.Jit arrays ``v`` (AD-safe)."""
+        raise NotImplementedError(f"{self.model}: no differentiable parameter path")
+
     # -- the interface --------------------------------------------------------------------------
     def dr_parameters(self, vector_type) -> dict:
         """The model's parameters as opaque arrays for ``vector_type`` (e.g. Array3f), cached.
@@ -156,6 +168,26 @@ class Material:
             f_r per channel (R, G, B) in sr⁻¹; 0 where either direction is at or below the horizon.
         """
         return self._eval_dr(wi, wo, self.dr_parameters(type(wi)))
+
+    def eval_params(self, v: dict, wi, wo):
+        """f_r like :meth:`eval_dr`, with the spec parameters given as Dr.Jit arrays (e.g. for AD).
+
+        Parameters
+        ----------
+        v : dict
+            Every key of :meth:`values`: a Dr.Jit scalar array (e.g. ``drjit.llvm.ad.Float64`` of size 1)
+            for a number, a 3-vector of the type of ``wi`` for an RGB parameter. Gradients enabled on
+            them flow to the result. The structure (model, D, Fresnel form, Smith form) is this
+            material's; only the numbers come from ``v``. Values are not range-checked.
+        wi, wo : Dr.Jit 3-vector
+            As for :meth:`eval_dr`.
+
+        Returns
+        -------
+        Dr.Jit 3-vector of the type of ``wi``
+            f_r per channel in sr⁻¹.
+        """
+        return self._eval_dr(wi, wo, self._parameters_dr(v))
 
     def eval(self, wi, wo, *, precision: str = "float32") -> np.ndarray:
         """f_r in sr⁻¹ for numpy direction pairs, evaluated with :meth:`eval_dr` on the LLVM backend.

@@ -87,6 +87,24 @@ class CookTorrance(Material):
             params.update(m=self.m)
         return params
 
+    def values(self) -> dict:
+        out = dict(self.fresnel_params)
+        out.update(m=self.m, rho_d=self.rho_d, rho_s=self.rho_s)
+        return out
+
+    def _parameters_dr(self, v):
+        p = {k: v[k] for k in self.fresnel_params}
+        m = v["m"]
+        p.update(rho_d=v["rho_d"], rho_s_scale=v["rho_s"] * DENOMINATORS[self.denom])
+        if self.distribution == "blinn":
+            c = -math.log(2.0) / dr.log(dr.cos(m))
+            p.update(c=c, d_norm=(c + 2.0) / (2.0 * math.pi))
+        elif self.distribution == "gaussian":
+            p.update(m=m, d_norm=mf.gaussian_norm_dr(m))
+        else:
+            p.update(m=m)
+        return p
+
     def _distribution(self, h, p):
         if self.distribution == "blinn":
             return mf.blinn(h, p["c"], p["d_norm"])

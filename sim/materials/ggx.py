@@ -74,6 +74,17 @@ class GGX(Material):
                       rho_s_quarter=tuple(0.25 * r for r in self.rho_s))
         return params
 
+    def values(self) -> dict:
+        out = dict(self.fresnel_params)
+        out.update(alpha_u=self.alpha_u, alpha_v=self.alpha_v, rho_d=self.rho_d, rho_s=self.rho_s)
+        return out
+
+    def _parameters_dr(self, v):
+        p = {k: v[k] for k in self.fresnel_params}
+        p.update(alpha_u=v["alpha_u"], alpha_v=v["alpha_v"], rho_d=v["rho_d"],
+                 rho_s_quarter=0.25 * v["rho_s"])
+        return p
+
     def _eval_dr(self, wi, wo, p):
         au, av = p["alpha_u"], p["alpha_v"]
         h = dr.normalize(wi + wo)

@@ -36,5 +36,11 @@ class Lambert(Material):
     def _parameters(self) -> dict:
         return {"albedo": self.albedo}
 
+    def values(self) -> dict:
+        return {"albedo": self.albedo}
+
+    def _parameters_dr(self, v):
+        return {"albedo": v["albedo"]}
+
     def _eval_dr(self, wi, wo, p):
         return dr.select((wi.z > 0) & (wo.z > 0), p["albedo"] * INV_PI, 0)

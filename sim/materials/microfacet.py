@@ -31,7 +31,7 @@ import numpy as np
 from .base import positive_power
 
 __all__ = ["DISTRIBUTIONS", "beckmann", "blinn", "gaussian", "ggx", "v_groove", "smith_ggx_g1",
-           "smith_ggx_lambda", "blinn_exponent", "blinn_norm", "gaussian_norm"]
+           "smith_ggx_lambda", "blinn_exponent", "blinn_norm", "gaussian_norm", "gaussian_norm_dr"]
 
 DISTRIBUTIONS = ("beckmann", "blinn", "gaussian")
 # Gauss-Legendre nodes per panel of the Gaussian normalization; the integrand is smooth and analytic,
@@ -63,6 +63,23 @@ def gaussian_norm(m: float) -> float:
             alpha = 0.5 * (b - a) * x + 0.5 * (b + a)
             total += 0.5 * (b - a) * float(np.sum(w * np.exp(-((alpha / m) ** 2)) * np.cos(alpha) *
                                                   np.sin(alpha)))
+    return 1.0 / (2.0 * math.pi * total)
+
+
+def gaussian_norm_dr(m):
+    """:func:`gaussian_norm` for a Dr.Jit scalar array ``m`` (size 1), differentiable in ``m``.
+
+    The same two Gauss-Legendre panels, each summed with ``dr.sum`` over an array of the nodes.
+    """
+    scalar = type(m)
+    x, w = np.polynomial.legendre.leggauss(_GL_NODES)
+    x, w = scalar(x), scalar(w)
+    split = dr.minimum(8.0 * m, 0.5 * math.pi)
+    total = 0.0
+    for a, b in ((0.0, split), (split, 0.5 * math.pi)):
+        alpha = 0.5 * (b - a) * x + 0.5 * (b + a)
+        integrand = w * dr.exp(-dr.square(alpha / m)) * dr.cos(alpha) * dr.sin(alpha)
+        total = total + 0.5 * (b - a) * dr.sum(integrand)
     return 1.0 / (2.0 * math.pi * total)
 
 

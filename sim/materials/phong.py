@@ -81,8 +81,18 @@ class _CosineLobe(Material):
         """Normalization of the lobe (1 for the notes' forms)."""
         return 1.0
 
+    def norm_dr(self, ke):
+        """:meth:`norm` for a Dr.Jit ``ke`` (differentiable)."""
+        return 1.0
+
     def _parameters(self) -> dict:
         return {"ks_norm": tuple(k * self.norm() for k in self.ks), "ke": self.ke, "rho_d": self.rho_d}
+
+    def values(self) -> dict:
+        return {"ks": self.ks, "ke": self.ke, "rho_d": self.rho_d}
+
+    def _parameters_dr(self, v):
+        return {"ks_norm": v["ks"] * self.norm_dr(v["ke"]), "ke": v["ke"], "rho_d": v["rho_d"]}
 
     def _eval_dr(self, wi, wo, p):
         if self.uses_half_vector:
@@ -116,6 +126,9 @@ class ModifiedPhong(_CosineLobe):
     def norm(self) -> float:
         return (self.ke + 2.0) / (2.0 * math.pi)
 
+    def norm_dr(self, ke):
+        return (ke + 2.0) / (2.0 * math.pi)
+
 
 class BlinnPhong(_CosineLobe):
     """The notes' Blinn-Phong lobe f = ρd/π + ks (H·N)^ke / (I·N): neither reciprocal nor energy
@@ -138,3 +151,9 @@ class NormalizedBlinnPhong(_CosineLobe):
 
     def norm(self) -> float:
         return blinn_phong_norm(self.ke)
+
+    def norm_dr(self, ke):
+        ln2 = math.log(2.0)
+        a = 2.0 * (1.0 - dr.exp(-0.5 * ln2 * (ke + 4.0))) / (ke + 4.0)
+        b = (1.0 - dr.exp(-0.5 * ln2 * (ke + 2.0))) / (ke + 2.0)
+        return 1.0 / (8.0 * math.pi * (a - b))

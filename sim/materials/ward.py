@@ -56,6 +56,14 @@ class Ward(Material):
         return {"rho_d": self.rho_d, "inv_ax": 1.0 / ax, "inv_ay": 1.0 / ay,
                 "rho_s_norm": tuple(r / (4.0 * math.pi * ax * ay) for r in self.rho_s)}
 
+    def values(self) -> dict:
+        return {"rho_d": self.rho_d, "rho_s": self.rho_s, "alpha_x": self.alpha_x, "alpha_y": self.alpha_y}
+
+    def _parameters_dr(self, v):
+        ax, ay = v["alpha_x"], v["alpha_y"]
+        return {"rho_d": v["rho_d"], "inv_ax": 1.0 / ax, "inv_ay": 1.0 / ay,
+                "rho_s_norm": v["rho_s"] / (4.0 * math.pi * ax * ay)}
+
     def _eval_dr(self, wi, wo, p):
         h = wi + wo  # the exponent is a ratio of components, so H need not be normalized
         exponent = (dr.square(h.x * p["inv_ax"]) + dr.square(h.y * p["inv_ay"])) / (h.z * h.z)
