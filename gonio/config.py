@@ -2,6 +2,13 @@
 
 Every key is checked: an unknown key, a missing one or a value out of range is a :class:`ConfigError`
 that names the file, the field and what is allowed. Nothing is clamped.
+
+Each axis, the light and the detector name their ``driver`` (``sim``, ``dynamixel``, ``modbus``,
+``serial``); a real device names the ``[buses.NAME]`` section it is reached through, where its port
+(or ``url``) is written once for every device on that bus. Settings that only a simulator (or the
+emulator of a device) needs live in the device's ``sim`` sub-table (``[light.sim]``,
+``[detector.sim]``, ``[axes.NAME.sim]``); the real drivers ignore them. ``[target]`` says how the white
+standard gets under the beam (see :class:`TargetConfig`).
 """
 
 from __future__ import annotations
@@ -9,12 +16,13 @@ from __future__ import annotations
 import tomllib
 from importlib.resources import files
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 __all__ = ["ConfigError", "GonioConfig", "load_config", "DEFAULT_CONFIG", "DESIGN_AXES", "CONFIG_DIR",
-           "packaged_configs", "resolve_config"]
+           "packaged_configs", "resolve_config", "relocate",
+           "BUS_LOCATION_FIELDS"]
 
 #: The configs shipped inside the installed package (``config/`` in the source tree).
 CONFIG_DIR = Path(str(files("gonio.configs")))
@@ -35,6 +43,12 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+#: Device drivers a config may name, per kind of device.
+AXIS_DRIVERS = ("sim", "dynamixel", "modbus")
+LIGHT_DRIVERS = ("sim", "serial")
+DETECTOR_DRIVERS = ("sim", "serial")
+
+
 class KinematicsConfig(_Strict):
     design: Literal["two-arm", "sample-stage"]
     theta_max_deg: float = Field(80.0, gt=0.0, le=90.0)
@@ -44,15 +58,85 @@ class KinematicsConfig(_Strict):
     arm_collision_deg: float = Field(10.0, ge=0.0, lt=180.0)
 
 
+# -- buses: where devices are reached (each port or host:port written once) -------------------------
+class DynamixelBusConfig(_Strict):
+    driver: Literal["dynamixel"]
+    #: Serial port of the bus (``/dev/serial/by-id/...``, ``/dev/ttyUSB0``).
+    port: str = Field(min_length=1)
+    baudrate: Literal[9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000] = 1_000_000
+    retries: int = Field(1, ge=0, le=5)
+
+
+class ModbusBusConfig(_Strict):
+    driver: Literal["modbus"]
+    #: ``tcp://host:port`` or ``rtu:///dev/ttyX?baudrate=N``.
+    url: str = Field(pattern=r"^(tcp://[^/]+|rtu:///.+)$")
+    timeout_s: float = Field(0.5, gt=0.0, le=10.0)
+    retries: int = Field(1, ge=0, le=5)
+
+
+class SerialBusConfig(_Strict):
+    driver: Literal["serial"]
+    port: str = Field(min_length=1)
+    baudrate: int = Field(115200, ge=300, le=4_000_000)
+    #: Deadline of one reply (s).
+    timeout_s: float = Field(1.0, gt=0.0, le=60.0)
+    terminator: str = Field("\n", min_length=1)
+
+
+BusConfig = Annotated[DynamixelBusConfig | ModbusBusConfig | SerialBusConfig, Field(discriminator="driver")]
+#: Bus fields that say where a bus is reached (the only ones an emulated twin changes).
+BUS_LOCATION_FIELDS = ("port", "url")
+
+
+# -- axes -------------------------------------------------------------------------------------------
+class AxisSimConfig(_Strict):
+    #: Encoder resolution: the simulated axis settles on a multiple of it (0: exact).
+    resolution_deg: float = Field(0.0, ge=0.0, le=1.0)
+
+
+def _changed(model: BaseModel) -> set[str]:
+    """Fields whose value differs from the default (a dumped and re-read config sets every field)."""
+    return {k for k, f in type(model).model_fields.items() if getattr(model, k) != f.default}
+
+
+#: Fields each axis driver accepts beyond the shared ones (limits, speed, home, sim).
+_AXIS_FIELDS = {
+    "sim": frozenset(),
+    "dynamixel": frozenset({"bus", "id", "family", "operating_mode", "gear_ratio", "direction",
+                            "homing_offset_ticks", "watchdog_s"}),
+    "modbus": frozenset({"bus", "device_id", "profile", "gear_ratio", "direction", "zero_steps"}),
+}
+
+
 class AxisConfig(_Strict):
-    driver: Literal["sim"] = "sim"
+    driver: Literal["sim", "dynamixel", "modbus"] = "sim"
     min_deg: float
     max_deg: float
+    #: The axis's speed and acceleration: the planner's, and the profile written to a real controller.
     max_velocity_deg_s: float = Field(gt=0.0)
     max_accel_deg_s2: float = Field(gt=0.0)
     home_deg: float = 0.0
-    #: Encoder resolution: the simulated axis settles on a multiple of it (0: exact).
-    resolution_deg: float = Field(0.0, ge=0.0, le=1.0)
+    #: Name of a ``[buses.NAME]`` section (dynamixel, modbus).
+    bus: str | None = None
+    #: Dynamixel servo ID.
+    id: int | None = Field(None, ge=0, le=252)
+    family: Literal["XM430", "XL430"] = "XM430"
+    operating_mode: Literal["position", "extended"] = "position"
+    #: Motor (servo) revolutions per axis revolution.
+    gear_ratio: float = Field(1.0, gt=0.0, le=10000.0)
+    direction: Literal[1, -1] = 1
+    #: Dynamixel Present Position (ticks) at axis 0°.
+    homing_offset_ticks: int = Field(0, ge=-1_048_575, le=1_048_575)
+    #: Dynamixel bus watchdog while moving (s; 0 disables it).
+    watchdog_s: float = Field(0.2, ge=0.0, le=2.54)
+    #: Modbus unit id.
+    device_id: int | None = Field(None, ge=1, le=247)
+    #: Modbus register profile: a shipped profile's name or a path to a TOML profile.
+    profile: str = "generic"
+    #: Modbus controller position (steps) at axis 0°.
+    zero_steps: int = 0
+    sim: AxisSimConfig = AxisSimConfig()
 
     @model_validator(mode="after")
     def _check(self):
@@ -60,11 +144,25 @@ class AxisConfig(_Strict):
             raise ValueError(f"min_deg ({self.min_deg}) must be less than max_deg ({self.max_deg})")
         if not self.min_deg <= self.home_deg <= self.max_deg:
             raise ValueError(f"home_deg {self.home_deg} is outside [{self.min_deg}, {self.max_deg}]")
+        allowed = _AXIS_FIELDS[self.driver]
+        foreign = sorted(k for k in _changed(self) if k in _DRIVER_ONLY and k not in allowed)
+        if foreign:
+            raise ValueError(f"{', '.join(foreign)}: not a setting of a '{self.driver}' axis "
+                             f"(allowed: {', '.join(sorted(allowed)) or 'none beyond the shared ones'})")
+        if self.driver != "sim" and self.bus is None:
+            raise ValueError(f"bus: a '{self.driver}' axis names the [buses.NAME] section it is on")
+        if self.driver == "dynamixel" and self.id is None:
+            raise ValueError("id: a dynamixel axis names its servo ID (0..252)")
+        if self.driver == "modbus" and self.device_id is None:
+            raise ValueError("device_id: a modbus axis names its unit id (1..247)")
         return self
 
 
-class LightConfig(_Strict):
-    driver: Literal["sim"] = "sim"
+_DRIVER_ONLY = frozenset().union(*_AXIS_FIELDS.values())
+
+
+# -- light --------------------------------------------------------------------------------------------
+class LightSimConfig(_Strict):
     #: Radiance of the source (arbitrary but consistent units; the white reference calibrates it out).
     radiance: float = Field(1000.0, gt=0.0)
     #: Half-angle of the cone the source subtends, seen from the sample.
@@ -73,6 +171,25 @@ class LightConfig(_Strict):
     drift_per_hour: float = Field(0.0, ge=-0.5, le=0.5)
 
 
+class LightConfig(_Strict):
+    """The lamp. ``sim``: what a simulated lamp (or the emulator of a real one) emits."""
+
+    driver: Literal["sim", "serial"] = "sim"
+    bus: str | None = None
+    #: Output level (%) set at connect (serial lamps); None leaves the lamp's own setting.
+    level_percent: float | None = Field(None, ge=0.0, le=100.0)
+    #: Longest wait (s) for the lamp's ready flag after it is switched on (serial lamps; 0: no wait).
+    warmup_timeout_s: float = Field(0.0, ge=0.0, le=3600.0)
+    sim: LightSimConfig = LightSimConfig()
+
+    @model_validator(mode="after")
+    def _check(self):
+        _check_bus_use("light", self.driver, self.bus, _changed(self),
+                       {"level_percent", "warmup_timeout_s"})
+        return self
+
+
+# -- detector -----------------------------------------------------------------------------------------
 class NoiseConfig(_Strict):
     #: Counts per unit of signal for shot noise (0 disables it).
     shot_counts_per_unit: float = Field(0.0, ge=0.0)
@@ -80,17 +197,47 @@ class NoiseConfig(_Strict):
     dark_offset: float = Field(0.0, ge=0.0)
 
 
-class DetectorConfig(_Strict):
-    driver: Literal["sim"] = "sim"
-    channels: tuple[str, ...] = ("R", "G", "B")
+class DetectorSimConfig(_Strict):
     half_angle_deg: float = Field(1.0, gt=0.0, le=10.0)
-    exposure_s: float = Field(0.1, gt=0.0, le=3600.0)
-    frames: int = Field(1, ge=1, le=1000)
-    #: Monte Carlo samples per reading over the source and detector apertures.
-    aperture_samples: int = Field(256, ge=1, le=1 << 20)
+    #: Monte Carlo samples per reading over the source and detector apertures (2 at least: the
+    #: detector estimates its integration error from their spread).
+    aperture_samples: int = Field(256, ge=2, le=1 << 20)
     noise: NoiseConfig = NoiseConfig()
 
 
+class DetectorConfig(_Strict):
+    """The detector. ``sim``: how a simulated detector (or the emulator of a real one) renders."""
+
+    driver: Literal["sim", "serial"] = "sim"
+    channels: tuple[str, ...] = ("R", "G", "B")
+    exposure_s: float = Field(0.1, gt=0.0, le=3600.0)
+    frames: int = Field(1, ge=1, le=1000)
+    bus: str | None = None
+    #: What a serial detector is: one value per frame, or one per wavelength band.
+    kind: Literal["power_meter", "spectrometer"] = "power_meter"
+    sim: DetectorSimConfig = DetectorSimConfig()
+
+    @model_validator(mode="after")
+    def _check(self):
+        if not self.channels or len(set(self.channels)) != len(self.channels):
+            raise ValueError(f"channels: must be distinct names, at least one, got {list(self.channels)}")
+        _check_bus_use("detector", self.driver, self.bus, _changed(self), {"kind"})
+        if self.driver == "serial" and self.kind == "power_meter" and len(self.channels) != 1:
+            raise ValueError(f"channels: a power meter reads one value, so exactly one channel name, got "
+                             f"{list(self.channels)}")
+        return self
+
+
+def _check_bus_use(device: str, driver: str, bus, fields_set, serial_only: set[str]) -> None:
+    if driver == "sim":
+        foreign = sorted(({"bus"} | serial_only) & set(fields_set))
+        if foreign:
+            raise ValueError(f"{', '.join(foreign)}: not a setting of a 'sim' {device}")
+    elif bus is None:
+        raise ValueError(f"bus: a '{driver}' {device} names the [buses.NAME] section it is on")
+
+
+# -- the rest -------------------------------------------------------------------------------------------
 class ReferenceConfig(_Strict):
     #: Hemispherical reflectance of the white standard (a Lambertian, e.g. sintered PTFE).
     albedo: float = Field(0.99, gt=0.0, le=1.0)
@@ -101,6 +248,22 @@ class ReferenceConfig(_Strict):
     dphi_deg: float = Field(180.0, ge=0.0, lt=360.0)
 
 
+class TargetConfig(_Strict):
+    """How the white standard gets under the beam (``gantry.set_target``).
+
+    With ``axis`` (an extra axis in ``[axes]``, e.g. a sample changer), ``set_target("reference")``
+    moves that axis to ``reference_deg`` and ``set_target("sample")`` to ``sample_deg``, and waits until
+    it is there. Without it only a simulated detector can swap the two (it renders the standard); a real
+    detector needs the axis: a campaign never waits for a person to swap them.
+    """
+
+    axis: str | None = None
+    sample_deg: float = 0.0
+    reference_deg: float = 0.0
+    #: Longest wait (s) for the changer to arrive.
+    timeout_s: float = Field(60.0, gt=0.0, le=3600.0)
+
+
 class RunnerConfig(_Strict):
     retries: int = Field(2, ge=0, le=20)
     position_tolerance_deg: float = Field(0.05, gt=0.0, le=5.0)
@@ -109,41 +272,105 @@ class RunnerConfig(_Strict):
     poll_s: float = Field(0.05, gt=0.0, le=10.0)
 
 
+#: Which bus driver each device driver needs.
+_BUS_FOR = {"dynamixel": "dynamixel", "modbus": "modbus", "serial": "serial"}
+
+
 class GonioConfig(_Strict):
     name: str
     kinematics: KinematicsConfig
+    buses: dict[str, BusConfig] = {}
     axes: dict[str, AxisConfig]
     light: LightConfig = LightConfig()
     detector: DetectorConfig = DetectorConfig()
     reference: ReferenceConfig = ReferenceConfig()
+    target: TargetConfig = TargetConfig()
     runner: RunnerConfig = RunnerConfig()
 
     @model_validator(mode="after")
     def _axes_match_design(self):
         want = DESIGN_AXES[self.kinematics.design]
         missing = [a for a in want if a not in self.axes]
-        extra = [a for a in self.axes if a not in want]
+        extra = [a for a in self.axes if a not in want and a != self.target.axis]
         if missing or extra:
             raise ValueError(
-                f"design '{self.kinematics.design}' drives exactly the axes {', '.join(want)}"
+                f"design '{self.kinematics.design}' drives exactly the axes {', '.join(want)} (plus the "
+                "target.axis, if any)"
                 + (f"; missing: {', '.join(missing)}" if missing else "")
                 + (f"; unknown: {', '.join(extra)}" if extra else "")
             )
+        if self.target.axis is not None:
+            if self.target.axis in want:
+                raise ValueError(f"target.axis: '{self.target.axis}' is one of the design's axes; the "
+                                 "sample changer is an axis of its own")
+            if self.target.axis not in self.axes:
+                raise ValueError(f"target.axis: no [axes.{self.target.axis}] section")
+            ax = self.axes[self.target.axis]
+            for key in ("sample_deg", "reference_deg"):
+                v = getattr(self.target, key)
+                if not ax.min_deg <= v <= ax.max_deg:
+                    raise ValueError(f"target.{key}: {v} is outside the axis limit [{ax.min_deg}, "
+                                     f"{ax.max_deg}]")
+        elif self.detector.driver != "sim":
+            raise ValueError("target.axis: a real detector needs an axis that puts the white standard "
+                             "under the beam (a sample changer); only a simulated detector swaps by itself")
+        users = [(f"axes.{n}", a.driver, a.bus) for n, a in self.axes.items()]
+        users += [("light", self.light.driver, self.light.bus), ("detector", self.detector.driver,
+                                                                  self.detector.bus)]
+        for where, driver, bus in users:
+            if driver == "sim":
+                continue
+            if bus not in self.buses:
+                raise ValueError(f"{where}.bus: no [buses.{bus}] section; buses: "
+                                 f"{', '.join(self.buses) or 'none'}")
+            if self.buses[bus].driver != _BUS_FOR[driver]:
+                raise ValueError(f"{where}.bus: a '{driver}' device cannot be on bus '{bus}', a "
+                                 f"'{self.buses[bus].driver}' bus")
+        ids: dict[tuple[str, int], str] = {}
+        for n, a in self.axes.items():
+            if a.driver == "sim":
+                continue
+            key = (a.bus, a.id if a.driver == "dynamixel" else a.device_id)
+            if key in ids:
+                raise ValueError(f"axes.{n}: bus '{key[0]}' id {key[1]} is also axes.{ids[key]}")
+            ids[key] = n
+        for bus in self.buses:
+            on = [w for w, d, b in users if b == bus and d == "serial"]
+            if len(on) > 1:
+                raise ValueError(f"buses.{bus}: one serial instrument per port, but {', '.join(on)} share it")
         return self
 
     @property
     def axis_names(self) -> tuple[str, ...]:
         return DESIGN_AXES[self.kinematics.design]
 
+    def drivers(self) -> set[str]:
+        """The device drivers this config uses."""
+        return {a.driver for a in self.axes.values()} | {self.light.driver, self.detector.driver}
+
+
+def relocate(snapshot: GonioConfig, now: GonioConfig) -> GonioConfig:
+    """``snapshot`` with each bus reached where ``now`` says (its ``port``/``url``): a campaign planned
+    with one config resumes when a device was re-plugged under another name, or an emulator restarted
+    on another pty. Buses absent from ``now`` keep the snapshot's location."""
+    data = snapshot.model_dump(mode="json")
+    for name, bus in data.get("buses", {}).items():
+        if name in now.buses:
+            theirs = now.buses[name].model_dump(mode="json")
+            for key in BUS_LOCATION_FIELDS:
+                if key in bus and key in theirs:
+                    bus[key] = theirs[key]
+    return GonioConfig.model_validate(data)
+
 
 def _format(err: ValidationError, source: str) -> str:
     lines = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        loc = ".".join(str(p) for p in e["loc"])
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
-        lines.append(f"{source}: {loc}: {msg}")
+        lines.append(f"{source}: {loc}: {msg}" if loc else f"{source}: {msg}")
     return "\n".join(lines)
 
 
@@ -164,7 +391,7 @@ def resolve_config(path_or_name: str | Path | None = None) -> Path:
     if path_or_name is None:
         return DEFAULT_CONFIG
     path = Path(path_or_name)
-    if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
+    if path.is_file() or path.suffix == ".toml" or len(path.parts) > 1:
         return path
     shipped = packaged_configs()
     if str(path_or_name) in shipped:

@@ -263,12 +263,12 @@ class SimAxis:
         self._motion = _Brake(now, x0, v0, self.cfg.max_accel_deg_s2, self._settle_point(end))
 
     def _quantize(self, x: float) -> float:
-        res = self.cfg.resolution_deg
+        res = self.cfg.sim.resolution_deg
         return float(np.round(x / res) * res) if res > 0 else float(x)
 
     def _settle_point(self, x: float) -> float:
         """The encoder count nearest ``x`` that lies inside the limits (``x`` itself when ideal)."""
-        res = self.cfg.resolution_deg
+        res = self.cfg.sim.resolution_deg
         if res <= 0:
             return float(x)
         lo, hi = self.limits_deg

@@ -187,10 +187,10 @@ class SimDetector:
             raise ValueError(f"axes: missing the axes {', '.join(missing)} that the kinematics drives")
         if not isinstance(seed, int | np.integer) or seed < 0:
             raise ValueError(f"seed: must be an integer >= 0, got {seed!r}")
-        if cfg.aperture_samples < 2:
+        if cfg.sim.aperture_samples < 2:
             raise ValueError(
                 f"detector.aperture_samples: the simulated detector needs at least 2 to estimate its "
-                f"integration error, got {cfg.aperture_samples}"
+                f"integration error, got {cfg.sim.aperture_samples}"
             )
         self.name = name
         self.channels = tuple(cfg.channels)
@@ -326,7 +326,7 @@ class SimDetector:
         if axes_deg.ndim != 2 or axes_deg.shape[1] != n_axes:
             raise ValueError(f"axes_deg: expected shape (N, {n_axes}), got {axes_deg.shape}")
         source = self._light.radiance()
-        dark = self.cfg.noise.dark_offset * exposure_s
+        dark = self.cfg.sim.noise.dark_offset * exposure_s
         if source == 0.0:
             return np.full((axes_deg.shape[0], len(self.channels)), dark)
         factor, _ = self._radiance_factor(axes_deg, target, _seed_state(self._seed, _EXPECTED_STREAM, 0, 0))
@@ -334,7 +334,7 @@ class SimDetector:
 
     def noise_sigma(self, clean_signal) -> np.ndarray:
         """Standard deviation (signal units) of one frame whose noise-free light signal is given."""
-        noise = self.cfg.noise
+        noise = self.cfg.sim.noise
         var = np.full(np.shape(clean_signal), noise.read_sigma**2, dtype=np.float64)
         if noise.shot_counts_per_unit > 0.0:
             var = var + np.asarray(clean_signal, dtype=np.float64) / noise.shot_counts_per_unit
@@ -345,12 +345,12 @@ class SimDetector:
                          seed_state) -> tuple[np.ndarray, np.ndarray]:
         wi, wo = self._kinematics.directions(axes_deg)
         return aperture_radiance_factor(
-            self._materials[target], wi, wo, self._light.half_angle_deg, self.cfg.half_angle_deg,
-            self.cfg.aperture_samples, seed_state,
+            self._materials[target], wi, wo, self._light.half_angle_deg, self.cfg.sim.half_angle_deg,
+            self.cfg.sim.aperture_samples, seed_state,
         )
 
     def _noisy_frames(self, clean: np.ndarray, exposure_s: float, frames: int, rng) -> np.ndarray:
-        noise = self.cfg.noise
+        noise = self.cfg.sim.noise
         values = np.broadcast_to(clean, (frames, clean.size)).astype(np.float64)
         if noise.shot_counts_per_unit > 0.0:
             counts = values * noise.shot_counts_per_unit

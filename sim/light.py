@@ -39,7 +39,7 @@ class SimLight:
     def __init__(self, cfg: LightConfig, clock: Clock, name: str = "light"):
         self.name = name
         self.cfg = cfg
-        self.half_angle_deg = float(cfg.half_angle_deg)
+        self.half_angle_deg = float(cfg.sim.half_angle_deg)
         self._clock = clock
         self._connected = False
         self._on = False
@@ -75,13 +75,13 @@ class SimLight:
         """
         t = self._clock.now() if t_s is None else float(t_s)
         hours = t / _SECONDS_PER_HOUR
-        factor = 1.0 + self.cfg.drift_per_hour * hours
+        factor = 1.0 + self.cfg.sim.drift_per_hour * hours
         if factor <= 0.0:
             raise DeviceFault(
                 self.name, f"lamp output drifted to zero after {hours:.2f} h "
-                f"(drift_per_hour = {self.cfg.drift_per_hour})", transient=False,
+                f"(drift_per_hour = {self.cfg.sim.drift_per_hour})", transient=False,
             )
-        return self.cfg.radiance * factor
+        return self.cfg.sim.radiance * factor
 
     def radiance(self) -> float:
         """Radiance reaching the sample now: the lamp's when the shutter is open, else 0."""

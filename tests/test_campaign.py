@@ -68,9 +68,9 @@ def _noisy_config(frames=1):
     from gonio.config import parse_config
 
     data = load_config().model_dump()
-    data["detector"]["noise"] = {"shot_counts_per_unit": 50.0, "read_sigma": 0.05, "dark_offset": 2.0}
+    data["detector"]["sim"]["noise"] = {"shot_counts_per_unit": 50.0, "read_sigma": 0.05, "dark_offset": 2.0}
     data["detector"]["frames"] = frames
-    data["light"]["radiance"] = 1e6  # white reference ~ 7.5 signal units per 0.1 s exposure
+    data["light"]["sim"]["radiance"] = 1e6  # white reference ~ 7.5 signal units per 0.1 s exposure
     return parse_config(data)
 
 

@@ -100,7 +100,7 @@ def lanes(estimates: int) -> None:
 
 def _gantry(spec: str, noise: dict) -> SimGantry:
     data = load_config().model_dump()
-    data["detector"]["noise"].update(noise)
+    data["detector"]["sim"]["noise"].update(noise)
     gantry = SimGantry.from_config(parse_config(data), spec, seed=3)
     gantry.connect()
     gantry.light.set_on(True)

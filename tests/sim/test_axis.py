@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gonio.clock import VirtualClock
-from gonio.config import AxisConfig, load_config
+from gonio.config import AxisConfig, AxisSimConfig, load_config
 from gonio.motion.trapezoid import move_time, position_at
 from gonio.protocols import Axis, DeviceFault
 from gonio.sim.axis import SimAxis
@@ -112,7 +112,7 @@ def test_target_outside_the_limits_is_rejected_with_the_allowed_range():
 
 def test_encoder_resolution_quantizes_the_settled_and_reported_position():
     res = 360.0 / 4096  # a 12-bit servo encoder
-    cfg = TILT.model_copy(update={"resolution_deg": res})
+    cfg = TILT.model_copy(update={"sim": AxisSimConfig(resolution_deg=res)})
     axis, clock = make_axis(cfg)
     axis.move_to(10.0)
     clock.sleep(0.3)  # mid-move: the shaft is between counts, the encoder reports a count
@@ -128,7 +128,7 @@ def test_encoder_resolution_quantizes_the_settled_and_reported_position():
 
 
 def test_a_limit_off_the_encoder_grid_settles_one_count_inside():
-    cfg = TILT.model_copy(update={"resolution_deg": 0.7})  # 90 / 0.7 = 128.57 counts
+    cfg = TILT.model_copy(update={"sim": AxisSimConfig(resolution_deg=0.7)})  # 90 / 0.7 = 128.57 counts
     axis, clock = make_axis(cfg)
     axis.move_to(90.0)
     clock.sleep(10.0)

@@ -24,9 +24,9 @@ SHARP = "ggx:alpha=0.05,metal=gold"  # a peak a few degrees wide: percent-level 
 def make_gantry(material="lambert:albedo=0.5", *, seed=0, light=None, detector=None, noise=None,
                 reference=None, on=True) -> SimGantry:
     data = load_config().model_dump()
-    data["light"].update({"radiance": RADIANCE, **(light or {})})
-    data["detector"].update(detector or {})
-    data["detector"]["noise"].update(noise or {})
+    data["light"]["sim"].update({"radiance": RADIANCE, **(light or {})})
+    data["detector"]["sim"].update(detector or {})
+    data["detector"]["sim"]["noise"].update(noise or {})
     data["reference"].update(reference or {})
     gantry = SimGantry.from_config(parse_config(data), material, seed=seed)
     gantry.connect()
@@ -380,7 +380,8 @@ def test_aperture_arguments_are_checked():
         aperture_radiance_factor(material, w, w, 0.5, 1.0, 1, (1, 2))
     with pytest.raises(ValueError, match=r"seed_state: must be \(key, word\), integers in \[0, 2\*\*64\)"):
         aperture_radiance_factor(material, w, w, 0.5, 1.0, 16, (1, 1 << 32))
-    with pytest.raises(ValueError, match="detector.aperture_samples: the simulated detector needs at least"):
+    with pytest.raises(ValueError, match=r"detector.sim.aperture_samples: Input should be greater than or "
+                       r"equal to 2"):
         make_gantry(detector={"aperture_samples": 1})
 
 
@@ -409,7 +410,7 @@ def test_measure_rejects_bad_arguments_and_needs_a_connection():
 
 def test_lamp_drifts_linearly_with_the_campaign_clock():
     data = load_config().model_dump()
-    data["light"].update({"radiance": 800.0, "drift_per_hour": -0.1})
+    data["light"]["sim"].update({"radiance": 800.0, "drift_per_hour": -0.1})
     clock = VirtualClock(start=0.0)  # the campaign clock's origin: the lamp was switched on then
     light = SimLight(parse_config(data).light, clock)
     with pytest.raises(DeviceFault, match="not connected"):
