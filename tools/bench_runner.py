@@ -120,8 +120,8 @@ def main() -> None:
         g = build_gantry(cfg, "cook-torrance:d=beckmann,m=0.3,metal=gold", seed=1)
         g.connect()
         dt = _time(g, cfg, steps, d)
-    print(f"simulated gantry (trapezoid axes, Dr.Jit apertures, {cfg.detector.sim.aperture_samples} samples per "
-          f"reading): {n} poses in {dt:.2f} s = {1e3 * dt / n:.2f} ms per pose")
+    print(f"simulated gantry (trapezoid axes, Dr.Jit apertures, {cfg.detector.sim.aperture_samples} samples "
+          f"per reading): {n} poses in {dt:.2f} s = {1e3 * dt / n:.2f} ms per pose")
 
 
 if __name__ == "__main__":
