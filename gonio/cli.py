@@ -334,10 +334,23 @@ def cmd_status(args) -> int:
 
 
 # -- the parser -----------------------------------------------------------------------------------
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """Help that shows each option's default where it has a meaningful one (not for flags, required
+    options, or where the text already says it)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (default is None or default is False or default == argparse.SUPPRESS or "default" in text
+                or action.required or not action.option_strings):
+            return text
+        return f"{text} (default: {default})"
+
+
 def build_parser() -> argparse.ArgumentParser:
     from gonio.campaign import software_version
 
-    fmt = argparse.ArgumentDefaultsHelpFormatter
+    fmt = _DefaultsFormatter
     p = argparse.ArgumentParser(prog="gonio", formatter_class=fmt,
                                 description="Control and acquisition for gonio-reflectometers.")
     p.add_argument("--version", action="version", version=f"gonio {software_version()}")

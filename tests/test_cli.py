@@ -1,8 +1,12 @@
 """The `gonio` command as a user runs it (in-process through main(), and once as a real process)."""
 
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -98,3 +102,171 @@ def test_console_script_runs_as_a_process(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["symmetries"]["isotropy"] is False
+
+
+# -- user mistakes: one line, exit 2, nothing written --------------------------------------------
+SIM = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet"]
+
+
+def _one_clear_line(capsys, *needles):
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    for n in needles:
+        assert n in err, err
+    return err
+
+
+def test_out_that_is_a_file_is_refused(tmp_path, capsys):
+    f = tmp_path / "notes.txt"
+    f.write_text("x")
+    assert main([*SIM, "--out", str(f)]) == 2
+    _one_clear_line(capsys, "--out", str(f), "is a file")
+    assert f.read_text() == "x"
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_folder_is_refused(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        assert main([*SIM, "--out", str(ro / "run")]) == 2
+        _one_clear_line(capsys, "not writable")
+    finally:
+        ro.chmod(0o755)
+
+
+def test_read_only_folder_is_refused_even_for_root(tmp_path, capsys, monkeypatch):
+    """Root ignores permission bits; what root cannot write is a read-only mount. os.access is what
+    gonio asks, so the check is shown by making it answer no."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if Path(p) == ro else real(p, mode))
+    assert main([*SIM, "--out", str(ro / "run")]) == 2
+    _one_clear_line(capsys, str(ro), "not writable")
+    assert list(ro.iterdir()) == []
+
+
+def test_config_that_is_a_folder_or_missing_is_one_line(tmp_path, capsys):
+    assert main(["plan", "--grid", "iso:step=30", "--config", str(tmp_path)]) == 2
+    _one_clear_line(capsys, str(tmp_path), "is a folder")
+    assert main(["plan", "--grid", "iso:step=30", "--config", str(tmp_path / "none.toml")]) == 2
+    _one_clear_line(capsys, "none.toml", "no such config file")
+    assert main(["plan", "--grid", "iso:step=30", "--config", "no-such-gantry"]) == 2
+    _one_clear_line(capsys, "no-such-gantry", "shipped:", "sim")
+
+
+def test_bad_seed_is_refused_before_anything_is_written(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main([*SIM, "--out", str(tmp_path / "run"), "--seed", "-3"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "--seed" in err and "integer >= 0" in err and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_paths_with_brackets_print_as_they_are(tmp_path, capsys):
+    out = tmp_path / "run [red]1[/red]"
+    assert main([*SIM, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"wrote {out / 'brdf.h5'}" in err
+
+
+def test_resume_refuses_another_seed_or_config_and_names_the_field(tmp_path, capsys):
+    out = tmp_path / "run"
+    create_campaign_args = [*SIM, "--out", str(out), "--seed", "4"]
+    from gonio.campaign import create_campaign
+    from gonio.config import load_config
+
+    create_campaign(out, load_config(), grid="iso:step=45", material="lambert:albedo=0.5", seed=4).close()
+    assert main([*SIM, "--out", str(out), "--seed", "5"]) == 2
+    _one_clear_line(capsys, "seed: 4 in the campaign, 5 now")
+    assert main([*create_campaign_args, "--config", "sample-stage"]) == 2
+    _one_clear_line(capsys, "config:", "holds another campaign")
+    # The same material spelled differently is the same campaign.
+    argv = ["simulate", "lambert:albedo=0.50", "--grid", "iso:step=45", "--out", str(out), "--seed", "4",
+            "--quiet"]
+    assert main(argv) == 0
+
+
+def test_version_and_help_show_defaults(capsys):
+    from gonio.campaign import software_version
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0 and capsys.readouterr().out.strip() == f"gonio {software_version()}"
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    out = " ".join(capsys.readouterr().out.split())  # help text wraps to the terminal's width
+    assert "random numbers (default: 0)" in out and "--clear-fault" in out and "(default: None)" not in out
+
+
+def test_config_list_and_show(capsys):
+    assert main(["config", "list"]) == 0
+    out = capsys.readouterr().out
+    assert "sim " in out and "sample-stage" in out and "two-arm" in out
+    assert main(["config", "show", "sample-stage"]) == 0
+    assert 'design = "sample-stage"' in capsys.readouterr().out
+
+
+# -- status, progress and signals, as a process -----------------------------------------------------
+def _gonio(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "gonio.cli", *args], capture_output=True, text=True,
+                          timeout=300, **kw)
+
+
+def test_progress_is_plain_lines_when_stderr_is_not_a_terminal(tmp_path):
+    r = _gonio("simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", str(tmp_path / "run"))
+    assert r.returncode == 0, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("measuring: ")]
+    assert lines and "steps (100 %)" in lines[-1]
+    assert "\x1b[" not in r.stderr  # no terminal control codes in a log
+
+
+def test_status_reads_a_campaign_while_it_is_not_running(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main([*SIM, "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["status", str(out), "--json"]) == 0
+    st = json.loads(capsys.readouterr().out)
+    assert st["state"] == "done" and st["steps_done"] == st["steps"] > 0
+    assert st["latched_fault"] is None and st["estimated_remaining_s"] == 0.0
+    assert main(["status", str(tmp_path)]) == 2
+    _one_clear_line(capsys, "not a campaign folder")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_campaign_pauses_parks_journals_and_says_how_to_resume(tmp_path, sig):
+    from gonio.store import JOURNAL_NAME, Journal
+
+    out = tmp_path / "run"
+    argv = [sys.executable, "-m", "gonio.cli", "simulate", "ggx:alpha=0.2,metal=gold", "--grid", "iso:step=5",
+            "--out", str(out), "--quiet"]
+    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline and p.poll() is None:
+            if (out / JOURNAL_NAME).exists():
+                j = Journal.open(out / JOURNAL_NAME, readonly=True)
+                done = j.done_count()
+                j.close()
+                if done >= 20:
+                    break
+            time.sleep(0.005)
+        p.send_signal(sig)
+        _, err = p.communicate(timeout=120)
+    finally:
+        p.kill()
+    assert p.returncode == 130, err
+    assert "Traceback" not in err
+    assert f"interrupted ({signal.Signals(sig).name})" in err and "run the same command to resume" in err
+    j = Journal.open(out / JOURNAL_NAME, readonly=True)
+    kinds = [e["kind"] for e in j.events()]
+    assert "signal" in kinds and kinds[-1] == "park"
+    assert j.last_event("park")["axes_deg"] == [0.0, 0.0, 180.0, 0.0]  # home
+    assert j.last_event("state")["state"] == "paused"
+    j.close()
+    r = _gonio("status", str(out))
+    assert "paused" in r.stdout
