@@ -1,12 +1,14 @@
 """Benchmark: runner + journal overhead per pose, and a whole simulated campaign per pose.
 
-1. Overhead: 20,000 poses on an *instant* gantry (axes arrive at once, the detector returns a constant),
-   so what is timed is the runner's own work (state checks, move bookkeeping, position checks, forward
-   kinematics) and the journal's commit of each step. Target: under 0.5 ms per pose.
+1. Overhead: the poses of a real plan (``iso:step=3``, in plan order) on an *instant* gantry (axes arrive
+   at once, the detector returns a constant), so what is timed is the runner's own work (state checks,
+   limit checks and the swept-path check of every move, position checks, forward kinematics, halt-aware
+   waits) and the journal's commit of each step. Target: under 0.5 ms per pose. Side by side, the same
+   run with the swept-path planning replaced by the direct move shows what the safety check costs.
 2. The simulated gantry: the same runner on SimGantry (trapezoid axes on the virtual clock, Dr.Jit
    aperture integration per reading), for a few thousand poses, to show where the rest goes.
 
-Run: .venv/bin/python tools/bench_runner.py [--poses 20000]
+Run: .venv/bin/python tools/bench_runner.py [--grid iso:step=3]
 """
 
 from __future__ import annotations
@@ -28,8 +30,8 @@ from gonio.wiring import build_gantry
 
 
 class _InstantAxis:
-    def __init__(self, name, limits):
-        self.name, self.limits_deg, self._p = name, limits, 0.0
+    def __init__(self, name, limits, home):
+        self.name, self.limits_deg, self._p = name, limits, float(home)
 
     def connect(self): ...
     def close(self): ...
@@ -37,6 +39,8 @@ class _InstantAxis:
     def position_deg(self): return self._p
     def is_moving(self): return False
     def stop(self): ...
+    def fault(self): return None
+    def clear_fault(self): ...
 
 
 class _InstantGantry:
@@ -45,7 +49,8 @@ class _InstantGantry:
     def __init__(self, cfg):
         self.name = "instant"
         self.kinematics = make_kinematics(cfg)
-        self.axes = {a: _InstantAxis(a, (cfg.axes[a].min_deg, cfg.axes[a].max_deg)) for a in cfg.axis_names}
+        self.axes = {a: _InstantAxis(a, (cfg.axes[a].min_deg, cfg.axes[a].max_deg), cfg.axes[a].home_deg)
+                     for a in cfg.axis_names}
         self.clock = VirtualClock()
         reading = Reading(signal=np.ones(3), stderr=np.zeros(3), exposure_s=0.1)
 
@@ -60,7 +65,7 @@ class _InstantGantry:
             name, channels = "det", ("R", "G", "B")
             def connect(self): ...
             def close(self): ...
-            def measure(self, exposure_s, frames=1): return reading
+            def measure(self, exposure_s, frames=1, *, key=None): return reading
 
         self.light, self.detector = L(), D()
 
@@ -68,29 +73,14 @@ class _InstantGantry:
     def close(self): ...
     def set_target(self, target): ...
     def stop(self): ...
-    def park(self): ...
 
 
-def _steps(cfg, n_poses, every):
-    kin = make_kinematics(cfg)
-    rng = np.random.default_rng(0)
-    ti, to = rng.uniform(0, np.radians(70), n_poses), rng.uniform(0, np.radians(70), n_poses)
-    po = rng.uniform(np.radians(30), np.radians(330), n_poses)
-    axes = kin.inverse(ti, np.zeros(n_poses), to, po)
-    keep = ~np.isnan(axes).any(axis=1)
-    axes, n = axes[keep], int(keep.sum())
-    kind, pose = [], []
-    for p in range(n):
-        if p % every == 0:
-            kind += [1, 2]
-            pose += [-1, -1]
-        kind.append(0)
-        pose.append(p)
-    kind, pose = np.array(kind, np.int8), np.array(pose)
-    ax = np.where(pose[:, None] >= 0, axes[np.maximum(pose, 0)], kin.home_deg)
-    z = np.zeros(len(kind))
-    return {"kind": kind, "pose": pose, "theta_i_deg": z, "phi_i_deg": z, "theta_o_deg": z, "phi_o_deg": z,
-            "axes_deg": ax}, n
+def _steps(cfg, grid):
+    from gonio.campaign import _steps_of
+    from gonio.plan import build_plan
+
+    plan = build_plan(grid, cfg)
+    return _steps_of(plan, cfg), len(plan.theta_i)
 
 
 def _time(gantry, cfg, steps, folder):
@@ -105,23 +95,34 @@ def _time(gantry, cfg, steps, folder):
 
 
 def main() -> None:
+    import gonio.runner as runner_module
+
     ap = argparse.ArgumentParser()
-    ap.add_argument("--poses", type=int, default=20000)
-    ap.add_argument("--sim-poses", type=int, default=2000)
+    ap.add_argument("--grid", default="iso:step=3")
+    ap.add_argument("--sim-grid", default="iso:step=10")
     args = ap.parse_args()
     cfg = load_config()
-    steps, n = _steps(cfg, args.poses, cfg.reference.every)
+    steps, n = _steps(cfg, args.grid)
     with tempfile.TemporaryDirectory() as d:
         dt = _time(_InstantGantry(cfg), cfg, steps, d)
-    print(f"runner + journal overhead: {n} poses ({len(steps['kind'])} steps) in {dt:.2f} s = "
-          f"{1e3 * dt / n:.3f} ms per pose (target < 0.5 ms)")
-    steps, n = _steps(cfg, args.sim_poses, cfg.reference.every)
+    real = runner_module.safe_path
+    runner_module.safe_path = lambda kin, start, target: np.asarray(target, float)[None, :]
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            dt_direct = _time(_InstantGantry(cfg), cfg, steps, d)
+    finally:
+        runner_module.safe_path = real
+    print(f"runner + journal overhead, {args.grid}: {n} poses ({len(steps['kind'])} steps) in {dt:.2f} s = "
+          f"{1e3 * dt / n:.3f} ms per pose (target < 0.5 ms); without the swept-path check "
+          f"{1e3 * dt_direct / n:.3f} ms per pose, so the check costs {1e3 * (dt - dt_direct) / n:.3f} ms")
+    steps, n = _steps(cfg, args.sim_grid)
     with tempfile.TemporaryDirectory() as d:
         g = build_gantry(cfg, "cook-torrance:d=beckmann,m=0.3,metal=gold", seed=1)
         g.connect()
         dt = _time(g, cfg, steps, d)
-    print(f"simulated gantry (trapezoid axes, Dr.Jit apertures, {cfg.detector.sim.aperture_samples} samples "
-          f"per reading): {n} poses in {dt:.2f} s = {1e3 * dt / n:.2f} ms per pose")
+    print(f"simulated gantry, {args.sim_grid} (trapezoid axes, Dr.Jit apertures, "
+          f"{cfg.detector.sim.aperture_samples} samples per reading): {n} poses in {dt:.2f} s = "
+          f"{1e3 * dt / n:.2f} ms per pose")
 
 
 if __name__ == "__main__":
