@@ -1,0 +1,58 @@
+"""Errors that samples share: the dark and white-reference readings that calibrate many samples.
+
+A campaign's f_r of one sample is its net pose signal over K, the white reference's response
+interpolated in time, each with the dark interpolated in time subtracted (:mod:`gonio.calibrate`). The
+error of a dark or reference reading therefore moves every sample that it calibrates together: the
+``stddev`` of brdf.h5 holds it per sample, but not its correlation. Fitting as if samples were
+independent then understates the uncertainty of the scale parameters (an albedo is shifted by an error
+of the white reference as a whole, however many samples there are).
+
+:func:`shared_errors` recovers that correlated part exactly to first order by running the calibration
+itself once per dark and reference reading, with that reading's signal moved by one standard error:
+the change of every sample's f_r is one column of U, and the covariance of the samples is
+diag(σ² − Σ U²) + U Uᵀ per channel (the channels are calibrated independently).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from gonio.calibrate import calibrate
+from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
+
+__all__ = ["shared_errors"]
+
+
+def shared_errors(folder, value: np.ndarray) -> np.ndarray | None:
+    """U of shape (N, C, M): the change of each sample's f_r for a one-σ error of each of the M dark
+    and reference readings of the campaign in ``folder``, in the sample order of its brdf.h5.
+
+    Returns None when the folder has no journal or its calibration does not reproduce ``value`` (the
+    brdf.h5 was made otherwise), so that the caller falls back to independent samples.
+    """
+    from gonio.campaign import open_campaign
+
+    try:
+        c = open_campaign(folder, readonly=True)
+    except Exception:  # no journal, another format: nothing to say about shared errors
+        return None
+    try:
+        measurements = c.journal.measurements()
+        albedo = c.cfg.reference.albedo
+    finally:
+        c.close()
+    base = calibrate(measurements, albedo)
+    if base.value.shape != value.shape or not np.allclose(base.value, value, rtol=1e-9, atol=1e-12):
+        return None
+    columns = []
+    for i, m in enumerate(measurements):
+        if m.kind not in (STEP_DARK, STEP_REFERENCE):
+            continue
+        moved = list(measurements)
+        moved[i] = dataclasses.replace(m, signal=np.asarray(m.signal) + np.asarray(m.stderr))
+        columns.append(calibrate(moved, albedo).value - base.value)
+    if not columns:
+        return None
+    return np.stack(columns, axis=-1)
