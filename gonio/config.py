@@ -128,8 +128,9 @@ class AxisConfig(_Strict):
     direction: Literal[1, -1] = 1
     #: Dynamixel Present Position (ticks) at axis 0°.
     homing_offset_ticks: int = Field(0, ge=-1_048_575, le=1_048_575)
-    #: Dynamixel bus watchdog while moving (s; 0 disables it).
-    watchdog_s: float = Field(0.2, ge=0.0, le=2.54)
+    #: Dynamixel bus watchdog while moving (s, up to 2.54; 0 disables it). Off by default: the runner
+    #: waits out a move's profile without bus traffic, and moves last longer than the watchdog's reach.
+    watchdog_s: float = Field(0.0, ge=0.0, le=2.54)
     #: Modbus unit id.
     device_id: int | None = Field(None, ge=1, le=247)
     #: Modbus register profile: a shipped profile's name or a path to a TOML profile.

@@ -73,6 +73,18 @@ class ModbusMotorEmulator:
         t0, start, goal, v, a = self._move
         return start != goal and self.clock.now() - t0 < float(move_time(goal - start, v, a))
 
+    def set_position(self, steps: int) -> None:
+        """Put the motor at rest at ``steps`` (where it stood at power-up)."""
+        with self._lock:
+            self._move = (self.clock.now(), float(steps), float(steps), 1.0, 1.0)
+
+    def position_steps_f(self) -> float:
+        """The shaft position (steps, unrounded): what an optical model of the gantry sees."""
+        t0, start, goal, v, a = self._move
+        if start == goal:
+            return goal
+        return float(position_at(self.clock.now() - t0, start, goal, v, a))
+
     def _hold(self) -> None:
         p = float(self.position_steps())
         self._move = (self.clock.now(), p, p, 1.0, 1.0)
@@ -204,11 +216,12 @@ class ModbusMotorEmulator:
             self.stop()
             raise RuntimeError("modbus emulator did not start within 5 s")
 
-    def start_tcp(self) -> tuple[str, int]:
-        """Serve Modbus TCP on 127.0.0.1 (a free port); returns (host, port)."""
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
+    def start_tcp(self, port: int = 0) -> tuple[str, int]:
+        """Serve Modbus TCP on 127.0.0.1 at ``port`` (0: a free one); returns (host, port)."""
+        if not port:
+            with socket.socket() as s:
+                s.bind(("127.0.0.1", 0))
+                port = s.getsockname()[1]
         self.address = ("127.0.0.1", port)
         self._start(lambda: ModbusTcpServer(self._device(), address=self.address, trace_packet=self._trace))
         return self.address

@@ -1,0 +1,271 @@
+"""The emulated devices of a whole gantry config: every bus's emulator, and a detector that renders a
+material at the positions the emulated axes stand.
+
+:class:`EmulatedGantry` reads a config's buses and devices and starts, for each bus:
+
+- ``dynamixel``: a :class:`DynamixelBusEmulator` with one :class:`EmulatedServo` per axis on it (model
+  from the axis's ``family``), each powered up at the axis's home position;
+- ``modbus``: a :class:`ModbusMotorEmulator` following the axis's profile (one controller per bus: TCP
+  on the url's loopback port, or RTU over a pty);
+- ``serial``: the lamp's or the detector's emulator. The emulated detector (a power meter, or a
+  spectrometer reporting one band per channel) renders the material through the Dr.Jit simulation
+  (:class:`gonio.sim.detector.SimDetector`) at the poses the emulated axes' shafts are at, lit while the
+  emulated lamp is on, and sees the white standard when the target axis stands at ``reference_deg``.
+
+Everything runs on one clock (the wall clock by default; a test shares a virtual clock with the gantry
+it builds). :meth:`EmulatedGantry.config` is the config with each bus's port or url replaced by where its
+emulator listens; :meth:`EmulatedGantry.config_toml` writes it out for another process.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from urllib.parse import urlparse
+
+from gonio.clock import WallClock
+from gonio.config import GonioConfig
+from gonio.sim.emulators.dynamixel import DynamixelBusEmulator, EmulatedServo
+from gonio.sim.emulators.instruments import LightSourceEmulator, PowerMeterEmulator, SpectrometerEmulator
+from gonio.sim.emulators.modbus import ModbusMotorEmulator
+
+__all__ = ["EmulatedGantry", "SPECTROMETER_BANDS_NM", "to_toml"]
+
+#: Band centres (nm) the emulated spectrometer reports for the R, G, B of the rendered material.
+SPECTROMETER_BANDS_NM = (610.0, 550.0, 465.0)
+_MODELS = {"XM430": "XM430-W350", "XL430": "XL430-W250"}
+_TICKS_PER_REV = 4096
+
+
+class _ShaftView:
+    """An emulated axis seen by the optics: its shaft angle (°) from a device position function."""
+
+    def __init__(self, position):
+        self._position = position
+
+    def true_position_deg(self) -> float:
+        return self._position()
+
+
+class EmulatedGantry:
+    """Emulators for every real device of ``cfg``.
+
+    Parameters
+    ----------
+    cfg : GonioConfig
+        A config whose buses name ports or urls (they are replaced by the emulators' own, see
+        :meth:`config`).
+    material : str or material
+        What the emulated detector sees (a MATERIAL spec).
+    clock : Clock, optional
+        Time source of every emulator (default: the wall clock).
+    seed : int
+        Seed of the rendered readings.
+    any_port : bool
+        Serve Modbus TCP on free loopback ports instead of the ports the urls name.
+    """
+
+    def __init__(self, cfg: GonioConfig, material="lambert:albedo=0.5", *, clock=None, seed: int = 0,
+                 any_port: bool = False):
+        self.cfg = cfg
+        self.clock = clock or WallClock()
+        self.any_port = any_port
+        self.emulators: dict[str, object] = {}
+        self.servos: dict[str, EmulatedServo] = {}
+        self.motors: dict[str, ModbusMotorEmulator] = {}
+        self.lamp: LightSourceEmulator | None = None
+        self.meter: PowerMeterEmulator | None = None
+        self._locations: dict[str, str] = {}
+        self._render_lock = threading.Lock()
+        self._positions = {}
+        for name, axis in cfg.axes.items():
+            if axis.driver == "sim":
+                continue
+            self._positions[name] = self._position_fn(name)
+        self._detector = None
+        if cfg.detector.driver != "sim":
+            missing = [a for a in cfg.axis_names if cfg.axes[a].driver == "sim"]
+            if missing:
+                raise ValueError(f"emulate: the emulated detector renders at the emulated axes' poses, but "
+                                 f"{', '.join(missing)} {'is' if len(missing) == 1 else 'are'} 'sim'")
+            self._detector, self._light = self._renderer(material, seed)
+        self._build()
+
+    # -- building -------------------------------------------------------------------------------------
+    def _build(self) -> None:
+        cfg = self.cfg
+        for bus_name, bus in cfg.buses.items():
+            axes = [n for n, a in cfg.axes.items() if a.driver != "sim" and a.bus == bus_name]
+            if bus.driver == "dynamixel":
+                servos = []
+                for n in axes:
+                    a = cfg.axes[n]
+                    ticks = a.homing_offset_ticks + round(a.direction * a.home_deg * _TICKS_PER_REV
+                                                          * a.gear_ratio / 360.0)
+                    servo = EmulatedServo(a.id, _MODELS[a.family], self.clock, position_ticks=ticks)
+                    self.servos[n] = servo
+                    servos.append(servo)
+                self.emulators[bus_name] = DynamixelBusEmulator(servos)
+            elif bus.driver == "modbus":
+                if len(axes) != 1:
+                    raise ValueError(f"emulate: buses.{bus_name}: the Modbus emulator serves one controller "
+                                     f"per bus; {len(axes)} axes are on it ({', '.join(axes) or 'none'})")
+                a = cfg.axes[axes[0]]
+                emu = ModbusMotorEmulator(a.profile, clock=self.clock, device_id=a.device_id)
+                steps_per_deg = emu.profile.steps_per_rev * a.gear_ratio / 360.0
+                emu.set_position(a.zero_steps + round(a.direction * a.home_deg * steps_per_deg))
+                self.motors[axes[0]] = emu
+                self.emulators[bus_name] = emu
+            elif cfg.light.driver == "serial" and cfg.light.bus == bus_name:
+                self.lamp = LightSourceEmulator(clock=self.clock)
+                self.emulators[bus_name] = self.lamp
+            elif cfg.detector.driver == "serial" and cfg.detector.bus == bus_name:
+                if cfg.detector.kind == "power_meter":
+                    self.meter = PowerMeterEmulator(self._power, clock=self.clock)
+                else:
+                    if len(cfg.detector.channels) != len(SPECTROMETER_BANDS_NM):
+                        raise ValueError(f"emulate: the emulated spectrometer reports the rendered R, G, B "
+                                         f"as {len(SPECTROMETER_BANDS_NM)} bands; detector.channels names "
+                                         f"{len(cfg.detector.channels)}")
+                    self.meter = SpectrometerEmulator(SPECTROMETER_BANDS_NM, self._spectrum, clock=self.clock)
+                self.emulators[bus_name] = self.meter
+
+    def _position_fn(self, name: str):
+        a = self.cfg.axes[name]
+        if a.driver == "dynamixel":
+            per_deg = _TICKS_PER_REV * a.gear_ratio / 360.0
+
+            def dxl() -> float:
+                s = self.servos[name]
+                ticks = s._present_raw_f() + s._get(20, 4, True)
+                return a.direction * (ticks - a.homing_offset_ticks) / per_deg
+            return dxl
+
+        def modbus() -> float:
+            m = self.motors[name]
+            per_deg = m.profile.steps_per_rev * a.gear_ratio / 360.0
+            return a.direction * (m.position_steps_f() - a.zero_steps) / per_deg
+        return modbus
+
+    def _renderer(self, material, seed: int):
+        from gonio.kinematics import make_kinematics
+        from gonio.sim import materials as _materials
+        from gonio.sim.detector import SimDetector
+        from gonio.sim.light import SimLight
+
+        cfg = self.cfg
+        kinematics = make_kinematics(cfg)
+        light = SimLight(cfg.light, self.clock)
+        light.connect()
+        sample = _materials.load(material) if isinstance(material, str) else material
+        reference = _materials.load(f"lambert:albedo={cfg.reference.albedo!r}")
+        views = {n: _ShaftView(self._positions[n]) for n in kinematics.axis_names}
+        rgb = cfg.detector.model_copy(update={"channels": ("R", "G", "B")})
+        det = SimDetector(rgb, light=light, axes=views,
+                          kinematics=kinematics, materials={"sample": sample, "reference": reference},
+                          clock=self.clock, seed=seed, name="emulated detector")
+        det.connect()
+        return det, light
+
+    # -- what the emulated detector sees ---------------------------------------------------------------
+    def target_now(self) -> str:
+        """``"reference"`` when the target axis is nearer its reference position than its sample one."""
+        t = self.cfg.target
+        if t.axis is None:
+            return "sample"
+        at = self._positions[t.axis]()
+        return "reference" if abs(at - t.reference_deg) < abs(at - t.sample_deg) else "sample"
+
+    def axes_deg(self) -> dict[str, float]:
+        """Every emulated axis's shaft angle (°) now."""
+        return {n: f() for n, f in self._positions.items()}
+
+    def _render(self, exposure_s: float):
+        with self._render_lock:
+            self._light.set_on(bool(self.lamp.on) if self.lamp is not None else True)
+            self._detector.set_target(self.target_now())
+            return self._detector.measure(exposure_s).signal
+
+    def _power(self, exposure_s: float) -> float:
+        return float(self._render(exposure_s).mean())
+
+    def _spectrum(self, exposure_s: float):
+        return list(self._render(exposure_s))
+
+    # -- running -----------------------------------------------------------------------------------------
+    def start(self) -> EmulatedGantry:
+        """Start every emulator (stopping those started if one fails)."""
+        try:
+            for name, emu in self.emulators.items():
+                if isinstance(emu, ModbusMotorEmulator):
+                    url = self.cfg.buses[name].url
+                    u = urlparse(url)
+                    if u.scheme == "tcp":
+                        port = 0 if self.any_port or u.hostname not in ("127.0.0.1", "localhost") else u.port
+                        host, port = emu.start_tcp(port or 0)
+                        self._locations[name] = f"tcp://{host}:{port}"
+                    else:
+                        baud = self.cfg.buses[name].url.partition("baudrate=")[2] or "115200"
+                        self._locations[name] = f"rtu://{emu.start_rtu(int(baud))}?baudrate={baud}"
+                else:
+                    emu.start()
+                    self._locations[name] = emu.port
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def stop(self) -> None:
+        """Stop every emulator that was started (each, even if another fails to stop)."""
+        first = None
+        for name in list(self._locations):
+            try:
+                self.emulators[name].stop()
+            except Exception as err:
+                first = first or err
+            del self._locations[name]
+        if first is not None:
+            raise first
+
+    def __enter__(self) -> EmulatedGantry:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def locations(self) -> dict[str, str]:
+        """Where each bus's emulator listens: a pty path, or a Modbus url."""
+        return dict(self._locations)
+
+    def config(self) -> GonioConfig:
+        """The config with each bus's port or url pointing at its running emulator."""
+        data = self.cfg.model_dump(mode="json")
+        for name, where in self._locations.items():
+            key = "url" if data["buses"][name]["driver"] == "modbus" else "port"
+            data["buses"][name][key] = where
+        return GonioConfig.model_validate(data)
+
+    def config_toml(self, header: str = "") -> str:
+        """:meth:`config` as TOML (only settings that differ from the defaults)."""
+        return header + to_toml(self.config().model_dump(mode="json", exclude_defaults=True))
+
+
+def _value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def to_toml(data: dict, prefix: str = "") -> str:
+    """A dict of tables, scalars and lists of scalars (all a gonio config holds) as TOML."""
+    scalars = [f"{k} = {_value(v)}" for k, v in data.items() if not isinstance(v, dict) and v is not None]
+    head = f"[{prefix[:-1]}]\n" if prefix and scalars else ""
+    out = head + "".join(s + "\n" for s in scalars) + ("\n" if scalars else "")
+    for k, v in data.items():
+        if isinstance(v, dict):
+            out += to_toml(v, f"{prefix}{k}.")
+    return out
