@@ -333,6 +333,59 @@ def cmd_status(args) -> int:
     return 0
 
 
+# -- gonio fit ------------------------------------------------------------------------------------
+def _fit_out_path(text: str) -> Path:
+    out = Path(text)
+    if out.is_dir():
+        raise UsageError(f"--out: {out} is a folder; give a file name for the fit's JSON")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise UsageError(f"--out: folder {parent} does not exist; create it or choose another path")
+    probe = out.with_name(out.name + ".partial")
+    try:  # before the fit, not after it: a fit may take a while
+        probe.open("w").close()
+        probe.unlink()
+    except OSError as err:
+        raise UsageError(f"--out: {out} cannot be written ({err.strerror or err}); choose another path") \
+            from None
+    return out
+
+
+def cmd_fit(args) -> int:
+    """Fit a model to a finished campaign; the MATERIAL string on stdout, the JSON in --out."""
+    from gonio.dataset import BRDF_NAME
+    from gonio.fit import fit, parse_channels, parse_model
+
+    source = Path(args.dir)
+    if not source.exists():
+        raise UsageError(f"{source}: no such campaign folder or {BRDF_NAME} file")
+    if source.is_dir() and not (source / BRDF_NAME).is_file():
+        raise UsageError(f"{source}: not a finished campaign (no {BRDF_NAME}; it is written once every "
+                         "step is measured: finish the campaign with the command that started it)")
+    out = _fit_out_path(args.out) if args.out else None
+    channels = parse_channels(args.channels)
+    parse_model(args.model, channels)  # a bad MODEL is reported before any data is read
+    if args.starts < 1:
+        raise UsageError(f"--starts: must be an integer >= 1, got {args.starts}")
+    result = fit(source, args.model, channels=args.channels, loss=args.loss, starts=args.starts)
+    if out is not None:
+        tmp = out.with_name(out.name + ".partial")
+        tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n")
+        tmp.replace(out)
+    print(result.material)
+    if not args.quiet:
+        res = result.residual
+        for name, v in result.parameters.items():
+            flag = "  (at bound)" if v["at_bound"] else ""
+            print(f"  {name} = {v['value']:.6g} ± {v['stddev']:.2g}{flag}", file=sys.stderr)
+        print(f"  loss ({result.loss}) {res['loss']:.6g} over {res['residuals']} residuals, "
+              f"{res['dof']} degrees of freedom; per dof {res['chi2_reduced']:.3g}; relative "
+              f"{res['rms_relative']:.3g}; structure {res['structure']:.2f}"
+              f"{'; MISFIT: the model leaves a structured residual' if res['misfit'] else ''}",
+              file=sys.stderr)
+    return 0
+
+
 # -- the parser -----------------------------------------------------------------------------------
 class _DefaultsFormatter(argparse.HelpFormatter):
     """Help that shows each option's default where it has a meaningful one (not for flags, required
@@ -388,6 +441,23 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("action", choices=["list", "show"])
     sc.add_argument("name", nargs="?", help="config name (for show) or a path")
     sc.set_defaults(func=cmd_config)
+
+    sf = sub.add_parser("fit", formatter_class=fmt,
+                        help="fit a reflectance model to a finished campaign's measured samples")
+    sf.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder (or its brdf.h5)")
+    sf.add_argument("--model", required=True,
+                    help="lambert, phong, modified-phong, blinn-phong, normalized-blinn-phong, ward, "
+                         "cook-torrance, ggx, or lambert+NAME; ':key=value,...' holds keys fixed or picks "
+                         "the form (d=blinn, fresnel=dielectric, metal=gold), ':anisotropic' for ward/ggx")
+    sf.add_argument("--channels", default=None, help="channels to fit, e.g. R,G,B or G (default: all)")
+    sf.add_argument("--loss", default="auto", choices=["auto", "chi2", "cos"],
+                    help="chi2: weighted by the measured stddev; cos: cos θi cos θo (f_model − f); auto: "
+                         "chi2 when the data have stddevs")
+    sf.add_argument("--starts", type=int, default=4, help="number of starts; the best fit wins")
+    sf.add_argument("--out", metavar="FIT.json", default=None,
+                    help="write parameters, uncertainties, loss and residual statistics as JSON")
+    sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")
+    sf.set_defaults(func=cmd_fit)
     return p
 
 
