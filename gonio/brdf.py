@@ -39,45 +39,42 @@ The estimate is a linear combination Σ a_k f_k of measured values, so its stand
 propagated as sqrt(Σ a_k² σ_k²) (independent measurement noise; interpolation error is not included).
 Queries at or below the horizon (θ >= 90°) are :attr:`Reason.BELOW_HORIZON`; beyond the largest measured θ,
 :attr:`Reason.OUT_OF_RANGE`.
+
+Planned or measured angles
+--------------------------
+A ``brdf.h5`` of format version 2 holds both the measured directions (forward kinematics of the axis
+positions read back, which carry the gantry's positioning error and float noise) and the planned ones.
+``angles="auto"`` (the default) places each sample at its *planned* direction when every sample was
+measured within ``plan_tolerance_deg`` (default 0.25°, angular distance of ωi and of ωo) of its plan:
+the samples then lie exactly on the grid's lattice, a query at a planned direction pair, e.g.
+``eval_deg(30, 0, 40, 180)`` on an ``iso:step=10`` campaign, returns that sample as measured
+(``exact``), and queries between nodes interpolate on the lattice. A campaign that strayed farther
+(``plan_deviation_deg`` says how far) and version 1 files use the measured directions (``scattered``
+unless they happen to lie on a lattice). ``angles="measured"`` or ``"planned"`` forces the choice.
+Queries themselves are never moved: only the samples are placed at their planned directions.
 """
 
 from __future__ import annotations
 
-import enum
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
-from gonio.geometry import TWO_PI, sph_to_vec, to_half_diff, to_isotropic, vec_to_sph
+from gonio.geometry import sph_to_vec, vec_to_sph
+from gonio.interpolate import Lattice, Reason, Scattered, domain_coords
 
-__all__ = ["Reason", "Evaluation", "MeasuredBRDF", "open_brdf", "read_symmetries", "DOMAINS", "METHODS"]
+__all__ = ["Reason", "Evaluation", "MeasuredBRDF", "open_brdf", "read_symmetries", "DOMAINS", "METHODS",
+           "ANGLES"]
 
 DOMAINS = ("iso", "full", "merl")
 METHODS = ("auto", "grid", "scattered")
+#: Which directions place the samples (module docstring, "Planned or measured angles").
+ANGLES = ("auto", "planned", "measured")
 _HALF_PI = 0.5 * np.pi
-# Lattice nodes hold at most this many cells; more and the data are treated as scattered.
-_MAX_CELLS = 50_000_000
-# A query within this fraction of a lattice spacing of a node is at the node (round trips of angles).
-_SNAP_FRACTION = 1e-7
 _CHUNK = 1 << 17
-
-
-class Reason(enum.IntEnum):
-    """Why a query has no value (``Evaluation.reason``)."""
-
-    OK = 0
-    #: A direction is not finite or has zero length.
-    INVALID = 1
-    #: θi or θo >= 90°.
-    BELOW_HORIZON = 2
-    #: Beyond the measured range (θ past the largest measured θ, or past the lattice).
-    OUT_OF_RANGE = 3
-    #: Inside the range, but the samples around the query are missing (a gap in the data).
-    NO_DATA = 4
 
 
 @dataclass(frozen=True)
@@ -128,7 +125,8 @@ def _grid_kind(attrs: dict) -> str:
     return grid.partition(":")[0].strip().lower()
 
 
-def open_brdf(source, *, method: str = "auto", snap_deg: float = 1e-4) -> MeasuredBRDF:
+def open_brdf(source, *, method: str = "auto", snap_deg: float = 1e-4, angles: str = "auto",
+              plan_tolerance_deg: float = 0.25) -> MeasuredBRDF:
     """Open a measured BRDF for queries.
 
     Parameters
@@ -139,6 +137,10 @@ def open_brdf(source, *, method: str = "auto", snap_deg: float = 1e-4) -> Measur
         Interpolation (module docstring); ``auto`` takes ``grid`` when the data lie on a lattice.
     snap_deg : float
         Degrees; samples this close to a lattice value count as on it (> 0).
+    angles : {"auto", "planned", "measured"}
+        Place samples at their planned or measured directions (module docstring).
+    plan_tolerance_deg : float
+        Degrees (> 0); ``auto`` takes the planned directions when no sample strayed farther from them.
 
     Returns
     -------
@@ -159,7 +161,8 @@ def open_brdf(source, *, method: str = "auto", snap_deg: float = 1e-4) -> Measur
         if not path.is_file():
             raise ValueError(f"brdf source {str(source)!r}: no such campaign folder or {BRDF_NAME} file")
         data = read_brdf(path)
-    return MeasuredBRDF(data, method=method, snap_deg=snap_deg)
+    return MeasuredBRDF(data, method=method, snap_deg=snap_deg, angles=angles,
+                        plan_tolerance_deg=plan_tolerance_deg)
 
 
 class MeasuredBRDF:
@@ -179,15 +182,34 @@ class MeasuredBRDF:
         ``"grid"`` or ``"scattered"``.
     theta_max_deg : float
         Largest measured θ (θi or θo), degrees.
+    angles : str
+        ``"planned"`` or ``"measured"``: the directions the samples are placed at.
+    plan_deviation_deg : float or None
+        Largest angular distance between a sample's measured and planned ωi or ωo, degrees (None when
+        the dataset has no planned directions).
     """
 
-    def __init__(self, data: SampledBRDF, *, method: str = "auto", snap_deg: float = 1e-4):
+    def __init__(self, data: SampledBRDF, *, method: str = "auto", snap_deg: float = 1e-4,
+                 angles: str = "auto", plan_tolerance_deg: float = 0.25):
         if method not in METHODS:
             raise ValueError(f"method: must be one of {', '.join(METHODS)}, got {method!r}")
+        if angles not in ANGLES:
+            raise ValueError(f"angles: must be one of {', '.join(ANGLES)}, got {angles!r}")
         if not snap_deg > 0:
             raise ValueError(f"snap_deg: must be > 0 degrees, got {snap_deg}")
-        angles = np.radians(np.stack([np.asarray(a, dtype=np.float64).ravel() for a in
-                                      (data.theta_i, data.phi_i, data.theta_o, data.phi_o)], axis=1))
+        if not plan_tolerance_deg > 0:
+            raise ValueError(f"plan_tolerance_deg: must be > 0 degrees, got {plan_tolerance_deg}")
+        measured = np.stack([np.asarray(a, dtype=np.float64).ravel() for a in
+                             (data.theta_i, data.phi_i, data.theta_o, data.phi_o)], axis=1)
+        planned = None if data.planned is None else np.asarray(data.planned, np.float64).reshape(-1, 4)
+        self.plan_deviation_deg = None if planned is None else _deviation_deg(measured, planned)
+        if angles == "planned" and planned is None:
+            raise ValueError("angles 'planned': the dataset has no planned directions (a brdf.h5 of format "
+                             "version 1?); use 'measured' or 'auto'")
+        use_plan = planned is not None and (angles == "planned" or (
+            angles == "auto" and self.plan_deviation_deg <= plan_tolerance_deg))
+        self.angles = "planned" if use_plan else "measured"
+        angles = np.radians(planned if use_plan else measured)
         value = np.asarray(data.value, dtype=np.float64).reshape(len(angles), -1)
         stddev = np.asarray(data.stddev, dtype=np.float64).reshape(value.shape)
         keep = np.isfinite(angles).all(axis=1) & np.isfinite(value).all(axis=1)
@@ -209,8 +231,8 @@ class MeasuredBRDF:
         kinds.append("iso" if self.symmetries["isotropy"] else "full")
         if method in ("auto", "grid"):
             for kind in kinds:
-                coords = _domain_coords(kind, angles, self.symmetries)
-                lattice = _Lattice.build(kind, coords, value, stddev, self.symmetries, self._snap)
+                coords = domain_coords(kind, angles, self.symmetries)
+                lattice = Lattice.build(kind, coords, value, stddev, self.symmetries, self._snap)
                 if lattice is not None:
                     self.domain, self.method, self._engine = kind, "grid", lattice
                     break
@@ -220,12 +242,12 @@ class MeasuredBRDF:
                                  "use 'scattered' or 'auto'")
         if self._engine is None:
             self.domain, self.method = kinds[-1], "scattered"
-            coords = _domain_coords(self.domain, angles, self.symmetries)
-            self._engine = _Scattered(self.domain, coords, value, stddev, self.symmetries, self._snap)
+            coords = domain_coords(self.domain, angles, self.symmetries)
+            self._engine = Scattered(self.domain, coords, value, stddev, self.symmetries, self._snap)
 
     def __repr__(self) -> str:
         return (f"MeasuredBRDF({self.n_samples} samples, domain={self.domain!r}, method={self.method!r}, "
-                f"symmetries={self.symmetries})")
+                f"angles={self.angles!r}, symmetries={self.symmetries})")
 
     # -- queries ---------------------------------------------------------------------------------
     def eval(self, wi, wo) -> Evaluation:
@@ -275,7 +297,7 @@ class MeasuredBRDF:
         for start in range(0, todo.size, _CHUNK):
             sel = todo[start:start + _CHUNK]
             angles = np.stack([ti[sel], pi_[sel], to[sel], po[sel]], axis=1)
-            coords = _domain_coords(self.domain, angles, self.symmetries)
+            coords = domain_coords(self.domain, angles, self.symmetries)
             v, s, r, e = self._engine.eval(coords)
             value[sel], stddev[sel], reason[sel], exact[sel] = v, s, r, e
         miss = reason != Reason.OK
@@ -284,251 +306,16 @@ class MeasuredBRDF:
         return Evaluation(value, stddev, reason, exact & ~miss)
 
 
-# -- domains ------------------------------------------------------------------------------------------
-def _domain_coords(kind: str, angles: np.ndarray, sym: dict) -> np.ndarray:
-    """Coordinates (M, d) of (θi, φi, θo, φo) rows (radians) in a domain; azimuths in [0, period)."""
-    ti, pi_, to, po = angles.T
-    if kind == "iso":
-        ti, to, dphi = to_isotropic(ti, pi_, to, po)
-        return np.stack([ti, to, dphi], axis=1)
-    if kind == "full":
-        return np.stack([ti, np.where(ti > 0, np.mod(pi_, TWO_PI), 0.0), to,
-                         np.where(to > 0, np.mod(po, TWO_PI), 0.0)], axis=1)
-    th, _, td, pd = to_half_diff(sph_to_vec(ti, pi_), sph_to_vec(to, po))
-    period = np.pi if sym["reciprocity"] else TWO_PI
-    pd = np.mod(pd, period)
-    return np.stack([np.sqrt(np.clip(th, 0.0, None) / _HALF_PI), td, np.where(pd >= period, 0.0, pd)], axis=1)
-
-
-def _periods(kind: str, sym: dict) -> list:
-    if kind == "iso":
-        return [None, None, TWO_PI]
-    if kind == "full":
-        return [None, TWO_PI, None, TWO_PI]
-    return [None, None, np.pi if sym["reciprocity"] else TWO_PI]
-
-
-def _orbit(kind: str, coords: np.ndarray, sym: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Every member of each sample's symmetry class: (coords of the members, index of their sample)."""
-    n = len(coords)
-    members = [coords]
-    if kind == "iso":
-        ti, to, d = coords.T
-        neg = np.mod(-d, TWO_PI)
-        if sym["reciprocity"]:
-            members.append(np.stack([to, ti, neg], axis=1))
-        if sym["mirror"]:
-            members.append(np.stack([ti, to, neg], axis=1))
-        if sym["reciprocity"] and sym["mirror"]:
-            members.append(np.stack([to, ti, d], axis=1))
-    elif kind == "full" and sym["reciprocity"]:
-        members.append(coords[:, [2, 3, 0, 1]])
-    out = np.concatenate(members)
-    for k, p in enumerate(_periods(kind, sym)):
-        if p is not None:
-            out[:, k] = np.mod(out[:, k], p)
-            out[out[:, k] >= p - 1e-12, k] = 0.0
-    return out, np.tile(np.arange(n), len(members))
-
-
-# Per domain: (azimuth axis, the polar axes whose pole makes it irrelevant).
-_POLE_AXES = {"iso": [(2, (0, 1))], "full": [(1, (0,)), (3, (2,))], "merl": []}
-
-
-def _cluster(x: np.ndarray, tol: float) -> np.ndarray | None:
-    """Sorted representative values of ``x`` (clusters no wider than ``tol``), or None if too many."""
-    s = np.sort(x)
-    if s.size == 0:
-        return None
-    starts = np.concatenate([[True], np.diff(s) > tol])
-    if starts.sum() > 20_000:
-        return None
-    group = np.cumsum(starts) - 1
-    return np.bincount(group, weights=s) / np.bincount(group)
-
-
-class _Lattice:
-    """Multilinear interpolation on a tensor-product lattice (NaN where a node was not measured)."""
-
-    def __init__(self, nodes, periods, edges, values, stddev):
-        self.nodes, self.periods, self.edges = nodes, periods, edges
-        self.shape = tuple(len(n) for n in nodes)
-        self.values = values.reshape(-1, values.shape[-1])
-        self.variance = (stddev ** 2).reshape(self.values.shape)
-        self.missing = np.isnan(self.values).any(axis=1)
-        self.strides = np.cumprod((1,) + self.shape[::-1])[:-1][::-1]
-
-    @classmethod
-    def build(cls, kind, coords, value, stddev, sym, tol):
-        pts, owner = _orbit(kind, coords, sym)
-        periods = _periods(kind, sym)
-        pole = np.zeros(len(pts), dtype=bool)
-        for _, polar in _POLE_AXES[kind]:
-            for a in polar:
-                pole |= pts[:, a] <= tol
-        nodes = []
-        for k in range(pts.shape[1]):
-            azimuth_of = [pol for az, pol in _POLE_AXES[kind] if az == k]
-            sel = np.ones(len(pts), dtype=bool)
-            if azimuth_of:
-                for a in azimuth_of[0]:
-                    sel &= pts[:, a] > tol
-                if not sel.any():
-                    sel = np.ones(len(pts), dtype=bool)
-            axis = _cluster(pts[sel, k], tol)
-            if axis is None:
-                return None
-            if periods[k] is not None and axis.size > 1 and axis[-1] - axis[0] > periods[k] - tol:
-                axis = axis[:-1]  # the last cluster is the first one across the period
-            nodes.append(axis)
-        if np.prod([len(a) for a in nodes], dtype=np.float64) > _MAX_CELLS:
-            return None
-        # Index of every member on each axis; members off the lattice mean the data are not a lattice.
-        index = np.empty(pts.shape, dtype=np.int64)
-        for k, axis in enumerate(nodes):
-            x = pts[:, k]
-            j = np.clip(np.searchsorted(axis, x), 0, len(axis) - 1)
-            j_lo = np.clip(j - 1, 0, len(axis) - 1)
-            j = np.where(np.abs(axis[j_lo] - x) < np.abs(axis[j] - x), j_lo, j)
-            err = np.abs(axis[j] - x)
-            if periods[k] is not None:
-                wrap = np.abs(x - (axis[0] + periods[k])) <= tol
-                j, err = np.where(wrap, 0, j), np.where(wrap, 0.0, err)
-                index[:, k] = j
-                if not np.all((err <= tol) | pole):
-                    return None
-            else:
-                index[:, k] = j
-                if not np.all(err <= tol):
-                    return None
-        # A pole sample stands for every azimuth of the direction at the pole.
-        for az, polar in _POLE_AXES[kind]:
-            at_pole = np.zeros(len(index), dtype=bool)
-            for a in polar:
-                at_pole |= nodes[a][index[:, a]] <= tol
-            if at_pole.any():
-                n_az = len(nodes[az])
-                rep = np.repeat(np.flatnonzero(at_pole), n_az)
-                extra = index[rep]
-                extra[:, az] = np.tile(np.arange(n_az), int(at_pole.sum()))
-                index = np.concatenate([index[~at_pole], extra])
-                owner = np.concatenate([owner[~at_pole], owner[rep]])
-        shape = tuple(len(a) for a in nodes)
-        flat = np.ravel_multi_index(tuple(index.T), shape)
-        pair = np.unique(np.stack([flat, owner], axis=1), axis=0)  # one sample counts once per node
-        flat, owner = pair[:, 0], pair[:, 1]
-        size = int(np.prod(shape))
-        count = np.bincount(flat, minlength=size).astype(np.float64)
-        c = value.shape[1]
-        sums = np.zeros((size, c))
-        var = np.zeros((size, c))
-        np.add.at(sums, flat, value[owner])
-        np.add.at(var, flat, stddev[owner] ** 2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = sums / count[:, None]
-            sd = np.sqrt(var) / count[:, None]
-        mean[count == 0] = np.nan
-        sd[count == 0] = np.nan
-        spacing = [np.min(np.diff(a)) if len(a) > 1 else 0.0 for a in nodes]
-        edges = [0.5 * s if kind == "merl" and p is None else tol
-                 for s, p in zip(spacing, periods, strict=True)]
-        return cls(nodes, periods, edges, mean.reshape(shape + (c,)), sd.reshape(shape + (c,)))
-
-    def eval(self, coords):
-        m, d = coords.shape
-        lo = np.zeros((m, d), dtype=np.int64)
-        hi = np.zeros((m, d), dtype=np.int64)
-        t = np.zeros((m, d))
-        out = np.zeros(m, dtype=bool)
-        for k in range(d):
-            axis, p, x = self.nodes[k], self.periods[k], coords[:, k]
-            n = len(axis)
-            if n == 1:
-                if p is None:
-                    out |= np.abs(x - axis[0]) > self.edges[k]
-                continue
-            if p is not None:
-                ext = np.concatenate([[axis[-1] - p], axis, [axis[0] + p]])
-                j = np.clip(np.searchsorted(ext, np.mod(x, p), side="right") - 1, 0, n)
-                x0, x1 = ext[j], ext[j + 1]
-                lo[:, k], hi[:, k] = np.mod(j - 1, n), np.mod(j, n)
-                tk = (np.mod(x, p) - x0) / (x1 - x0)
-            else:
-                out |= (x < axis[0] - self.edges[k]) | (x > axis[-1] + self.edges[k])
-                j = np.clip(np.searchsorted(axis, x, side="right") - 1, 0, n - 2)
-                lo[:, k], hi[:, k] = j, j + 1
-                tk = (x - axis[j]) / (axis[j + 1] - axis[j])
-            tk = np.clip(tk, 0.0, 1.0)
-            tk = np.where(tk < _SNAP_FRACTION, 0.0, np.where(tk > 1 - _SNAP_FRACTION, 1.0, tk))
-            t[:, k] = tk
-        c = self.values.shape[1]
-        value = np.zeros((m, c))
-        var = np.zeros((m, c))
-        gap = np.zeros(m, dtype=bool)
-        used = np.zeros(m, dtype=np.int64)
-        for corner in range(1 << d):
-            bits = [(corner >> k) & 1 for k in range(d)]
-            w = np.ones(m)
-            flat = np.zeros(m, dtype=np.int64)
-            for k, b in enumerate(bits):
-                w = w * (t[:, k] if b else 1.0 - t[:, k])
-                flat += (hi[:, k] if b else lo[:, k]) * self.strides[k]
-            live = w > 0
-            if not live.any():
-                continue
-            used += live
-            gap |= live & self.missing[flat]
-            wv = np.where(live, w, 0.0)[:, None]
-            value += wv * np.nan_to_num(self.values[flat])
-            var += wv * wv * np.nan_to_num(self.variance[flat])
-        reason = np.where(out, Reason.OUT_OF_RANGE, np.where(gap, Reason.NO_DATA, Reason.OK)).astype(np.uint8)
-        return value, np.sqrt(var), reason, (used == 1) & (reason == Reason.OK)
-
-
-class _Scattered:
-    """Local linear regression over the k nearest samples in a pole-free embedding."""
-
-    def __init__(self, kind, coords, value, stddev, sym, tol):
-        pts, owner = _orbit(kind, coords, sym)
-        self.kind = kind
-        self.points = self._embed(pts)
-        self.values = value[owner]
-        self.variance = stddev[owner] ** 2
-        self.tree = cKDTree(self.points)
-        self.k = min(len(self.points), 4 * (self.points.shape[1] + 1) - 2)
-        # Local support radius of each sample: the distance to its k-th neighbour (the data's own scale
-        # there), so that dense and sparse regions are both judged by their spacing.
-        reach = self.tree.query(self.points, k=min(self.k + 1, len(self.points)), workers=-1)[0]
-        self.reach = np.asarray(reach).reshape(len(self.points), -1)[:, -1]
-        self.snap = tol
-
-    def _embed(self, c):
-        if self.kind == "iso":
-            return np.stack([c[:, 0], c[:, 1] * np.cos(c[:, 2]), c[:, 1] * np.sin(c[:, 2])], axis=1)
-        return np.stack([c[:, 0] * np.cos(c[:, 1]), c[:, 0] * np.sin(c[:, 1]),
-                         c[:, 2] * np.cos(c[:, 3]), c[:, 2] * np.sin(c[:, 3])], axis=1)
-
-    def eval(self, coords):
-        q = self._embed(coords)
-        m, de = q.shape
-        dist, idx = self.tree.query(q, k=self.k, workers=-1)
-        dist, idx = dist.reshape(m, -1), idx.reshape(m, -1)
-        h = dist[:, -1:] * 1.05 + 1e-12
-        w = (1.0 - (dist / h) ** 2) ** 2
-        offsets = (self.points[idx] - q[:, None, :]) / h[:, :, None]
-        a = np.concatenate([np.ones((m, idx.shape[1], 1)), offsets], axis=2)
-        g = np.einsum("mki,mk,mkj->mij", a, w, a)
-        ridge = 1e-6 * np.einsum("mii->m", g)[:, None, None] * np.eye(de + 1)[None]
-        ridge[:, 0, 0] = 0.0
-        e0 = np.zeros((m, de + 1, 1))
-        e0[:, 0, 0] = 1.0
-        x = np.linalg.solve(g + ridge, e0)[:, :, 0]
-        hat = w * np.einsum("mki,mi->mk", a, x)
-        exact = dist[:, 0] <= self.snap
-        if exact.any():
-            hat[exact] = 0.0
-            hat[exact, 0] = 1.0
-        value = np.einsum("mk,mkc->mc", hat, self.values[idx])
-        var = np.einsum("mk,mkc->mc", hat * hat, self.variance[idx])
-        reason = np.where(dist[:, 0] > self.reach[idx[:, 0]], Reason.NO_DATA, Reason.OK).astype(np.uint8)
-        return value, np.sqrt(var), reason, exact & (reason == Reason.OK)
+def _deviation_deg(measured: np.ndarray, planned: np.ndarray) -> float:
+    """Largest angular distance (degrees) between measured and planned ωi or ωo over finite rows."""
+    ok = np.isfinite(measured).all(axis=1) & np.isfinite(planned).all(axis=1)
+    if not ok.any():
+        return 0.0
+    m, p = np.radians(measured[ok]), np.radians(planned[ok])
+    worst = 0.0
+    for t, f in ((0, 1), (2, 3)):
+        a, b = sph_to_vec(m[:, t], m[:, f]), sph_to_vec(p[:, t], p[:, f])
+        # atan2(|a × b|, a · b): accurate for the tiny angles that matter here (acos is not)
+        ang = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.sum(a * b, axis=1))
+        worst = max(worst, float(np.degrees(ang.max())))
+    return worst

@@ -1,35 +1,98 @@
-"""The sampled BRDF of a campaign: ``brdf.h5`` in the campaign folder.
+"""The sampled BRDF of a campaign: ``brdf.h5`` in the campaign folder (format version 2).
 
-Layout (read it with any HDF5 reader):
-- ``samples/theta_i``, ``samples/phi_i``, ``samples/theta_o``, ``samples/phi_o``: (N,) float64, degrees,
-  the actual measured directions (forward kinematics of the read-back axis positions);
-- ``samples/value``, ``samples/stddev``: (N, C) float64, f_r in sr⁻¹ (no cosine factor);
-- ``samples/pose``: (N,) the plan's pose index of each sample; ``samples/step``: (N,) its journal step;
-- ``samples/campaign_s``: (N,) float64, the campaign clock at the reading (s, continuous across resumes);
-- attributes ``units`` ("sr^-1"), ``channels``, ``symmetries`` (JSON: the shortcuts the plan used),
-  ``grid``, ``material`` (simulated) or ``sample`` (real), ``seed``, ``config_sha256``, ``gantry``,
-  ``software_version``, ``format`` ("gonio-brdf"), ``format_version``.
+An HDF5 file that h5py reads as it is and that netCDF-4 readers read with named dimensions: every array
+of group ``samples`` has HDF5 dimension scales attached, so ``xarray.open_dataset(path,
+engine="h5netcdf", group="samples")`` shows dimensions ``sample``, ``channel`` (and ``grid_axis``), the
+angles, steps and times as coordinates, and the units as attributes.
+
+Group ``samples`` (N samples, C channels):
+
+==============================  ================  ========  ============================================
+variable                        dimensions        units     what
+==============================  ================  ========  ============================================
+``sample``                      (sample)          1         0..N-1 (dimension scale)
+``channel``                     (channel)         –         channel names, e.g. R, G, B (dimension scale)
+``theta_i`` ``phi_i``           (sample)          degree    measured directions: forward kinematics of
+``theta_o`` ``phi_o``                                       the axis positions read back after settling
+``theta_i_planned`` … ``phi_o``  (sample)          degree    the plan's directions for the sample's step
+``value``                       (sample, channel) sr^-1     f_r, no cosine factor
+``stddev``                      (sample, channel) sr^-1     its standard deviation (1 σ)
+``step`` ``pose``               (sample)          1         journal step, plan pose index
+``exposure_s``                  (sample)          s         exposure of the reading
+``campaign_s``                  (sample)          s         campaign clock at the reading (continues
+                                                            across resumes)
+``grid_index``                  (sample,          1         the planned pose's indices on the grid
+                                grid_axis)                  (``grid_axis`` names them; iso: θi, θo, Δφ
+                                                            in steps; full: θi, φi, θo, φo in steps;
+                                                            merl: θh, θd, φd bin numbers); only for
+                                                            grids that have them
+==============================  ================  ========  ============================================
+
+Attributes (on the file and on the group, so that a reader of either sees them): ``format``
+("gonio-brdf"), ``format_version`` (2), ``units`` ("sr^-1"), ``cosine`` ("none"), ``angles_units``
+("degrees"), ``frame`` and ``angle_convention`` (DESIGN.md), ``channels``, ``color_space``,
+``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo``, ``seed``,
+``software_version``, ``config_sha256`` and ``config`` (JSON: the config snapshot the campaign was
+planned with), ``created_unix``/``created_utc`` (campaign creation), ``written_unix``, and either
+``material`` (the simulated material's spec; ``source`` = "simulated") or ``sample`` (a real sample's
+name; ``source`` = "measured").
+
+Version 1 files (the same ``samples`` group without dimension scales, planned angles, exposures or grid
+indices) are still read by :func:`read_brdf`.
 """
 
 from __future__ import annotations
 
+import datetime as _dt
 import json
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from gonio.calibrate import Calibrated
+from gonio.geometry import HALF_PI, MERL_SHAPE, sph_to_vec, to_half_diff, to_isotropic
 
-__all__ = ["BRDF_NAME", "SampledBRDF", "write_brdf", "read_brdf"]
+__all__ = ["BRDF_NAME", "FORMAT_VERSION", "SampledBRDF", "write_brdf", "read_brdf", "campaign_dataset",
+           "grid_indices", "FRAME", "ANGLE_CONVENTION"]
 
 BRDF_NAME = "brdf.h5"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+GROUP = "samples"
+_ANGLES = ("theta_i", "phi_i", "theta_o", "phi_o")
+FRAME = "+z the sample normal, +x the sample's reference direction (e.g. brushing), right-handed"
+ANGLE_CONVENTION = ("theta: polar angle from +z; phi: azimuth counter-clockwise from +x seen from above; "
+                    "w_i points toward the light, w_o toward the detector; the mirror direction of "
+                    "(theta_i, phi_i) is (theta_i, phi_i + 180)")
+_RGB_SPACE = "linear RGB, Rec. 709 (sRGB) primaries, D65 white, no transfer function"
+_GRID_AXES = {"iso": ("theta_i", "theta_o", "dphi"), "full": _ANGLES, "merl": ("theta_h", "theta_d", "phi_d")}
+# Attributes kept as JSON text in the file (HDF5 attributes hold no nested data).
+_JSON_ATTRS = ("symmetries", "config")
 
 
 @dataclass(frozen=True)
 class SampledBRDF:
+    """Sampled f_r as stored in ``brdf.h5``.
+
+    Attributes
+    ----------
+    theta_i, phi_i, theta_o, phi_o : numpy.ndarray, shape (N,)
+        Measured directions, degrees.
+    value, stddev : numpy.ndarray, shape (N, C)
+        f_r and its standard deviation, sr⁻¹ (no cosine factor).
+    attrs : dict
+        The file's attributes (``symmetries`` and ``config`` decoded from JSON).
+    planned : numpy.ndarray, shape (N, 4), or None
+        The plan's (θi, φi, θo, φo) of each sample, degrees (None in version 1 files).
+    step, pose : numpy.ndarray of int64, shape (N,), or None
+        Journal step and plan pose index.
+    exposure_s, campaign_s : numpy.ndarray, shape (N,), or None
+        Exposure and campaign clock of each reading, seconds.
+    grid_index : numpy.ndarray of int64, shape (N, K), or None
+        Grid indices of each planned pose; ``grid_axes`` names the K columns.
+    """
+
     theta_i: np.ndarray
     phi_i: np.ndarray
     theta_o: np.ndarray
@@ -37,37 +100,249 @@ class SampledBRDF:
     value: np.ndarray
     stddev: np.ndarray
     attrs: dict
+    planned: np.ndarray | None = None
+    step: np.ndarray | None = None
+    pose: np.ndarray | None = None
+    exposure_s: np.ndarray | None = None
+    campaign_s: np.ndarray | None = None
+    grid_index: np.ndarray | None = None
+    grid_axes: tuple = field(default=())
 
 
-def write_brdf(path: str | Path, cal: Calibrated, *, channels, symmetries: dict, grid: str, material: str,
-               gantry: str, software_version: str, seed: int = 0, sample: str = "",
-               config_sha256: str = "") -> Path:
+def color_space(channels) -> str:
+    """The colour space of a channel list: linear Rec. 709 for R, G, B (the house's RGB, also what the
+    Radiance export's luminance weights assume), the detector's own bands otherwise."""
+    return _RGB_SPACE if tuple(channels) == ("R", "G", "B") else "detector bands (see the gantry config)"
+
+
+def grid_indices(grid: str, planned_deg: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]] | None:
+    """Indices of planned directions on the campaign's grid, or None where the grid has none.
+
+    Parameters
+    ----------
+    grid : str
+        The GRID string the plan used (``iso:step=...``, ``full:step=...``, ``merl:stride=...``).
+    planned_deg : numpy.ndarray, shape (N, 4)
+        Planned (θi, φi, θo, φo), degrees.
+
+    Returns
+    -------
+    (numpy.ndarray of int64, shape (N, K), tuple of K axis names) or None
+        iso: (θi, θo, Δφ) / step; full: (θi, φi, θo, φo) / step; merl: (θh, θd, φd) MERL bin numbers
+        (φd over 360 bins without reciprocity). None for an unknown grid or directions off its lattice.
+    """
+    from gonio.plan.grids import parse_grid
+
+    try:
+        spec = parse_grid(grid)
+    except ValueError:
+        return None
+    p = np.asarray(planned_deg, dtype=np.float64).reshape(-1, 4)
+    if not np.isfinite(p).all():
+        return None
+    r = np.radians(p)
+    if spec.kind == "merl":
+        th, _, td, pd = to_half_diff(sph_to_vec(r[:, 0], r[:, 1]), sph_to_vec(r[:, 2], r[:, 3]))
+        nh, nd, nphi = MERL_SHAPE
+        period = np.pi if spec.reciprocity else 2.0 * np.pi
+        ih = np.floor(np.sqrt(np.clip(th, 0.0, None) / HALF_PI) * nh)
+        id_ = np.floor(td / HALF_PI * nd)
+        ip = np.floor(np.mod(pd, period) / np.pi * nphi)
+        idx = np.stack([ih, id_, ip], axis=1)
+    else:
+        if spec.kind == "iso":
+            ti, to, dphi = to_isotropic(r[:, 0], r[:, 1], r[:, 2], r[:, 3])
+            x = np.degrees(np.stack([ti, to, dphi], axis=1)) / spec.step_deg
+        else:
+            x = np.stack([p[:, 0], np.mod(p[:, 1], 360.0), p[:, 2], np.mod(p[:, 3], 360.0)], 1)
+            x = x / spec.step_deg
+        idx = np.rint(x)
+        if np.abs(x - idx).max(initial=0.0) > 1e-6:
+            return None
+        turns = round(360.0 / spec.step_deg)
+        for k, name in enumerate(_GRID_AXES[spec.kind]):
+            if name in ("dphi", "phi_i", "phi_o"):
+                idx[:, k] = np.mod(idx[:, k], turns)
+    return idx.astype(np.int64), _GRID_AXES[spec.kind]
+
+
+def campaign_dataset(cal, steps: dict, meta: dict, *, exposure_s, reference_albedo: float,
+                     software_version: str) -> SampledBRDF:
+    """The dataset of a finished campaign, from its calibration and its journal.
+
+    Parameters
+    ----------
+    cal : gonio.calibrate.Calibrated
+        Calibrated pose samples.
+    steps : dict
+        The journal's steps table (:meth:`gonio.store.Journal.steps`): planned angles per step.
+    meta : dict
+        The journal's meta (grid, material, sample, seed, symmetries, config, ...).
+    exposure_s : array_like, shape (N,)
+        Exposure of each sample's reading, seconds.
+    reference_albedo : float
+        Hemispherical reflectance of the white standard used for the calibration.
+    software_version : str
+        The gonio version writing the file.
+    """
+    n = len(cal.value)
+    planned = np.stack([np.asarray(steps[f"{a}_deg"], float)[cal.steps] for a in _ANGLES], axis=1) \
+        if n else np.zeros((0, 4))
+    found = grid_indices(meta["grid"], planned) if n else None
+    channels = [str(c) for c in meta["channels"]]
+    created = float(meta.get("created_unix") or 0.0)
+    material, sample = meta.get("material") or "", meta.get("sample") or ""
+    attrs = {
+        "channels": channels, "color_space": color_space(channels), "symmetries": dict(meta["symmetries"]),
+        "grid": meta["grid"], "gantry": meta["gantry"], "reference_albedo": float(reference_albedo),
+        "seed": int(meta["seed"]), "software_version": software_version,
+        "config_sha256": meta.get("config_sha256", ""), "config": meta.get("config", {}),
+        "created_unix": created,
+        "created_utc": _dt.datetime.fromtimestamp(created, _dt.UTC).isoformat(timespec="seconds"),
+        "material": material, "sample": sample, "source": "simulated" if material else "measured",
+    }
+    return SampledBRDF(
+        *(cal.angles_deg[:, k].astype(np.float64) for k in range(4)),
+        value=cal.value.astype(np.float64), stddev=cal.stddev.astype(np.float64), attrs=attrs,
+        planned=planned, step=np.asarray(cal.steps, np.int64), pose=np.asarray(cal.poses, np.int64),
+        exposure_s=np.asarray(exposure_s, np.float64).reshape(n),
+        campaign_s=np.asarray(cal.campaign_s, np.float64),
+        grid_index=None if found is None else found[0], grid_axes=() if found is None else found[1])
+
+
+def _file_attrs(data: SampledBRDF, n_channels: int) -> dict:
+    a = dict(data.attrs)
+    channels = [str(c) for c in a.get("channels", [])]
+    if len(channels) != n_channels:
+        channels = ["R", "G", "B"] if n_channels == 3 else [f"c{i}" for i in range(n_channels)]
+    a.update({
+        "format": "gonio-brdf", "format_version": FORMAT_VERSION, "units": "sr^-1", "cosine": "none",
+        "angles_units": "degrees", "frame": FRAME, "angle_convention": ANGLE_CONVENTION,
+        "channels": channels, "written_unix": time.time(),
+    })
+    a.setdefault("color_space", color_space(channels))
+    out = {}
+    for key, val in a.items():
+        if key in _JSON_ATTRS or isinstance(val, dict):
+            val = val if isinstance(val, str) else json.dumps(val, sort_keys=True)
+        elif isinstance(val, bool | np.bool_):
+            val = int(val)  # HDF5 has no boolean; netCDF readers choke on h5py's enum for it
+        elif val is None:
+            continue
+        out[key] = val
+    return out
+
+
+def write_brdf(path: str | Path, data: SampledBRDF) -> Path:
+    """Write ``data`` as a version 2 ``brdf.h5`` at ``path``, atomically (a temporary name in the same
+    folder renamed into place: readers never see a half-written file).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file; its folder must exist.
+    data : SampledBRDF
+        Angles in degrees, f_r in sr⁻¹; the optional arrays are written when present.
+
+    Returns
+    -------
+    Path
+    """
+    from gonio.formats import atomic_path
+
     path = Path(path)
-    tmp = path.with_suffix(".h5.partial")
-    with h5py.File(tmp, "w") as f:
-        g = f.create_group("samples")
-        for i, name in enumerate(("theta_i", "phi_i", "theta_o", "phi_o")):
-            g.create_dataset(name, data=cal.angles_deg[:, i].astype(np.float64))
-        g.create_dataset("value", data=cal.value.astype(np.float64))
-        g.create_dataset("stddev", data=cal.stddev.astype(np.float64))
-        g.create_dataset("pose", data=cal.poses.astype(np.int64))
-        g.create_dataset("step", data=cal.steps.astype(np.int64))
-        g.create_dataset("campaign_s", data=cal.campaign_s.astype(np.float64))
-        f.attrs.update({
-            "format": "gonio-brdf", "format_version": FORMAT_VERSION, "units": "sr^-1",
-            "channels": list(channels), "symmetries": json.dumps(symmetries), "grid": grid,
-            "material": material, "sample": sample, "seed": int(seed), "config_sha256": config_sha256,
-            "gantry": gantry, "software_version": software_version,
-            "angles_units": "degrees",
-        })
-    tmp.replace(path)  # never leave a half-written brdf.h5 behind
+    value = np.asarray(data.value, dtype=np.float64)
+    n = int(np.asarray(data.theta_i).size)
+    value = value.reshape(n, -1)
+    attrs = _file_attrs(data, value.shape[1])
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        g = f.create_group(GROUP)
+        sample = g.create_dataset("sample", data=np.arange(n, dtype=np.int64))
+        sample.make_scale("sample")
+        sample.attrs.update({"long_name": "sample number", "units": "1"})
+        channel = g.create_dataset("channel", data=np.array(attrs["channels"], dtype=h5py.string_dtype()))
+        channel.make_scale("channel")
+        channel.attrs.update({"long_name": "detector channel", "color_space": attrs["color_space"]})
+        coords = []
+
+        def put(name, arr, dims, **var_attrs):
+            ds = g.create_dataset(name, data=arr)
+            for k, scale in enumerate(dims):
+                ds.dims[k].attach_scale(scale)
+            ds.attrs.update(var_attrs)
+
+        for name in _ANGLES:
+            put(name, np.asarray(getattr(data, name), np.float64).reshape(n), [sample], units="degree",
+                long_name=f"measured {name} (forward kinematics of the read-back axes)")
+            coords.append(name)
+        if data.planned is not None:
+            for k, name in enumerate(_ANGLES):
+                put(f"{name}_planned", np.asarray(data.planned, np.float64)[:, k], [sample], units="degree",
+                    long_name=f"planned {name} (the journal's steps table)")
+                coords.append(f"{name}_planned")
+        for name, unit, what in (("step", "1", "journal step"), ("pose", "1", "plan pose index"),
+                                 ("exposure_s", "s", "exposure of the reading"),
+                                 ("campaign_s", "s", "campaign clock at the end of the reading")):
+            arr = getattr(data, name)
+            if arr is not None:
+                dtype = np.int64 if unit == "1" else np.float64
+                put(name, np.asarray(arr, dtype).reshape(n), [sample], units=unit, long_name=what)
+                coords.append(name)
+        if data.grid_index is not None:
+            axis = g.create_dataset("grid_axis", data=np.array(data.grid_axes, dtype=h5py.string_dtype()))
+            axis.make_scale("grid_axis")
+            put("grid_index", np.asarray(data.grid_index, np.int64).reshape(n, -1), [sample, axis], units="1",
+                long_name="the planned pose's indices on the grid (grid_axis names them)", grid=attrs.get(
+                    "grid", ""))
+        for name, arr, what in (("value", value, "f_r, no cosine factor"),
+                                ("stddev", data.stddev, "standard deviation of f_r (1 sigma)")):
+            put(name, np.asarray(arr, np.float64).reshape(value.shape), [sample, channel], units="sr^-1",
+                long_name=what, coordinates=" ".join(coords))
+        f.attrs.update(attrs)
+        g.attrs.update(attrs)
     return path
 
 
+def _decode(val):
+    if isinstance(val, bytes):
+        return val.decode()
+    if isinstance(val, np.ndarray) and val.dtype.kind in "OS":
+        return [v.decode() if isinstance(v, bytes) else str(v) for v in val]
+    if isinstance(val, np.generic):
+        return val.item()
+    return val
+
+
 def read_brdf(path: str | Path) -> SampledBRDF:
-    with h5py.File(path, "r") as f:
-        g = f["samples"]
-        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-        attrs["symmetries"] = json.loads(attrs["symmetries"])
-        return SampledBRDF(*(g[n][()] for n in ("theta_i", "phi_i", "theta_o", "phi_o", "value", "stddev")),
-                           attrs=attrs)
+    """Read a ``brdf.h5`` of format version 1 or 2.
+
+    Raises
+    ------
+    ValueError
+        The file is not a gonio BRDF dataset, or of a newer format version.
+    """
+    path = Path(path)
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise ValueError(f"{path}: not an HDF5 file ({exc})") from None
+    with f:
+        if GROUP not in f or "value" not in f[GROUP]:
+            raise ValueError(f"{path}: not a gonio BRDF dataset (no '{GROUP}/value')")
+        version = int(f.attrs.get("format_version", 1))
+        if version > FORMAT_VERSION:
+            raise ValueError(f"{path}: brdf.h5 format version {version}; this gonio reads versions 1 to "
+                             f"{FORMAT_VERSION}")
+        g = f[GROUP]
+        attrs = {k: _decode(v) for k, v in f.attrs.items()}
+        for key in _JSON_ATTRS:
+            if isinstance(attrs.get(key), str) and attrs[key].strip():
+                attrs[key] = json.loads(attrs[key])
+        get = lambda name: g[name][()] if name in g else None  # noqa: E731
+        planned = None
+        if all(f"{a}_planned" in g for a in _ANGLES):
+            planned = np.stack([g[f"{a}_planned"][()] for a in _ANGLES], axis=1)
+        grid_axes = tuple(_decode(g["grid_axis"][()])) if "grid_axis" in g else ()
+        return SampledBRDF(*(g[n][()] for n in (*_ANGLES, "value", "stddev")), attrs=attrs, planned=planned,
+                           step=get("step"), pose=get("pose"), exposure_s=get("exposure_s"),
+                           campaign_s=get("campaign_s"), grid_index=get("grid_index"), grid_axes=grid_axes)

@@ -28,11 +28,10 @@ from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from gonio.brdf import MeasuredBRDF, Reason, open_brdf
-from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
+from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf, write_brdf
 from gonio.formats import atomic_path
 from gonio.formats.csv import write_csv
 from gonio.formats.merl import MERL_BINS, write_merl
@@ -260,13 +259,5 @@ def _h5(data: SampledBRDF, out: Path, source) -> ExportReport:
         with atomic_path(out) as tmp:
             shutil.copyfile(_h5_path(source), tmp)
     else:
-        with atomic_path(out) as tmp, h5py.File(tmp, "w") as f:
-            g = f.create_group("samples")
-            for name in ("theta_i", "phi_i", "theta_o", "phi_o", "value", "stddev"):
-                g.create_dataset(name, data=np.asarray(getattr(data, name), dtype=np.float64))
-            attrs = {"format": "gonio-brdf", "units": "sr^-1", "angles_units": "degrees",
-                     "software_version": _software_version()}
-            for key, val in data.attrs.items():
-                attrs[key] = json.dumps(val) if isinstance(val, dict) else val
-            f.attrs.update(attrs)
+        write_brdf(out, data)
     return ExportReport("h5", [out], n, n, 0, 0, notes=["the sampled dataset (brdf.h5 layout) as it is"])
