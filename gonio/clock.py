@@ -26,6 +26,10 @@ class WallClock:
         if seconds > 0:
             time.sleep(seconds)
 
+    def sleep_until(self, t: float) -> None:
+        """Sleep until ``now() >= t`` (at once when that time has passed)."""
+        self.sleep(max(0.0, float(t) - self.now()))
+
 
 class VirtualClock:
     """A clock that only moves when told to: ``sleep`` advances it at once, nothing waits."""
@@ -40,3 +44,12 @@ class VirtualClock:
 
     def sleep(self, seconds: float) -> None:
         self._t += _check_sleep(seconds)
+
+    def sleep_until(self, t: float) -> None:
+        """Advance to exactly ``t`` (no rounding of ``now + (t − now)``); never backwards."""
+        t = float(t)
+        if not t == t:  # NaN
+            raise ValueError(f"sleep_until: t must be a number, got {t!r}")
+        if t > self._t:
+            self.sleep(t - self._t)  # through sleep(): a subclass that watches sleeps sees this one too
+            self._t = t

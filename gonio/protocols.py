@@ -29,6 +29,8 @@ class Clock(Protocol):
 
     def now(self) -> float: ...
     def sleep(self, seconds: float) -> None: ...
+    def sleep_until(self, t: float) -> None:
+        """Sleep until ``now() >= t``; a virtual clock lands on ``t`` exactly."""
 
 
 @runtime_checkable

@@ -404,13 +404,14 @@ class Runner:
         """Sleep ``seconds`` on the gantry clock in slices of ``poll_s``, raising at a halt."""
         poll = self.cfg.runner.poll_s
         clock = self.gantry.clock
-        remaining = seconds
-        while remaining > 0.0:
+        start = clock.now()
+        end = start + seconds  # the instant the slowest axis arrives, computed as the axis computes it
+        k = 0
+        while clock.now() < end:
             if self._halt.is_set():
                 raise _Halted
-            dt = min(poll, remaining)
-            clock.sleep(dt)
-            remaining -= dt
+            k += 1
+            clock.sleep_until(min(start + k * poll, end))
         if self._halt.is_set():
             raise _Halted
 

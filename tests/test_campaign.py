@@ -134,3 +134,14 @@ def test_crash_between_any_two_writes_then_resume_measures_each_step_once(tmp_pa
         _, value, _, _ = _h5(folder)
         np.testing.assert_allclose(value, 0.5 / np.pi, rtol=0.01)
         c.close()
+
+
+@pytest.mark.parametrize("config", ["sim", "sample-stage"])
+def test_simulated_gantry_time_is_the_plans_estimate(tmp_path, config):
+    """The planner and the simulated axes share one trapezoid profile and the runner waits exactly the
+    expected move time (then polls): the campaign ends, parked, at the plan's estimate."""
+    c, state = _run(tmp_path / "t", load_config(config), "lambert:albedo=0.5", "iso:step=30")
+    assert state == State.DONE
+    park = c.journal.last_event("park")
+    assert park["campaign_s"] == pytest.approx(c.meta["estimated_s"], rel=1e-9)
+    c.close()

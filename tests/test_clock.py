@@ -24,3 +24,14 @@ def test_sleep_refuses_negative_nan_and_infinite_durations(clock, bad):
         clock.sleep(bad)
     if before is not None:
         assert clock.now() == before
+
+
+def test_sleep_until_lands_exactly_and_never_goes_back():
+    c = VirtualClock(start=0.1)
+    t = 0.1 + 0.2 + 1e-9
+    c.sleep_until(t)
+    assert c.now() == t  # not 0.1 + (t − 0.1), which can miss t by an ulp
+    c.sleep_until(0.0)
+    assert c.now() == t
+    w = WallClock()
+    w.sleep_until(w.now() - 1.0)  # in the past: returns at once
