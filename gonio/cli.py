@@ -90,9 +90,12 @@ def cmd_config(args) -> int:
     from gonio.config import packaged_configs, resolve_config
 
     if args.action == "list":
-        for name, path in packaged_configs().items():
+        shipped = packaged_configs()
+        width = max(map(len, shipped), default=0) + 2
+        print(f"{'NAME':<{width}}{'DESIGN':<14}GANTRY")
+        for name, path in shipped.items():
             cfg = load_config(path)
-            print(f"{name:<16} {cfg.kinematics.design:<14} {cfg.name}")
+            print(f"{name:<{width}}{cfg.kinematics.design:<14}{cfg.name}")
         return 0
     if not args.name:
         raise UsageError("gonio config show: give NAME (one of: "
