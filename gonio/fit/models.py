@@ -142,9 +142,13 @@ class FitModel:
 
     def spec(self, x) -> str:
         """The MATERIAL string of the fit vector ``x`` (floats), normalized by ``load``."""
-        return load(self._spec_text(self.values([float(t) for t in x]))).spec
+        values = self.values([float(t) for t in x])
+        try:
+            return load(self._spec_text(values)).spec
+        except ValueError:  # rounding to nearest pushed rho_d + w over 1: round the weight down
+            return load(self._spec_text(values, down=True)).spec
 
-    def _spec_text(self, values: dict) -> str:
+    def _spec_text(self, values: dict, down: bool = False) -> str:
         items = [f"{k}={v}" for k, v in self.items.items() if k in _structure_keys(self.name)]
 
         def num(x, down=False):
@@ -153,7 +157,7 @@ class FitModel:
                 return "0"
             digits = 6 - int(math.floor(math.log10(abs(x)))) - 1
             scale = 10.0 ** digits
-            # Energy weights round down, so that rho_d + w <= 1 survives the rounding.
+            # Energy weights may round down, so that rho_d + w <= 1 survives the rounding.
             return format_number((math.floor(x * scale) if down else round(x * scale)) / scale)
 
         def col(value, down=False):
@@ -170,7 +174,7 @@ class FitModel:
                     items.append(f"{_ROUGHNESS[self.name][0]}={num(value)}")
                 continue
             if isinstance(value, tuple):
-                items.append(f"{key}={col(value, down=key == w_key)}")
+                items.append(f"{key}={col(value, down=down and key == w_key)}")
             else:
                 items.append(f"{key}={num(value)}")
         return self.name + ":" + ",".join(items)
