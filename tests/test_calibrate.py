@@ -95,3 +95,49 @@ def test_missing_dark_or_reference_is_an_error():
         calibrate([pose], 1.5)
     with pytest.raises(CalibrationError, match="not above the dark"):
         calibrate([_reading(0, 1, 0.0, 0.0, [5.0]), _reading(1, 2, 1.0, 0.0, [5.0]), pose], 0.99)
+
+
+def test_simulated_readings_at_mixed_exposures_calibrate_to_the_material():
+    """Darks, references and poses read by the simulated detector at four different exposures, with a
+    dark current and shot noise: the calibrated Lambertian comes out ρ/π within its stated stddev."""
+    from gonio.config import load_config, parse_config
+    from gonio.wiring import build_gantry
+
+    data = load_config().model_dump(mode="json", exclude_defaults=True)
+    data.setdefault("detector", {}).setdefault("sim", {})["noise"] = {"dark_offset": 3.0,
+                                                                      "shot_counts_per_unit": 2000.0}
+    data.setdefault("light", {}).setdefault("sim", {})["radiance"] = 1e7
+    cfg = parse_config(data)
+    g = build_gantry(cfg, "lambert:albedo=0.4", seed=7)
+    g.connect()
+    kin = g.kinematics
+    ms = []
+
+    def read(kind, target, axes, exposure):
+        for axis, x in zip(g.axes.values(), axes, strict=True):
+            axis.move_to(float(x))
+        g.wait_until_still()
+        g.light.set_on(kind != 1)
+        g.set_target(target)
+        r = g.detector.measure(exposure, key=(len(ms), 1))
+        ti, pi_, to, po = kin.forward(np.asarray(axes, float)[None, :])
+        ms.append(Measurement(step=len(ms), kind=kind, pose=len(ms) if kind == 0 else -1,
+                              commanded_deg=np.asarray(axes, float), actual_deg=np.asarray(axes, float),
+                              angles_deg=np.degrees([ti[0], pi_[0], to[0], po[0]]), clock_s=g.clock.now(),
+                              campaign_s=g.clock.now(), exposure_s=r.exposure_s, frames=1,
+                              signal=r.signal, stderr=r.stderr))
+
+    ref = [0.0, 0.0, 180.0, 45.0]
+    read(1, "sample", ref, 0.05)
+    read(2, "reference", ref, 0.1)
+    for axes, exposure in (([0.0, 30.0, 180.0, 40.0], 0.4), ([0.0, 60.0, 150.0, 20.0], 0.02),
+                           ([0.0, 45.0, 160.0, 60.0], 0.25)):
+        read(0, "sample", axes, exposure)
+    read(2, "reference", ref, 0.1)
+    read(1, "sample", ref, 0.2)
+    cal = calibrate(ms, cfg.reference.albedo)
+    z = (cal.value - 0.4 / np.pi) / cal.stddev
+    assert np.all(np.abs(z) < 4.0), z
+    np.testing.assert_allclose(cal.value, 0.4 / np.pi, rtol=0.02)
+    # Without dividing by the exposure the 0.4 s pose would be 4x too bright: the test has teeth.
+    assert ms[2].exposure_s / ms[1].exposure_s == 4.0
