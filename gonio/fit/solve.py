@@ -4,8 +4,9 @@ The model is evaluated by the simulator's own code, :meth:`Material.eval_params`
 arrays: the fit variables are opaque size-1 arrays with gradients enabled, so one compiled kernel
 serves every iteration, and the Jacobian's columns are forward-mode derivatives (one
 ``dr.forward_from`` per variable through the same graph, all columns evaluated in one launch).
-scipy's trust-region-reflective least squares (``least_squares(method="trf")``) takes the residuals,
-that Jacobian and the bounds.
+A projected Levenberg-Marquardt on the p × p normal equations (:func:`_projected_lm`) takes the
+residuals, that Jacobian and the bounds (scipy's ``least_squares(method="trf")`` is the alternative,
+``jac="trf-ad"``, and with finite differences the speed baseline of ``tools/bench_fit.py``).
 
 Loss
 ----
