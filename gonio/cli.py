@@ -171,24 +171,40 @@ def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
 
 
 def cmd_simulate(args) -> int:
-    from gonio.campaign import compare_campaign, create_campaign, gantry_state, open_campaign, run_campaign
-    from gonio.dataset import BRDF_NAME
     from gonio.plan import parse_grid
-    from gonio.runner import State
     from gonio.sim.materials import load as load_material
+
+    # Everything the user typed is validated before anything is written.
+    material = load_material(args.material)
+    parse_grid(args.grid)
+    exports = _export_formats(args.export)
+    cfg = load_config(args.config)
+    return _campaign_command(args, cfg, material=material, sample=None, model_check=True, exports=exports)
+
+
+def _campaign_command(args, cfg, *, material, sample: str | None, model_check: bool, exports=(),
+                      relocate_buses: bool = False) -> int:
+    """Create or resume the campaign in ``args.out`` and run it on the gantry ``cfg`` wires (``gonio
+    simulate`` and ``gonio run``): progress, signals, latched faults, ``--clear-fault``, brdf.h5.
+
+    ``relocate_buses``: a resumed campaign's devices are reached where ``cfg``'s buses say now (a
+    re-plugged adapter, a restarted emulator); every other setting must match the campaign's."""
+    from gonio.campaign import compare_campaign, create_campaign, gantry_state, open_campaign, run_campaign
+    from gonio.config import relocate
+    from gonio.dataset import BRDF_NAME
+    from gonio.protocols import DeviceFault
+    from gonio.runner import State
     from gonio.store import JOURNAL_NAME
     from gonio.wiring import build_gantry
 
     out = _Out(args.quiet)
     folder = Path(args.out)
-    # Everything the user typed is validated before anything is written.
-    material = load_material(args.material)
-    parse_grid(args.grid)
-    cfg = load_config(args.config)
+    spec = material.spec if material is not None else None
     _check_out(folder)
     if (folder / JOURNAL_NAME).exists():
         c = open_campaign(folder)
-        diff = compare_campaign(c.meta, material=material.spec, grid=args.grid, seed=args.seed, cfg=cfg)
+        now = relocate(cfg, c.cfg) if relocate_buses else cfg
+        diff = compare_campaign(c.meta, material=spec, grid=args.grid, seed=args.seed, cfg=now, sample=sample)
         if diff is not None:
             c.close()
             raise UsageError(f"--out: {folder} holds another campaign ({diff}); repeat the original "
@@ -196,13 +212,19 @@ def cmd_simulate(args) -> int:
         if c.journal.next_step() == c.journal.step_count() and (folder / BRDF_NAME).exists():
             out(f"the campaign in {folder} is complete: {folder / BRDF_NAME}")
             c.close()
+            _write_exports(folder, exports, out)
             return 0
         out(f"resuming the campaign in {folder} at step {c.journal.next_step()}")
     else:
-        c = create_campaign(folder, cfg, grid=args.grid, material=material.spec, seed=args.seed)
+        c = create_campaign(folder, cfg, grid=args.grid, material=spec, seed=args.seed, sample=sample)
     meta = c.meta
     n_steps = c.journal.step_count()
-    gantry = build_gantry(c.cfg, material, seed=meta["seed"], state=gantry_state(c))
+    try:
+        gantry = build_gantry(relocate(c.cfg, cfg) if relocate_buses else c.cfg, material, seed=meta["seed"],
+                              state=gantry_state(c))
+    except BaseException:
+        c.close()
+        raise
     out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} ({n_steps} steps with dark and "
         f"white-reference readings), estimated {_hms(meta['estimated_s'])} of gantry time (lower bound "
         f"{_hms(meta['lower_bound_s'])})")
@@ -232,6 +254,10 @@ def cmd_simulate(args) -> int:
         else:
             state, runner = run_campaign(c, gantry, on_step=on_step, on_runner=on_runner,
                                          clear_fault=args.clear_fault)
+    except DeviceFault as err:  # the gantry could not be connected (or a fault could not be cleared)
+        out(f"gantry: {err}", style="red")
+        out("nothing was measured this time; every committed step is kept: fix it, then run the same command")
+        return 1
     finally:
         _install_startup_handlers()
         c_done = c.journal.done_count()
@@ -241,7 +267,9 @@ def cmd_simulate(args) -> int:
         f"wall time {wall:.1f} s")
     if state == State.DONE:
         out(f"wrote {folder / 'brdf.h5'} and {folder / JOURNAL_NAME}")
-        out(_model_check(folder, material))
+        if model_check:
+            out(_model_check(folder, material))
+        _write_exports(folder, exports, out)
         return 0
     if runner.fault:
         out(f"fault: {runner.fault}", style="red")
@@ -389,6 +417,238 @@ def cmd_fit(args) -> int:
     return 0
 
 
+# -- gonio export ---------------------------------------------------------------------------------
+def _export_formats(text: str | None) -> list[str]:
+    from gonio.export import parse_formats
+
+    return parse_formats(text) if text is not None else []
+
+
+def _write_exports(folder: Path, formats: list[str], out: _Out) -> None:
+    """``gonio simulate --export``: each format under its unambiguous name in the campaign folder."""
+    from gonio.export import EXPORT_NAMES, export
+
+    for fmt in formats:
+        out(f"export {export(folder, fmt, folder / EXPORT_NAMES[fmt])}")
+
+
+def finished_campaign(folder: Path) -> Path:
+    """The ``brdf.h5`` of a finished campaign folder; a UsageError for anything else (no folder, not a
+    campaign, still running, incomplete, brdf.h5 missing)."""
+    from gonio.campaign import LOCK_NAME
+    from gonio.dataset import BRDF_NAME
+    from gonio.store import JOURNAL_NAME, Journal
+
+    if not folder.is_dir():
+        raise UsageError(f"{folder}: no such campaign folder")
+    if not (folder / JOURNAL_NAME).is_file():
+        raise UsageError(f"{folder}: not a campaign folder (no {JOURNAL_NAME})")
+    pid = _lock_holder(folder)
+    if pid is not None:
+        raise UsageError(f"{folder}: the campaign is still running (pid {pid} holds {LOCK_NAME}); use it "
+                         "once it has finished")
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        done, total = j.done_count(), j.step_count()
+    finally:
+        j.close()
+    if done < total:
+        raise UsageError(f"{folder}: the campaign is incomplete ({done}/{total} steps measured); finish it "
+                         "with the command that started it (it resumes), then use it")
+    if not (folder / BRDF_NAME).is_file():
+        raise UsageError(f"{folder}: every step is measured but {BRDF_NAME} is missing; run the command that "
+                         "started the campaign again to write it")
+    return folder / BRDF_NAME
+
+
+def _writable_out(text: str, *, folder: bool = False) -> Path:
+    """--out checked before any work: its folder exists and takes a file; a file (or, with ``folder``,
+    a folder) may be replaced, nothing else."""
+    out = Path(text)
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise UsageError(f"--out: folder {parent} does not exist; create it or choose another path")
+    if out.is_dir() and not folder:
+        raise UsageError(f"--out: {out} is a folder; give a file name")
+    if out.exists() and folder and not out.is_dir():
+        raise UsageError(f"--out: {out} is a file; this format writes a folder of files")
+    probe = parent / f".{out.name}.{os.getpid()}.probe"
+    try:
+        probe.open("w").close()
+        probe.unlink()
+    except OSError as err:
+        raise UsageError(f"--out: {out} cannot be written ({err.strerror or err}); choose another path") \
+            from None
+    return out
+
+
+def cmd_export(args) -> int:
+    """Export a finished campaign; the report (cells from data, interpolated, empty) on stdout."""
+    from gonio.export import export, parse_formats
+
+    fmt = parse_formats(args.format, "--format")
+    if len(fmt) != 1:
+        raise UsageError(f"--format: one format per export, got {args.format!r}")
+    source = finished_campaign(Path(args.dir))
+    out = _writable_out(args.out, folder=fmt[0] == "radiance")
+    report = export(source, fmt[0], out)
+    print(report)
+    for note in report.notes:
+        print(f"  {note}")
+    return 0
+
+
+# -- gonio run, gonio emulate, gonio gantry (configured hardware) -----------------------------------
+def cmd_run(args) -> int:
+    from gonio.plan import parse_grid
+    from gonio.sim.materials import load as load_material
+
+    material = load_material(args.material) if args.material else None
+    parse_grid(args.grid)
+    cfg = load_config(args.config)
+    if not args.sample.strip():
+        raise UsageError("--sample: give the name of the sample measured (not empty)")
+    if cfg.detector.driver == "sim" and material is None:
+        raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
+                         "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
+    return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
+                             relocate_buses=True)
+
+
+def cmd_emulate(args) -> int:
+    from gonio.sim.emulators.gantry import EmulatedGantry
+    from gonio.sim.materials import load as load_material
+
+    cfg = load_config(args.config)
+    material = load_material(args.material)
+    target = Path(args.write_config) if args.write_config else None
+    if target is not None and (target.is_dir() or not target.parent.is_dir()):
+        raise UsageError(f"--write-config: {target} must be a file in an existing folder")
+    emu = EmulatedGantry(cfg, material, seed=args.seed, any_port=args.any_port)
+    stop = threading.Event()
+    if _in_main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda signum, frame: stop.set())
+    emu.start()
+    try:
+        for bus, where in emu.locations().items():
+            print(f"{bus}: {where}", flush=True)
+        if target is not None:
+            tmp = target.with_name(target.name + ".tmp")
+            tmp.write_text(emu.config_toml(f"# {cfg.name}, emulated by gonio emulate (pid {os.getpid()}); "
+                                           "valid while it runs\n"))
+            tmp.replace(target)
+            print(f"config: {target}", flush=True)
+        print(f"emulating '{cfg.name}' (material {material.spec}); SIGINT or SIGTERM stops", flush=True)
+        while not stop.wait(0.5):
+            pass
+    finally:
+        emu.stop()
+        if target is not None:
+            target.unlink(missing_ok=True)
+    return 0
+
+
+def cmd_gantry(args) -> int:
+    from gonio import manual
+    from gonio.protocols import DeviceFault
+    from gonio.wiring import build_gantry
+
+    cfg = load_config(args.config)
+    gantry = build_gantry(cfg, "lambert:albedo=0.5" if cfg.detector.driver == "sim" else None)
+    kin = gantry.kinematics
+    angles = [args.theta_i, args.phi_i, args.theta_o, args.phi_o] if args.action == "move" else []
+    axes_arg = None
+    if args.action == "move":
+        if args.axes is not None and any(a is not None for a in angles):
+            raise UsageError("gonio gantry move: give either --axes or the four angles, not both")
+        if args.axes is not None:
+            try:
+                axes_arg = [float(x) for x in args.axes.split(",")]
+            except ValueError:
+                raise UsageError(f"--axes: {args.axes!r} is not a comma-separated list of degrees") from None
+            if len(axes_arg) != len(kin.axis_names):
+                raise UsageError(f"--axes: {len(axes_arg)} values for the {len(kin.axis_names)} axes "
+                                 f"{', '.join(kin.axis_names)}")
+        elif any(a is None for a in angles):
+            raise UsageError("gonio gantry move: give --theta-i, --phi-i, --theta-o and --phi-o (degrees), "
+                             "or --axes")
+    if args.action == "jog" and (args.axis not in kin.axis_names or args.by is None):
+        raise UsageError(f"gonio gantry jog: give --axis (one of {', '.join(kin.axis_names)}) and --by DEG")
+    try:
+        axes = manual.connect_axes(gantry, keep_faulted=args.action in ("status", "reboot", "stop"))
+    except DeviceFault as err:
+        print(f"gonio gantry {args.action}: {err}", file=sys.stderr)
+        return 1
+    try:
+        if args.action == "status":
+            reports = [manual.axis_report(a) for a in axes.values()]
+            if args.json:
+                print(json.dumps({"gantry": cfg.name, "axes": reports}, indent=2))
+            else:
+                for r in reports:
+                    units = (f" ({r['position_units']} {r['units']}, target {r['target_units']})"
+                             if r["units"] else "")
+                    target = f"{r['target_deg']:.3f}°" if r["target_deg"] is not None else "-"
+                    fault = f"  FAULT: {r['fault']}" if r["fault"] else ""
+                    print(f"{r['axis']:<18} {r['position_deg']:9.3f}°  target {target}{units}"
+                          f"{'  moving' if r['moving'] else ''}{fault}")
+            return 0
+        if args.action == "stop":
+            gantry.stop()
+            print(f"stopped {len(axes)} axes: {', '.join(axes)}")
+            return 0
+        if args.action == "reboot":
+            names = [args.axis] if args.axis else list(axes)
+            unknown = [n for n in names if n not in axes]
+            if unknown:
+                raise UsageError(f"--axis: {unknown[0]!r} is not one of {', '.join(axes)}")
+            cleared = [n for n in names if axes[n].fault() is not None]
+            for n in cleared:
+                axes[n].clear_fault()
+            print(f"cleared: {', '.join(cleared)}" if cleared else "no axis had a fault")
+            return 0
+        current = np.array([gantry.axes[n].position_deg() for n in kin.axis_names])
+        if args.action == "home":
+            target = np.asarray(kin.home_deg, float)
+        elif args.action == "jog":
+            target = current.copy()
+            target[kin.axis_names.index(args.axis)] += args.by
+        elif axes_arg is not None:
+            target = np.asarray(axes_arg)
+        else:
+            target = manual.pose_targets(kin, current, *angles)
+        legs = manual.plan_move(kin, current, target)  # refused here, before anything moves
+        final = manual.drive(gantry, legs, cfg=cfg, clock=gantry.clock)
+        print("  ".join(f"{n}={v:.3f}°" for n, v in zip(kin.axis_names, final, strict=True))
+              + (f"  ({len(legs)} legs)" if len(legs) > 1 else ""))
+        return 0
+    except DeviceFault as err:
+        print(f"gonio gantry {args.action}: {err}", file=sys.stderr)
+        return 1
+    finally:
+        manual.close_axes(axes)
+
+
+# -- gonio plot -----------------------------------------------------------------------------------
+def cmd_plot(args) -> int:
+    """Draw a finished campaign; the file written (and any caveat) on stdout."""
+    from gonio.plot import KINDS, SUFFIXES, plot
+
+    if args.kind not in KINDS:
+        raise UsageError(f"--kind: {args.kind!r} is unknown; allowed: {', '.join(KINDS)}")
+    if Path(args.out).suffix.lower() not in SUFFIXES:
+        raise UsageError(f"--out: {args.out} must end in {', '.join(SUFFIXES)} (the suffix picks the format)")
+    if not (np.isfinite(args.theta_i) and 0.0 <= args.theta_i < 90.0):
+        raise UsageError(f"--theta-i: must be in [0, 90) degrees, got {args.theta_i}")
+    if not np.isfinite(args.phi_i):
+        raise UsageError(f"--phi-i: must be a finite number of degrees, got {args.phi_i}")
+    source = finished_campaign(Path(args.dir))
+    out = _writable_out(args.out)
+    print(plot(source.parent, args.kind, out, theta_i_deg=args.theta_i, phi_i_deg=args.phi_i))
+    return 0
+
+
 # -- the parser -----------------------------------------------------------------------------------
 class _DefaultsFormatter(argparse.HelpFormatter):
     """Help that shows each option's default where it has a meaningful one (not for flags, required
@@ -431,6 +691,9 @@ def build_parser() -> argparse.ArgumentParser:
     ss.add_argument("--clear-fault", action="store_true",
                     help="clear the campaign's latched fault (after fixing its cause) and resume")
     ss.add_argument("--quiet", action="store_true", help="no progress output")
+    ss.add_argument("--export", default=None, metavar="FORMATS",
+                    help="exports written into the campaign folder once it is finished, comma-separated: "
+                         "merl, bsdf, bsdf-spectral, radiance, csv, h5")
     ss.set_defaults(func=cmd_simulate)
 
     st = sub.add_parser("status", formatter_class=fmt,
@@ -461,6 +724,66 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write parameters, uncertainties, loss and residual statistics as JSON")
     sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")
     sf.set_defaults(func=cmd_fit)
+
+    se = sub.add_parser("export", formatter_class=fmt,
+                        help="export a finished campaign's BRDF to a renderer's or a tool's file format")
+    se.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
+    se.add_argument("--format", required=True, metavar="FORMAT",
+                    help="merl, bsdf (Mitsuba 3 / pbrt-v4 tensor, RGB), bsdf-spectral, radiance (a folder of "
+                         "PAB-Opto files), csv, h5")
+    se.add_argument("--out", required=True, metavar="FILE", help="output file (a folder for radiance)")
+    se.set_defaults(func=cmd_export)
+
+    sg = sub.add_parser("plot", formatter_class=fmt,
+                        help="draw a finished campaign's BRDF (a PNG/PDF figure, or the slice's float "
+                             "values as EXR)")
+    sg.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
+    sg.add_argument("--kind", required=True, metavar="KIND",
+                    help="polar (in-plane f_r for several θi), hemisphere (f_r over ωo for one ωi), merl "
+                         "((θh, θd) image), reciprocity (residual map; campaigns measured with "
+                         "reciprocity=false), albedo (directional albedo against θi)")
+    sg.add_argument("--out", required=True, metavar="FILE", help="FILE.png, FILE.pdf or FILE.exr")
+    sg.add_argument("--theta-i", type=float, default=30.0, help="θi of the hemisphere plot, degrees")
+    sg.add_argument("--phi-i", type=float, default=0.0, help="φi (plane of incidence), degrees")
+    sg.set_defaults(func=cmd_plot)
+
+    sr = sub.add_parser("run", formatter_class=fmt,
+                        help="run a whole campaign on the configured (real, emulated or mixed) gantry")
+    sr.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
+    sr.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
+    sr.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
+    sr.add_argument("--sample", required=True, help="name of the sample measured")
+    sr.add_argument("--material", default=None,
+                    help="MATERIAL a simulated detector renders (dry runs: config detector driver 'sim')")
+    sr.add_argument("--seed", type=_seed, default=0, help="seed of simulated devices' random numbers")
+    sr.add_argument("--clear-fault", action="store_true",
+                    help="clear the campaign's latched fault (after fixing its cause) and resume")
+    sr.add_argument("--quiet", action="store_true", help="no progress output")
+    sr.set_defaults(func=cmd_run)
+
+    se = sub.add_parser("emulate", formatter_class=fmt,
+                        help="run the emulated devices of a config until SIGINT/SIGTERM")
+    se.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
+    se.add_argument("--material", default="lambert:albedo=0.5", help="MATERIAL the emulated detector sees")
+    se.add_argument("--seed", type=_seed, default=0, help="seed of the emulated detector's readings")
+    se.add_argument("--write-config", default=None, metavar="PATH",
+                    help="write the config with the emulators' ptys and urls to PATH (removed at exit)")
+    se.add_argument("--any-port", action="store_true",
+                    help="serve Modbus TCP on free loopback ports, not the ports the config names")
+    se.set_defaults(func=cmd_emulate)
+
+    sg = sub.add_parser("gantry", formatter_class=fmt, help="manual control of the configured gantry")
+    sg.add_argument("action", choices=["status", "home", "move", "jog", "stop", "reboot"])
+    sg.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
+    sg.add_argument("--theta-i", type=float, default=None, help="move: θi (°)")
+    sg.add_argument("--phi-i", type=float, default=None, help="move: φi (°)")
+    sg.add_argument("--theta-o", type=float, default=None, help="move: θo (°)")
+    sg.add_argument("--phi-o", type=float, default=None, help="move: φo (°)")
+    sg.add_argument("--axes", default=None, help="move: axis positions a,b,c,d (°) in the design's order")
+    sg.add_argument("--axis", default=None, help="jog: the axis; reboot: only this axis")
+    sg.add_argument("--by", type=float, default=None, help="jog: degrees to move by (signed)")
+    sg.add_argument("--json", action="store_true", help="status: one JSON object")
+    sg.set_defaults(func=cmd_gantry)
     return p
 
 

@@ -124,9 +124,14 @@ class ModbusAxis:
 
     # -- transport --------------------------------------------------------------------------------------
     def connect(self) -> None:
+        """Connect; an alarm already standing is latched (:meth:`fault` says so, moves are refused) but
+        does not fail the connection, so that an operator can look at it and reset it."""
         if not self.client.connect():
             raise ModbusCommError(self.name, f"cannot connect to the controller ({self._where()})")
-        self._check_status(self._read("status")[0])
+        try:
+            self._check_status(self._read("status")[0])
+        except ModbusAlarmError:
+            pass
 
     def close(self) -> None:
         self.client.close()

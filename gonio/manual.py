@@ -1,0 +1,123 @@
+"""Manual control of a configured gantry (``gonio gantry status|home|move|jog|stop|reboot``).
+
+Every move is checked before anything moves: the target within every axis's limits
+(:func:`gonio.motion.safe.check_targets`), a pose the gantry can reach (the kinematics' feasibility),
+and a collision-free path from where the axes stand (:func:`gonio.motion.safe.safe_path`). The path is
+then driven leg by leg, each leg waited for (bounded by ``runner.move_timeout_s``) and its arrival
+verified within ``runner.position_tolerance_deg``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gonio.kinematics.base import REASONS
+from gonio.motion.safe import check_targets, safe_path
+from gonio.motion.trapezoid import move_time
+from gonio.protocols import DeviceFault
+
+__all__ = ["axis_report", "pose_targets", "plan_move", "drive", "connect_axes", "close_axes"]
+
+
+def connect_axes(gantry, keep_faulted: bool = False) -> dict:
+    """Connect the gantry's axes only (and the changer's): manual moves need no lamp or detector.
+
+    ``keep_faulted``: an axis whose connect reports its latched fault (a Modbus alarm) stays in the
+    result, so that it can be looked at, stopped and rebooted."""
+    axes = dict(getattr(gantry, "all_axes", gantry.axes))
+    done = []
+    try:
+        for axis in axes.values():
+            try:
+                axis.connect()
+            except DeviceFault:
+                if not (keep_faulted and axis.fault() is not None):
+                    raise
+            done.append(axis)
+    except BaseException:
+        close_axes(done)
+        raise
+    return axes
+
+
+def close_axes(axes) -> None:
+    for axis in list(axes.values() if isinstance(axes, dict) else axes):
+        try:
+            axis.close()
+        except Exception:  # closing the rest matters more than one axis's complaint
+            pass
+
+
+def axis_report(axis) -> dict:
+    """One axis's target and read-back position, in degrees and in device units where it has them."""
+    out = {"axis": axis.name, "driver": type(axis).__name__, "position_deg": axis.position_deg(),
+           "target_deg": None, "position_units": None, "target_units": None, "units": None,
+           "moving": axis.is_moving(), "fault": axis.fault(), "limits_deg": list(axis.limits_deg)}
+    table = getattr(axis, "table", None)
+    if table is not None:  # a Dynamixel servo: ticks
+        goal = axis.bus.read(axis.dxl_id, table["goal_position"])
+        present = axis.bus.read(axis.dxl_id, table["present_position"])
+        out.update(units="ticks", target_units=goal, position_units=present, target_deg=axis._deg(goal))
+    elif hasattr(axis, "steps_per_deg"):  # a Modbus controller: steps
+        goal = axis._read_value("target_position")
+        present = axis._read_value("actual_position")
+        out.update(units="steps", target_units=goal, position_units=present,
+                   target_deg=axis.direction * (goal - axis.zero_steps) / axis.steps_per_deg)
+    return out
+
+
+def pose_targets(kin, current_deg, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg) -> np.ndarray:
+    """Axis targets (°) for a pose, nearest the current positions; a one-line ValueError naming why a
+    pose cannot be reached."""
+    angles = np.radians([theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg])
+    reason = int(kin.feasibility(*angles)[0])
+    if reason != 0:
+        raise ValueError(f"pose (θi={theta_i_deg:g}°, φi={phi_i_deg:g}°, θo={theta_o_deg:g}°, "
+                         f"φo={phi_o_deg:g}°) cannot be measured on this gantry: {REASONS[reason]} "
+                         f"(theta_max_deg={kin.theta_max_deg:g}, clearance_deg={kin.clearance_deg:g})")
+    return kin.inverse(*angles, current_deg=current_deg)[0]
+
+
+def plan_move(kin, current_deg, target_deg) -> np.ndarray:
+    """The legs (K, n_axes) of a collision-free path to ``target_deg``, or a one-line ValueError (a limit,
+    a collision) before anything moves."""
+    target = check_targets(kin, target_deg)
+    return safe_path(kin, np.asarray(current_deg, float), target)
+
+
+def drive(gantry, legs, *, cfg, clock, on_leg=None) -> np.ndarray:
+    """Drive ``legs`` in order on the kinematics' axes, each waited for and verified; the axes' final
+    positions (°). A failure stops every axis and raises DeviceFault."""
+    kin = gantry.kinematics
+    axes = [gantry.axes[n] for n in kin.axis_names]
+    rc = cfg.runner
+    start = np.array([a.position_deg() for a in axes])
+    for leg in np.atleast_2d(legs):
+        try:
+            for axis, t, s in zip(axes, leg, start, strict=True):
+                if t != s:
+                    axis.move_to(float(t))
+            waited = 0.0
+            times = move_time(leg - start, kin.velocity_deg_s, kin.accel_deg_s2)
+            expected = float(np.max(times, initial=0.0))
+            clock.sleep(min(expected, rc.move_timeout_s))
+            waited += expected
+            while any(a.is_moving() for a in axes):
+                if waited >= rc.move_timeout_s:
+                    raise DeviceFault("gantry", f"axes did not arrive within move_timeout_s="
+                                      f"{rc.move_timeout_s}")
+                clock.sleep(rc.poll_s)
+                waited += rc.poll_s
+        except BaseException:
+            gantry.stop()
+            raise
+        actual = np.array([a.position_deg() for a in axes])
+        bad = np.flatnonzero(np.abs(actual - leg) > rc.position_tolerance_deg)
+        if bad.size:
+            i = int(bad[0])
+            raise DeviceFault(axes[i].name, f"stopped at {actual[i]:.4f}°, not at its target {leg[i]:.4f}° "
+                              f"(position_tolerance_deg={rc.position_tolerance_deg})")
+        if on_leg is not None:
+            on_leg(leg)
+        start = actual
+    return start

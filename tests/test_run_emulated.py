@@ -1,0 +1,207 @@
+"""Campaigns on the emulated gantries through the real drivers (dynamixel-sdk, pymodbus, pyserial over
+ptys and loopback): the result matches ``gonio simulate`` of the same material and grid, a killed
+``gonio run`` resumes, and each injected fault leads the runner to retry, fault with a reason, or
+reconnect and go on."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from gonio.campaign import create_campaign, run_campaign
+from gonio.clock import VirtualClock, WallClock
+from gonio.config import load_config, parse_config
+from gonio.dataset import read_brdf
+from gonio.runner import State
+from gonio.sim.emulators.gantry import EmulatedGantry
+from gonio.store import JOURNAL_NAME, Journal
+from gonio.wiring import build_gantry
+
+MATERIAL = "cook-torrance:d=beckmann,m=0.3,metal=gold"
+GRID = "iso:step=30"
+TWINS = {"emulated-two-arm-dynamixel": "sim", "emulated-sample-stage-modbus": "sample-stage"}
+GONIO = [sys.executable, "-m", "gonio.cli"]
+
+
+def _simulated(tmp_path, sim_config: str, grid: str = GRID):
+    cfg = load_config(sim_config)
+    c = create_campaign(tmp_path / "sim", cfg, grid=grid, material=MATERIAL)
+    state, _ = run_campaign(c, build_gantry(cfg, MATERIAL))
+    c.close()
+    assert state == State.DONE
+    return read_brdf(tmp_path / "sim" / "brdf.h5")
+
+
+def _emulated_run(folder, emu, clock, **run):
+    cfg = emu.config()
+    c = create_campaign(folder, cfg, grid=GRID, material=None, sample="gold")
+    try:
+        return run_campaign(c, build_gantry(cfg, clock=clock), **run), c
+    finally:
+        c.close()
+
+
+def _rows(b):
+    """Row order by pose: (θi, θo, Δφ) rounded to 0.1°."""
+    dphi = np.mod(b.phi_o - b.phi_i, 360.0)
+    keys = np.round(np.stack([b.theta_i, b.theta_o, dphi], axis=1), 1)
+    return np.lexsort(keys.T[::-1]), keys
+
+
+def _matches(measured, simulated, channel_mean: bool):
+    (m_order, m_keys), (s_order, s_keys) = _rows(measured), _rows(simulated)
+    np.testing.assert_allclose(m_keys[m_order], s_keys[s_order], atol=0.11)
+    sim = simulated.value.mean(axis=1, keepdims=True) if channel_mean else simulated.value
+    sim, value, sd = sim[s_order], measured.value[m_order], simulated.stddev[s_order]
+    # Both are Monte Carlo estimates (256 aperture samples) at poses equal to within the encoders'
+    # resolution: within 4 of the simulation's standard errors (both estimates) plus 1 %.
+    tol = 4.0 * np.sqrt(2.0) * sd.max(axis=1, keepdims=True) + 0.01 * sim
+    bad = np.argwhere(np.abs(value - sim) > tol)
+    assert bad.size == 0, [(m_keys[m_order][i], value[i, c], sim[i, c], tol[i, c]) for i, c in bad[:3]]
+
+
+@pytest.mark.parametrize("twin", sorted(TWINS))
+def test_a_campaign_through_the_drivers_matches_the_simulation(tmp_path, twin):
+    clock = VirtualClock()
+    with EmulatedGantry(load_config(twin), MATERIAL, clock=clock, any_port=True) as emu:
+        (state, runner), _ = _emulated_run(tmp_path / "emu", emu, clock)
+        assert state == State.DONE, runner.fault
+        # The reference readings were taken with the changer at its reference position.
+        assert emu.target_now() == "sample"
+    measured = read_brdf(tmp_path / "emu" / "brdf.h5")
+    assert measured.value.shape[1] == (1 if "dynamixel" in twin else 3)
+    _matches(measured, _simulated(tmp_path, TWINS[twin]), channel_mean="dynamixel" in twin)
+
+
+def _faulted_then_cleared(tmp_path, emu, clock, inject, at_step=5):
+    """Run with ``inject(emu)`` at ``at_step``; the campaign faults; clearing it finishes the campaign."""
+    fired = []
+
+    def on_step(runner, step):
+        if step == at_step and not fired:
+            fired.append(step)
+            inject(emu)
+
+    cfg = emu.config()
+    c = create_campaign(tmp_path / "f", cfg, grid=GRID, material=None, sample="gold")
+    try:
+        state, runner = run_campaign(c, build_gantry(cfg, clock=clock), on_step=on_step)
+        assert state == State.FAULTED
+        reason = runner.fault
+        assert c.journal.latched_fault()["reason"] == reason
+        state2, _ = run_campaign(c, build_gantry(cfg, clock=clock))  # latched: nothing runs
+        assert state2 == State.FAULTED
+        state3, _ = run_campaign(c, build_gantry(cfg, clock=clock), clear_fault=True)
+        assert state3 == State.DONE
+        return reason, c.journal.events()
+    finally:
+        c.close()
+
+
+def test_a_servo_hardware_error_faults_with_its_reason_and_a_reboot_resumes(tmp_path):
+    clock = VirtualClock()
+    with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
+                        any_port=True) as emu:
+        reason, _ = _faulted_then_cleared(tmp_path, emu, clock,
+                                          lambda e: e.servos["light_tilt"].inject_hardware_error(0x20))
+        assert "light_tilt" in reason and "overload" in reason.lower()
+        assert emu.servos["light_tilt"].reboots == 1
+
+
+def test_a_controller_alarm_faults_with_its_code_and_an_alarm_reset_resumes(tmp_path):
+    clock = VirtualClock()
+    with EmulatedGantry(load_config("emulated-sample-stage-modbus"), MATERIAL, clock=clock,
+                        any_port=True) as emu:
+        reason, _ = _faulted_then_cleared(tmp_path, emu, clock,
+                                          lambda e: e.motors["sample_tilt"].raise_alarm(0x30))
+        assert reason.startswith("sample_tilt: controller alarm 0x0030")
+        assert emu.motors["sample_tilt"].alarm_code == 0
+
+
+def test_dropped_servo_replies_are_retried_and_the_campaign_finishes(tmp_path):
+    clock = VirtualClock()
+    with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
+                        any_port=True) as emu:
+        fired = []
+
+        def on_step(runner, step):
+            if step == 4 and not fired:
+                fired.append(step)
+                emu.emulators["arm"].faults.add("drop", match=2, times=2)  # more than the bus retries
+
+        (state, runner), c = _emulated_run(tmp_path / "d", emu, clock, on_step=on_step)
+        assert state == State.DONE, runner.fault
+        assert ("drop", 2) in emu.emulators["arm"].faults.applied
+        j = Journal.open(tmp_path / "d" / JOURNAL_NAME, readonly=True)
+        try:
+            retries = [e for e in j.events() if e["kind"] == "retry"]
+        finally:
+            j.close()
+        assert retries and "servo 2" in retries[0]["message"]  # light_tilt: arm bus, servo 2
+
+
+def test_a_lost_photodiode_port_is_reopened_and_the_step_retried(tmp_path):
+    clock = VirtualClock()
+    with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
+                        any_port=True) as emu:
+        fired = []
+
+        def on_step(runner, step):
+            if step == 4 and not fired:
+                fired.append(step)
+                emu.meter.faults.add("truncate", match="MEAS?")  # a reply without its terminator
+
+        (state, runner), _ = _emulated_run(tmp_path / "p", emu, clock, on_step=on_step)
+        assert state == State.DONE, runner.fault
+        assert ("truncate", "MEAS?") in emu.meter.faults.applied
+
+
+# -- gonio run as a process: killed mid-campaign, run again, it resumes --------------------------------
+def _fast(twin: str) -> dict:
+    """The twin with fast motion and short readings: a campaign on the wall clock takes seconds."""
+    data = load_config(twin).model_dump(mode="json")
+    for axis in data["axes"].values():
+        axis["max_velocity_deg_s"] = 2000.0
+        axis["max_accel_deg_s2"] = 20000.0
+    data["runner"].update(settle_s=0.0, poll_s=0.005)
+    data["detector"]["exposure_s"] = 0.005
+    return data
+
+
+@pytest.mark.slow
+def test_gonio_run_killed_mid_campaign_resumes_when_run_again(tmp_path):
+    cfg = parse_config(_fast("emulated-sample-stage-modbus"))
+    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True) as emu:
+        path = tmp_path / "gantry.toml"
+        path.write_text(emu.config_toml())
+        out = tmp_path / "run"
+        argv = [*GONIO, "run", "--config", str(path), "--grid", GRID, "--out", str(out), "--sample", "gold",
+                "--quiet"]
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            deadline = time.monotonic() + 60.0
+            done = 0
+            while done < 8 and time.monotonic() < deadline and proc.poll() is None:
+                if (out / JOURNAL_NAME).exists():
+                    j = Journal.open(out / JOURNAL_NAME, readonly=True)
+                    try:
+                        done = j.done_count()
+                    finally:
+                        j.close()
+                time.sleep(0.02)  # polling a file another process writes; bounded by the deadline
+            assert proc.poll() is None, proc.communicate()
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        r = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert "resuming" in r.stderr
+    measured = read_brdf(out / "brdf.h5")
+    _matches(measured, _simulated(tmp_path, "sample-stage"), channel_mean=False)
