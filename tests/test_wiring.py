@@ -29,7 +29,8 @@ def _data(name=TWIN):
      "axes.light_tilt: bus 'arm' id 1 is also axes.light_azimuth"),
     (lambda d: d["axes"]["light_tilt"].update(profile="leadshine_pr"),
      "profile: not a setting of a 'dynamixel' axis"),
-    (lambda d: (d["target"].update(axis=None), d["axes"].pop("changer")), "target.axis: a real detector needs an axis"),
+    (lambda d: (d["target"].update(axis=None), d["axes"].pop("changer")),
+     "target.axis: a real detector needs an axis"),
     (lambda d: d["detector"]["sim"].update(aperture_samples=1), "greater than or equal to 2"),
     (lambda d: d["light"].update(radiance=5.0), "light.radiance: unknown key"),
 ])

@@ -8,7 +8,13 @@
 The emulators run in Python threads on the same machine, so the figures are the driver + library +
 emulator cost, not a wire's: at 1 Mbit/s a real 4-servo Sync Read adds ~0.5 ms of bytes on the wire.
 
-Run: .venv/bin/python tools/bench_drivers.py [--n 300]
+3. A whole campaign through the drivers on each emulated gantry (``emulated-two-arm-dynamixel``,
+   ``emulated-sample-stage-modbus``): the emulators and the gantry share a virtual clock, so every
+   physical wait (moves, settling, exposures) costs no wall time and the wall time per pose is the
+   overhead beyond the physical motion: driver round trips, planning safe paths, the runner, the journal
+   commit, and the emulated detector's Dr.Jit render (the last is the emulator's, not the drivers').
+
+Run: .venv/bin/python tools/bench_drivers.py [--n 300] [--grid iso:step=15]
 """
 
 from __future__ import annotations
@@ -85,10 +91,37 @@ def bench_modbus(transport, n):
         emu.stop()
 
 
+def bench_campaign(twin, grid):
+    import tempfile
+
+    from gonio.campaign import create_campaign, run_campaign
+    from gonio.config import load_config
+    from gonio.sim.emulators.gantry import EmulatedGantry
+    from gonio.wiring import build_gantry
+
+    clock = VirtualClock()
+    with EmulatedGantry(load_config(twin), "cook-torrance:d=beckmann,m=0.3,metal=gold", clock=clock,
+                        any_port=True) as emu, tempfile.TemporaryDirectory() as d:
+        cfg = emu.config()
+        c = create_campaign(d, cfg, grid=grid, material=None, sample="bench")
+        poses, steps = c.meta["poses"], c.journal.step_count()
+        t = time.perf_counter()
+        state, _ = run_campaign(c, build_gantry(cfg, clock=clock))
+        wall = time.perf_counter() - t
+        c.close()
+        render = emu._detector._count
+    print(f"campaign {twin} {grid}: {state}, {poses} poses / {steps} steps, gantry time {clock.now():.0f} s, "
+          f"wall {wall:.2f} s = {1e3 * wall / poses:.2f} ms per pose beyond the physical motion "
+          f"({render} emulated readings rendered)")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=300, help="repetitions per figure")
+    ap.add_argument("--grid", default="iso:step=15", help="GRID of the campaign benchmark")
     args = ap.parse_args()
+    for twin in ("emulated-two-arm-dynamixel", "emulated-sample-stage-modbus"):
+        bench_campaign(twin, args.grid)
     for k in (2, 4, 8):
         bench_dynamixel(k, args.n)
     for t in ("tcp", "rtu"):
