@@ -22,6 +22,7 @@ format                  what is written
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -40,9 +41,14 @@ from gonio.formats.rgl import build_measured
 from gonio.formats.tensor import write_tensor
 from gonio.geometry import from_half_diff, merl_bin_centres, merl_unindex
 
-__all__ = ["export", "ExportReport", "FORMATS"]
+__all__ = ["export", "ExportReport", "FORMATS", "EXPORT_NAMES", "parse_formats"]
 
 FORMATS = ("merl", "bsdf", "bsdf-spectral", "radiance", "csv", "h5")
+#: File (folder for radiance) names of exports written into a campaign folder (``gonio simulate
+#: --export``): unambiguous, since ``.bsdf`` and ``.dat`` each name two unrelated formats.
+EXPORT_NAMES = {"merl": "brdf.merl.binary", "bsdf": "brdf.rgb.tensor.bsdf",
+                "bsdf-spectral": "brdf.spectral.tensor.bsdf", "radiance": "brdf.pabopto",
+                "csv": "brdf.samples.csv", "h5": "brdf.copy.h5"}
 #: Wavelengths of ``bsdf-spectral`` files, nm.
 SPECTRAL_NM = tuple(float(x) for x in range(360, 831, 10))
 
@@ -79,6 +85,24 @@ class ExportReport:
         where = str(self.paths[0]) + (f" (+{len(self.paths) - 1} files)" if len(self.paths) > 1 else "")
         return (f"{self.format}: {where}: {self.cells} cells, {self.from_data} from data, "
                 f"{self.interpolated} interpolated, {self.empty} empty ({self.seconds:.2f} s)")
+
+
+def parse_formats(text: str, field: str = "--export") -> list[str]:
+    """A comma-separated list of export formats, validated: e.g. ``"merl,bsdf"`` -> ["merl", "bsdf"].
+
+    Raises
+    ------
+    ValueError
+        Naming ``field``, the unknown format and the allowed ones.
+    """
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise ValueError(f"{field}: give one or more formats separated by commas; allowed: "
+                         f"{', '.join(FORMATS)}")
+    for name in names:
+        if name not in FORMATS:
+            raise ValueError(f"{field}: format {name!r} is unknown; allowed: {', '.join(FORMATS)}")
+    return list(dict.fromkeys(names))
 
 
 def _software_version() -> str:
@@ -212,7 +236,28 @@ def _bsdf(brdf, out, fmt, source, step, resolution) -> ExportReport:
 
 
 def _radiance(brdf, out: Path, source, step) -> ExportReport:
-    out.mkdir(exist_ok=True)
+    if not out.parent.is_dir():
+        raise ValueError(f"output {str(out)!r}: folder {str(out.parent)!r} does not exist")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"output {str(out)!r}: is a file; radiance exports write a folder of files")
+    # Written under a temporary name and renamed into place: never a half-written set of incidences.
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        report = _radiance_files(brdf, tmp, source, step)
+        old = out.with_name(f".{out.name}.{os.getpid()}.old")
+        if out.exists():
+            out.rename(old)
+        tmp.rename(out)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    report.paths = [out / p.name for p in report.paths]
+    return report
+
+
+def _radiance_files(brdf, out: Path, source, step) -> ExportReport:
     meta = _metadata(brdf, source, "none: BRDF (f_r); a DSF would include cos(theta_o)")
     top = min(brdf.theta_max_deg, 89.0)
     thetas = np.arange(0.0, top + 1e-9, step)

@@ -1,5 +1,6 @@
 """Round trips: simulate → export → read back with a reader → compare, for every format."""
 
+import os
 import shutil
 import subprocess
 import sys
@@ -122,3 +123,73 @@ def test_a_real_simulated_campaign_exports(tmp_path):
     rep = export(tmp_path / "c", "bsdf", tmp_path / "c.bsdf")
     assert rep.interpolated > 0
     shutil.rmtree(tmp_path / "c")
+
+
+# -- gonio export / gonio simulate --export ------------------------------------------------------------
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    from gonio.cli import main
+
+    folder = tmp_path_factory.mktemp("cli") / "c"
+    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=30", "--out", str(folder), "--quiet",
+                 "--export", "csv,radiance"]) == 0
+    return folder
+
+
+def test_simulate_export_writes_into_the_campaign_folder(finished):
+    back = read_csv(finished / "brdf.samples.csv")
+    with h5py.File(finished / "brdf.h5", "r") as f:
+        np.testing.assert_array_equal(back["value"], f["samples/value"][()])
+    files = sorted((finished / "brdf.pabopto").glob("*.pabopto.dat"))
+    assert files and read_pabopto(files[0])["format"] == "BRDF"
+
+
+def test_cli_export_prints_the_report_and_writes_the_file(finished, tmp_path, capsys):
+    from gonio.cli import main
+
+    assert main(["export", str(finished), "--format", "bsdf", "--out", str(tmp_path / "c.bsdf")]) == 0
+    out = capsys.readouterr().out
+    assert "interpolated" in out and "empty" in out and "from data" in out
+    fields = read_tensor(tmp_path / "c.bsdf")
+    assert fields["rgb"].ndim == 5
+    assert main(["export", str(finished), "--format", "radiance", "--out", str(tmp_path / "rad")]) == 0
+    assert len(list((tmp_path / "rad").glob("*.dat"))) >= 3
+
+
+def test_cli_export_refuses_with_one_line_and_writes_nothing(finished, tmp_path, capsys):
+    from gonio.campaign import CampaignLock, create_campaign
+    from gonio.cli import main
+    from gonio.config import load_config
+
+    running = tmp_path / "running"
+    shutil.copytree(finished, running)
+    lock = CampaignLock(running).acquire()
+    partial = tmp_path / "partial"
+    create_campaign(partial, load_config(), grid="iso:step=45", material="lambert:albedo=0.5").close()
+    (tmp_path / "afile").write_text("x")
+    out = tmp_path / "outs"
+    out.mkdir()
+    cases = [
+        (["export", str(tmp_path / "nowhere"), "--format", "csv", "--out", str(out / "a.csv")],
+         "no such campaign folder"),
+        (["export", str(out), "--format", "csv", "--out", str(out / "a.csv")], "not a campaign folder"),
+        (["export", str(running), "--format", "csv", "--out", str(out / "a.csv")],
+         f"still running (pid {os.getpid()}"),
+        (["export", str(partial), "--format", "csv", "--out", str(out / "a.csv")], "incomplete (0/"),
+        (["export", str(finished), "--format", "exr", "--out", str(out / "a.exr")],
+         "format 'exr' is unknown"),
+        (["export", str(finished), "--format", "merl", "--out", str(tmp_path / "afile" / "m.binary")],
+         "does not exist"),
+        (["export", str(finished), "--format", "merl", "--out", str(out)], "is a folder"),
+        (["export", str(finished), "--format", "merl", "--out", "/proc/m.binary"], "cannot be written"),
+        (["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", str(out / "s"), "--export",
+          "merl,obj"], "--export: format 'obj' is unknown"),
+    ]
+    try:
+        for argv, words in cases:
+            assert main(argv) == 2, argv
+            err = capsys.readouterr().err.strip()
+            assert words in err and "\n" not in err, (argv, err)
+    finally:
+        lock.release()
+    assert list(out.iterdir()) == []

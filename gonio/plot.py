@@ -1,0 +1,383 @@
+"""Pictures of a measured BRDF (``gonio plot``): PNG or PDF figures (matplotlib) and EXR float images.
+
+``plot(source, kind, out)`` opens a campaign folder or ``brdf.h5`` through :mod:`gonio.brdf` and draws
+one of :data:`KINDS`; an ``.exr`` ``out`` gets the float values of the same slice instead of a figure
+(pixel mapping in :mod:`gonio.slices`, repeated in the EXR header):
+
+- ``polar``: in-plane f_r for several θi on polar axes (normal up, specular side right), the interpolant
+  as lines and the measured samples of that plane as points with ±1σ error bars; log radius when the
+  values span more than a decade and a half (glossy lobes).
+- ``hemisphere``: f_r over ωo for one ωi (``theta_i_deg``, ``phi_i_deg``), seen from above.
+- ``merl``: f_r over (θh, θd) at φd = 90°, the usual image slice of MERL-style data.
+- ``reciprocity``: the relative difference f(ωi, ωo) vs f(ωo, ωi) over (θi, θo) in the plane of
+  incidence, and the z-scores of every measured pair; only for campaigns measured without the
+  reciprocity shortcut.
+- ``albedo``: directional albedo against θi with the 1.0 line of energy conservation.
+
+Figures show the luminance Y (Rec. 709 weights) of R, G, B data (the albedo plot shows each channel);
+EXR files hold every channel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gonio.brdf import MeasuredBRDF, open_brdf
+from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
+from gonio.formats import atomic_path
+from gonio.slices import (
+    LUMA,
+    Slice,
+    albedo_slice,
+    hemisphere_slice,
+    luminance,
+    merl_slice,
+    polar_slice,
+    reciprocity_slice,
+    write_exr,
+)
+
+__all__ = ["plot", "KINDS", "SUFFIXES", "PlotReport"]
+
+KINDS = ("polar", "hemisphere", "merl", "reciprocity", "albedo")
+SUFFIXES = (".png", ".pdf", ".exr")
+# Values spanning more than this ratio get a logarithmic axis.
+_LOG_RATIO = 30.0
+_NAN_COLOUR = "#d9d9d9"
+
+
+@dataclass
+class PlotReport:
+    """What :func:`plot` wrote: the file, the slice behind it, and notes worth printing."""
+
+    kind: str
+    path: Path
+    slice: Slice
+    notes: list = field(default_factory=list)
+
+    def __str__(self) -> str:
+        return f"{self.kind}: {self.path}" + "".join(f"\n  {n}" for n in self.notes)
+
+
+def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float = 0.0) -> PlotReport:
+    """Draw a measured BRDF.
+
+    Parameters
+    ----------
+    source : str, Path or SampledBRDF
+        A campaign folder, its ``brdf.h5``, or data already read.
+    kind : str
+        One of :data:`KINDS`.
+    out : str or Path
+        ``.png``, ``.pdf`` (a figure) or ``.exr`` (the slice's float values); its folder must exist.
+    theta_i_deg, phi_i_deg : float
+        Degrees: ωi of ``hemisphere``; φi (the plane of incidence) of ``polar``, ``reciprocity`` and
+        ``albedo``.
+
+    Returns
+    -------
+    PlotReport
+    """
+    if kind not in KINDS:
+        raise ValueError(f"plot kind {kind!r} is unknown; allowed: {', '.join(KINDS)}")
+    out = Path(out)
+    if out.suffix.lower() not in SUFFIXES:
+        raise ValueError(f"output {str(out)!r}: the suffix picks the format; allowed: {', '.join(SUFFIXES)}")
+    if not (np.isfinite(theta_i_deg) and 0.0 <= theta_i_deg < 90.0):
+        raise ValueError(f"theta_i_deg: must be in [0, 90) degrees, got {theta_i_deg}")
+    if not np.isfinite(phi_i_deg):
+        raise ValueError(f"phi_i_deg: must be a finite number of degrees, got {phi_i_deg}")
+    data, name = _read(source)
+    b = open_brdf(data)
+    s = _slice(b, data, kind, theta_i_deg, phi_i_deg)
+    meta = {"campaign": name, "material": _what(b), "grid": str(b.attrs.get("grid", "")),
+            "units": s.quantity, "cosine": "none"}
+    report = PlotReport(kind, out, s)
+    if out.suffix.lower() == ".exr":
+        write_exr(out, s, meta)
+        return report
+    fig = _DRAW[kind](b, data, s, _title(name, b), report)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format=out.suffix.lower()[1:], dpi=150, bbox_inches="tight")
+    return report
+
+
+def _read(source) -> tuple[SampledBRDF, str]:
+    if isinstance(source, SampledBRDF):
+        return source, str(source.attrs.get("material") or "dataset")
+    path = Path(source)
+    h5 = path / BRDF_NAME if path.is_dir() else path
+    if not h5.is_file():
+        raise ValueError(f"plot source {str(source)!r}: no such campaign folder or {BRDF_NAME} file")
+    return read_brdf(h5), (path.name if path.is_dir() else h5.parent.name) or str(path)
+
+
+def _what(b: MeasuredBRDF) -> str:
+    return str(b.attrs.get("material") or b.attrs.get("sample") or "")
+
+
+def _title(name: str, b: MeasuredBRDF, width: int = 80) -> str:
+    """The campaign's name, then what was measured on which grid (wrapped: specs run long)."""
+    import textwrap
+
+    sub = " · ".join(x for x in (_what(b), str(b.attrs.get("grid", "")).split(",order=")[0]) if x)
+    lines = textwrap.wrap(sub, width, break_on_hyphens=False) if sub else []
+    return "\n".join([f"campaign {name}", *lines])
+
+
+def _incidences(b: MeasuredBRDF, data: SampledBRDF, most: int = 6) -> np.ndarray:
+    """θi values to draw: the measured ones (at most ``most``, evenly chosen), else every 15°."""
+    src = data.planned[:, 0] if b.angles == "planned" else np.asarray(data.theta_i)
+    top = min(b.theta_max_deg, 89.0)
+    values = np.unique(np.round(np.asarray(src, float), 1))
+    values = values[values <= top + 1e-9]
+    if not 2 <= len(values) <= 60:
+        values = np.arange(0.0, top + 1e-9, 15.0)
+    if len(values) > most:
+        values = values[np.unique(np.round(np.linspace(0, len(values) - 1, most)).astype(int))]
+    return values
+
+
+def _slice(b, data, kind, theta_i_deg, phi_i_deg) -> Slice:
+    if kind == "polar":
+        return polar_slice(b, _incidences(b, data), phi_i_deg)
+    if kind == "hemisphere":
+        return hemisphere_slice(b, theta_i_deg, phi_i_deg)
+    if kind == "merl":
+        return merl_slice(b)
+    if kind == "reciprocity":
+        return reciprocity_slice(b, phi_i_deg)
+    top = min(b.theta_max_deg, 89.0)
+    return albedo_slice(b, np.linspace(0.0, top, max(2, int(round(top / 2.5)) + 1)), phi_i_deg)
+
+
+def _figure(w=6.4, h=5.2):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(w, h), layout="constrained")
+
+
+def _norm(values: np.ndarray):
+    """A log colour/axis norm when positive values span more than _LOG_RATIO, else linear."""
+    from matplotlib.colors import LogNorm, Normalize
+
+    pos = values[np.isfinite(values) & (values > 0)]
+    if pos.size == 0:
+        return Normalize(0.0, 1.0), False
+    lo, hi = np.percentile(pos, 0.5), pos.max()
+    if hi / max(lo, 1e-300) > _LOG_RATIO:
+        return LogNorm(max(lo, hi * 1e-4), hi), True
+    return Normalize(0.0, hi), False
+
+
+def _cmap(name: str):
+    import matplotlib
+
+    return matplotlib.colormaps[name].with_extremes(bad=_NAN_COLOUR)
+
+
+def _ylabel(b) -> str:
+    return "luminance Y of f_r (sr⁻¹)" if b.channels == ("R", "G", "B") else f"f_r {b.channels[0]} (sr⁻¹)"
+
+
+# -- polar --------------------------------------------------------------------------------------------
+def _in_plane_samples(b, data, theta_i, phi_i, tol=0.5):
+    """Measured samples in the plane of incidence at θi: (signed θo deg, Y, σY)."""
+    ang = data.planned if b.angles == "planned" else np.stack(
+        [data.theta_i, data.phi_i, data.theta_o, data.phi_o], axis=1)
+    ang = np.asarray(ang, float)
+    y = luminance(data.value, b.channels)
+    w2 = LUMA ** 2 if b.channels == ("R", "G", "B") else np.eye(1, len(b.channels))[0]
+    sy = np.sqrt(np.asarray(data.stddev, float) ** 2 @ w2)
+    members = [(ang[:, 0], ang[:, 1], ang[:, 2], ang[:, 3])]
+    if b.symmetries["reciprocity"]:
+        members.append((ang[:, 2], ang[:, 3], ang[:, 0], ang[:, 1]))
+    out = []
+    for ti, pi_, to, po in members:
+        rel = np.mod(po - pi_, 360.0) if b.symmetries["isotropy"] else np.mod(po - phi_i, 360.0)
+        same_plane = np.ones_like(ti, bool) if b.symmetries["isotropy"] else \
+            (np.abs((pi_ - phi_i + 180.0) % 360.0 - 180.0) <= tol) | (ti <= tol)
+        forward = np.abs(rel - 180.0) <= tol
+        back = (rel <= tol) | (rel >= 360.0 - tol)
+        pick = (np.abs(ti - theta_i) <= tol) & same_plane & (forward | back | (to <= tol))
+        out.append(np.stack([np.where(forward, to, -to)[pick], y[pick], sy[pick]], axis=1))
+        # ωi at the pole has no azimuth: its samples lie in every plane, on both sides.
+        pole = pick & (ti <= tol)
+        out.append(np.stack([np.where(forward, -to, to)[pole], y[pole], sy[pole]], axis=1))
+    pts = np.concatenate(out)
+    return np.unique(pts, axis=0) if len(pts) else pts
+
+
+def _draw_polar(b, data, s, title, report):
+    import matplotlib
+
+    fig = _figure(11.5, 5.2)
+    ax = fig.add_subplot(1, 2, 1, projection="polar")
+    cx = fig.add_subplot(1, 2, 2)
+    ax.set_theta_zero_location("N")
+    ax.set_theta_direction(-1)
+    ax.set_thetamin(-90)
+    ax.set_thetamax(90)
+    rows = s.attrs["rows_deg"]
+    signed = -90.0 + 180.0 * (np.arange(s.image.shape[1]) + 0.5) / s.image.shape[1]
+    y = luminance(s.image, b.channels)
+    points = [_in_plane_samples(b, data, t, s.attrs["phi_i_deg"]) for t in rows]
+    allv = np.concatenate([y[np.isfinite(y)].ravel()] + [p[:, 1] for p in points])
+    norm, log = _norm(allv)
+    colours = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.9, len(rows)))
+    for k, t in enumerate(rows):
+        p = points[k]
+        for axis, x, px in ((ax, np.radians(signed), np.radians(p[:, 0])), (cx, signed, p[:, 0])):
+            axis.plot(x, y[k], color=colours[k], lw=1.6, label=f"θi = {t:g}°")
+            if len(p):
+                axis.errorbar(px, p[:, 1], yerr=p[:, 2], fmt="o", ms=3.2, color=colours[k], ecolor=colours[k],
+                              elinewidth=1.0, capsize=1.5)
+        cx.axvline(t, color=colours[k], lw=0.7, ls=":")  # the mirror direction of this θi
+    if log:
+        ax.set_rscale("log")
+        ax.set_rlim(norm.vmin * 0.7, norm.vmax * 1.5)
+        cx.set_yscale("log")
+        cx.set_ylim(norm.vmin * 0.7, norm.vmax * 1.5)
+    else:
+        ax.set_rlim(0.0, norm.vmax * 1.08)
+        cx.set_ylim(0.0, norm.vmax * 1.08)
+    ax.set_thetagrids(range(-90, 91, 30), [f"{abs(a)}°" for a in range(-90, 91, 30)])
+    ax.set_rlabel_position(-90)
+    ax.tick_params(axis="y", labelsize=7)
+    ax.set_title(f"radius: f_r{' (log)' if log else ''}; angle: θo from the normal\n"
+                 "← light side  |  specular side →", fontsize=8.5)
+    cx.set_xlim(-90, 90)
+    cx.set_xticks(range(-90, 91, 30))
+    cx.set_xlabel("signed θo (°):  ← light side (φo = φi)  |  specular side (φo = φi + 180°) →")
+    cx.set_ylabel(_ylabel(b) + (", log scale" if log else ""))
+    cx.grid(alpha=0.3, which="major")
+    cx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
+              title="lines: interpolant\npoints: measured ±1σ\ndotted: mirror θo", title_fontsize=8)
+    fig.suptitle(f"{title}\nin-plane f_r, plane of incidence φi = {s.attrs['phi_i_deg']:g}°", fontsize=10)
+    return fig
+
+
+# -- hemisphere -------------------------------------------------------------------------------------
+def _draw_hemisphere(b, data, s, title, report):
+    fig = _figure(6.4, 5.4)
+    ax = fig.add_subplot()
+    y = luminance(s.image, b.channels)
+    norm, log = _norm(y)
+    im = ax.imshow(y, extent=(-90, 90, -90, 90), cmap=_cmap("inferno"), norm=norm, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label=_ylabel(b) + (" (log scale)" if log else ""), shrink=0.85)
+    circle = np.linspace(0, 2 * np.pi, 361)
+    for r in (30, 60, 90):
+        ax.plot(r * np.cos(circle), r * np.sin(circle), color="0.55", lw=0.6)
+        ax.text(r * np.cos(np.radians(-60)), r * np.sin(np.radians(-60)), f"θo={r}°", color="0.35",
+                fontsize=7, ha="left", va="top")
+    ti, pi_ = s.attrs["theta_i_deg"], np.radians(s.attrs["phi_i_deg"])
+    ax.plot(ti * np.cos(pi_ + np.pi), ti * np.sin(pi_ + np.pi), "+", color="cyan", ms=12, mew=2,
+            label="mirror direction")
+    ax.plot(ti * np.cos(pi_), ti * np.sin(pi_), "x", color="cyan", ms=9, mew=2, label="light (ωi)")
+    ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
+    ax.set_xlabel("θo cos φo (°)   (+x: sample reference direction)")
+    ax.set_ylabel("θo sin φo (°)")
+    ax.set_aspect("equal")
+    ax.set_title(f"{title}\nf_r over ωo for θi = {ti:g}°, φi = {s.attrs['phi_i_deg']:g}° (seen from above); "
+                 "grey: no data", fontsize=10)
+    return fig
+
+
+# -- merl -------------------------------------------------------------------------------------------
+def _draw_merl(b, data, s, title, report):
+    fig = _figure(6.2, 5.2)
+    ax = fig.add_subplot()
+    y = luminance(s.image, b.channels)
+    norm, log = _norm(y)
+    im = ax.imshow(y, extent=(0, 90, 0, 90), cmap=_cmap("magma"), norm=norm, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label=_ylabel(b) + (" (log scale)" if log else ""), shrink=0.85)
+    ax.set_xlabel("θh, half-vector angle from the normal (°)")
+    ax.set_ylabel("θd, difference angle (°)")
+    ax.set_xticks(range(0, 91, 15))
+    ax.set_yticks(range(0, 91, 15))
+    ax.set_title(f"{title}\nf_r over (θh, θd) at φd = {s.attrs['phi_d_deg']:g}°; grey: no data", fontsize=10)
+    return fig
+
+
+# -- reciprocity ------------------------------------------------------------------------------------
+def _draw_reciprocity(b, data, s, title, report):
+    fig = _figure(10.5, 4.6)
+    ax, hx = fig.subplots(1, 2, width_ratios=(1.25, 1.0))
+    top = s.attrs["theta_max_deg"]
+    rel = luminance(s.image, b.channels) if b.channels == ("R", "G", "B") else s.image[..., 0]
+    finite = np.abs(rel[np.isfinite(rel)])
+    lim = max(float(np.percentile(finite, 99.5)) if finite.size else 0.0, 1e-6)
+    im = ax.imshow(100.0 * rel, extent=(0, top, 0, top), cmap=_cmap("RdBu_r"), vmin=-100 * lim,
+                   vmax=100 * lim, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label="(f(ωi,ωo) − f(ωo,ωi)) / mean  (%)", shrink=0.9)
+    ax.set_xlabel("θi (°)")
+    ax.set_ylabel("θo (°)")
+    median = 100 * np.median(finite) if finite.size else 0.0
+    ax.set_title(f"in-plane, φo = φi + 180°; median |diff| {median:.2g} %", fontsize=9)
+    z = _reciprocity_z(b, data)
+    if z.size:
+        hx.hist(np.clip(z, -6, 6), bins=np.linspace(-6, 6, 49), color="0.4")
+        hx.axvline(-2, color="C3", ls="--", lw=0.8)
+        hx.axvline(2, color="C3", ls="--", lw=0.8, label="±2σ")
+        hx.legend(fontsize=8)
+        frac = float(np.mean(np.abs(z) > 2.0))
+        hx.set_title(f"{z.size} measured pairs: {100 * frac:.1f} % beyond ±2σ (≈5 % if reciprocal)",
+                     fontsize=9)
+        report.notes.append(f"{z.size} measured pairs; {100 * frac:.1f} % differ from their reciprocal by "
+                            "more than 2 sigma")
+    hx.set_xlabel("z = (f(ωi,ωo) − f(ωo,ωi)) / σ   (clipped to ±6)")
+    hx.set_ylabel("pairs")
+    fig.suptitle(f"{title}\nHelmholtz reciprocity residual (luminance Y)", fontsize=10)
+    return fig
+
+
+def _reciprocity_z(b, data) -> np.ndarray:
+    """z-scores of each measured sample against the interpolant at its swapped pair (luminance)."""
+    ang = data.planned if b.angles == "planned" else np.stack(
+        [data.theta_i, data.phi_i, data.theta_o, data.phi_o], axis=1)
+    ang = np.asarray(ang, float)
+    ev = b.eval_deg(ang[:, 2], ang[:, 3], ang[:, 0], ang[:, 1])
+    ok = np.isfinite(ev.value).all(axis=1)
+    f = luminance(np.asarray(data.value, float)[ok], b.channels)
+    g = luminance(ev.value[ok], b.channels)
+    w2 = LUMA ** 2 if b.channels == ("R", "G", "B") else np.eye(1, len(b.channels))[0]
+    var = np.asarray(data.stddev, float)[ok] ** 2 @ w2 + ev.stddev[ok] ** 2 @ w2
+    keep = var > 0
+    return (f[keep] - g[keep]) / np.sqrt(var[keep])
+
+
+# -- albedo -----------------------------------------------------------------------------------------
+def _draw_albedo(b, data, s, title, report):
+    fig = _figure(6.4, 4.6)
+    ax = fig.add_subplot()
+    th = np.asarray(s.attrs["cols_deg"])
+    colours = {"R": "#d62728", "G": "#2ca02c", "B": "#1f77b4"}
+    n = len(b.channels)
+    for k, ch in enumerate(b.channels):
+        # widest first, so that channels that coincide (a grey sample) stay visible as nested lines
+        ax.plot(th, s.image[0, :, k], color=colours.get(ch, f"C{k}"), lw=1.2 + 1.6 * (n - 1 - k), alpha=0.85,
+                label=ch, zorder=2 + k)
+    ax.axhline(1.0, color="k", ls="--", lw=1.0, label="1.0: energy\nconservation limit")
+    top = max(1.08, float(np.nanmax(s.image)) * 1.1)
+    ax.set_ylim(0.0, top)
+    ax.set_xlim(0.0, 90.0)
+    ax.set_xticks(range(0, 91, 15))
+    ax.set_xlabel("θi, incidence angle (°)")
+    ax.set_ylabel("directional albedo ∫ f_r cos θo dωo")
+    cov = np.asarray(s.attrs["coverage"])
+    if cov.min() < 0.999:
+        ax.plot(th, cov, color="0.45", ls=":", lw=1.5, label="measured fraction\nof the projected\n"
+                "hemisphere (albedo\nis a lower bound\nwhere it is < 1)")
+        report.notes.append(f"integrated over the measured part of the hemisphere ({100 * cov.min():.0f}–"
+                            f"{100 * cov.max():.0f} % of the projected solid angle): a lower bound")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    ax.grid(alpha=0.3)
+    ax.set_title(f"{title}\ndirectional albedo (energy conservation at a glance)", fontsize=10)
+    return fig
+
+
+_DRAW = {"polar": _draw_polar, "hemisphere": _draw_hemisphere, "merl": _draw_merl,
+         "reciprocity": _draw_reciprocity, "albedo": _draw_albedo}

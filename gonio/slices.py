@@ -1,0 +1,199 @@
+"""Slices of a measured BRDF on regular pixel grids: what :mod:`gonio.plot` draws and writes as EXR.
+
+Each slice is f_r (or a quantity made from it) evaluated through :mod:`gonio.brdf` at the directions
+of a pixel grid that the slice's ``mapping`` states in words; the same words go into the EXR header
+(``gonio:mapping``), so that anyone can recompute a pixel's directions. Rows run top to bottom as in the
+image file; pixel (row r, column c) of an H × W slice has centre u = (c + 0.5)/W, v = (r + 0.5)/H.
+
+=============== ==========================================================================================
+kind            pixels
+=============== ==========================================================================================
+``polar``       row r: θi = ``rows_deg[r]`` at φi; column c: signed in-plane θo = −90° + 180°·u (positive
+                on the specular side, φo = φi + 180°; negative on the light's side, φo = φi). f_r, sr⁻¹.
+``hemisphere``  ωi given; ωo in the azimuthal equidistant projection seen from above: x = 2u − 1 (toward
+                +x), y = 1 − 2v (toward +y), θo = 90°·√(x² + y²), φo = atan2(y, x); NaN outside the disc.
+``merl``        θh = 90°·u, θd = 90°·(1 − v) (θd up), φd = 90°, φh = 0 (Rusinkiewicz angles). f_r.
+``reciprocity`` θi = θmax·u (columns), θo = θmax·(1 − v) (rows, θo up), φi = given, φo = φi + 180°:
+                relative difference (f(ωi, ωo) − f(ωo, ωi)) / ((f(ωi, ωo) + f(ωo, ωi))/2); NaN where
+                θi > θo (the other half is the same with the opposite sign).
+``albedo``      one row; column c: θi = ``cols_deg[c]``: directional albedo ∫ f_r cos θo dωo over the
+                measured part of the hemisphere (midpoint rule, 1° in θo, 5° in φo); dimensionless.
+=============== ==========================================================================================
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gonio.brdf import MeasuredBRDF, Reason
+from gonio.geometry import from_half_diff
+
+__all__ = ["Slice", "polar_slice", "hemisphere_slice", "merl_slice", "reciprocity_slice", "albedo_slice",
+           "write_exr", "luminance"]
+
+#: Rec. 709 luminance weights of linear R, G, B (the house's RGB; also the Radiance export's).
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+@dataclass
+class Slice:
+    """A slice: ``image`` (H, W, C) float64 in the units of ``quantity``, and how its pixels map."""
+
+    kind: str
+    image: np.ndarray
+    channels: tuple
+    quantity: str
+    mapping: str
+    attrs: dict = field(default_factory=dict)
+
+
+def luminance(values: np.ndarray, channels) -> np.ndarray:
+    """Y of (..., 3) linear R, G, B; the first channel of anything else."""
+    values = np.asarray(values, dtype=np.float64)
+    return values @ LUMA if tuple(channels) == ("R", "G", "B") else values[..., 0]
+
+
+def _centres(n: int) -> np.ndarray:
+    return (np.arange(n) + 0.5) / n
+
+
+def _eval(b: MeasuredBRDF, ti, pi_, to, po) -> np.ndarray:
+    ev = b.eval_deg(ti, pi_, to, po)
+    return ev.value
+
+
+def polar_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0, width: int = 361) -> Slice:
+    """f_r in the plane of incidence for each θi of ``thetas_i_deg`` (rows), signed θo (columns)."""
+    rows = np.asarray(thetas_i_deg, dtype=np.float64)
+    signed = -90.0 + 180.0 * _centres(width)
+    ti, so = np.meshgrid(rows, signed, indexing="ij")
+    po = np.where(so >= 0, phi_i_deg + 180.0, phi_i_deg)
+    v = _eval(b, ti, phi_i_deg, np.abs(so), po).reshape(len(rows), width, -1)
+    return Slice("polar", v, b.channels, "f_r [sr^-1]",
+                 "row r: theta_i = rows_deg[r], phi_i given; column c: signed in-plane theta_o = -90 + "
+                 "180*(c+0.5)/W deg, phi_o = phi_i+180 where >= 0 (specular side), phi_o = phi_i where < 0",
+                 {"rows_deg": rows.tolist(), "phi_i_deg": float(phi_i_deg)})
+
+
+def hemisphere_slice(b: MeasuredBRDF, theta_i_deg: float, phi_i_deg: float, size: int = 181) -> Slice:
+    """f_r over ωo for one ωi, in the azimuthal equidistant projection of the hemisphere."""
+    x = 2.0 * _centres(size) - 1.0
+    xx, yy = np.meshgrid(x, -x)
+    r = np.hypot(xx, yy)
+    to = 90.0 * r
+    po = np.degrees(np.arctan2(yy, xx))
+    v = _eval(b, theta_i_deg, phi_i_deg, np.where(r < 1.0, to, np.nan), po).reshape(size, size, -1)
+    return Slice("hemisphere", v, b.channels, "f_r [sr^-1]",
+                 "x = 2(c+0.5)/W - 1 (+x right), y = 1 - 2(r+0.5)/H (+y up), theta_o = 90*sqrt(x^2+y^2) "
+                 "deg, phi_o = atan2(y, x); NaN outside the disc",
+                 {"theta_i_deg": float(theta_i_deg), "phi_i_deg": float(phi_i_deg)})
+
+
+def merl_slice(b: MeasuredBRDF, size: int = 180, phi_d_deg: float = 90.0) -> Slice:
+    """f_r over (θh, θd) at one φd, the image slice of MERL-style data."""
+    th = np.radians(90.0 * _centres(size))
+    td = np.radians(90.0 * (1.0 - _centres(size)))
+    h, d = np.meshgrid(th, td)
+    wi, wo = from_half_diff(h.ravel(), 0.0, d.ravel(), np.radians(phi_d_deg))
+    v = b.eval(wi, wo).value.reshape(size, size, -1)
+    return Slice("merl", v, b.channels, "f_r [sr^-1]",
+                 "theta_h = 90*(c+0.5)/W deg, theta_d = 90*(1 - (r+0.5)/H) deg (theta_d up), "
+                 "phi_h = 0, phi_d given (Rusinkiewicz half/difference angles)",
+                 {"phi_d_deg": float(phi_d_deg)})
+
+
+def reciprocity_slice(b: MeasuredBRDF, phi_i_deg: float = 0.0, size: int = 121) -> Slice:
+    """Relative reciprocity residual over (θi, θo) in the plane of incidence (specular side).
+
+    Raises
+    ------
+    ValueError
+        When the campaign used the reciprocity shortcut: its data cannot show a residual.
+    """
+    if b.symmetries["reciprocity"]:
+        raise ValueError("reciprocity: this campaign used the reciprocity shortcut (each (wi, wo) stands "
+                         "for (wo, wi) too), so it holds no residual to show; measure with a grid option "
+                         "reciprocity=false, e.g. iso:step=10,reciprocity=false")
+    top = b.theta_max_deg
+    ti = top * _centres(size)
+    to = top * (1.0 - _centres(size))
+    a, c = np.meshgrid(ti, to)
+    po = phi_i_deg + 180.0
+    f = _eval(b, a, phi_i_deg, c, po)
+    g = _eval(b, c, po, a, phi_i_deg)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = (f - g) / (0.5 * (f + g))
+    rel[(a > c).ravel()] = np.nan
+    return Slice("reciprocity", rel.reshape(size, size, -1), b.channels,
+                 "relative difference (f(wi,wo) - f(wo,wi)) / mean",
+                 "theta_i = theta_max*(c+0.5)/W deg, theta_o = theta_max*(1 - (r+0.5)/H) deg (theta_o up), "
+                 "phi_i given, phi_o = phi_i + 180; NaN where theta_i > theta_o",
+                 {"theta_max_deg": float(top), "phi_i_deg": float(phi_i_deg)})
+
+
+def albedo_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0) -> Slice:
+    """Directional albedo ∫ f_r cos θo dωo against θi, over the measured part of the hemisphere.
+
+    ``attrs["coverage"]`` is, per θi, the fraction of the projected solid angle (π) whose f_r exists:
+    the albedo shown is a lower bound where it is below 1.
+    """
+    cols = np.asarray(thetas_i_deg, dtype=np.float64)
+    dt, dp = 1.0, 5.0
+    to = np.arange(0.0, 90.0, dt) + dt / 2
+    po = np.arange(0.0, 360.0, dp) + dp / 2
+    t, p = (a.ravel() for a in np.meshgrid(to, po, indexing="ij"))
+    # cos θo dω over a cell: cos θ sin θ dθ dφ
+    w = np.cos(np.radians(t)) * np.sin(np.radians(t)) * np.radians(dt) * np.radians(dp)
+    out = np.zeros((1, len(cols), len(b.channels)))
+    coverage = np.zeros(len(cols))
+    for k, ti in enumerate(cols):
+        ev = b.eval_deg(ti, phi_i_deg, t, phi_i_deg + p)
+        ok = ev.reason == Reason.OK
+        out[0, k] = (w[ok, None] * ev.value[ok]).sum(axis=0)
+        coverage[k] = w[ok].sum() / np.pi
+    return Slice("albedo", out, b.channels, "directional albedo (dimensionless)",
+                 "one row; column c: theta_i = cols_deg[c] deg at phi_i; value = sum over the measured cells "
+                 "of f_r cos(theta_o) dw, midpoint rule with 1 deg in theta_o and 5 deg in phi_o",
+                 {"cols_deg": cols.tolist(), "phi_i_deg": float(phi_i_deg), "coverage": coverage.tolist()})
+
+
+def write_exr(path: str | Path, s: Slice, meta: dict) -> Path:
+    """Write a slice as a float32 OpenEXR image (one channel per BRDF channel) with its mapping, units
+    and ``meta`` in the header; atomically (a temporary name in the same folder renamed into place).
+
+    Raises
+    ------
+    ValueError
+        OpenImageIO is not installed, or the file cannot be written.
+    """
+    try:
+        import OpenImageIO as oiio
+    except ImportError:
+        raise ValueError("EXR output needs OpenImageIO (pip install OpenImageIO); write .png or .pdf "
+                         "instead") from None
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise ValueError(f"output {str(path)!r}: folder {str(path.parent)!r} does not exist")
+    h, w, c = s.image.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+    spec.channelnames = tuple(str(x) for x in s.channels)
+    header = {"gonio:kind": s.kind, "gonio:quantity": s.quantity, "gonio:mapping": s.mapping,
+              **{f"gonio:{k}": v for k, v in s.attrs.items()}, **{f"gonio:{k}": v for k, v in meta.items()}}
+    for key, val in header.items():
+        # floats as text: an EXR float attribute is float32, and readers must recover the exact mapping
+        spec.attribute(key, val if isinstance(val, str | int) else repr(val))
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    out = oiio.ImageOutput.create(str(tmp))
+    try:
+        if out is None or not out.open(str(tmp), spec) or \
+                not out.write_image(np.ascontiguousarray(s.image, dtype=np.float32)):
+            raise ValueError(f"output {str(path)!r}: cannot write EXR ({oiio.geterror() or 'unknown error'})")
+        out.close()
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path

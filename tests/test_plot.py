@@ -1,0 +1,124 @@
+"""gonio plot: every kind renders a readable PNG, and EXR pixels hold gonio.brdf at their directions."""
+
+import numpy as np
+import pytest
+from brdf_samples import sampled
+
+from gonio.brdf import Reason, open_brdf
+from gonio.cli import main
+from gonio.geometry import from_half_diff
+from gonio.plot import KINDS, plot
+
+SPEC = "ggx:alpha=0.15,metal=copper,rho_d=0.2,rho_s=0.8"
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    from gonio.campaign import create_campaign, run_campaign
+    from gonio.config import load_config
+    from gonio.wiring import build_gantry
+
+    folder = tmp_path_factory.mktemp("plot") / "copper"
+    c = create_campaign(folder, load_config(), grid="iso:step=15,reciprocity=false", material=SPEC, seed=2)
+    try:
+        run_campaign(c, build_gantry(c.cfg, SPEC, seed=2))
+    finally:
+        c.close()
+    return folder
+
+
+def _exr(path):
+    oiio = pytest.importorskip("OpenImageIO")
+    inp = oiio.ImageInput.open(str(path))
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image("float")
+        header = {a.name: a.value for a in spec.extra_attribs}
+        return np.asarray(pixels, dtype=np.float64), spec.channelnames, header
+    finally:
+        inp.close()
+
+
+def _centres(n):
+    return (np.arange(n) + 0.5) / n
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_kind_renders_a_png_that_is_not_blank(campaign, tmp_path, kind, capsys):
+    from matplotlib.image import imread
+
+    out = tmp_path / f"{kind}.png"
+    assert main(["plot", str(campaign), "--kind", kind, "--out", str(out)]) == 0
+    assert str(out) in capsys.readouterr().out
+    img = imread(out)[..., :3]
+    assert img.shape[0] > 300 and img.shape[1] > 400
+    assert img.var() > 0.01  # not blank
+    assert np.mean(img.sum(axis=2) < 2.9) > 0.05  # a real share of the pixels is drawn, not background
+
+
+def test_pdf_and_bad_requests(campaign, tmp_path, capsys):
+    assert main(["plot", str(campaign), "--kind", "merl", "--out", str(tmp_path / "m.pdf")]) == 0
+    assert (tmp_path / "m.pdf").read_bytes().startswith(b"%PDF")
+    for argv, words in ((["--kind", "cubes", "--out", "x.png"], "--kind: 'cubes' is unknown"),
+                        (["--kind", "polar", "--out", "x.jpg"], "--out: x.jpg must end in"),
+                        (["--kind", "hemisphere", "--theta-i", "95", "--out", "x.png"],
+                         "--theta-i: must be")):
+        assert main(["plot", str(campaign), *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert words in err and "\n" not in err
+    with pytest.raises(ValueError, match="used the reciprocity shortcut"):
+        plot(sampled(SPEC, "iso:step=30"), "reciprocity", tmp_path / "r.png")
+    assert not list(tmp_path.glob("*.png")) and not list(tmp_path.glob(".*"))
+
+
+def test_exr_pixels_are_the_brdf_at_their_directions(campaign, tmp_path):
+    b = open_brdf(campaign)
+    for kind in ("polar", "hemisphere", "merl", "reciprocity"):
+        out = tmp_path / f"{kind}.exr"
+        assert main(["plot", str(campaign), "--kind", kind, "--theta-i", "45", "--phi-i", "20",
+                     "--out", str(out)]) == 0
+        got, channels, header = _exr(out)
+        assert tuple(channels) == ("R", "G", "B") and header["gonio:kind"] == kind
+        h, w, _ = got.shape
+        u, v = np.meshgrid(_centres(w), _centres(h))
+        if kind == "polar":
+            rows = np.array(eval(header["gonio:rows_deg"]))  # noqa: S307 - our own repr of a list
+            so = -90.0 + 180.0 * u
+            want = b.eval_deg(rows[:, None] + 0 * so, 20.0, np.abs(so), np.where(so >= 0, 200.0, 20.0)).value
+        elif kind == "hemisphere":
+            x, y = 2 * u - 1, 1 - 2 * v
+            r = np.hypot(x, y)
+            want = b.eval_deg(45.0, 20.0, np.where(r < 1, 90 * r, np.nan), np.degrees(np.arctan2(y, x))).value
+        elif kind == "merl":
+            wi, wo = from_half_diff(np.radians(90 * u).ravel(), 0.0, np.radians(90 * (1 - v)).ravel(),
+                                    np.radians(90.0))
+            want = b.eval(wi, wo).value
+        else:
+            top = float(header["gonio:theta_max_deg"])
+            ti, to = top * u, top * (1 - v)
+            f = b.eval_deg(ti, 20.0, to, 200.0).value
+            g = b.eval_deg(to, 200.0, ti, 20.0).value
+            want = (f - g) / (0.5 * (f + g))
+            want[(ti > to).ravel()] = np.nan
+        want = want.reshape(got.shape)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want), err_msg=kind)
+        ok = ~np.isnan(want)
+        assert ok.mean() > 0.3, kind
+        np.testing.assert_allclose(got[ok], want[ok], rtol=2e-6, atol=1e-6 if kind == "reciprocity" else 0,
+                                   err_msg=kind)
+
+
+def test_albedo_exr_is_the_cosine_weighted_integral_and_a_lambertian_stays_below_one(tmp_path):
+    data = sampled("lambert:albedo=0.6", "iso:step=10", theta_max_deg=80.0)
+    plot(data, "albedo", tmp_path / "a.exr")
+    got, _, header = _exr(tmp_path / "a.exr")
+    cols = np.array(eval(header["gonio:cols_deg"]))  # noqa: S307 - our own repr of a list
+    b = open_brdf(data)
+    t, p = np.meshgrid(np.arange(0.5, 90, 1.0), np.arange(2.5, 360, 5.0), indexing="ij")
+    w = np.cos(np.radians(t)) * np.sin(np.radians(t)) * np.radians(1.0) * np.radians(5.0)
+    for k, ti in enumerate(cols):
+        ev = b.eval_deg(ti, 0.0, t.ravel(), p.ravel())
+        ok = ev.reason == Reason.OK
+        np.testing.assert_allclose(got[0, k], (w.ravel()[ok, None] * ev.value[ok]).sum(0), rtol=1e-6)
+    # θo up to 80° holds sin²(80°) = 97 % of the projected solid angle: 0.6 * 0.97
+    np.testing.assert_allclose(got[0, :, 1], 0.6 * np.sin(np.radians(80.0)) ** 2, rtol=0.01)
