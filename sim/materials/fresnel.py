@@ -28,12 +28,19 @@ import drjit as dr
 __all__ = ["METALS", "FRESNEL_FORMS", "conductor_notes", "conductor_exact", "dielectric", "read_fresnel",
            "fresnel_term"]
 
-#: Conductors of the lecture notes' table: name → (η, k), the same in R, G and B.
+#: Built-in conductors: name → ((η_R, η_G, η_B), (k_R, k_G, k_B)), per linear-sRGB channel under D65.
+#: gold, silver, copper (Johnson & Christy 1972) and aluminium (Rakić 1995) are derived from the
+#: spectral tables in ``data/`` by :func:`gonio.colour.effective_rgb_conductor`: F0 per channel is the
+#: colour of the spectral reflectance at normal incidence (gold's red, 1.04 in linear sRGB, clipped at
+#: its largest spectral reflectance, 0.975), and k per channel follows the spectral Fresnel over angle.
+#: (The lecture notes' single (η, k) for all three channels made gold grey.) ``tests/test_colour.py``
+#: re-derives these numbers. steel keeps the notes' grey (η, k): no spectral table ships for it.
 METALS = {
-    "gold": (0.370, 2.820),
-    "silver": (0.177, 3.638),
-    "copper": (0.617, 2.63),
-    "steel": (2.485, 3.433),
+    "gold": ((0.1433, 0.4955, 1.4767), (4.6725, 2.2501, 1.7785)),
+    "silver": ((0.0574, 0.0549, 0.0431), (4.4877, 3.5555, 2.5902)),
+    "copper": ((0.2371, 1.0448, 1.2968), (3.5125, 2.6262, 2.3634)),
+    "aluminium": ((1.5025, 0.9853, 0.6059), (7.6484, 6.5535, 5.353)),
+    "steel": ((2.485,) * 3, (3.433,) * 3),
 }
 FRESNEL_FORMS = ("conductor", "dielectric", "none")
 
@@ -78,8 +85,9 @@ def dielectric(cos_theta, eta):
 def read_fresnel(p) -> tuple[str, dict]:
     """Read the Fresnel keys of a microfacet spec: ``fresnel``, ``metal``, ``eta``, ``k``.
 
-    ``metal=NAME`` means a conductor with the notes' (η, k); otherwise ``fresnel`` says the form, and
-    when it is omitted it follows from the keys given: ``k`` → conductor, ``eta`` alone → dielectric.
+    ``metal=NAME`` means a conductor with the per-channel (η, k) of :data:`METALS`; otherwise
+    ``fresnel`` says the form, and when it is omitted it follows from the keys given: ``k`` →
+    conductor, ``eta`` alone → dielectric.
     One of them must be given (``fresnel=none`` for F = 1).
 
     Returns
@@ -92,7 +100,7 @@ def read_fresnel(p) -> tuple[str, dict]:
         p.choice("fresnel", ("conductor",), "conductor", context="when 'metal' is given")
         metal = p.choice("metal", tuple(METALS))
         eta, k = METALS[metal]
-        return "conductor", {"eta": (eta,) * 3, "k": (k,) * 3}
+        return "conductor", {"eta": eta, "k": k}
     if not p.has("fresnel") and not p.has("eta") and not p.has("k"):
         raise p.error("say how the facets reflect: metal=NAME (" + ", ".join(METALS) + "), "
                       "fresnel=conductor with eta and k, fresnel=dielectric with eta, or fresnel=none")

@@ -19,7 +19,17 @@ from scipy import integrate
 
 from gonio.geometry import merl_index, to_half_diff
 
-METALS = {"gold": (0.370, 2.820), "silver": (0.177, 3.638), "copper": (0.617, 2.63), "steel": (2.485, 3.433)}
+# The built-in metals, name → ((η R, G, B), (k R, G, B)), pinned here as numbers. They used to be the
+# lecture notes' one (η, k) for all channels, which made gold grey; gold, silver, copper and aluminium
+# are now per-channel values derived from spectral tables (Johnson & Christy 1972, Rakić 1995) under
+# D65 in linear sRGB, re-derived independently in tests/test_colour.py. Steel keeps the notes' values.
+METALS = {
+    "gold": ((0.1433, 0.4955, 1.4767), (4.6725, 2.2501, 1.7785)),
+    "silver": ((0.0574, 0.0549, 0.0431), (4.4877, 3.5555, 2.5902)),
+    "copper": ((0.2371, 1.0448, 1.2968), (3.5125, 2.6262, 2.3634)),
+    "aluminium": ((1.5025, 0.9853, 0.6059), (7.6484, 6.5535, 5.353)),
+    "steel": ((2.485,) * 3, (3.433,) * 3),
+}
 
 
 # -- helpers --------------------------------------------------------------------------------------

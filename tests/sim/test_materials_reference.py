@@ -102,14 +102,16 @@ def test_exact_conductor_fresnel_matches_complex_snell_and_notes_at_normal_incid
     cos_theta = np.linspace(1e-3, 1.0, 200)
     scalar = dr.value_t(vector_type)
     tol = 1e-12 if dr.type_v(scalar) == dr.VarType.Float64 else 1e-5
+    # The metals are per channel (R, G, B), so each channel of the result has its own (η, k).
     for eta, k in ref.METALS.values():
         c = scalar(cos_theta)
-        rgb = vector_type(eta), vector_type(k)
+        rgb = vector_type(*eta), vector_type(*k)
         exact = fresnel.conductor_exact(c, *rgb).numpy().T
         notes = fresnel.conductor_notes(c, *rgb).numpy().T
-        expected = ref.fresnel_conductor_complex(cos_theta, (eta,) * 3, (k,) * 3)
+        expected = ref.fresnel_conductor_complex(cos_theta, eta, k)
         np.testing.assert_allclose(exact, expected, rtol=tol * 10, atol=tol)
         # The notes' formula is exact at normal incidence, ((η−1)² + k²)/((η+1)² + k²) ...
+        eta, k = np.asarray(eta), np.asarray(k)
         normal = ((eta - 1) ** 2 + k**2) / ((eta + 1) ** 2 + k**2)
         np.testing.assert_allclose(notes[-1], normal, rtol=tol * 10)
         # ... and an approximation elsewhere: it differs from the exact value at some angle.

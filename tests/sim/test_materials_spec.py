@@ -91,9 +91,10 @@ ERRORS = [
     ("cook-torrance:d=gaussian,m=0,metal=gold", r"parameter 'm' must be > 0 rad, got 0"),
     ("cook-torrance:d=blinn,m=1.6,metal=gold", r"'m' must be in \(0, 1.5707963267948966\) rad, got 1.6"),
     ("cook-torrance:d=phong,m=0.2,metal=gold", r"'d' must be one of beckmann, blinn, gaussian, got 'phong'"),
-    ("cook-torrance:m=0.2,metal=brass", r"'metal' must be one of gold, silver, copper, steel, got 'brass'"),
+    ("cook-torrance:m=0.2,metal=brass",
+     r"'metal' must be one of gold, silver, copper, aluminium, steel, got 'brass'"),
     ("cook-torrance:m=0.2", r"cook-torrance: say how the facets reflect: metal=NAME \(gold, silver, copper, "
-                            r"steel\), fresnel=conductor with eta and k, fresnel=dielectric"),
+                            r"aluminium, steel\), fresnel=conductor with eta and k, fresnel=dielectric"),
     ("cook-torrance:metal=gold", r"cook-torrance: parameter 'm' is required \(a number > 0\)"),
     ("cook-torrance:m=0.2,fresnel=conductor,eta=0.37", r"parameter 'k' is required \(one number >= 0"),
     ("cook-torrance:m=0.2,fresnel=conductor,eta=0,k=1", r"'eta' must be > 0, got 0"),
