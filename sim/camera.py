@@ -304,13 +304,18 @@ class SimCamera:
         s = self.settings
         pose = _check_pose(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg)
         clean = self.radiance(*pose, seed_state=_seed_state(self.seed, _RENDER_STREAM, a, b))
-        signal = clean.astype(np.float64) * exposure_s
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, _NOISE_STREAM, a, b]))
-        if s.shot_counts_per_unit > 0.0:
-            signal = rng.poisson(signal * s.shot_counts_per_unit) / s.shot_counts_per_unit
-        if s.read_sigma > 0.0:
-            signal = signal + rng.normal(0.0, s.read_sigma, size=signal.shape)
-        signal = np.minimum(signal + s.black_level, s.saturation).astype(np.float32)
+        if s.shot_counts_per_unit > 0.0 or s.read_sigma > 0.0:
+            signal = clean.astype(np.float64) * exposure_s
+            rng = np.random.default_rng(np.random.SeedSequence([self.seed, _NOISE_STREAM, a, b]))
+            if s.shot_counts_per_unit > 0.0:
+                signal = rng.poisson(signal * s.shot_counts_per_unit) / s.shot_counts_per_unit
+            if s.read_sigma > 0.0:
+                signal = signal + rng.normal(0.0, s.read_sigma, size=signal.shape)
+        else:  # noise-free: stay in float32, in place
+            signal = clean
+            signal *= np.float32(exposure_s)
+        signal += s.black_level
+        signal = np.minimum(signal, s.saturation, dtype=np.float32)
         meta = {"theta_i_deg": pose[0], "phi_i_deg": pose[1], "theta_o_deg": pose[2], "phi_o_deg": pose[3],
                 "exposure_s": exposure_s, "key": None if key is None else [a, b], "seed": self.seed,
                 "backend": self.backend, "black_level": s.black_level, "saturation": s.saturation,
