@@ -649,6 +649,27 @@ def cmd_plot(args) -> int:
     return 0
 
 
+# -- gonio report ---------------------------------------------------------------------------------
+def cmd_report(args) -> int:
+    """Write the HTML report of a finished campaign; the page's path and its verdict lines on stdout."""
+    from gonio.report import SUFFIXES, parse_models, report
+    from gonio.report.html import LEVELS
+
+    out = Path(args.out)
+    if out.is_dir():
+        raise UsageError(f"--out: {out} is a folder; give a file name ending in .html")
+    if out.suffix.lower() not in SUFFIXES:
+        raise UsageError(f"--out: {out} must end in .html (the report is one self-contained HTML page)")
+    models = parse_models(args.models)  # a bad MODEL is reported before any data is read
+    source = finished_campaign(Path(args.dir))
+    out = _writable_out(args.out)
+    rep = report(source.parent, out, models)
+    print(f"report: {out}")
+    for level, topic, text in rep.verdicts:
+        print(f"  {LEVELS[level]:<4}  {topic}: {text}")
+    return 0
+
+
 # -- the parser -----------------------------------------------------------------------------------
 class _DefaultsFormatter(argparse.HelpFormatter):
     """Help that shows each option's default where it has a meaningful one (not for flags, required
@@ -746,6 +767,16 @@ def build_parser() -> argparse.ArgumentParser:
     sg.add_argument("--theta-i", type=float, default=30.0, help="θi of the hemisphere plot, degrees")
     sg.add_argument("--phi-i", type=float, default=0.0, help="φi (plane of incidence), degrees")
     sg.set_defaults(func=cmd_plot)
+
+    sq = sub.add_parser("report", formatter_class=fmt,
+                        help="a finished campaign's report as one self-contained HTML page: the campaign, "
+                             "its calibration, data checks, and several models fitted side by side")
+    sq.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
+    sq.add_argument("--out", required=True, metavar="REPORT.html", help="the page to write")
+    sq.add_argument("--models", default=None, metavar="MODELS",
+                    help="comma-separated fit MODELs as for gonio fit (default: lambert, ward, "
+                         "cook-torrance, ggx, lambert+ggx)")
+    sq.set_defaults(func=cmd_report)
 
     sr = sub.add_parser("run", formatter_class=fmt,
                         help="run a whole campaign on the configured (real, emulated or mixed) gantry")

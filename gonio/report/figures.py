@@ -1,0 +1,180 @@
+"""The report's figures, drawn with matplotlib and returned as PNG bytes (embedded in the HTML)."""
+
+from __future__ import annotations
+
+import io
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from gonio.report.models import FRESNEL_THETA_D_DEG, PEAK_THETA_H_DEG
+
+__all__ = ["png", "overview", "calibration", "albedo", "reciprocity", "residual_maps", "DPI"]
+
+DPI = 100
+_CHANNEL_COLOURS = {"R": "#d62728", "G": "#2ca02c", "B": "#1f77b4"}
+_FLAG = "#c00000"
+
+
+def _figure(w, h):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(w, h), layout="constrained")
+
+
+def png(fig) -> bytes:
+    """A figure as PNG bytes."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
+
+
+def _colour(ch: str, k: int) -> str:
+    return _CHANNEL_COLOURS.get(ch, f"C{k}")
+
+
+def _time_axis(seconds: np.ndarray) -> tuple[np.ndarray, str]:
+    top = float(np.max(seconds)) if len(seconds) else 0.0
+    if top >= 3 * 3600:
+        return seconds / 3600.0, "campaign time (h)"
+    if top >= 180:
+        return seconds / 60.0, "campaign time (min)"
+    return seconds, "campaign time (s)"
+
+
+def overview(folder: Path) -> bytes:
+    """The in-plane polar figure of ``gonio plot --kind polar`` (the data at a glance)."""
+    from gonio.plot import plot
+
+    with tempfile.TemporaryDirectory(prefix="gonio-report-") as tmp:
+        out = Path(tmp) / "polar.png"
+        plot(folder, "polar", out)
+        return out.read_bytes()
+
+
+def calibration(ref, dark, channels) -> bytes:
+    """White-reference net rate (as % of its median) and dark rate against campaign time."""
+    fig = _figure(10.0, 6.4)
+    ax, dx = fig.subplots(2, 1, sharex=True)
+    t, label = _time_axis(ref.time_s)
+    n = len(channels)
+    for k, ch in enumerate(channels):
+        pct = 100.0 * (ref.rate[:, k] / ref.scale[k] - 1.0)
+        err = 100.0 * ref.stderr[:, k] / ref.scale[k]
+        # larger markers first, so that channels that coincide (a grey standard) all stay visible
+        ax.errorbar(t, pct, yerr=err, fmt="o-", ms=3.5 + 2.5 * (n - 1 - k), lw=1.0, capsize=2,
+                    color=_colour(ch, k), label=ch, alpha=0.85)
+    if ref.flagged:
+        worst = np.array([100.0 * (ref.rate[i] / ref.scale - 1.0) for i in ref.flagged])
+        ax.plot(t[ref.flagged], worst.min(axis=1), "o", ms=14, mfc="none", mec=_FLAG, mew=2,
+                label="flagged reading")
+        for i in ref.flagged:
+            ax.annotate(f"step {ref.step[i]}", (t[i], 100.0 * float(np.min(ref.rate[i] / ref.scale - 1.0))),
+                        textcoords="offset points", xytext=(8, -14), color=_FLAG, fontsize=9)
+    ax.axhline(0.0, color="0.5", lw=0.8)
+    ax.set_ylabel("white reference, net of dark:\n% from its median")
+    ax.set_title("White-reference readings over the campaign (the calibration interpolates linearly "
+                 "between them)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    td = _scale_like(dark.time_s, ref.time_s)
+    for k, ch in enumerate(channels):
+        dx.errorbar(td, dark.rate[:, k], yerr=dark.stderr[:, k], fmt="s-", ms=3.5 + 2.5 * (n - 1 - k), lw=1.0,
+                    capsize=2,
+                    color=_colour(ch, k), label=ch, alpha=0.85)
+    if dark.flagged:
+        dx.plot(td[dark.flagged], dark.rate[dark.flagged].max(axis=1), "o", ms=14, mfc="none", mec=_FLAG,
+                mew=2, label="flagged reading")
+    dx.set_ylabel("dark signal\n(signal units per s)")
+    dx.set_xlabel(label)
+    dx.set_title("Dark readings over the campaign", fontsize=10)
+    dx.grid(alpha=0.3)
+    dx.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return png(fig)
+
+
+def _scale_like(seconds: np.ndarray, reference_seconds: np.ndarray) -> np.ndarray:
+    """``seconds`` in the unit :func:`_time_axis` picks for ``reference_seconds``."""
+    _, label = _time_axis(reference_seconds)
+    return seconds / {"campaign time (h)": 3600.0, "campaign time (min)": 60.0}.get(label, 1.0)
+
+
+def albedo(alb: dict) -> bytes:
+    """Directional albedo against θi per channel, the 1.0 line, values above it marked."""
+    fig = _figure(8.5, 4.2)
+    ax = fig.add_subplot()
+    th = alb["theta_i"]
+    for k, ch in enumerate(alb["channels"]):
+        ax.plot(th, alb["albedo"][:, k], "o-", ms=3.5, color=_colour(ch, k), label=ch)
+    over = alb["albedo"] > 1.0
+    if over.any():
+        rows, cols = np.nonzero(over)
+        ax.plot(th[rows], alb["albedo"][rows, cols], "o", ms=11, mfc="none", mec=_FLAG, mew=2,
+                label="above 1: violates\nenergy conservation")
+    ax.axhline(1.0, color="k", ls="--", lw=1.0, label="1.0: the energy\nconservation limit")
+    cov = alb["coverage"]
+    if cov.min() < 0.999:
+        ax.plot(th, cov, color="0.45", ls=":", lw=1.5, label="measured fraction of\nthe hemisphere "
+                "(albedo is\na lower bound below 1)")
+    ax.set_ylim(0.0, max(1.1, float(np.nanmax(alb["albedo"])) * 1.1))
+    ax.set_xlim(0.0, 90.0)
+    ax.set_xticks(range(0, 91, 15))
+    ax.set_xlabel("θi, incidence angle (°)")
+    ax.set_ylabel("directional albedo\n∫ f_r cos θo dωo")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return png(fig)
+
+
+def reciprocity(pairs: dict) -> bytes:
+    """z-scores of the measured reciprocal pairs (histogram) and their relative differences by angle."""
+    fig = _figure(10.0, 3.8)
+    hx, sx = fig.subplots(1, 2)
+    z = pairs["z"][np.isfinite(pairs["z"])]
+    hx.hist(np.clip(z, -8, 8), bins=np.linspace(-8, 8, 33), color="0.45")
+    for v in (-3, 3):
+        hx.axvline(v, color=_FLAG, ls="--", lw=0.9)
+    hx.set_xlabel("z = (f(ωi,ωo) − f(ωo,ωi)) / σ  (clipped to ±8; dashed: ±3)")
+    hx.set_ylabel("pairs")
+    hx.set_title(f"{pairs['pairs']} pairs; {100 * pairs['beyond_3']:.1f} % beyond ±3σ", fontsize=10)
+    big = pairs["theta"].max(axis=1)
+    sx.plot(big, 100.0 * pairs["relative"], "o", ms=3.5, color="0.3", alpha=0.7)
+    sx.axhline(0.0, color="0.5", lw=0.8)
+    sx.set_xlabel("larger of θi, θo (°)")
+    sx.set_ylabel("(f(ωi,ωo) − f(ωo,ωi)) / mean  (%)")
+    sx.set_title("relative difference of each pair (luminance)", fontsize=10)
+    sx.grid(alpha=0.3)
+    return png(fig)
+
+
+def residual_maps(fits: list[dict]) -> bytes:
+    """One panel per fitted model: (model − data)/data of every sample over (θh, θd), one colour scale."""
+    from matplotlib.colors import Normalize
+
+    ok = [r for r in fits if r["relative"] is not None]
+    n = max(len(ok), 1)
+    cols = min(n, 3)
+    rows = (n + cols - 1) // cols
+    fig = _figure(3.7 * cols + 1.0, 3.3 * rows + 0.3)
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    norm = Normalize(-50.0, 50.0)
+    sc = None
+    for ax, r in zip(axes, ok, strict=False):
+        sc = ax.scatter(r["theta_h"], r["theta_d"], c=np.clip(100.0 * r["relative"], -50, 50), cmap="RdBu_r",
+                        norm=norm, s=16, edgecolors="0.3", linewidths=0.3)
+        ax.axvline(PEAK_THETA_H_DEG, color="0.2", lw=0.8, ls=":")
+        ax.axhline(FRESNEL_THETA_D_DEG, color="0.2", lw=0.8, ls=":")
+        ax.set_xlim(0, 90)
+        ax.set_ylim(0, 90)
+        ax.set_xticks(range(0, 91, 30))
+        ax.set_yticks(range(0, 91, 30))
+        ax.set_title(f"#{r['rank']} {r['model']}\nχ²/dof {r['per_dof']:.3g}", fontsize=9.5)
+        ax.set_xlabel("θh (°)", fontsize=9)
+        ax.set_ylabel("θd (°)", fontsize=9)
+    for ax in axes[len(ok):]:
+        ax.set_visible(False)
+    if sc is not None:
+        fig.colorbar(sc, ax=list(axes[:len(ok)]), label="(model − data) / data  (%, clipped to ±50)",
+                     shrink=0.9)
+    return png(fig)
