@@ -34,10 +34,13 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-import colour
 import numpy as np
 from drjit.llvm import Float64
 from scipy.optimize import minimize_scalar
+
+# colour-science sets numpy's print options (legacy="1.13") when imported: keep the process's own.
+with np.printoptions():
+    import colour
 
 from gonio.sim.materials.fresnel import conductor_exact
 from gonio.sim.materials.spectral import conductor_index

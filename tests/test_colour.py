@@ -3,7 +3,6 @@ and the built-in RGB metals against a re-derivation from the spectral tables."""
 
 from __future__ import annotations
 
-import colour
 import numpy as np
 import pytest
 
@@ -20,6 +19,9 @@ from gonio.sim.materials.spectral import (
     dielectric_index,
 )
 
+# colour-science through gonio.colour, which imports it without changing numpy's print options (a bare
+# import sets legacy="1.13" for the whole process, and other modules' doctests print arrays).
+colour = gc.colour
 Z = np.array([[0.0, 0.0, 1.0]])
 # colour-science warns each time it aligns a distribution to the CMFs' grid; that is intended here.
 pytestmark = pytest.mark.filterwarnings("ignore::colour.utilities.ColourRuntimeWarning")
