@@ -126,7 +126,7 @@ def build_report(folder, models: list[str] | str | None = None, *, starts: int =
     rep = Report(folder, facts, reference, dark, pairs, albedo, invalid, noise, fits)
     rep.verdicts = _verdicts(rep)
     rep.figures = {"calibration": figures.calibration(reference, dark, facts["channels"]),
-                   "overview": figures.overview(folder), "albedo": figures.albedo(albedo),
+                   "overview": figures.overview(b, data), "albedo": figures.albedo(albedo),
                    "residuals": figures.residual_maps(fits)}
     if pairs["pairs"]:
         rep.figures["reciprocity"] = figures.reciprocity(pairs)
@@ -214,7 +214,9 @@ def _verdicts(rep: Report) -> list[tuple[str, str, str]]:
                     f"{best['model']} (χ²/dof {best['per_dof']:.3g}) {best['words']}; ranking: {ranking}"))
         for m in ok[1:]:
             if m["flagged"]:
-                where = ", ".join(REGIONS[k] for k in m["flagged"])
+                measured = [k for k, g in m["regions"].items() if g["n"]]
+                where = "everywhere" if len(m["flagged"]) == len(measured) > 1 else \
+                    ", ".join(REGIONS[k] for k in m["flagged"])
                 out.append(("info", m["model"], f"fails {where} (χ²/dof {m['per_dof']:.3g})"))
     failed = [m for m in rep.fits if m["result"] is None]
     for m in failed:

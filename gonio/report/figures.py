@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import io
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
@@ -15,6 +13,8 @@ __all__ = ["png", "overview", "calibration", "albedo", "reciprocity", "residual_
 DPI = 100
 _CHANNEL_COLOURS = {"R": "#d62728", "G": "#2ca02c", "B": "#1f77b4"}
 _FLAG = "#c00000"
+#: Residual maps: the colour scale ends here (%), so that a misfit of a few % still shows.
+_CLIP_PERCENT = 25.0
 
 
 def _figure(w, h):
@@ -43,14 +43,52 @@ def _time_axis(seconds: np.ndarray) -> tuple[np.ndarray, str]:
     return seconds, "campaign time (s)"
 
 
-def overview(folder: Path) -> bytes:
-    """The in-plane polar figure of ``gonio plot --kind polar`` (the data at a glance)."""
-    from gonio.plot import plot
+def overview(b, data) -> bytes:
+    """In-plane f_r (luminance) against signed θo for up to six measured θi: the data at a glance.
 
-    with tempfile.TemporaryDirectory(prefix="gonio-report-") as tmp:
-        out = Path(tmp) / "polar.png"
-        plot(folder, "polar", out)
-        return out.read_bytes()
+    Lines are the campaign's interpolant (:func:`gonio.slices.polar_slice`), points the measured samples
+    of the plane of incidence; ``gonio plot --kind polar`` draws the full figure.
+    """
+    from gonio.report.checks import sample_angles
+    from gonio.slices import luminance, polar_slice
+
+    ang = sample_angles(data)
+    top = min(b.theta_max_deg, 89.0)
+    thetas = np.unique(np.round(ang[:, 0], 1))
+    thetas = thetas[thetas <= top + 1e-9]
+    if len(thetas) > 6:
+        thetas = thetas[np.unique(np.round(np.linspace(0, len(thetas) - 1, 6)).astype(int))]
+    s = polar_slice(b, thetas, 0.0)
+    y = luminance(s.image, b.channels)
+    signed = -90.0 + 180.0 * (np.arange(y.shape[1]) + 0.5) / y.shape[1]
+    fig = _figure(10.0, 4.4)
+    ax = fig.add_subplot()
+    import matplotlib
+
+    colours = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.9, len(thetas)))
+    values = luminance(np.asarray(data.value, np.float64), b.channels)
+    dphi = np.mod(ang[:, 3] - ang[:, 1], 360.0)
+    for k, t in enumerate(thetas):
+        ax.plot(signed, y[k], color=colours[k], lw=1.6, label=f"θi = {t:g}°")
+        pick = (np.abs(ang[:, 0] - t) < 0.05) & ((np.abs(dphi - 180.0) < 0.05) | (dphi < 0.05) |
+                                                 (dphi > 359.95) | (ang[:, 2] < 0.05))
+        x = np.where(np.abs(dphi[pick] - 180.0) < 0.05, ang[pick, 2], -ang[pick, 2])
+        v = values[pick]
+        if t < 0.05:  # light at the pole: its samples lie in every plane, on both sides
+            x, v = np.concatenate([x, -x]), np.concatenate([v, v])
+        ax.plot(x, v, "o", ms=3.5, color=colours[k])
+    pos = y[np.isfinite(y) & (y > 0)]
+    if pos.size and pos.max() / max(np.percentile(pos, 1), 1e-300) > 30:
+        ax.set_yscale("log")
+    ax.set_xlim(-90, 90)
+    ax.set_xticks(range(-90, 91, 15))
+    ax.set_xlabel("signed θo (°):  ← light side (φo = φi)  |  specular side (φo = φi + 180°) →")
+    ax.set_ylabel("luminance Y of f_r (sr⁻¹)" if b.channels == ("R", "G", "B") else "f_r (sr⁻¹)")
+    ax.grid(alpha=0.3, which="major")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False,
+              title="lines: interpolant\npoints: measured", title_fontsize=8)
+    ax.set_title("f_r in the plane of incidence (φi = 0°)", fontsize=10)
+    return png(fig)
 
 
 def calibration(ref, dark, channels) -> bytes:
@@ -158,15 +196,16 @@ def residual_maps(fits: list[dict]) -> bytes:
     rows = (n + cols - 1) // cols
     fig = _figure(3.7 * cols + 1.0, 3.3 * rows + 0.3)
     axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
-    norm = Normalize(-50.0, 50.0)
+    norm = Normalize(-_CLIP_PERCENT, _CLIP_PERCENT)
     sc = None
     for ax, r in zip(axes, ok, strict=False):
-        sc = ax.scatter(r["theta_h"], r["theta_d"], c=np.clip(100.0 * r["relative"], -50, 50), cmap="RdBu_r",
+        rel = np.clip(100.0 * r["relative"], -_CLIP_PERCENT, _CLIP_PERCENT)
+        sc = ax.scatter(r["theta_h"], r["theta_d"], c=rel, cmap="RdBu_r",
                         norm=norm, s=16, edgecolors="0.3", linewidths=0.3)
         ax.axvline(PEAK_THETA_H_DEG, color="0.2", lw=0.8, ls=":")
         ax.axhline(FRESNEL_THETA_D_DEG, color="0.2", lw=0.8, ls=":")
-        ax.set_xlim(0, 90)
-        ax.set_ylim(0, 90)
+        ax.set_xlim(-2, 91)  # room for the markers of samples on the axes (mirror direction, θd = 0)
+        ax.set_ylim(-2, 91)
         ax.set_xticks(range(0, 91, 30))
         ax.set_yticks(range(0, 91, 30))
         ax.set_title(f"#{r['rank']} {r['model']}\nχ²/dof {r['per_dof']:.3g}", fontsize=9.5)
@@ -175,6 +214,6 @@ def residual_maps(fits: list[dict]) -> bytes:
     for ax in axes[len(ok):]:
         ax.set_visible(False)
     if sc is not None:
-        fig.colorbar(sc, ax=list(axes[:len(ok)]), label="(model − data) / data  (%, clipped to ±50)",
-                     shrink=0.9)
+        fig.colorbar(sc, ax=list(axes[:len(ok)]), shrink=0.9,
+                     label=f"(model − data) / data  (%, clipped to ±{_CLIP_PERCENT:g})")
     return png(fig)

@@ -61,10 +61,11 @@ def _img(data: bytes, alt: str, caption: str = "") -> str:
     return f'<img alt="{escape(alt)}" src="data:image/png;base64,{src}">{cap}'
 
 
-def _table(head: list[str], rows: list[list], num: set | None = None, fail=None) -> str:
-    """A table; ``num`` = right-aligned columns, ``fail(r, c)`` → True marks a cell as failing."""
+def _table(head: list[str] | None, rows: list[list], num: set | None = None, fail=None) -> str:
+    """A table (no header row for ``head=None``); ``num`` = right-aligned columns, ``fail(r, c)`` → True
+    marks a cell as failing."""
     num = num or set()
-    out = ["<table><tr>" + "".join(f"<th>{escape(h)}</th>" for h in head) + "</tr>"]
+    out = ["<table>" + ("<tr>" + "".join(f"<th>{escape(h)}</th>" for h in head) + "</tr>" if head else "")]
     for r, row in enumerate(rows):
         cells = []
         for c, v in enumerate(row):
@@ -104,7 +105,7 @@ def _section_campaign(rep) -> str:
         ["faults, retries", f"{f['faults']} faults; {f['retries']} retried measurements"],
         ["created", f"{f['created']}, gonio {f['software_version']}, seed {f['seed']}"],
     ]
-    html = _table(["", ""], rows)
+    html = _table(None, rows)
     if f["events"]:
         html += "<h3>Faults, retries, pauses and halts (journal events)</h3>" + _table(
             ["event", "campaign time", "step", "message"],
@@ -229,7 +230,8 @@ def _section_fits(rep) -> str:
     html += "</div>"
     caption = ("Residual of each sample, (model − data)/data, over the half angle θh and difference angle "
                f"θd; dotted lines: θh = {models.PEAK_THETA_H_DEG:g}° and θd = "
-               f"{models.FRESNEL_THETA_D_DEG:g}°, the region bounds. Red: model too high; blue: too low.")
+               f"{models.FRESNEL_THETA_D_DEG:g}°, the bounds of the peak and Fresnel regions (grazing is "
+               "a matter of θi and θo, not of this plane). Red: model too high; blue: too low.")
     return html + _img(rep.figures["residuals"], "residual maps of the fitted models over half and "
                        "difference angle", caption)
 
@@ -287,7 +289,8 @@ def render(rep) -> str:
         ("summary", "Summary", f'<ul class="verdicts">{verdicts}</ul>'),
         ("campaign", "The campaign", _section_campaign(rep)),
         ("calibration", "Calibration: white reference and dark", _section_calibration(rep)),
-        ("overview", "The data at a glance", _img(rep.figures["overview"], "in-plane BRDF for several θi")),
+        ("overview", "The data at a glance", _img(rep.figures["overview"], "in-plane BRDF for several θi",
+                                                  "gonio plot --kind polar|hemisphere|merl draws more.")),
         ("reciprocity", "Check: reciprocity", _section_reciprocity(rep)),
         ("albedo", "Check: energy conservation (directional albedo)", _section_albedo(rep)),
         ("invalid", "Check: negative and NaN values", _section_invalid(rep)),
