@@ -815,6 +815,12 @@ def build_parser() -> argparse.ArgumentParser:
     sg.add_argument("--by", type=float, default=None, help="jog: degrees to move by (signed)")
     sg.add_argument("--json", action="store_true", help="status: one JSON object")
     sg.set_defaults(func=cmd_gantry)
+
+    # The daemon and its clients: gonio serve, submit, queue, watch, pause, resume, abort, halt, fetch
+    # (their cmd_* functions live in gonio.daemon.commands).
+    from gonio.daemon.commands import add_parsers as add_daemon_parsers
+
+    add_daemon_parsers(sub, fmt, _seed)
     return p
 
 

@@ -400,9 +400,26 @@ class Journal:
                 attempts=d["attempts"]))
         return out
 
-    def events(self, after_id: int = 0) -> list[dict]:
-        rows = self._query(f"SELECT {', '.join(_EVENT_COLUMNS)} FROM events WHERE id > ? ORDER BY id",
-                           (after_id,))
+    def measurement_rows(self, start_step: int = 0, limit: int = 1000) -> list[dict]:
+        """Committed measurements from ``start_step`` on, at most ``limit``, in step order, as plain dicts
+        (angles in degrees, signals as lists, ``wall_s`` the Unix time of the commit): what an event
+        stream sends."""
+        rows = self._query(f"SELECT {', '.join(_MEASUREMENT_COLUMNS)} FROM measurements WHERE step >= ? "
+                           "ORDER BY step LIMIT ?", (int(start_step), int(limit)))
+        out = []
+        for r in rows:
+            d = dict(zip(_MEASUREMENT_COLUMNS, r, strict=True))
+            for k in ("commanded_deg", "actual_deg"):
+                d[k] = json.loads(d[k])
+            d["signal"] = _unblob(d["signal"]).tolist()
+            d["stderr"] = _unblob(d["stderr"]).tolist()
+            out.append(d)
+        return out
+
+    def events(self, after_id: int = 0, limit: int = -1) -> list[dict]:
+        """Events after ``after_id`` in order, at most ``limit`` (-1: all)."""
+        rows = self._query(f"SELECT {', '.join(_EVENT_COLUMNS)} FROM events WHERE id > ? ORDER BY id LIMIT ?",
+                           (after_id, int(limit)))
         out = [dict(zip(_EVENT_COLUMNS, r, strict=True)) for r in rows]
         for e in out:
             if e["axes_deg"] is not None:

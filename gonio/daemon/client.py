@@ -1,0 +1,157 @@
+"""The daemon's client (httpx), behind ``gonio submit|queue|watch|pause|resume|abort|halt|fetch``.
+
+The daemon is found at ``--url`` or ``GONIO_URL`` (default ``http://127.0.0.1:8765``); writes carry
+``GONIO_TOKEN`` as a bearer token. Every failure is one line (:class:`ClientError`): the daemon is not
+running, it refused (with its own reason), or it answered something unexpected.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+
+__all__ = ["Client", "ClientError", "DEFAULT_URL", "iter_sse"]
+
+DEFAULT_URL = "http://127.0.0.1:8765"
+
+
+class ClientError(RuntimeError):
+    """One line for the user; ``code`` is the exit status (1: refused or failed, 3: no daemon)."""
+
+    def __init__(self, message: str, code: int = 1):
+        super().__init__(message)
+        self.code = code
+
+
+def _reason(r: httpx.Response) -> str:
+    try:
+        detail = r.json().get("detail")
+    except (ValueError, AttributeError):
+        detail = r.text[:200]
+    if isinstance(detail, list) and detail and isinstance(detail[0], dict):
+        d = detail[0]
+        loc = ".".join(str(x) for x in d.get("loc", [])[1:])
+        msg = d.get("msg", "")
+        detail = msg if msg.startswith(f"{loc}:") or not loc else f"{loc}: {msg}"
+    return str(detail)
+
+
+def iter_sse(lines: Iterator[str]) -> Iterator[tuple[str, str | None, str]]:
+    """(event, id, data) of each message in a server-sent event stream's lines."""
+    event, eid, data = "message", None, []
+    for line in lines:
+        if line == "":
+            if data:
+                yield event, eid, "\n".join(data)
+            event, data = "message", []
+            continue
+        if line.startswith(":"):
+            continue
+        name, _, value = line.partition(":")
+        value = value[1:] if value.startswith(" ") else value
+        if name == "event":
+            event = value
+        elif name == "data":
+            data.append(value)
+        elif name == "id":
+            eid = value
+
+
+class Client:
+    """A connection to one daemon.
+
+    Parameters
+    ----------
+    url : str, optional
+        The daemon's base URL (default: ``GONIO_URL``, else ``DEFAULT_URL``).
+    token : str, optional
+        Bearer token for writes (default: ``GONIO_TOKEN``).
+    timeout_s : float
+        Seconds to wait for a reply (event streams wait for data indefinitely between messages).
+    """
+
+    def __init__(self, url: str | None = None, token: str | None = None, timeout_s: float = 30.0):
+        self.url = (url or os.environ.get("GONIO_URL") or DEFAULT_URL).rstrip("/")
+        if not self.url.startswith(("http://", "https://")):
+            raise ClientError(f"--url: {self.url!r} is not an http:// or https:// URL", code=2)
+        token = token if token is not None else os.environ.get("GONIO_TOKEN")
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout_s)
+
+    def close(self) -> None:
+        self.http.close()
+
+    def request(self, method: str, path: str, **kw) -> httpx.Response:
+        try:
+            r = self.http.request(method, path, **kw)
+        except httpx.ConnectError:
+            raise ClientError(f"no gonio daemon at {self.url} (start one with `gonio serve`, or set --url / "
+                              "GONIO_URL)", code=3) from None
+        except httpx.TimeoutException:
+            raise ClientError(f"the daemon at {self.url} did not answer in time", code=3) from None
+        except httpx.HTTPError as err:
+            raise ClientError(f"{self.url}: {err}", code=3) from None
+        if r.status_code == 401:
+            raise ClientError(f"the daemon at {self.url} refused: it needs its token (set GONIO_TOKEN)")
+        if r.status_code >= 400:
+            raise ClientError(f"the daemon refused ({r.status_code}): {_reason(r)}")
+        return r
+
+    def get(self, path: str, **kw):
+        return self.request("GET", path, **kw).json()
+
+    def post(self, path: str, body: dict | None = None, **kw):
+        return self.request("POST", path, json=body, **kw).json()
+
+    def submit(self, request: dict) -> dict:
+        return self.post("/campaigns", request)
+
+    def campaigns(self) -> dict:
+        return self.get("/campaigns")
+
+    def campaign(self, cid: str) -> dict:
+        return self.get(f"/campaigns/{cid}")
+
+    def action(self, cid: str, what: str, **params) -> dict:
+        return self.post(f"/campaigns/{cid}/{what}", params=params or None)
+
+    def halt(self) -> dict:
+        return self.post("/gantry/halt")
+
+    def fetch(self, cid: str, out: Path) -> int:
+        """Download ``cid``'s brdf.h5 to ``out`` (atomically); bytes written."""
+        r = self.request("GET", f"/campaigns/{cid}/brdf")
+        tmp = out.with_name(out.name + ".partial")
+        tmp.write_bytes(r.content)
+        tmp.replace(out)
+        return len(r.content)
+
+    def events(self, cid: str, last_event_id: str | None = None) -> Iterator[tuple[str, str | None, dict]]:
+        """(event, id, data) of ``cid``'s event stream until its ``end``, reconnecting after a dropped
+        connection with ``Last-Event-ID`` (nothing is lost or repeated)."""
+        eid = last_event_id
+        failures = 0
+        while True:
+            headers = {"Last-Event-ID": eid} if eid else {}
+            try:
+                with self.http.stream("GET", f"/campaigns/{cid}/events", headers=headers,
+                                      timeout=httpx.Timeout(30.0, read=None)) as r:
+                    if r.status_code >= 400:
+                        r.read()
+                        raise ClientError(f"the daemon refused ({r.status_code}): {_reason(r)}")
+                    failures = 0
+                    for event, new_id, data in iter_sse(r.iter_lines()):
+                        eid = new_id or eid
+                        payload = json.loads(data)
+                        yield event, eid, payload
+                        if event == "end":
+                            return
+            except (httpx.ConnectError, httpx.RemoteProtocolError, httpx.ReadError) as err:
+                failures += 1
+                if failures > 3:
+                    raise ClientError(f"lost the daemon at {self.url} ({type(err).__name__}); run the same "
+                                      "command to watch again", code=3) from None

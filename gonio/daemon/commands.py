@@ -1,0 +1,244 @@
+"""The daemon's commands on the ``gonio`` command line: ``serve`` and its clients.
+
+``gonio serve`` runs the daemon; ``gonio submit``, ``queue``, ``watch``, ``pause``, ``resume``,
+``abort``, ``halt`` and ``fetch`` talk to it (:mod:`gonio.daemon.client`). ``gonio queue [ID]`` is the
+client form of ``gonio status``: the daemon's queue, or one campaign of it (``gonio status DIR`` still
+reads a campaign folder directly). Each returns an exit status and prints one line on failure:
+1 refused or failed, 2 a usage mistake, 3 no daemon (or lost it).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["add_parsers"]
+
+
+def _hms(seconds) -> str:
+    if seconds is None:
+        return "?"
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def _fail(args, err) -> int:
+    print(f"gonio {args.command}: {err}", file=sys.stderr)
+    return err.code
+
+
+def cmd_serve(args) -> int:
+    from gonio.config import load_config
+    from gonio.daemon.pacing import check_pace
+    from gonio.daemon.server import serve, setup_logging
+
+    cfg = load_config(args.config)
+    pace = check_pace(args.pace)
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"--port: must be within [0, 65535], got {args.port}")
+    if not 1 <= args.max_streams <= 1024:
+        raise ValueError(f"--max-streams: must be within [1, 1024], got {args.max_streams}")
+    token = args.token or os.environ.get("GONIO_TOKEN") or None
+    setup_logging(json_lines=args.log_json)
+    return serve(cfg, data=Path(args.data), host=args.host, port=args.port, token=token, pace=pace,
+                 hold=args.hold, max_streams=args.max_streams,
+                 announce=lambda line: print(line, file=sys.stderr, flush=True))
+
+
+def _run(args, body) -> int:
+    """``body(client)`` against the daemon at ``args.url``; a ClientError is one line on stderr."""
+    from gonio.daemon.client import Client, ClientError  # httpx only for the client commands
+
+    try:
+        c = Client(args.url)
+        try:
+            return body(c)
+        finally:
+            c.close()
+    except ClientError as err:
+        return _fail(args, err)
+
+
+def cmd_submit(args) -> int:
+    request = {"grid": args.grid, "seed": args.seed}
+    if args.material:
+        request["material"] = args.material
+    if args.sample:
+        request["sample"] = args.sample
+    detector = {k: v for k, v in (("exposure_s", args.exposure_s), ("frames", args.frames)) if v is not None}
+    if detector:
+        request["detector"] = detector
+
+    def body(c) -> int:
+        st = c.submit(request)
+        print(st["id"])
+        print(f"campaign {st['id']}: {st['state']}, {st['poses']} poses of {st['grid']} "
+              f"({st['steps']} steps), about {_hms(st['eta_gantry_s'])} of gantry time", file=sys.stderr)
+        return _watch(c, st["id"]) if args.watch else 0
+
+    return _run(args, body)
+
+
+def cmd_queue(args) -> int:
+    def body(c) -> int:
+        if args.id:
+            st = c.campaign(args.id)
+            if args.json:
+                print(json.dumps(st, indent=2))
+                return 0
+            print(f"{st['id']}: {st['state']}")
+            print(f"  {st['material'] or st['sample']} on {st['gantry']}, grid {st['grid']}, "
+                  f"seed {st['seed']}")
+            print(f"  progress: {st['steps_done']}/{st['steps']} steps ({100 * st['progress']:.1f} %), "
+                  f"campaign time {_hms(st['campaign_s'])}")
+            eta = f"{_hms(st['eta_wall_s'])} wall, " if st["eta_wall_s"] is not None else ""
+            print(f"  ETA: {eta}about {_hms(st['eta_gantry_s'])} of gantry time left")
+            for key in ("latched_fault", "last_fault", "error"):
+                if st[key]:
+                    print(f"  {key.replace('_', ' ')}: {st[key]}")
+            return 0
+        q = c.campaigns()
+        if args.json:
+            print(json.dumps(q, indent=2))
+            return 0
+        if not q["campaigns"]:
+            print("no campaigns (submit one with `gonio submit`)")
+        for st in q["campaigns"]:
+            print(f"{st['id']}  {st['state']:<9} {st['steps_done']:>7}/{st['steps']:<7} "
+                  f"{100 * st['progress']:5.1f} %  {st['grid']:<16} {st['material'] or st['sample']}")
+        return 0
+
+    return _run(args, body)
+
+
+def _watch(c, cid: str) -> int:
+    """Follow ``cid``'s event stream with a progress bar until it ends; 0 when done, 1 when aborted."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    console = Console(stderr=True, highlight=False)
+    st = c.campaign(cid)
+    total, done = st["steps"], st["steps_done"]
+    final = None
+    if console.is_terminal:
+        progress = Progress(TextColumn(cid), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("{task.fields[state]}"), TimeElapsedColumn(), console=console)
+        task = progress.add_task(cid, total=total, completed=done, state=st["state"])
+        with progress:
+            for event, _, data in c.events(cid):
+                if event == "measurement":
+                    progress.update(task, completed=data["done"])
+                elif event == "state":
+                    progress.update(task, state=data["state"])
+                elif event == "fault":
+                    progress.console.print(f"fault: {data['message']}", markup=False)
+                elif event == "end":
+                    final = data["state"]
+    else:
+        last = 0.0
+        for event, _, data in c.events(cid):
+            if event == "measurement":
+                now = time.monotonic()
+                if now - last >= 5.0 or data["done"] == data["steps"]:
+                    last = now
+                    print(f"{cid}: {data['done']}/{data['steps']} steps "
+                          f"({100 * data['done'] / data['steps']:.0f} %)", file=sys.stderr, flush=True)
+            elif event in ("state", "fault"):
+                print(f"{cid}: {data['state'] or event}: {data['message']}", file=sys.stderr, flush=True)
+            elif event == "end":
+                final = data["state"]
+    print(f"campaign {cid}: {final}", file=sys.stderr)
+    return 0 if final == "done" else 1
+
+
+def cmd_watch(args) -> int:
+    return _run(args, lambda c: _watch(c, args.id))
+
+
+def cmd_control(args) -> int:
+    """pause, resume, abort (a campaign) and halt (the gantry)."""
+    def body(c) -> int:
+        if args.command == "halt":
+            r = c.halt()
+        elif args.command == "resume" and args.clear_fault:
+            r = c.action(args.id, "resume", clear_fault="true")
+        else:
+            r = c.action(args.id, args.command)
+        print(f"{r['id'] or 'gantry'}: {r['state']}: {r['message']}")
+        return 0
+
+    return _run(args, body)
+
+
+def cmd_fetch(args) -> int:
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out: {out} is a folder; give a file name, e.g. {out / (args.id + '-brdf.h5')}")
+    if not (out.parent if str(out.parent) else Path(".")).is_dir():
+        raise ValueError(f"--out: folder {out.parent} does not exist")
+
+    def body(c) -> int:
+        n = c.fetch(args.id, out)
+        print(f"wrote {out} ({n} bytes)")
+        return 0
+
+    return _run(args, body)
+
+
+def add_parsers(sub, fmt, seed_type) -> None:
+    """The daemon's subcommands, added to the ``gonio`` parser's subparsers ``sub``."""
+    sv = sub.add_parser("serve", formatter_class=fmt,
+                        help="the daemon: one gantry, an HTTP API, event streams and a live web view")
+    sv.add_argument("--config", default=None, help="gantry config: a TOML file or a shipped config's name "
+                    "(default: sim, the simulated gantry)")
+    sv.add_argument("--host", default="127.0.0.1", help="address to listen on; beyond loopback only "
+                    "with a token")
+    sv.add_argument("--port", type=int, default=8765, help="port (0: any free port)")
+    sv.add_argument("--data", default=os.environ.get("GONIO_DATA", "gonio-data"),
+                    help="data folder: campaigns/<id>/ holds each campaign's journal and brdf.h5 "
+                    "(GONIO_DATA)")
+    sv.add_argument("--token", default=None, help="bearer token every write must carry (prefer GONIO_TOKEN: "
+                    "a command line is visible to other users)")
+    sv.add_argument("--pace", type=float, default=0.02,
+                    help="simulated gantry: real seconds per gantry second (0: as fast as it computes)")
+    sv.add_argument("--hold", action="store_true",
+                    help="hold the campaigns that were running when the daemon stopped paused, not "
+                    "resume them")
+    sv.add_argument("--max-streams", type=int, default=16, help="event-stream clients served at once")
+    sv.add_argument("--log-json", action="store_true", help="log one JSON object per line")
+    sv.set_defaults(func=cmd_serve)
+
+    def client_parser(name: str, help_: str, func, with_id: bool = True):
+        p = sub.add_parser(name, formatter_class=fmt, help=help_)
+        if with_id:
+            p.add_argument("id", metavar="ID", help="campaign id, e.g. c00001")
+        p.add_argument("--url", default=None, help="the daemon (default: GONIO_URL, else "
+                       "http://127.0.0.1:8765); writes carry GONIO_TOKEN")
+        p.set_defaults(func=func)
+        return p
+
+    p = client_parser("submit", "submit a campaign to the daemon's queue (prints its id)", cmd_submit, False)
+    p.add_argument("material", nargs="?", default=None, help="MATERIAL (simulated detector)")
+    p.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
+    p.add_argument("--sample", default=None, help="name of the sample (real detector)")
+    p.add_argument("--seed", type=seed_type, default=0, help="seed of simulated devices' random numbers")
+    p.add_argument("--exposure-s", type=float, default=None, help="detector exposure per frame (s)")
+    p.add_argument("--frames", type=int, default=None, help="detector frames per reading")
+    p.add_argument("--watch", action="store_true", help="then follow it with a progress bar")
+    p = client_parser("queue", "the daemon's queue, or one campaign's state, progress and ETA (client form "
+                      "of `gonio status`)", cmd_queue, False)
+    p.add_argument("id", metavar="ID", nargs="?", default=None, help="one campaign")
+    p.add_argument("--json", action="store_true", help="JSON")
+    client_parser("watch", "follow a campaign live (progress bar fed by its event stream)", cmd_watch)
+    client_parser("pause", "pause a campaign: the step in flight finishes, then the gantry parks",
+                  cmd_control)
+    p = client_parser("resume", "resume a paused, halted or faulted campaign", cmd_control)
+    p.add_argument("--clear-fault", action="store_true",
+                   help="clear its latched fault (after fixing the cause)")
+    client_parser("abort", "abort a campaign (final)", cmd_control)
+    client_parser("halt", "emergency stop: every axis stops now, mid-move too", cmd_control, False)
+    p = client_parser("fetch", "download a finished campaign's brdf.h5", cmd_fetch)
+    p.add_argument("--out", required=True, metavar="FILE", help="where to write it")

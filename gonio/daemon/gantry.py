@@ -1,0 +1,191 @@
+"""The gantry while no campaign runs: status, manual home and move, and the emergency halt.
+
+The daemon owns one gantry. While a campaign runs, its runner drives it and manual moves are refused;
+otherwise the daemon keeps an idle gantry (wired from the daemon's config, connected on first use and
+closed before a campaign connects its own, so a real bus is never opened twice).
+
+Every manual move is checked before anything moves: the pose is one the gantry can reach (the
+kinematics' feasibility), every target is within its axis's limits (:func:`gonio.motion.safe.check_targets`)
+and a collision-free path leads there from where the axes stand (:func:`gonio.motion.safe.safe_path`).
+The path is driven leg by leg, waiting in slices of ``runner.poll_s``, so that a halt from another
+request stops it mid-move.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+import numpy as np
+
+from gonio.config import GonioConfig
+from gonio.daemon.pacing import PacedClock
+from gonio.daemon.records import Conflict, FieldError
+from gonio.motion.safe import check_targets, safe_path
+from gonio.protocols import DeviceFault
+
+__all__ = ["GantryOwner", "ANGLES"]
+
+log = logging.getLogger(__name__)
+
+#: The arm angles of a manual move, in the order the kinematics take them.
+ANGLES = ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")
+
+
+def snapshot(gantry, owner: str | None) -> dict:
+    """Axes (position, moving, fault, limits), the arm angles they make, light and detector."""
+    kin = gantry.kinematics
+    axes, pos = [], []
+    for name in kin.axis_names:
+        a = gantry.axes[name]
+        p = float(a.position_deg())
+        pos.append(p)
+        axes.append({"name": name, "position_deg": p, "moving": bool(a.is_moving()), "fault": a.fault(),
+                     "limits_deg": [float(x) for x in a.limits_deg]})
+    ti, pi_, to, po = (float(np.degrees(x[0])) for x in kin.forward(np.asarray(pos)[None, :]))
+    light = gantry.light
+    return {"gantry": gantry.name, "owner": owner, "axes": axes,
+            "angles": {"theta_i_deg": ti, "phi_i_deg": pi_, "theta_o_deg": to, "phi_o_deg": po},
+            "moving": any(a["moving"] for a in axes), "faults": [a["name"] for a in axes if a["fault"]],
+            "light": {"name": light.name, "on": bool(light.is_on())},
+            "detector": {"name": gantry.detector.name, "channels": list(gantry.detector.channels)}}
+
+
+class GantryOwner:
+    """The daemon's idle gantry (see the module docstring).
+
+    Parameters
+    ----------
+    cfg : GonioConfig
+        The daemon's gantry.
+    pace : float
+        Real seconds per gantry second of a simulated gantry.
+    """
+
+    def __init__(self, cfg: GonioConfig, pace: float = 0.0):
+        self.cfg = cfg
+        self.pace = pace
+        self._gantry = None
+        self._lock = threading.Lock()        # held while the idle gantry moves or is closed
+        self._build = threading.Lock()       # held while it is wired and connected
+        self._halt = threading.Event()
+
+    def _idle(self):
+        """The idle gantry, wired and connected on first use."""
+        with self._build:
+            return self._idle_locked()
+
+    def _idle_locked(self):
+        if self._gantry is None:
+            from gonio.wiring import build_gantry
+
+            sim = self.cfg.drivers() == {"sim"}
+            material = f"lambert:albedo={self.cfg.reference.albedo!r}" if self.cfg.detector.driver == "sim" \
+                else None
+            g = build_gantry(self.cfg, material, clock=PacedClock(0.0, self.pace) if sim else None)
+            g.connect()
+            self._gantry = g
+        return self._gantry
+
+    def release(self) -> None:
+        """Close the idle gantry (waits for a manual move in progress): a campaign is about to connect."""
+        with self._lock, self._build:
+            if self._gantry is not None:
+                try:
+                    self._gantry.close()
+                finally:
+                    self._gantry = None
+
+    def status(self) -> dict:
+        """The idle gantry's status; answers during a manual move too (reads only)."""
+        return snapshot(self._idle(), None)
+
+    def halt(self) -> None:
+        """Stop every axis of the idle gantry now, mid-move too (never waits for a lock)."""
+        self._halt.set()
+        g = self._gantry
+        if g is not None:
+            g.stop()
+        log.warning("gantry: halt")
+
+    def move(self, angles: dict | None) -> dict:
+        """Drive to the pose ``angles`` (degrees, keys :data:`ANGLES`), or home for None; the status
+        after. Raises FieldError for a pose that cannot be reached, Conflict when another move is under
+        way or a halt stopped this one."""
+        if not self._lock.acquire(blocking=False):
+            raise Conflict("the gantry is busy (another manual move, or a campaign is starting)")
+        try:
+            g = self._idle()
+            kin = g.kinematics
+            axes = [g.axes[n] for n in kin.axis_names]
+            current = np.array([a.position_deg() for a in axes], float)
+            if angles is None:
+                target = np.asarray(kin.home_deg, float)
+            else:
+                target = self._targets(kin, current, angles)
+            try:
+                target = check_targets(kin, target)
+                legs = safe_path(kin, current, target)
+            except ValueError as err:
+                raise FieldError("move", str(err)) from None
+            self._halt.clear()
+            for leg in np.atleast_2d(legs):
+                self._drive_leg(g, axes, leg)
+            return snapshot(g, None)
+        finally:
+            self._lock.release()
+
+    @staticmethod
+    def _targets(kin, current, angles: dict) -> np.ndarray:
+        from gonio.kinematics.base import REASONS
+
+        rad = np.radians([float(angles[k]) for k in ANGLES])
+        reason = int(kin.feasibility(*rad)[0])
+        if reason != 0:
+            text = ", ".join(f"{k}={float(angles[k]):g}" for k in ANGLES)
+            raise FieldError("move", f"pose ({text}) cannot be reached on this gantry: {REASONS[reason]} "
+                             f"(theta_max_deg={kin.theta_max_deg:g}, clearance_deg={kin.clearance_deg:g})")
+        return kin.inverse(*rad, current_deg=current)[0]
+
+    def _wait_still(self, g, axes) -> None:
+        """After a stop: wait (bounded) until every axis has braked, so the status says where they stand
+        (a virtual clock moves only when someone waits on it)."""
+        rc = self.cfg.runner
+        waited = 0.0
+        try:
+            while any(a.is_moving() for a in axes) and waited < rc.move_timeout_s:
+                g.clock.sleep(rc.poll_s)
+                waited += rc.poll_s
+        except DeviceFault:
+            pass  # an axis that cannot be asked cannot be waited for
+
+    def _drive_leg(self, g, axes, leg) -> None:
+        rc = self.cfg.runner
+        clock = g.clock
+        start = np.array([a.position_deg() for a in axes])
+        try:
+            for axis, t, s in zip(axes, leg, start, strict=True):
+                if t != s:
+                    axis.move_to(float(t))
+            waited = 0.0
+            while any(a.is_moving() for a in axes):
+                if self._halt.is_set():
+                    raise Conflict("halted: the move was stopped mid-way; the axes are left where they "
+                                   "stopped")
+                if waited >= rc.move_timeout_s:
+                    raise DeviceFault("gantry", "axes did not arrive within "
+                                      f"move_timeout_s={rc.move_timeout_s}")
+                clock.sleep(rc.poll_s)
+                waited += rc.poll_s
+        except BaseException:
+            g.stop()
+            self._wait_still(g, axes)
+            raise
+        if self._halt.is_set():
+            raise Conflict("halted: the move was stopped; the axes are left where they stopped")
+        actual = np.array([a.position_deg() for a in axes])
+        bad = np.flatnonzero(np.abs(actual - leg) > rc.position_tolerance_deg)
+        if bad.size:
+            i = int(bad[0])
+            raise DeviceFault(axes[i].name, f"stopped at {actual[i]:.4f}°, not at its target {leg[i]:.4f}° "
+                              f"(position_tolerance_deg={rc.position_tolerance_deg})")

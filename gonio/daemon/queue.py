@@ -1,0 +1,387 @@
+"""The persistent campaign queue, and the worker thread that runs its head on the gantry.
+
+Each campaign is a folder ``DATA/campaigns/<id>/`` holding its journal (:mod:`gonio.store`), its lock,
+``brdf.h5`` once finished, and ``daemon.json``: the request it was submitted with, its place in the
+queue (``seq``) and the operator's intent (``run`` or ``hold``). Everything else (running, paused,
+halted, faulted, done, aborted, progress) is read from the journal, so the queue survives any crash of
+the daemon: on start it is rebuilt from the folders.
+
+One campaign owns the gantry at a time: the head of the queue (the first campaign by ``seq`` that is
+neither done nor aborted). The worker runs it when its intent is ``run``; a paused, halted or faulted
+head holds the whole queue until an operator resumes or aborts it, so nothing moves behind the back of
+someone who stopped the gantry. A campaign the daemon was running when it died (or was stopped by
+SIGTERM, which pauses it) keeps intent ``run`` and resumes when the daemon starts again; ``hold=True``
+holds such campaigns paused instead.
+
+Pause, abort and halt are requests to the runner from request handlers' threads
+(:meth:`gonio.runner.Runner.request_pause` and friends); the runner acts at its next step boundary
+(halt: within one ``poll_s`` slice, mid-move too).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+import time
+from pathlib import Path
+
+from gonio.campaign import create_campaign, gantry_state, open_campaign, run_campaign
+from gonio.config import GonioConfig
+from gonio.daemon.pacing import PacedClock
+from gonio.daemon.records import (
+    ID_PATTERN,
+    RECORD_NAME,
+    Conflict,
+    FieldError,
+    NotFound,
+    Record,
+    validate_request,
+)
+from gonio.dataset import BRDF_NAME
+from gonio.runner import Runner, State
+from gonio.store import JOURNAL_NAME, Journal, JournalError
+
+__all__ = ["CampaignQueue", "FieldError", "Conflict", "NotFound"]
+
+log = logging.getLogger(__name__)
+
+class CampaignQueue:
+    """The campaigns under ``data/campaigns`` and the worker that runs them one at a time.
+
+    Parameters
+    ----------
+    data : Path
+        The daemon's data folder.
+    cfg : GonioConfig
+        The gantry new campaigns are planned for (a resumed campaign runs with its own snapshot).
+    pace : float
+        Real seconds per gantry second of a simulated gantry (:class:`PacedClock`); 0 in tests.
+    hold : bool
+        Campaigns that were running when the daemon stopped are held paused instead of resumed.
+    before_run : callable, optional
+        Called by the worker before it connects a campaign's gantry (the daemon releases its idle one).
+    """
+
+    def __init__(self, data: Path, cfg: GonioConfig, *, pace: float = 0.0, hold: bool = False,
+                 before_run=None):
+        self.data = Path(data)
+        self.root = self.data / "campaigns"
+        self.cfg = cfg
+        self.pace = pace
+        self.hold = hold
+        self.before_run = before_run
+        self._records: dict[str, Record] = {}
+        self._cond = threading.Condition(threading.RLock())
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.current: Record | None = None
+        self.runner: Runner | None = None
+        self.gantry = None           # the running campaign's gantry
+        self.run_started: tuple[float, int] | None = None   # (Unix time, steps done) of this run's start
+
+    # -- start and stop --------------------------------------------------------------------------
+    def start(self) -> None:
+        """Rebuild the queue from the folders (recreating journals whose creation was cut short), then
+        start the worker."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        for folder in sorted(self.root.iterdir()):
+            if not (re.match(ID_PATTERN, folder.name) and (folder / RECORD_NAME).is_file()):
+                continue
+            rec = Record.load(folder)
+            self._records[rec.id] = rec
+            if not (folder / JOURNAL_NAME).is_file():
+                try:
+                    self._create_journal(rec)
+                except Exception as err:
+                    rec.intent, rec.error = "hold", f"could not create the journal: {err}"
+                    rec.save()
+                    continue
+            if self.hold and rec.intent == "run" and self._journal_state(rec) in ("running", "pausing",
+                                                                                   "paused"):
+                rec.intent = "hold"
+                rec.save()
+                log.info("campaign %s: held paused at start (--hold)", rec.id)
+        self._thread = threading.Thread(target=self._work, name="gonio-runner", daemon=True)
+        self._thread.start()
+
+    def stop(self, reason: str = "daemon stopping", timeout_s: float = 300.0) -> None:
+        """Pause the running campaign (it finishes the step in flight and parks) and end the worker.
+
+        The campaign keeps intent ``run``: it resumes when the daemon starts again."""
+        self._stopping.set()
+        with self._cond:
+            if self.runner is not None:
+                self.runner.request_pause(reason)
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+
+    @property
+    def stopping(self) -> bool:
+        return self._stopping.is_set()
+
+    # -- submitting ------------------------------------------------------------------------------
+    def submit(self, req: dict) -> Record:
+        """Validate, plan and journal a new campaign at the end of the queue."""
+        spec, cfg, plan = validate_request(self.cfg, req)
+        with self._cond:
+            seq = max((r.seq for r in self._records.values()), default=0) + 1
+            rec = Record(id=f"c{seq:05d}", seq=seq, folder=self.root / f"c{seq:05d}", request=dict(req),
+                         submitted_unix=time.time(), intent="hold")   # not runnable until journaled
+            rec.folder.mkdir(parents=True)
+            rec.save()
+            self._records[rec.id] = rec
+        try:
+            self._create_journal(rec, spec=spec, cfg=cfg, plan=plan)
+        except BaseException as err:
+            rec.error = f"could not create the journal: {err}"
+            rec.save()
+            raise
+        with self._cond:
+            rec.intent = "run"
+            rec.save()
+            self._cond.notify_all()
+        log.info("campaign %s submitted: %s, grid %s, %d steps", rec.id, spec or req.get("sample"),
+                 plan.grid, len(plan.step_kind))
+        return rec
+
+    def _create_journal(self, rec: Record, *, spec=None, cfg=None, plan=None) -> None:
+        if cfg is None:
+            spec, cfg, plan = validate_request(self.cfg, rec.request)
+        c = create_campaign(rec.folder, cfg, grid=rec.request["grid"], material=spec,
+                            seed=int(rec.request.get("seed", 0)), plan=plan, sample=rec.request.get("sample"))
+        c.close()
+
+    # -- reading ---------------------------------------------------------------------------------
+    def get(self, cid: str) -> Record:
+        rec = self._records.get(cid)
+        if rec is None:
+            raise NotFound(f"campaign '{cid}': no such campaign")
+        return rec
+
+    def records(self) -> list[Record]:
+        with self._cond:
+            return sorted(self._records.values(), key=lambda r: r.seq)
+
+    def journal(self, rec: Record) -> Journal:
+        """A read-only journal connection (the caller closes it): never blocks the runner."""
+        return Journal.open(rec.folder / JOURNAL_NAME, readonly=True)
+
+    def _journal_state(self, rec: Record) -> str | None:
+        try:
+            j = self.journal(rec)
+        except JournalError:
+            return None
+        try:
+            e = j.last_event("state")
+            return e["state"] if e else None
+        finally:
+            j.close()
+
+    def state(self, rec: Record, journal: Journal | None = None) -> str:
+        """queued, starting, running, pausing, paused, halted, faulted, done, aborted or failed."""
+        with self._cond:
+            if self.current is rec:
+                runner = self.runner
+                if runner is None or runner.state == State.IDLE:
+                    return "starting"
+                # done is final once brdf.h5 is written: until then the campaign is finishing
+                return "finishing" if runner.state == State.DONE else str(runner.state)
+        if not (rec.folder / JOURNAL_NAME).is_file():
+            return "failed" if rec.error else "creating"
+        j = journal or self.journal(rec)
+        try:
+            e = j.last_event("state")
+            latched = j.latched_fault()
+        finally:
+            if journal is None:
+                j.close()
+        last = e["state"] if e else None
+        if last == "aborted":
+            return "aborted"
+        if last == "done" and (rec.folder / BRDF_NAME).is_file():
+            return "done"
+        if rec.intent == "run":
+            return "faulted" if latched is not None and not rec.clear_fault else "queued"
+        if rec.error:
+            return "failed"
+        if latched is not None:
+            return "faulted"
+        return last if last in ("halted", "faulted") else "paused"
+
+    def status(self, rec: Record) -> dict:
+        """State, progress, ETA and last fault of one campaign (read-only journal)."""
+        j = self.journal(rec)
+        try:
+            if not rec.static:
+                meta = j.meta()
+                rec.static = {"grid": meta["grid"], "material": meta.get("material"),
+                              "sample": meta.get("sample"), "seed": meta["seed"], "poses": meta["poses"],
+                              "gantry": meta["gantry"], "estimated_s": meta["estimated_s"],
+                              "steps": j.step_count(), "channels": meta["channels"]}
+            s = rec.static
+            state = self.state(rec, j)
+            done = j.done_count()
+            campaign_s, last_wall = j.campaign_clock()
+            latched = j.latched_fault()
+            fault = j.last_event("fault")
+        finally:
+            j.close()
+        total = s["steps"]
+        eta_wall = None
+        with self._cond:
+            started = self.run_started if self.current is rec else None
+        if started is not None and done > started[1]:
+            rate = (done - started[1]) / max(time.time() - started[0], 1e-9)
+            eta_wall = (total - done) / rate
+        return {"id": rec.id, "state": state, "seq": rec.seq, "submitted_unix": rec.submitted_unix,
+                **{k: s[k] for k in ("grid", "material", "sample", "seed", "poses", "gantry", "channels")},
+                "steps": total, "steps_done": done, "progress": done / total if total else 1.0,
+                "campaign_s": campaign_s, "eta_gantry_s": s["estimated_s"] * (total - done) / total if total
+                else 0.0, "eta_wall_s": eta_wall, "last_update_unix": last_wall,
+                "latched_fault": latched["reason"] if latched else None,
+                "last_fault": fault["message"] if fault else None, "error": rec.error,
+                "brdf": (rec.folder / BRDF_NAME).is_file()}
+
+    # -- operator requests -----------------------------------------------------------------------
+    def pause(self, cid: str) -> None:
+        rec = self.get(cid)
+        with self._cond:
+            if self.state(rec) in ("done", "aborted"):
+                raise Conflict(f"campaign '{cid}' is {self.state(rec)}; there is nothing to pause")
+            rec.intent = "hold"
+            rec.save()
+            if self.current is rec and self.runner is not None:
+                self.runner.request_pause("pause requested through the API")
+        log.info("campaign %s: pause requested", cid)
+
+    def resume(self, cid: str, clear_fault: bool = False) -> None:
+        rec = self.get(cid)
+        with self._cond:
+            state = self.state(rec)
+            if state in ("done", "aborted"):
+                raise Conflict(f"campaign '{cid}' is {state}; there is nothing to resume")
+            if state == "faulted" and not clear_fault:
+                j = self.journal(rec)
+                try:
+                    latched = j.latched_fault()
+                finally:
+                    j.close()
+                reason = latched["reason"] if latched else "a fault"
+                raise Conflict(f"campaign '{cid}' is faulted ({reason}); fix the cause, then resume with "
+                               "clear_fault=true")
+            if self.current is rec and state in ("running", "starting"):
+                return
+            rec.intent, rec.clear_fault, rec.halt_pending, rec.error = "run", clear_fault, False, None
+            rec.save()
+            self._cond.notify_all()
+        log.info("campaign %s: resume requested%s", cid, " (clearing the fault)" if clear_fault else "")
+
+    def abort(self, cid: str) -> None:
+        rec = self.get(cid)
+        with self._cond:
+            state = self.state(rec)
+            if state in ("done", "aborted"):
+                raise Conflict(f"campaign '{cid}' is {state}; there is nothing to abort")
+            if self.current is rec:
+                rec.intent, rec.abort_pending = "hold", True
+                rec.save()
+                if self.runner is not None:
+                    self.runner.request_abort()
+            else:
+                c = open_campaign(rec.folder)
+                try:
+                    c.journal.log_event("state", state=str(State.ABORTED),
+                                        message=f"aborted through the API while {state}",
+                                        campaign_s=c.journal.campaign_clock()[0])
+                finally:
+                    c.close()
+                self._cond.notify_all()
+        log.info("campaign %s: abort requested", cid)
+
+    def halt(self, reason: str = "halt requested through the API") -> str | None:
+        """Emergency stop of the running campaign (if any): its id, or None."""
+        with self._cond:
+            rec = self.current
+            if rec is not None:
+                rec.intent, rec.halt_pending = "hold", True
+                rec.save()
+            if self.runner is not None:
+                self.runner.request_halt(reason)
+        if rec is not None:
+            log.warning("campaign %s: halt", rec.id)
+        return rec.id if rec is not None else None
+
+    # -- the worker ------------------------------------------------------------------------------
+    def _head(self) -> Record | None:
+        """The campaign to run now, or None (empty queue, or a head that holds it)."""
+        for rec in self.records():
+            state = self.state(rec)
+            if state in ("done", "aborted"):
+                continue
+            return rec if state == "queued" else None
+        return None
+
+    def _work(self) -> None:
+        while not self._stopping.is_set():
+            with self._cond:
+                rec = self._head()
+                if rec is None:
+                    self._cond.wait(0.5)
+                    continue
+                self.current, self.runner = rec, None
+            try:
+                self._run(rec)
+            except Exception as err:  # the worker stays up; the campaign waits for the operator
+                log.exception("campaign %s: %s", rec.id, err)
+                rec.intent, rec.error = "hold", f"{type(err).__name__}: {err}"
+                rec.save()
+            finally:
+                with self._cond:
+                    self.current, self.runner, self.gantry, self.run_started = None, None, None, None
+                    self._cond.notify_all()
+
+    def _run(self, rec: Record) -> None:
+        from gonio.wiring import build_gantry
+
+        if self.before_run is not None:
+            self.before_run()
+        c = open_campaign(rec.folder)
+        try:
+            meta = c.meta
+            state = gantry_state(c)
+            clock = PacedClock(state[1] if state else 0.0, self.pace) if c.cfg.drivers() == {"sim"} else None
+            gantry = build_gantry(c.cfg, meta.get("material"), seed=meta["seed"], state=state, clock=clock)
+            with self._cond:
+                self.gantry = gantry
+                self.run_started = (time.time(), c.journal.done_count())
+
+            def on_runner(runner: Runner) -> None:
+                with self._cond:
+                    self.runner = runner
+                if rec.intent == "hold":  # paused or aborted between the pick and now
+                    runner.request_pause("pause requested through the API")
+
+            def on_step(runner: Runner, step: int) -> None:
+                # Requests that came while the runner was starting (run() clears its flags) act here.
+                if runner.state in (State.RUNNING, State.PAUSING) and rec.halt_pending:
+                    runner.request_halt("halt requested through the API")
+                elif runner.state in (State.RUNNING, State.PAUSING) and rec.abort_pending:
+                    runner.request_abort()
+                elif runner.state == State.RUNNING and (rec.intent == "hold" or self._stopping.is_set()):
+                    runner.request_pause("pause requested" if rec.intent == "hold" else "daemon stopping")
+
+            log.info("campaign %s: %s at step %d", rec.id,
+                     "resuming" if c.journal.done_count() else "starting", c.journal.next_step())
+            result, runner = run_campaign(c, gantry, on_step=on_step, on_runner=on_runner,
+                                          clear_fault=rec.clear_fault)
+        finally:
+            with self._cond:  # requests reach the runner under this lock: none after its journal closes
+                self.runner, self.gantry = None, None
+            c.close()
+        rec.clear_fault = rec.abort_pending = False
+        if result in (State.HALTED, State.FAULTED):
+            rec.intent = "hold"
+            rec.save()
+        log.info("campaign %s: %s%s", rec.id, result, f" ({runner.fault})" if runner.fault else "")

@@ -1,0 +1,31 @@
+"""Daemons served in-process on 127.0.0.1 (any free port), each stopped at the end of its test."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+from daemon_helpers import WAIT_S
+
+from gonio.config import load_config
+from gonio.daemon.server import build_daemon, start_in_thread
+
+
+@pytest.fixture
+def serve(tmp_path):
+    """``serve(token=None, pace=0.0, hold=False, data=None, **kw)``: a running daemon (``.url``,
+    ``.client`` an httpx client that carries the token when one is set)."""
+    running = []
+
+    def start(token=None, pace=0.0, hold=False, data=None, cfg=None, max_streams=16):
+        d = build_daemon(cfg or load_config(), data or tmp_path / "data", token=token, pace=pace, hold=hold,
+                         max_streams=max_streams)
+        r = start_in_thread(d)
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        r.client = httpx.Client(base_url=r.url, headers=headers, timeout=WAIT_S)
+        running.append(r)
+        return r
+
+    yield start
+    for r in running:
+        r.client.close()
+        r.stop()

@@ -1,0 +1,225 @@
+"""The daemon's HTTP API: health, the gantry, campaigns through the queue, and what it refuses."""
+
+from __future__ import annotations
+
+import threading
+
+import httpx
+import pytest
+from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
+
+from gonio.daemon.auth import check_bind, token_ok
+from gonio.store import JOURNAL_NAME, Journal
+
+WRITES = [("POST", "/campaigns", {"material": "lambert:albedo=0.5", "grid": "iso:step=30"}),
+          ("POST", "/campaigns/c00001/pause", None), ("POST", "/campaigns/c00001/resume", None),
+          ("POST", "/campaigns/c00001/abort", None), ("POST", "/gantry/home", None),
+          ("POST", "/gantry/move", {"theta_i_deg": 30, "phi_i_deg": 0, "theta_o_deg": 30, "phi_o_deg": 180}),
+          ("POST", "/gantry/halt", None)]
+
+
+def _one_step_measured(r):
+    def check():
+        st = r.client.get("/campaigns/c00001").json()
+        return st if st["steps_done"] >= 1 else None
+    return check
+
+
+def test_a_campaign_runs_to_the_end_and_its_brdf_can_be_fetched(serve):
+    r = serve()
+    health = r.client.get("/health").json()
+    assert health["status"] == "ok" and health["gantry"] == "sim-two-arm" and health["auth"] is False
+    st = submit(r.client)
+    assert st["id"] == "c00001" and st["state"] in ("queued", "starting", "running", "finishing", "done")
+    st = wait_state(r.client, "c00001", "done")
+    assert st["steps_done"] == st["steps"] and st["brdf"] and st["progress"] == 1.0
+    data = r.client.get("/campaigns/c00001/brdf")
+    assert data.status_code == 200 and data.content[:8] == b"\x89HDF\r\n\x1a\n"
+    log = r.client.get("/campaigns/c00001/log").json()
+    assert [e["state"] for e in log if e["kind"] == "state"] == ["running", "done"]
+    assert r.client.get("/campaigns").json()["campaigns"][0]["state"] == "done"
+    assert (r.daemon.queue.root / "c00001" / JOURNAL_NAME).is_file()   # DATA/campaigns/<id>/
+
+
+@pytest.mark.parametrize(("body", "field", "text"), [
+    ({"material": "lambert:albedo=5", "grid": "iso:step=30"}, "material", "albedo"),
+    ({"material": "merl:/etc/passwd", "grid": "iso:step=30"}, "material", "names a file"),
+    ({"grid": "iso:step=30"}, "material", "required"),
+    ({"material": "lambert:albedo=0.5", "grid": "iso:step=-1"}, "grid", "step"),
+    ({"material": "lambert:albedo=0.5", "grid": "nope"}, "grid", ""),
+    ({"material": "lambert:albedo=0.5", "grid": "iso:step=30", "seed": -1}, "seed", ""),
+    ({"material": "lambert:albedo=0.5", "grid": "iso:step=30", "detector": {"exposure_s": 0}},
+     "detector", ""),
+    ({"material": "lambert:albedo=0.5", "grid": "iso:step=30", "path": "/tmp/x"}, "path", ""),
+])
+def test_bad_requests_are_refused_with_422_naming_the_field(serve, body, field, text):
+    r = serve()
+    resp = r.client.post("/campaigns", json=body)
+    assert resp.status_code == 422, resp.text
+    detail = resp.json()["detail"][0]
+    assert field in [str(x) for x in detail["loc"]], detail
+    assert text in detail["msg"]
+    assert r.client.get("/campaigns").json()["campaigns"] == []   # nothing journaled
+
+
+def test_writes_need_the_token_reads_do_not(serve):
+    r = serve(token=TOKEN)
+    anon = httpx.Client(base_url=r.url, timeout=WAIT_S)
+    wrong = httpx.Client(base_url=r.url, timeout=WAIT_S, headers={"Authorization": "Bearer nope"})
+    try:
+        for method, path, body in WRITES:
+            for c in (anon, wrong):
+                resp = c.request(method, path, json=body)
+                assert resp.status_code == 401, (path, resp.text)
+                assert "token" in resp.json()["detail"]
+        assert r.daemon.queue.records() == []            # nothing was submitted
+        assert anon.get("/health").json()["auth"] is True
+        assert anon.get("/campaigns").status_code == 200 and anon.get("/gantry").status_code == 200
+        assert submit(r.client)["id"] == "c00001"        # the token opens writes
+    finally:
+        anon.close()
+        wrong.close()
+
+
+def test_token_comparison_and_the_loopback_rule():
+    assert token_ok(None, None) and token_ok("", "whatever")
+    assert token_ok("abc", "Bearer abc") and not token_ok("abc", "Bearer abd") and not token_ok("abc", "abc")
+    check_bind("127.0.0.1", None)
+    check_bind("::1", None)
+    check_bind("localhost", None)
+    check_bind("0.0.0.0", "t")
+    for host in ("0.0.0.0", "192.168.1.5", "::", "gantry.lab"):
+        with pytest.raises(ValueError, match="--host: .* token"):
+            check_bind(host, None)
+
+
+def test_request_bodies_are_bounded(serve):
+    r = serve()
+    resp = r.client.post("/campaigns", content=b"{" + b" " * 20000 + b"}",
+                         headers={"Content-Type": "application/json"})
+    assert resp.status_code == 413
+    resp = r.client.post("/campaigns", content=iter([b"x" * 10000] * 3),
+                         headers={"Content-Type": "application/json"})
+    assert resp.status_code == 413
+
+
+def test_ids_cannot_name_paths(serve):
+    r = serve()
+    for cid in ("%2e%2e", "c00001%2f..%2f..", "C00001", "c1", "c000011"):
+        assert r.client.get(f"/campaigns/{cid}").status_code in (404, 422)
+    assert r.client.get("/campaigns/c99999").status_code == 404
+    assert r.client.get("/static/../app.py").status_code == 404
+
+
+def test_a_second_campaign_waits_in_the_queue_while_the_first_runs(serve):
+    r = serve(pace=0.002)
+    submit(r.client, grid="iso:step=15")
+    wait_state(r.client, "c00001", "running")
+    second = submit(r.client, grid="iso:step=30")
+    assert second["state"] == "queued"
+    q = r.client.get("/campaigns").json()
+    assert q["running"] == "c00001" and [c["state"] for c in q["campaigns"]] == ["running", "queued"]
+    wait_state(r.client, "c00002", "done")
+    first = Journal.open(r.daemon.queue.root / "c00001" / JOURNAL_NAME, readonly=True)
+    later = Journal.open(r.daemon.queue.root / "c00002" / JOURNAL_NAME, readonly=True)
+    try:
+        assert later.events()[0]["wall_s"] >= first.last_event("state")["wall_s"]  # one at a time
+        assert first.done_steps().tolist() == list(range(first.step_count()))
+    finally:
+        first.close()
+        later.close()
+
+
+def test_pause_resume_abort_through_the_api(serve):
+    r = serve(pace=0.002)
+    submit(r.client, grid="iso:step=15")
+    submit(r.client, grid="iso:step=30")
+    wait_for(_one_step_measured(r), "a committed step")
+    resp = r.client.post("/campaigns/c00001/pause")
+    assert resp.status_code == 200
+    paused = wait_state(r.client, "c00001", "paused")
+    assert 0 < paused["steps_done"] < paused["steps"]
+    # A paused head holds the queue: the second campaign does not start behind the operator's back.
+    assert r.client.get("/campaigns/c00002").json()["state"] == "queued"
+    assert r.client.get("/campaigns/c00002").json()["steps_done"] == 0
+    log = r.client.get("/campaigns/c00001/log").json()
+    assert any(e["kind"] == "park" for e in log)
+    assert r.client.post("/campaigns/c00001/resume").status_code == 200
+    wait_state(r.client, "c00001", "done")
+    wait_state(r.client, "c00002", ("running", "done", "finishing"))
+    assert r.client.post("/campaigns/c00002/abort").status_code == 200
+    st = wait_state(r.client, "c00002", ("aborted", "done"))
+    if st["state"] == "aborted":
+        assert not st["brdf"]
+    assert r.client.post("/campaigns/c00001/abort").status_code == 409   # done is final
+
+
+def test_halt_stops_the_running_campaign_and_resume_finishes_it(serve):
+    r = serve(pace=0.002)
+    submit(r.client, grid="iso:step=15")
+    wait_for(_one_step_measured(r), "a committed step")
+    resp = r.client.post("/gantry/halt")
+    assert resp.status_code == 200 and resp.json()["id"] == "c00001"
+    halted = wait_state(r.client, "c00001", "halted")
+    assert halted["steps_done"] < halted["steps"]
+    log = r.client.get("/campaigns/c00001/log").json()
+    assert any(e["kind"] == "halt" for e in log) and not any(e["kind"] == "park" for e in log)
+    r.client.post("/campaigns/c00001/resume").raise_for_status()
+    wait_state(r.client, "c00001", "done")
+    j = Journal.open(r.daemon.queue.root / "c00001" / JOURNAL_NAME, readonly=True)
+    try:
+        assert j.done_steps().tolist() == list(range(j.step_count()))
+    finally:
+        j.close()
+
+
+def test_an_aborted_queued_campaign_never_runs_and_a_paused_one_can_be_aborted(serve):
+    r = serve(pace=0.002)
+    submit(r.client, grid="iso:step=15")
+    submit(r.client, grid="iso:step=30")
+    assert r.client.post("/campaigns/c00002/abort").json()["state"] == "aborted"
+    r.client.post("/campaigns/c00001/pause").raise_for_status()
+    wait_state(r.client, "c00001", "paused")
+    r.client.post("/campaigns/c00001/abort").raise_for_status()
+    assert r.client.get("/campaigns/c00001").json()["state"] == "aborted"
+    assert r.client.get("/campaigns/c00002").json()["steps_done"] == 0
+    assert r.client.post("/campaigns/c00001/resume").status_code == 409
+    assert r.client.get("/campaigns/c00001/brdf").status_code == 409
+
+
+def test_manual_moves_are_checked_and_a_halt_stops_one_mid_move(serve):
+    r = serve(pace=0.5)   # the move takes about a second of wall time: the halt comes well within it
+    g = r.client.get("/gantry").json()
+    names = ["light_azimuth", "light_tilt", "detector_azimuth", "detector_tilt"]
+    assert [a["name"] for a in g["axes"]] == names
+    assert g["owner"] is None and g["light"]["on"] is False and g["detector"]["channels"] == ["R", "G", "B"]
+    bad = r.client.post("/gantry/move", json={"theta_i_deg": 85, "phi_i_deg": 0, "theta_o_deg": 30,
+                                              "phi_o_deg": 180})
+    assert bad.status_code == 422 and "beyond_theta_max" in bad.json()["detail"][0]["msg"]
+    bad = r.client.post("/gantry/move", json={"theta_i_deg": 30, "phi_i_deg": 0, "theta_o_deg": 30})
+    assert bad.status_code == 422 and "phi_o_deg" in str(bad.json()["detail"][0]["loc"])
+    result = {}
+    mover = threading.Thread(target=lambda: result.update(r=r.client.post("/gantry/move", json={
+        "theta_i_deg": 60, "phi_i_deg": 0, "theta_o_deg": 60, "phi_o_deg": 180})))
+    mover.start()
+    wait_for(lambda: r.client.get("/gantry").json()["moving"], "the move to start")
+    assert r.client.post("/gantry/move", json={"theta_i_deg": 10, "phi_i_deg": 0, "theta_o_deg": 10,
+                                               "phi_o_deg": 180}).status_code == 409   # one at a time
+    r.client.post("/gantry/halt").raise_for_status()
+    mover.join(WAIT_S)
+    assert result["r"].status_code == 409 and "halted" in result["r"].json()["detail"]
+    g = r.client.get("/gantry").json()
+    assert not g["moving"] and 0 < g["angles"]["theta_i_deg"] < 60       # stopped mid-move
+    home = r.client.post("/gantry/home")
+    assert home.status_code == 200 and home.json()["angles"]["theta_i_deg"] == pytest.approx(0, abs=1e-6)
+
+
+def test_manual_moves_are_refused_while_a_campaign_owns_the_gantry(serve):
+    r = serve(pace=0.002)
+    submit(r.client, grid="iso:step=15")
+    wait_state(r.client, "c00001", "running")
+    assert r.client.get("/gantry").json()["owner"] == "c00001"
+    resp = r.client.post("/gantry/home")
+    assert resp.status_code == 409 and "c00001" in resp.json()["detail"]
+    r.client.post("/campaigns/c00001/abort").raise_for_status()
+    wait_state(r.client, "c00001", "aborted")

@@ -1,0 +1,80 @@
+"""The CLI clients against an in-process daemon: submit, queue, watch, pause, resume, abort, halt, fetch;
+one clear line when the daemon is not running or refuses."""
+
+from __future__ import annotations
+
+import h5py
+import pytest
+from daemon_helpers import TOKEN, submit, wait_for, wait_state
+
+from gonio.cli import main
+
+
+@pytest.fixture
+def env(monkeypatch):
+    def set_(url, token=None):
+        monkeypatch.setenv("GONIO_URL", url)
+        if token:
+            monkeypatch.setenv("GONIO_TOKEN", token)
+        else:
+            monkeypatch.delenv("GONIO_TOKEN", raising=False)
+    return set_
+
+
+def test_submit_watch_queue_fetch(serve, env, tmp_path, capsys):
+    r = serve(token=TOKEN)
+    env(r.url, TOKEN)
+    assert main(["submit", "lambert:albedo=0.5", "--grid", "iso:step=30", "--seed", "2",
+                 "--frames", "2"]) == 0
+    out = capsys.readouterr()
+    assert out.out.strip() == "c00001" and "campaign c00001: " in out.err and "(30 steps)" in out.err
+    assert main(["watch", "c00001"]) == 0
+    err = capsys.readouterr().err
+    assert "c00001: 30/30 steps (100 %)" in err and "campaign c00001: done" in err
+    assert main(["queue"]) == 0
+    assert "c00001  done" in capsys.readouterr().out
+    assert main(["queue", "c00001"]) == 0
+    assert "progress: 30/30 steps (100.0 %)" in capsys.readouterr().out
+    assert main(["fetch", "c00001", "--out", str(tmp_path / "b.h5")]) == 0
+    with h5py.File(tmp_path / "b.h5") as f:
+        assert "samples" in f
+    assert main(["submit", "lambert:albedo=0.5", "--grid", "iso:step=30", "--exposure-s", "0.05",
+                 "--watch"]) == 0
+
+
+def test_pause_resume_abort_halt_from_the_command_line(serve, env, capsys):
+    r = serve(pace=0.002)
+    env(r.url)
+    submit(r.client, grid="iso:step=15")
+    wait_for(lambda: r.client.get("/campaigns/c00001").json()["steps_done"] >= 1, "a committed step")
+    assert main(["pause", "c00001"]) == 0
+    wait_state(r.client, "c00001", "paused")
+    assert main(["resume", "c00001"]) == 0
+    wait_state(r.client, "c00001", ("running", "done", "finishing"))
+    assert main(["halt"]) == 0
+    st = wait_state(r.client, "c00001", ("halted", "done"))
+    capsys.readouterr()
+    if st["state"] == "halted":
+        assert main(["abort", "c00001"]) == 0
+        assert "c00001: aborted" in capsys.readouterr().out
+        assert main(["abort", "c00001"]) == 1
+        assert "refused (409)" in capsys.readouterr().err
+
+
+def test_one_clear_line_when_there_is_no_daemon_or_it_refuses(serve, env, capsys):
+    env("http://127.0.0.1:9")        # nothing listens on the discard port
+    assert main(["queue"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gonio queue: no gonio daemon at http://127.0.0.1:9") and "\n" not in err
+    r = serve(token=TOKEN)
+    env(r.url)                       # no token
+    assert main(["halt"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "needs its token" in err and "\n" not in err
+    env(r.url, TOKEN)
+    assert main(["submit", "lambert:albedo=3", "--grid", "iso:step=30"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "refused (422)" in err and "material" in err and "\n" not in err
+    assert main(["fetch", "c00042", "--out", "x.h5"]) == 1
+    assert "no such campaign" in capsys.readouterr().err
+    assert main(["queue", "--url", "ftp://x"]) == 2

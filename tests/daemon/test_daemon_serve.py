@@ -1,0 +1,178 @@
+"""``gonio serve`` as a process: the loopback rule, SIGTERM (pause, park, resume at the next start or
+hold with --hold), and SIGKILL at random moments of a simulated campaign: after each restart the daemon
+resumes it, and the end result equals an uninterrupted run bit for bit."""
+
+from __future__ import annotations
+
+import os
+import random
+import re
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import httpx
+import numpy as np
+import pytest
+from daemon_helpers import WAIT_S, wait_for
+
+from gonio.campaign import create_campaign, run_campaign
+from gonio.config import load_config
+from gonio.sim.materials import load
+from gonio.store import JOURNAL_NAME, Journal
+from gonio.wiring import build_gantry
+
+GONIO = [sys.executable, "-m", "gonio.cli"]
+
+
+_STARTED: list[Serve] = []
+
+
+@pytest.fixture(autouse=True)
+def _no_daemon_left_behind():
+    """Every daemon a test starts is stopped, also when the test fails half-way."""
+    yield
+    while _STARTED:
+        s = _STARTED.pop()
+        if s.p.poll() is None:
+            s.p.kill()
+            s.p.wait(WAIT_S)
+        s._f.close()
+
+
+class Serve:
+    """A ``gonio serve`` subprocess on a free loopback port; its URL once it listens."""
+
+    def __init__(self, data: Path, *extra: str, env: dict | None = None):
+        self.log = data.parent / f"serve-{time.monotonic_ns()}.log"
+        self._f = self.log.open("w")
+        self.p = subprocess.Popen([*GONIO, "serve", "--data", str(data), "--port", "0", *extra],
+                                  stdout=self._f, stderr=subprocess.STDOUT,
+                                  env={**os.environ, "GONIO_TOKEN": "", **(env or {})})
+        _STARTED.append(self)
+        m = wait_for(lambda: re.search(r"listening on (http://\S+)", self.log.read_text())
+                     or self.p.poll() is not None, "the daemon to listen")
+        if m is True or self.p.poll() is not None:
+            pytest.fail(f"gonio serve exited: {self.log.read_text()}")
+        self.url = m.group(1)
+        self.client = httpx.Client(base_url=self.url, timeout=WAIT_S)
+
+    def stop(self, sig=signal.SIGTERM) -> int:
+        self.client.close()
+        if self.p.poll() is None:
+            self.p.send_signal(sig)
+        try:
+            return self.p.wait(WAIT_S)
+        finally:
+            self._f.close()
+
+
+def _done(folder: Path) -> int:
+    if not (folder / JOURNAL_NAME).exists():
+        return 0
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        return j.done_count()
+    finally:
+        j.close()
+
+
+def test_serve_refuses_a_non_loopback_address_without_a_token(tmp_path):
+    r = subprocess.run([*GONIO, "serve", "--host", "0.0.0.0", "--data", str(tmp_path / "d")],
+                       capture_output=True, text=True, timeout=WAIT_S, env={**os.environ, "GONIO_TOKEN": ""})
+    assert r.returncode == 2
+    assert r.stderr.strip().startswith("gonio serve: --host: 0.0.0.0 is not a loopback address")
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "d").exists()
+
+
+def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path):
+    data = tmp_path / "data"
+    s = Serve(data, "--pace", "0.005")
+    body = {"material": "lambert:albedo=0.5", "grid": "iso:step=15"}
+    s.client.post("/campaigns", json=body).raise_for_status()
+    folder = data / "campaigns" / "c00001"
+    wait_for(lambda: _done(folder) >= 2, "two committed steps")
+    # A second daemon on the same data folder is refused.
+    r = subprocess.run([*GONIO, "serve", "--data", str(data), "--port", "0"], capture_output=True, text=True,
+                       timeout=WAIT_S)
+    assert r.returncode == 2 and "served by another gonio daemon" in r.stderr
+    assert s.stop(signal.SIGTERM) == 0
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        assert j.last_event("state")["state"] == "paused"
+        assert j.last_event("park") is not None
+        n, total = j.done_count(), j.step_count()
+    finally:
+        j.close()
+    assert 0 < n < total
+    held = Serve(data, "--pace", "0.005", "--hold")
+    assert held.client.get("/campaigns/c00001").json()["state"] == "paused"
+    assert _done(folder) == n
+    held.client.post("/campaigns/c00001/resume").raise_for_status()   # held until an operator resumes
+    wait_for(lambda: _done(folder) >= n + 2, "two more steps")
+    assert held.stop(signal.SIGTERM) == 0
+    s = Serve(data, "--pace", "0")       # stopped by SIGTERM while running: it resumes by itself
+    wait_for(lambda: s.client.get("/campaigns/c00001").json()["state"] == "done", "the campaign to finish")
+    assert s.stop() == 0
+
+
+def _reference(tmp_path: Path, material: str, grid: str, seed: int) -> Path:
+    """The uninterrupted run, as ``gonio simulate`` makes it."""
+    cfg = load_config()
+    c = create_campaign(tmp_path / "ref", cfg, grid=grid, material=load(material).spec, seed=seed)
+    try:
+        state, _ = run_campaign(c, build_gantry(cfg, material, seed=seed))
+    finally:
+        c.close()
+    assert state == "done"
+    return tmp_path / "ref" / "brdf.h5"
+
+
+def _samples(path: Path) -> dict:
+    with h5py.File(path, "r") as f:
+        return {k: f["samples"][k][()] for k in f["samples"]}
+
+
+def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_result(tmp_path):
+    material, grid, seed = "ggx:alpha=0.2,metal=gold", "iso:step=12", 5
+    ref = _reference(tmp_path, material, grid, seed)
+    data = tmp_path / "data"
+    folder = data / "campaigns" / "c00001"
+    rng = random.Random(7)
+    s = Serve(data, "--pace", "0")
+    s.client.post("/campaigns", json={"material": material, "grid": grid, "seed": seed}).raise_for_status()
+    total = Journal.open(folder / JOURNAL_NAME, readonly=True).step_count()
+    kills, progress = 0, []
+    while kills < 6:
+        start = _done(folder)
+        if kills % 3 == 2:   # some kills land during start-up or the resume itself
+            time.sleep(rng.uniform(0.0, 0.3))
+        else:
+            wait_for(lambda start=start: _done(folder) >= start + rng.randint(1, total // 14), "more steps",
+                     poll_s=0.001)
+        assert s.stop(signal.SIGKILL) == -signal.SIGKILL
+        kills += 1
+        progress.append(_done(folder))
+        assert progress[-1] < total, "the campaign finished before its kill"
+        s = Serve(data, "--pace", "0")
+    wait_for(lambda: s.client.get("/campaigns/c00001").json()["state"] == "done", "the campaign to finish")
+    assert s.stop() == 0
+    assert kills >= 5 and len(set(progress)) >= 3, progress
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        assert j.done_steps().tolist() == list(range(total))     # exactly one measurement per step
+    finally:
+        j.close()
+    conn = sqlite3.connect(folder / JOURNAL_NAME)
+    try:
+        assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    finally:
+        conn.close()
+    a, b = _samples(ref), _samples(folder / "brdf.h5")
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
