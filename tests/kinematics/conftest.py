@@ -5,7 +5,11 @@ import pytest
 
 from gonio.geometry import sph_to_vec
 from gonio.kinematics import OCCLUSION, OK
-from gonio.kinematics.base import circular_distance_deg
+from gonio.kinematics.base import POLE_EPS, circular_distance_deg
+
+# A direction closer than POLE_EPS to the pole is taken as the pole (its azimuth is free): the round
+# trip is exact to that snap, and to round-off elsewhere.
+_ATOL = max(1e-12, 1.5 * POLE_EPS)
 
 
 def _round_trip(kin, ti, pi, to, po, current):
@@ -23,11 +27,11 @@ def _round_trip(kin, ti, pi, to, po, current):
     lo, hi = kin.limits_deg.T
     assert np.all((axes[ok] >= lo) & (axes[ok] <= hi))
     wi, wo = kin.directions(axes[ok])
-    np.testing.assert_allclose(wi, sph_to_vec(ti[ok], pi[ok]), atol=1e-12)
-    np.testing.assert_allclose(wo, sph_to_vec(to[ok], po[ok]), atol=1e-12)
+    np.testing.assert_allclose(wi, sph_to_vec(ti[ok], pi[ok]), atol=_ATOL)
+    np.testing.assert_allclose(wo, sph_to_vec(to[ok], po[ok]), atol=_ATOL)
     bi, qi, bo, qo = kin.forward(axes[ok])
-    np.testing.assert_allclose(bi, ti[ok], atol=1e-12)
-    np.testing.assert_allclose(bo, to[ok], atol=1e-12)
+    np.testing.assert_allclose(bi, ti[ok], atol=_ATOL)
+    np.testing.assert_allclose(bo, to[ok], atol=_ATOL)
     for q, t, p in ((qi, ti[ok], pi[ok]), (qo, to[ok], po[ok])):
         assert np.all((q >= 0.0) & (q < 2 * np.pi))
         moved = t > 1e-6  # the azimuth of a pole direction means nothing
