@@ -240,7 +240,15 @@ class Lattice:
 
 
 class Scattered:
-    """Local linear regression over the k nearest samples in a pole-free embedding."""
+    """Local linear regression over the k nearest samples in a pole-free embedding.
+
+    The fit is solved in closed form around the weighted centroid of the neighbours: with weights w,
+    offsets X (neighbour − query, in units of the support radius h), W = Σw, centroid μ = ΣwX/W and
+    centred moments C = Σw(X − μ)(X − μ)ᵀ + λI, the fitted value at the query is Σ a_k f_k with
+    a_k = w_k (1/W − (X_k − μ)ᵀ C⁻¹ μ): the intercept of the weighted least-squares plane (λ, a relative
+    1e-6, keeps degenerate neighbourhoods solvable). In 3D (isotropic data) C⁻¹μ is the adjugate
+    formula; no per-query LAPACK call.
+    """
 
     def __init__(self, kind, coords, value, stddev, sym, tol):
         pts, owner = _orbit(kind, coords, sym)
@@ -249,7 +257,9 @@ class Scattered:
         self.values = value[owner]
         self.variance = stddev[owner] ** 2
         self.tree = cKDTree(self.points)
-        self.k = min(len(self.points), 4 * (self.points.shape[1] + 1) - 2)
+        # 3(d + 1) − 2 neighbours: 2.5 per fitted parameter in 3D, enough for a stable plane, and fewer
+        # than the 4(d + 1) − 2 first used (the neighbour search dominates the cost).
+        self.k = min(len(self.points), 3 * (self.points.shape[1] + 1) - 2)
         # Local support radius of each sample: the distance to its k-th neighbour (the data's own scale
         # there), so that dense and sparse regions are both judged by their spacing.
         reach = self.tree.query(self.points, k=min(self.k + 1, len(self.points)), workers=-1)[0]
@@ -264,25 +274,46 @@ class Scattered:
 
     def eval(self, coords):
         q = self._embed(coords)
-        m, de = q.shape
+        m, d = q.shape
         dist, idx = self.tree.query(q, k=self.k, workers=-1)
         dist, idx = dist.reshape(m, -1), idx.reshape(m, -1)
         h = dist[:, -1:] * 1.05 + 1e-12
         w = (1.0 - (dist / h) ** 2) ** 2
-        offsets = (self.points[idx] - q[:, None, :]) / h[:, :, None]
-        a = np.concatenate([np.ones((m, idx.shape[1], 1)), offsets], axis=2)
-        g = np.einsum("mki,mk,mkj->mij", a, w, a)
-        ridge = 1e-6 * np.einsum("mii->m", g)[:, None, None] * np.eye(de + 1)[None]
-        ridge[:, 0, 0] = 0.0
-        e0 = np.zeros((m, de + 1, 1))
-        e0[:, 0, 0] = 1.0
-        x = np.linalg.solve(g + ridge, e0)[:, :, 0]
-        hat = w * np.einsum("mki,mi->mk", a, x)
+        x = (self.points[idx] - q[:, None, :]) / h[:, :, None]
+        total = w.sum(axis=1)
+        wx = w[:, :, None] * x
+        mu = wx.sum(axis=1) / total[:, None]
+        cov = np.empty((m, d, d))
+        for i in range(d):
+            for j in range(i, d):
+                cov[:, i, j] = cov[:, j, i] = np.einsum("mk,mk->m", wx[:, :, i], x[:, :, j])
+        ridge = 1e-6 * (total + np.trace(cov, axis1=1, axis2=2))
+        cov -= total[:, None, None] * mu[:, :, None] * mu[:, None, :]
+        cov[:, np.arange(d), np.arange(d)] += ridge[:, None]
+        z = _solve_spd(cov, mu)
+        lever = np.einsum("mkd,md->mk", x, z) - np.einsum("md,md->m", mu, z)[:, None]
+        hat = w * ((1.0 / total)[:, None] - lever)
         exact = dist[:, 0] <= self.snap
         if exact.any():
             hat[exact] = 0.0
             hat[exact, 0] = 1.0
-        value = np.einsum("mk,mkc->mc", hat, self.values[idx])
-        var = np.einsum("mk,mkc->mc", hat * hat, self.variance[idx])
+        value = np.matmul(hat[:, None, :], self.values[idx])[:, 0]
+        var = np.matmul((hat * hat)[:, None, :], self.variance[idx])[:, 0]
         reason = np.where(dist[:, 0] > self.reach[idx[:, 0]], Reason.NO_DATA, Reason.OK).astype(np.uint8)
         return value, np.sqrt(var), reason, exact & (reason == Reason.OK)
+
+
+def _solve_spd(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x with a x = b for stacks of small symmetric positive-definite systems, a (m, d, d), b (m, d);
+    closed form (adjugate over determinant) for d = 3."""
+    if a.shape[1] != 3:
+        return np.linalg.solve(a, b[:, :, None])[:, :, 0]
+    p, q, r = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2]
+    s, t, u = a[:, 1, 1], a[:, 1, 2], a[:, 2, 2]
+    c00, c01, c02 = s * u - t * t, r * t - q * u, q * t - r * s
+    c11, c12, c22 = p * u - r * r, q * r - p * t, p * s - q * q
+    det = p * c00 + q * c01 + r * c02
+    x0 = c00 * b[:, 0] + c01 * b[:, 1] + c02 * b[:, 2]
+    x1 = c01 * b[:, 0] + c11 * b[:, 1] + c12 * b[:, 2]
+    x2 = c02 * b[:, 0] + c12 * b[:, 1] + c22 * b[:, 2]
+    return np.stack([x0, x1, x2], axis=1) / det[:, None]

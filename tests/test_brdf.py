@@ -92,3 +92,27 @@ def test_open_errors_name_the_path(tmp_path):
         open_brdf(tmp_path / "nowhere")
     with pytest.raises(ValueError, match="method: must be one of"):
         open_brdf(sampled(SPEC, "iso:step=30"), method="cubic")
+
+
+def test_scattered_estimate_is_the_weighted_least_squares_plane():
+    """The closed-form fit against numpy's lstsq on the same neighbours, weights and embedding."""
+    from gonio.interpolate import Scattered, domain_coords
+
+    rng = np.random.default_rng(7)
+    n = 400
+    ang = np.radians(np.stack([rng.uniform(0, 80, n), np.zeros(n), rng.uniform(0, 80, n),
+                               rng.uniform(0, 360, n)], axis=1))
+    value = rng.random((n, 2))
+    sym = {"reciprocity": False, "isotropy": True, "mirror": False}
+    eng = Scattered("iso", domain_coords("iso", ang, sym), value, 0.1 * value, sym, 1e-9)
+    q = np.radians(np.array([[30.0, 0.0, 40.0, 180.0], [50.0, 0.0, 20.0, 77.0], [10.0, 0.0, 70.0, 300.0]]))
+    got = eng.eval(domain_coords("iso", q, sym))[0]
+    p = eng._embed(domain_coords("iso", q, sym))
+    for row, point in enumerate(p):
+        dist = np.linalg.norm(eng.points - point, axis=1)
+        near = np.argsort(dist)[:eng.k]
+        h = dist[near].max() * 1.05
+        sw = np.sqrt((1 - (dist[near] / h) ** 2) ** 2)
+        design = np.concatenate([np.ones((eng.k, 1)), (eng.points[near] - point) / h], axis=1)
+        coef = np.linalg.lstsq(design * sw[:, None], value[near] * sw[:, None], rcond=None)[0]
+        np.testing.assert_allclose(got[row], coef[0], rtol=1e-4)  # up to the 1e-6 ridge
