@@ -46,6 +46,9 @@ __all__ = ["CampaignQueue", "FieldError", "Conflict", "NotFound"]
 
 log = logging.getLogger(__name__)
 
+#: Seconds a running campaign's status read from its journal is reused (progress comes from the runner).
+STATUS_TTL_S = 0.25
+
 class CampaignQueue:
     """The campaigns under ``data/campaigns`` and the worker that runs them one at a time.
 
@@ -160,6 +163,12 @@ class CampaignQueue:
             raise NotFound(f"campaign '{cid}': no such campaign")
         return rec
 
+    def queued(self) -> int:
+        """Campaigns waiting for the gantry (cheap: no journal is read)."""
+        with self._cond:
+            return sum(r.final is None and r is not self.current and r.intent == "run"
+                       for r in self._records.values())
+
     def records(self) -> list[Record]:
         with self._cond:
             return sorted(self._records.values(), key=lambda r: r.seq)
@@ -181,6 +190,8 @@ class CampaignQueue:
 
     def state(self, rec: Record, journal: Journal | None = None) -> str:
         """queued, starting, running, pausing, paused, halted, faulted, done, aborted or failed."""
+        if rec.final is not None:
+            return rec.final
         with self._cond:
             if self.current is rec:
                 runner = self.runner
@@ -198,10 +209,9 @@ class CampaignQueue:
             if journal is None:
                 j.close()
         last = e["state"] if e else None
-        if last == "aborted":
-            return "aborted"
-        if last == "done" and (rec.folder / BRDF_NAME).is_file():
-            return "done"
+        if last == "aborted" or (last == "done" and (rec.folder / BRDF_NAME).is_file()):
+            rec.final = last
+            return last
         if rec.intent == "run":
             return "faulted" if latched is not None and not rec.clear_fault else "queued"
         if rec.error:
@@ -211,7 +221,41 @@ class CampaignQueue:
         return last if last in ("halted", "faulted") else "paused"
 
     def status(self, rec: Record) -> dict:
-        """State, progress, ETA and last fault of one campaign (read-only journal)."""
+        """State, progress, ETA and last fault of one campaign.
+
+        The running campaign's journal is read at most every ``STATUS_TTL_S`` (its state and progress
+        come from the runner in between), a finished one's once: a status request stays cheap while
+        the runner works."""
+        with self._cond:
+            live = self.current is rec
+            started = self.run_started if live else None
+        cached = rec.cache
+        fresh = cached is not None and live and time.monotonic() - cached[0] < STATUS_TTL_S
+        if cached is not None and (fresh or (rec.final is not None and cached[1]["state"] == rec.final)):
+            st = dict(cached[1])
+            if live:
+                st["state"] = self.state(rec)
+                if rec.live is not None and rec.live[0] > st["steps_done"]:
+                    st.update(steps_done=rec.live[0], campaign_s=rec.live[1], last_update_unix=rec.live[2])
+                self._progress(st, rec, started)
+            return st
+        st = self._read_status(rec)
+        self._progress(st, rec, started)
+        if live or rec.final is not None:
+            rec.cache = (time.monotonic(), st)
+        return st
+
+    @staticmethod
+    def _progress(st: dict, rec: Record, started) -> None:
+        total, done = st["steps"], st["steps_done"]
+        st["progress"] = done / total if total else 1.0
+        st["eta_gantry_s"] = rec.static["estimated_s"] * (total - done) / total if total else 0.0
+        st["eta_wall_s"] = None
+        if started is not None and done > started[1]:
+            rate = (done - started[1]) / max(time.time() - started[0], 1e-9)
+            st["eta_wall_s"] = (total - done) / rate
+
+    def _read_status(self, rec: Record) -> dict:
         j = self.journal(rec)
         try:
             if not rec.static:
@@ -228,18 +272,10 @@ class CampaignQueue:
             fault = j.last_event("fault")
         finally:
             j.close()
-        total = s["steps"]
-        eta_wall = None
-        with self._cond:
-            started = self.run_started if self.current is rec else None
-        if started is not None and done > started[1]:
-            rate = (done - started[1]) / max(time.time() - started[0], 1e-9)
-            eta_wall = (total - done) / rate
         return {"id": rec.id, "state": state, "seq": rec.seq, "submitted_unix": rec.submitted_unix,
                 **{k: s[k] for k in ("grid", "material", "sample", "seed", "poses", "gantry", "channels")},
-                "steps": total, "steps_done": done, "progress": done / total if total else 1.0,
-                "campaign_s": campaign_s, "eta_gantry_s": s["estimated_s"] * (total - done) / total if total
-                else 0.0, "eta_wall_s": eta_wall, "last_update_unix": last_wall,
+                "steps": s["steps"], "steps_done": done, "campaign_s": campaign_s,
+                "last_update_unix": last_wall,
                 "latched_fault": latched["reason"] if latched else None,
                 "last_fault": fault["message"] if fault else None, "error": rec.error,
                 "brdf": (rec.folder / BRDF_NAME).is_file()}
@@ -340,6 +376,7 @@ class CampaignQueue:
             finally:
                 with self._cond:
                     self.current, self.runner, self.gantry, self.run_started = None, None, None, None
+                    rec.cache = rec.live = None
                     self._cond.notify_all()
 
     def _run(self, rec: Record) -> None:
@@ -364,6 +401,7 @@ class CampaignQueue:
                     runner.request_pause("pause requested through the API")
 
             def on_step(runner: Runner, step: int) -> None:
+                rec.live = (step + 1, runner.campaign_s(), time.time())
                 # Requests that came while the runner was starting (run() clears its flags) act here.
                 if runner.state in (State.RUNNING, State.PAUSING) and rec.halt_pending:
                     runner.request_halt("halt requested through the API")

@@ -55,6 +55,9 @@ class Record:
     abort_pending: bool = False         # an abort that came before the runner was running
     error: str | None = None            # why the daemon could not run it (not a runner fault)
     static: dict = field(default_factory=dict)   # meta that never changes (grid, poses, steps, ...)
+    final: str | None = None            # done or aborted, once seen: never changes again
+    live: tuple | None = None           # (steps done, campaign_s, Unix time) from the runner's last step
+    cache: tuple | None = None          # (monotonic time, status) of the running or a final campaign
 
     def save(self) -> None:
         data = {"id": self.id, "seq": self.seq, "request": self.request,

@@ -96,6 +96,15 @@ class _Server(uvicorn.Server):
         super().handle_exit(sig, frame)
 
 
+def _listen(host: str, port: int) -> socket.socket:
+    """The listening socket. TCP_NODELAY (inherited by every accepted connection): a reply's header and
+    body go out as two writes, and Nagle's algorithm would hold the body until the client's delayed ACK,
+    40 ms later."""
+    sock = socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return sock
+
+
 def _config(d: Daemon, access_log: bool) -> uvicorn.Config:
     return uvicorn.Config(asgi(d), log_config=None, access_log=access_log, timeout_graceful_shutdown=2,
                           lifespan="off", ws="none")
@@ -107,8 +116,11 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
     """Run the daemon until SIGTERM/SIGINT. Refuses a non-loopback ``host`` without a token."""
     check_bind(host, token)
     fd = _lock_data(data)
+    # The runner's thread computes (Dr.Jit, numpy) between short waits: hand the GIL over more often than
+    # every 5 ms so that a request thread is not kept waiting behind it.
+    sys.setswitchinterval(0.0005)
     try:
-        sock = socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET)
+        sock = _listen(host, port)
     except OSError as err:
         os.close(fd)
         raise ValueError(f"--port: cannot listen on {host}:{port} ({err.strerror or err})") from None
@@ -153,7 +165,7 @@ def start_in_thread(d: Daemon, host: str = "127.0.0.1", port: int = 0, timeout_s
                     access_log: bool = False) -> Running:
     """Start the queue and serve ``d`` on ``host:port`` (0: any free port) from a thread; waits (bounded)
     until it accepts connections."""
-    sock = socket.create_server((host, port))
+    sock = _listen(host, port)
     d.queue.start()
     server = uvicorn.Server(_config(d, access_log))
     server.install_signal_handlers = lambda: None   # uvicorn < 0.29

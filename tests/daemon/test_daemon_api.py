@@ -202,7 +202,10 @@ def test_manual_moves_are_checked_and_a_halt_stops_one_mid_move(serve):
     mover = threading.Thread(target=lambda: result.update(r=r.client.post("/gantry/move", json={
         "theta_i_deg": 60, "phi_i_deg": 0, "theta_o_deg": 60, "phi_o_deg": 180})))
     mover.start()
-    wait_for(lambda: r.client.get("/gantry").json()["moving"], "the move to start")
+    def under_way():
+        g = r.client.get("/gantry").json()
+        return g["moving"] and g["angles"]["theta_i_deg"] > 1.0
+    wait_for(under_way, "the move to be under way")
     assert r.client.post("/gantry/move", json={"theta_i_deg": 10, "phi_i_deg": 0, "theta_o_deg": 10,
                                                "phi_o_deg": 180}).status_code == 409   # one at a time
     r.client.post("/gantry/halt").raise_for_status()
