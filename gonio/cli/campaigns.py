@@ -1,0 +1,365 @@
+"""Campaign commands: ``plan``, ``config``, ``simulate``, ``run`` and ``status``.
+
+Validation comes before anything is written; SIGINT and SIGTERM during a campaign finish the step in
+flight, park, journal the interruption and say how to resume (exit code 130); a second one halts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gonio.cli.common import (
+    UsageError,
+    _hms,
+    _in_main_thread,
+    _install_startup_handlers,
+    _lock_holder,
+    _Out,
+    _seed,
+)
+from gonio.cli.results import _export_formats, _write_exports
+from gonio.config import load_config
+
+#: Seconds between progress lines when stderr is not a terminal (logs, CI, a daemon's journal).
+PLAIN_PROGRESS_EVERY_S = 5.0
+
+
+# -- gonio plan -----------------------------------------------------------------------------------
+def cmd_plan(args) -> int:
+    from gonio.plan import build_plan, format_plan, plan_summary
+
+    cfg = load_config(args.config)
+    plan = build_plan(args.grid, cfg)
+    if args.json:
+        print(json.dumps(plan_summary(plan), indent=2))
+    else:
+        print(format_plan(plan))
+    return 0
+
+
+# -- gonio config ---------------------------------------------------------------------------------
+def cmd_config(args) -> int:
+    from gonio.config import packaged_configs, resolve_config
+
+    if args.action == "list":
+        shipped = packaged_configs()
+        width = max(map(len, shipped), default=0) + 2
+        print(f"{'NAME':<{width}}{'DESIGN':<14}GANTRY")
+        for name, path in shipped.items():
+            cfg = load_config(path)
+            print(f"{name:<{width}}{cfg.kinematics.design:<14}{cfg.name}")
+        return 0
+    if not args.name:
+        raise UsageError("gonio config show: give NAME (one of: "
+                         f"{', '.join(packaged_configs())}) or a path")
+    path = resolve_config(args.name)
+    load_config(path)  # validated before it is shown
+    print(path.read_text(), end="")
+    return 0
+
+
+# -- gonio simulate -------------------------------------------------------------------------------
+def _model_check(folder: Path, material) -> str:
+    """Simulation only: how far the calibrated samples are from the material they simulate."""
+    from gonio.dataset import read_brdf
+    from gonio.geometry import sph_to_vec
+
+    b = read_brdf(folder / "brdf.h5")
+    wi = sph_to_vec(np.radians(b.theta_i), np.radians(b.phi_i))
+    wo = sph_to_vec(np.radians(b.theta_o), np.radians(b.phi_o))
+    truth = material.eval(wi, wo)
+    ok = truth > 1e-3 * truth.max()
+    rel = np.abs(b.value[ok] - truth[ok]) / truth[ok]
+    return (f"{len(b.value)} samples; against the simulated material's own eval: median relative error "
+            f"{100 * np.median(rel):.2f} %, 95th percentile {100 * np.percentile(rel, 95):.2f} %")
+
+
+def _check_out(out: Path) -> None:
+    """--out must be a folder we can write, or a path where one can be made; checked before writing."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out: {out} is a file, not a folder; give a folder for the campaign")
+    probe = out
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise UsageError(f"--out: {probe} is a file, so {out} cannot be a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise UsageError(f"--out: {probe} is not writable (permission denied); choose another folder")
+
+
+def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
+    """A live rich progress bar on a terminal, a plain line every few seconds otherwise."""
+    t0 = time.perf_counter()
+    if quiet:
+        return None, (lambda runner, step: None)
+    if out.console.is_terminal:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("gantry {task.fields[sim]}"), TextColumn("wall"), TimeElapsedColumn(),
+                            TextColumn("ETA {task.fields[eta]}"), console=out.console, transient=False)
+        task = progress.add_task("measuring", total=total, completed=done0, sim="0:00:00", eta="?")
+
+        def on_step(runner, step):
+            now = time.perf_counter() - t0
+            done = step + 1 - done0
+            eta = now / done * (total - step - 1) if done > 0 else 0.0
+            progress.update(task, completed=step + 1, sim=_hms(runner.campaign_s()), eta=_hms(eta))
+
+        return progress, on_step
+    last = [-PLAIN_PROGRESS_EVERY_S]
+
+    def on_step(runner, step):
+        now = time.perf_counter() - t0
+        if now - last[0] < PLAIN_PROGRESS_EVERY_S and step + 1 < total:
+            return
+        last[0] = now
+        done = step + 1 - done0
+        eta = now / done * (total - step - 1) if done > 0 else 0.0
+        out(f"measuring: {step + 1}/{total} steps ({100 * (step + 1) / total:.0f} %), gantry "
+            f"{_hms(runner.campaign_s())}, wall {now:.1f} s, ETA {_hms(eta)}")
+
+    return None, on_step
+
+
+def cmd_simulate(args) -> int:
+    from gonio.plan import parse_grid
+    from gonio.sim.materials import load as load_material
+
+    # Everything the user typed is validated before anything is written.
+    material = load_material(args.material)
+    parse_grid(args.grid)
+    exports = _export_formats(args.export)
+    cfg = load_config(args.config)
+    return _campaign_command(args, cfg, material=material, sample=None, model_check=True, exports=exports)
+
+
+def _campaign_command(args, cfg, *, material, sample: str | None, model_check: bool, exports=(),
+                      relocate_buses: bool = False) -> int:
+    """Create or resume the campaign in ``args.out`` and run it on the gantry ``cfg`` wires (``gonio
+    simulate`` and ``gonio run``): progress, signals, latched faults, ``--clear-fault``, brdf.h5.
+
+    ``relocate_buses``: a resumed campaign's devices are reached where ``cfg``'s buses say now (a
+    re-plugged adapter, a restarted emulator); every other setting must match the campaign's."""
+    from gonio.campaign import compare_campaign, create_campaign, gantry_state, open_campaign, run_campaign
+    from gonio.config import relocate
+    from gonio.dataset import BRDF_NAME
+    from gonio.protocols import DeviceFault
+    from gonio.runner import State
+    from gonio.store import JOURNAL_NAME
+    from gonio.wiring import build_gantry
+
+    out = _Out(args.quiet)
+    folder = Path(args.out)
+    spec = material.spec if material is not None else None
+    _check_out(folder)
+    if (folder / JOURNAL_NAME).exists():
+        c = open_campaign(folder)
+        now = relocate(cfg, c.cfg) if relocate_buses else cfg
+        diff = compare_campaign(c.meta, material=spec, grid=args.grid, seed=args.seed, cfg=now, sample=sample)
+        if diff is not None:
+            c.close()
+            raise UsageError(f"--out: {folder} holds another campaign ({diff}); repeat the original "
+                             "command to resume it, or choose another --out")
+        if c.journal.next_step() == c.journal.step_count() and (folder / BRDF_NAME).exists():
+            out(f"the campaign in {folder} is complete: {folder / BRDF_NAME}")
+            c.close()
+            _write_exports(folder, exports, out)
+            return 0
+        out(f"resuming the campaign in {folder} at step {c.journal.next_step()}")
+    else:
+        c = create_campaign(folder, cfg, grid=args.grid, material=spec, seed=args.seed, sample=sample)
+    meta = c.meta
+    n_steps = c.journal.step_count()
+    try:
+        gantry = build_gantry(relocate(c.cfg, cfg) if relocate_buses else c.cfg, material, seed=meta["seed"],
+                              state=gantry_state(c))
+    except BaseException:
+        c.close()
+        raise
+    out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} ({n_steps} steps with dark and "
+        f"white-reference readings), estimated {_hms(meta['estimated_s'])} of gantry time (lower bound "
+        f"{_hms(meta['lower_bound_s'])})")
+    t0 = time.perf_counter()
+    progress, on_step = _progress(out, n_steps, c.journal.next_step(), gantry, args.quiet)
+    signals: list[str] = []
+
+    def on_runner(runner):
+        def handler(signum, frame):
+            name = signal.Signals(signum).name
+            signals.append(name)
+            if len(signals) == 1:
+                runner.request_pause(f"{name}: finishing the step in flight, then parking")
+                runner.journal.log_event("signal", message=f"{name} received", campaign_s=runner.campaign_s())
+            else:
+                runner.request_halt(f"{name} again: halt")
+
+        if _in_main_thread():
+            signal.signal(signal.SIGINT, handler)
+            signal.signal(signal.SIGTERM, handler)
+
+    try:
+        if progress is not None:
+            with progress:
+                state, runner = run_campaign(c, gantry, on_step=on_step, on_runner=on_runner,
+                                             clear_fault=args.clear_fault)
+        else:
+            state, runner = run_campaign(c, gantry, on_step=on_step, on_runner=on_runner,
+                                         clear_fault=args.clear_fault)
+    except DeviceFault as err:  # the gantry could not be connected (or a fault could not be cleared)
+        out(f"gantry: {err}", style="red")
+        out("nothing was measured this time; every committed step is kept: fix it, then run the same command")
+        return 1
+    finally:
+        _install_startup_handlers()
+        c_done = c.journal.done_count()
+        c.close()
+    wall = time.perf_counter() - t0
+    out(f"campaign {state}: {c_done}/{n_steps} steps, gantry time {_hms(runner.campaign_s())}, "
+        f"wall time {wall:.1f} s")
+    if state == State.DONE:
+        out(f"wrote {folder / 'brdf.h5'} and {folder / JOURNAL_NAME}")
+        if model_check:
+            out(_model_check(folder, material))
+        _write_exports(folder, exports, out)
+        return 0
+    if runner.fault:
+        out(f"fault: {runner.fault}", style="red")
+        out("the fault is latched: fix its cause, then run the same command with --clear-fault to resume")
+        return 1
+    if signals:
+        out(f"interrupted ({signals[0]}): {state} at step {c_done}; every committed step is kept: run the "
+            "same command to resume")
+        return 130
+    out(f"campaign {state}; the journal keeps every committed step: run the same command to resume")
+    return 1
+
+
+def campaign_status(folder: Path) -> dict:
+    """A campaign's state, progress, ETA and last fault, read from its journal (read-only)."""
+    from gonio.store import JOURNAL_NAME, Journal
+
+    if not folder.is_dir():
+        raise UsageError(f"{folder}: no such folder")
+    if not (folder / JOURNAL_NAME).is_file():
+        raise UsageError(f"{folder}: not a campaign folder (no {JOURNAL_NAME})")
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        meta = j.meta()
+        total = j.step_count()
+        done = j.done_count()
+        state_event = j.last_event("state")
+        latched = j.latched_fault()
+        fault_event = j.last_event("fault")
+        campaign_s, last_wall = j.campaign_clock()
+    finally:
+        j.close()
+    pid = _lock_holder(folder)
+    state = state_event["state"] if state_event else "created"
+    if pid is not None and state in ("running", "pausing"):
+        state = f"{state} (pid {pid})"
+    elif state in ("running", "pausing"):
+        state = "interrupted (no process is running it: run the same command to resume)"
+    remaining = meta["estimated_s"] * (total - done) / total if total else 0.0
+    return {
+        "folder": str(folder), "state": state, "steps_done": done, "steps": total, "poses": meta["poses"],
+        "grid": meta["grid"], "material": meta.get("material"), "sample": meta.get("sample"),
+        "gantry": meta["gantry"], "seed": meta["seed"], "campaign_s": campaign_s,
+        "estimated_remaining_s": remaining, "last_update_unix": last_wall,
+        "latched_fault": latched["reason"] if latched else None,
+        "last_fault": fault_event["message"] if fault_event else None,
+    }
+
+
+def cmd_status(args) -> int:
+    st = campaign_status(Path(args.dir))
+    if args.json:
+        print(json.dumps(st, indent=2))
+        return 0
+    what = st["material"] or st["sample"]
+    pct = 100.0 * st["steps_done"] / st["steps"] if st["steps"] else 100.0
+    lines = [
+        f"{st['folder']}: {st['state']}",
+        f"  {what} on {st['gantry']}, grid {st['grid']}, seed {st['seed']}",
+        f"  progress: {st['steps_done']}/{st['steps']} steps ({pct:.1f} %), campaign time "
+        f"{_hms(st['campaign_s'])}",
+        f"  ETA: about {_hms(st['estimated_remaining_s'])} of gantry time left (the plan's estimate)",
+    ]
+    if st["latched_fault"]:
+        lines.append(f"  latched fault: {st['latched_fault']} (resume with --clear-fault once fixed)")
+    elif st["last_fault"]:
+        lines.append(f"  last fault: {st['last_fault']}")
+    print("\n".join(lines))
+    return 0
+
+
+# -- gonio run, gonio emulate, gonio gantry (configured hardware) -----------------------------------
+def cmd_run(args) -> int:
+    from gonio.plan import parse_grid
+    from gonio.sim.materials import load as load_material
+
+    material = load_material(args.material) if args.material else None
+    parse_grid(args.grid)
+    cfg = load_config(args.config)
+    if not args.sample.strip():
+        raise UsageError("--sample: give the name of the sample measured (not empty)")
+    if cfg.detector.driver == "sim" and material is None:
+        raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
+                         "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
+    return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
+                             relocate_buses=True)
+
+
+def add_parsers(sub, fmt) -> None:
+    """This module's subcommands."""
+    sp = sub.add_parser("plan", formatter_class=fmt, help="count and time a plan without moving anything")
+    sp.add_argument("--grid", required=True, help="GRID, e.g. iso:step=5, full:step=15, merl:stride=4")
+    sp.add_argument("--config", default=None,
+                    help="gantry config: a TOML file or a shipped config's name (default: sim)")
+    sp.add_argument("--json", action="store_true", help="one JSON object instead of the report")
+    sp.set_defaults(func=cmd_plan)
+    ss = sub.add_parser("simulate", formatter_class=fmt, help="run a whole campaign on the simulated gantry")
+    ss.add_argument("material",
+                    help="MATERIAL, e.g. lambert:albedo=0.8 or cook-torrance:d=beckmann,m=0.2,metal=gold")
+    ss.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
+    ss.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
+    ss.add_argument("--config", default=None,
+                    help="gantry config: a TOML file or a shipped config's name (default: sim)")
+    ss.add_argument("--seed", type=_seed, default=0, help="seed of the simulated detector's random numbers")
+    ss.add_argument("--clear-fault", action="store_true",
+                    help="clear the campaign's latched fault (after fixing its cause) and resume")
+    ss.add_argument("--quiet", action="store_true", help="no progress output")
+    ss.add_argument("--export", default=None, metavar="FORMATS",
+                    help="exports written into the campaign folder once it is finished, comma-separated: "
+                         "merl, bsdf, bsdf-spectral, radiance, csv, h5")
+    ss.set_defaults(func=cmd_simulate)
+    st = sub.add_parser("status", formatter_class=fmt,
+                        help="a campaign's state, progress, ETA and last fault (read-only, safe while it "
+                             "runs)")
+    st.add_argument("dir", metavar="DIR", help="campaign folder")
+    st.add_argument("--json", action="store_true", help="one JSON object")
+    st.set_defaults(func=cmd_status)
+    sc = sub.add_parser("config", formatter_class=fmt, help="list or print the shipped gantry configs")
+    sc.add_argument("action", choices=["list", "show"])
+    sc.add_argument("name", nargs="?", help="config name (for show) or a path")
+    sc.set_defaults(func=cmd_config)
+    sr = sub.add_parser("run", formatter_class=fmt,
+                        help="run a whole campaign on the configured (real, emulated or mixed) gantry")
+    sr.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
+    sr.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
+    sr.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
+    sr.add_argument("--sample", required=True, help="name of the sample measured")
+    sr.add_argument("--material", default=None,
+                    help="MATERIAL a simulated detector renders (dry runs: config detector driver 'sim')")
+    sr.add_argument("--seed", type=_seed, default=0, help="seed of simulated devices' random numbers")
+    sr.add_argument("--clear-fault", action="store_true",
+                    help="clear the campaign's latched fault (after fixing its cause) and resume")
+    sr.add_argument("--quiet", action="store_true", help="no progress output")
+    sr.set_defaults(func=cmd_run)
+

@@ -1,0 +1,131 @@
+"""What every gonio command shares: one-line user errors, signals, output, argument types."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import threading
+from pathlib import Path
+
+
+class UsageError(ValueError):
+    """A mistake in the command line: printed as one line, exit code 2."""
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM before a campaign runs (start-up, planning, creating the journal)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _hms(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {value}")
+    return value
+
+
+class _Out:
+    """Messages to stderr: rich styles on a terminal, never rich markup (paths may hold ``[...]``)."""
+
+    def __init__(self, quiet: bool = False):
+        from rich.console import Console
+
+        self.console = Console(stderr=True, soft_wrap=True, highlight=False)
+        self.quiet = quiet
+
+    def __call__(self, message: str, style: str | None = None) -> None:
+        self.console.print(message, style=style, markup=False)
+
+
+def _writable_out(text: str, *, folder: bool = False) -> Path:
+    """--out checked before any work: its folder exists and takes a file; a file (or, with ``folder``,
+    a folder) may be replaced, nothing else."""
+    out = Path(text)
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise UsageError(f"--out: folder {parent} does not exist; create it or choose another path")
+    if out.is_dir() and not folder:
+        raise UsageError(f"--out: {out} is a folder; give a file name")
+    if out.exists() and folder and not out.is_dir():
+        raise UsageError(f"--out: {out} is a file; this format writes a folder of files")
+    probe = parent / f".{out.name}.{os.getpid()}.probe"
+    try:
+        probe.open("w").close()
+        probe.unlink()
+    except OSError as err:
+        raise UsageError(f"--out: {out} cannot be written ({err.strerror or err}); choose another path") \
+            from None
+    return out
+
+
+# -- the parser -----------------------------------------------------------------------------------
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """Help that shows each option's default where it has a meaningful one (not for flags, required
+    options, or where the text already says it)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (default is None or default is False or default == argparse.SUPPRESS or "default" in text
+                or action.required or not action.option_strings):
+            return text
+        return f"{text} (default: {default})"
+
+
+# -- gonio status ---------------------------------------------------------------------------------
+def _lock_holder(folder: Path) -> int | None:
+    """The pid holding the campaign's lock (running it now), or None."""
+    import fcntl
+
+    from gonio.campaign import LOCK_NAME
+
+    path = folder / LOCK_NAME
+    if not path.exists():
+        return None
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        text = os.read(fd, 64).decode(errors="replace").strip()
+        return int(text) if text.isdigit() else -1
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
+def _user_error(err: BaseException) -> str:
+    if isinstance(err, OSError) and err.filename is not None:
+        return f"{err.filename}: {err.strerror or err}"
+    return str(err)
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
+def _in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+def _install_startup_handlers() -> None:
+    """Before and after a campaign runs, SIGINT and SIGTERM end the command cleanly (no traceback).
+    Signal handlers belong to the main thread; called from another (a test, an embedding), nothing."""
+    if _in_main_thread():
+        signal.signal(signal.SIGINT, _raise_interrupted)
+        signal.signal(signal.SIGTERM, _raise_interrupted)
+
+

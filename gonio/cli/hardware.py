@@ -1,0 +1,161 @@
+"""Hardware commands: ``emulate`` (the emulated devices of a config) and ``gantry`` (manual control)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from gonio.cli.common import (
+    UsageError,
+    _in_main_thread,
+    _seed,
+)
+from gonio.config import load_config
+
+
+def cmd_emulate(args) -> int:
+    from gonio.sim.emulators.gantry import EmulatedGantry
+    from gonio.sim.materials import load as load_material
+
+    cfg = load_config(args.config)
+    material = load_material(args.material)
+    target = Path(args.write_config) if args.write_config else None
+    if target is not None and (target.is_dir() or not target.parent.is_dir()):
+        raise UsageError(f"--write-config: {target} must be a file in an existing folder")
+    emu = EmulatedGantry(cfg, material, seed=args.seed, any_port=args.any_port)
+    stop = threading.Event()
+    if _in_main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda signum, frame: stop.set())
+    emu.start()
+    try:
+        for bus, where in emu.locations().items():
+            print(f"{bus}: {where}", flush=True)
+        if target is not None:
+            tmp = target.with_name(target.name + ".tmp")
+            tmp.write_text(emu.config_toml(f"# {cfg.name}, emulated by gonio emulate (pid {os.getpid()}); "
+                                           "valid while it runs\n"))
+            tmp.replace(target)
+            print(f"config: {target}", flush=True)
+        print(f"emulating '{cfg.name}' (material {material.spec}); SIGINT or SIGTERM stops", flush=True)
+        while not stop.wait(0.5):
+            pass
+    finally:
+        emu.stop()
+        if target is not None:
+            target.unlink(missing_ok=True)
+    return 0
+
+
+def cmd_gantry(args) -> int:
+    from gonio import manual
+    from gonio.protocols import DeviceFault
+    from gonio.wiring import build_gantry
+
+    cfg = load_config(args.config)
+    gantry = build_gantry(cfg, "lambert:albedo=0.5" if cfg.detector.driver == "sim" else None)
+    kin = gantry.kinematics
+    angles = [args.theta_i, args.phi_i, args.theta_o, args.phi_o] if args.action == "move" else []
+    axes_arg = None
+    if args.action == "move":
+        if args.axes is not None and any(a is not None for a in angles):
+            raise UsageError("gonio gantry move: give either --axes or the four angles, not both")
+        if args.axes is not None:
+            try:
+                axes_arg = [float(x) for x in args.axes.split(",")]
+            except ValueError:
+                raise UsageError(f"--axes: {args.axes!r} is not a comma-separated list of degrees") from None
+            if len(axes_arg) != len(kin.axis_names):
+                raise UsageError(f"--axes: {len(axes_arg)} values for the {len(kin.axis_names)} axes "
+                                 f"{', '.join(kin.axis_names)}")
+        elif any(a is None for a in angles):
+            raise UsageError("gonio gantry move: give --theta-i, --phi-i, --theta-o and --phi-o (degrees), "
+                             "or --axes")
+    if args.action == "jog" and (args.axis not in kin.axis_names or args.by is None):
+        raise UsageError(f"gonio gantry jog: give --axis (one of {', '.join(kin.axis_names)}) and --by DEG")
+    try:
+        axes = manual.connect_axes(gantry, keep_faulted=args.action in ("status", "reboot", "stop"))
+    except DeviceFault as err:
+        print(f"gonio gantry {args.action}: {err}", file=sys.stderr)
+        return 1
+    try:
+        if args.action == "status":
+            reports = [manual.axis_report(a) for a in axes.values()]
+            if args.json:
+                print(json.dumps({"gantry": cfg.name, "axes": reports}, indent=2))
+            else:
+                for r in reports:
+                    units = (f" ({r['position_units']} {r['units']}, target {r['target_units']})"
+                             if r["units"] else "")
+                    target = f"{r['target_deg']:.3f}°" if r["target_deg"] is not None else "-"
+                    fault = f"  FAULT: {r['fault']}" if r["fault"] else ""
+                    print(f"{r['axis']:<18} {r['position_deg']:9.3f}°  target {target}{units}"
+                          f"{'  moving' if r['moving'] else ''}{fault}")
+            return 0
+        if args.action == "stop":
+            gantry.stop()
+            print(f"stopped {len(axes)} axes: {', '.join(axes)}")
+            return 0
+        if args.action == "reboot":
+            names = [args.axis] if args.axis else list(axes)
+            unknown = [n for n in names if n not in axes]
+            if unknown:
+                raise UsageError(f"--axis: {unknown[0]!r} is not one of {', '.join(axes)}")
+            cleared = [n for n in names if axes[n].fault() is not None]
+            for n in cleared:
+                axes[n].clear_fault()
+            print(f"cleared: {', '.join(cleared)}" if cleared else "no axis had a fault")
+            return 0
+        current = np.array([gantry.axes[n].position_deg() for n in kin.axis_names])
+        if args.action == "home":
+            target = np.asarray(kin.home_deg, float)
+        elif args.action == "jog":
+            target = current.copy()
+            target[kin.axis_names.index(args.axis)] += args.by
+        elif axes_arg is not None:
+            target = np.asarray(axes_arg)
+        else:
+            target = manual.pose_targets(kin, current, *angles)
+        legs = manual.plan_move(kin, current, target)  # refused here, before anything moves
+        final = manual.drive(gantry, legs, cfg=cfg, clock=gantry.clock)
+        print("  ".join(f"{n}={v:.3f}°" for n, v in zip(kin.axis_names, final, strict=True))
+              + (f"  ({len(legs)} legs)" if len(legs) > 1 else ""))
+        return 0
+    except DeviceFault as err:
+        print(f"gonio gantry {args.action}: {err}", file=sys.stderr)
+        return 1
+    finally:
+        manual.close_axes(axes)
+
+
+def add_parsers(sub, fmt) -> None:
+    """This module's subcommands."""
+    se = sub.add_parser("emulate", formatter_class=fmt,
+                        help="run the emulated devices of a config until SIGINT/SIGTERM")
+    se.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
+    se.add_argument("--material", default="lambert:albedo=0.5", help="MATERIAL the emulated detector sees")
+    se.add_argument("--seed", type=_seed, default=0, help="seed of the emulated detector's readings")
+    se.add_argument("--write-config", default=None, metavar="PATH",
+                    help="write the config with the emulators' ptys and urls to PATH (removed at exit)")
+    se.add_argument("--any-port", action="store_true",
+                    help="serve Modbus TCP on free loopback ports, not the ports the config names")
+    se.set_defaults(func=cmd_emulate)
+    sg = sub.add_parser("gantry", formatter_class=fmt, help="manual control of the configured gantry")
+    sg.add_argument("action", choices=["status", "home", "move", "jog", "stop", "reboot"])
+    sg.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
+    sg.add_argument("--theta-i", type=float, default=None, help="move: θi (°)")
+    sg.add_argument("--phi-i", type=float, default=None, help="move: φi (°)")
+    sg.add_argument("--theta-o", type=float, default=None, help="move: θo (°)")
+    sg.add_argument("--phi-o", type=float, default=None, help="move: φo (°)")
+    sg.add_argument("--axes", default=None, help="move: axis positions a,b,c,d (°) in the design's order")
+    sg.add_argument("--axis", default=None, help="jog: the axis; reboot: only this axis")
+    sg.add_argument("--by", type=float, default=None, help="jog: degrees to move by (signed)")
+    sg.add_argument("--json", action="store_true", help="status: one JSON object")
+    sg.set_defaults(func=cmd_gantry)
+

@@ -1,0 +1,201 @@
+"""Commands on a finished campaign: ``fit``, ``export``, ``plot`` and ``report``."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gonio.cli.common import (
+    UsageError,
+    _lock_holder,
+    _Out,
+    _writable_out,
+)
+
+
+def cmd_fit(args) -> int:
+    """Fit a model to a finished campaign; the MATERIAL string on stdout, the JSON in --out."""
+    from gonio.dataset import BRDF_NAME
+    from gonio.fit import fit, parse_channels, parse_model
+
+    source = Path(args.dir)
+    if not source.exists():
+        raise UsageError(f"{source}: no such campaign folder or {BRDF_NAME} file")
+    if source.is_dir() and not (source / BRDF_NAME).is_file():
+        raise UsageError(f"{source}: not a finished campaign (no {BRDF_NAME}; it is written once every "
+                         "step is measured: finish the campaign with the command that started it)")
+    out = _writable_out(args.out) if args.out else None
+    channels = parse_channels(args.channels)
+    parse_model(args.model, channels)  # a bad MODEL is reported before any data is read
+    if args.starts < 1:
+        raise UsageError(f"--starts: must be an integer >= 1, got {args.starts}")
+    result = fit(source, args.model, channels=args.channels, loss=args.loss, starts=args.starts)
+    if out is not None:
+        tmp = out.with_name(out.name + ".partial")
+        tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n")
+        tmp.replace(out)
+    print(result.material)
+    if not args.quiet:
+        res = result.residual
+        for name, v in result.parameters.items():
+            flag = "  (at bound)" if v["at_bound"] else ""
+            print(f"  {name} = {v['value']:.6g} ± {v['stddev']:.2g}{flag}", file=sys.stderr)
+        print(f"  loss ({result.loss}) {res['loss']:.6g} over {res['residuals']} residuals, "
+              f"{res['dof']} degrees of freedom; per dof {res['chi2_reduced']:.3g}; relative "
+              f"{res['rms_relative']:.3g}; structure {res['structure']:.2f}"
+              f"{'; MISFIT: the model leaves a structured residual' if res['misfit'] else ''}",
+              file=sys.stderr)
+    return 0
+
+
+# -- gonio export ---------------------------------------------------------------------------------
+def _export_formats(text: str | None) -> list[str]:
+    from gonio.export import parse_formats
+
+    return parse_formats(text) if text is not None else []
+
+
+def _write_exports(folder: Path, formats: list[str], out: _Out) -> None:
+    """``gonio simulate --export``: each format under its unambiguous name in the campaign folder."""
+    from gonio.export import EXPORT_NAMES, export
+
+    for fmt in formats:
+        out(f"export {export(folder, fmt, folder / EXPORT_NAMES[fmt])}")
+
+
+def finished_campaign(folder: Path) -> Path:
+    """The ``brdf.h5`` of a finished campaign folder; a UsageError for anything else (no folder, not a
+    campaign, still running, incomplete, brdf.h5 missing)."""
+    from gonio.campaign import LOCK_NAME
+    from gonio.dataset import BRDF_NAME
+    from gonio.store import JOURNAL_NAME, Journal
+
+    if not folder.is_dir():
+        raise UsageError(f"{folder}: no such campaign folder")
+    if not (folder / JOURNAL_NAME).is_file():
+        raise UsageError(f"{folder}: not a campaign folder (no {JOURNAL_NAME})")
+    pid = _lock_holder(folder)
+    if pid is not None:
+        raise UsageError(f"{folder}: the campaign is still running (pid {pid} holds {LOCK_NAME}); use it "
+                         "once it has finished")
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        done, total = j.done_count(), j.step_count()
+    finally:
+        j.close()
+    if done < total:
+        raise UsageError(f"{folder}: the campaign is incomplete ({done}/{total} steps measured); finish it "
+                         "with the command that started it (it resumes), then use it")
+    if not (folder / BRDF_NAME).is_file():
+        raise UsageError(f"{folder}: every step is measured but {BRDF_NAME} is missing; run the command that "
+                         "started the campaign again to write it")
+    return folder / BRDF_NAME
+
+
+def cmd_export(args) -> int:
+    """Export a finished campaign; the report (cells from data, interpolated, empty) on stdout."""
+    from gonio.export import export, parse_formats
+
+    fmt = parse_formats(args.format, "--format")
+    if len(fmt) != 1:
+        raise UsageError(f"--format: one format per export, got {args.format!r}")
+    source = finished_campaign(Path(args.dir))
+    out = _writable_out(args.out, folder=fmt[0] == "radiance")
+    report = export(source, fmt[0], out)
+    print(report)
+    for note in report.notes:
+        print(f"  {note}")
+    return 0
+
+
+# -- gonio plot -----------------------------------------------------------------------------------
+def cmd_plot(args) -> int:
+    """Draw a finished campaign; the file written (and any caveat) on stdout."""
+    from gonio.plot import KINDS, SUFFIXES, plot
+
+    if args.kind not in KINDS:
+        raise UsageError(f"--kind: {args.kind!r} is unknown; allowed: {', '.join(KINDS)}")
+    if Path(args.out).suffix.lower() not in SUFFIXES:
+        raise UsageError(f"--out: {args.out} must end in {', '.join(SUFFIXES)} (the suffix picks the format)")
+    if not (np.isfinite(args.theta_i) and 0.0 <= args.theta_i < 90.0):
+        raise UsageError(f"--theta-i: must be in [0, 90) degrees, got {args.theta_i}")
+    if not np.isfinite(args.phi_i):
+        raise UsageError(f"--phi-i: must be a finite number of degrees, got {args.phi_i}")
+    source = finished_campaign(Path(args.dir))
+    out = _writable_out(args.out)
+    print(plot(source.parent, args.kind, out, theta_i_deg=args.theta_i, phi_i_deg=args.phi_i))
+    return 0
+
+
+# -- gonio report ---------------------------------------------------------------------------------
+def cmd_report(args) -> int:
+    """Write the HTML report of a finished campaign; the page's path and its verdict lines on stdout."""
+    from gonio.report import SUFFIXES, parse_models, report
+    from gonio.report.html import LEVELS
+
+    out = Path(args.out)
+    if out.is_dir():
+        raise UsageError(f"--out: {out} is a folder; give a file name ending in .html")
+    if out.suffix.lower() not in SUFFIXES:
+        raise UsageError(f"--out: {out} must end in .html (the report is one self-contained HTML page)")
+    models = parse_models(args.models)  # a bad MODEL is reported before any data is read
+    source = finished_campaign(Path(args.dir))
+    out = _writable_out(args.out)
+    rep = report(source.parent, out, models)
+    print(f"report: {out}")
+    for level, topic, text in rep.verdicts:
+        print(f"  {LEVELS[level]:<4}  {topic}: {text}")
+    return 0
+
+
+def add_parsers(sub, fmt) -> None:
+    """This module's subcommands."""
+    sf = sub.add_parser("fit", formatter_class=fmt,
+                        help="fit a reflectance model to a finished campaign's measured samples")
+    sf.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder (or its brdf.h5)")
+    sf.add_argument("--model", required=True,
+                    help="lambert, phong, modified-phong, blinn-phong, normalized-blinn-phong, ward, "
+                         "cook-torrance, ggx, or lambert+NAME; ':key=value,...' holds keys fixed or picks "
+                         "the form (d=blinn, fresnel=dielectric, metal=gold), ':anisotropic' for ward/ggx")
+    sf.add_argument("--channels", default=None, help="channels to fit, e.g. R,G,B or G (default: all)")
+    sf.add_argument("--loss", default="auto", choices=["auto", "chi2", "cos"],
+                    help="chi2: weighted by the measured stddev; cos: cos θi cos θo (f_model − f); auto: "
+                         "chi2 when the data have stddevs")
+    sf.add_argument("--starts", type=int, default=4, help="number of starts; the best fit wins")
+    sf.add_argument("--out", metavar="FIT.json", default=None,
+                    help="write parameters, uncertainties, loss and residual statistics as JSON")
+    sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")
+    sf.set_defaults(func=cmd_fit)
+    se = sub.add_parser("export", formatter_class=fmt,
+                        help="export a finished campaign's BRDF to a renderer's or a tool's file format")
+    se.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
+    se.add_argument("--format", required=True, metavar="FORMAT",
+                    help="merl, bsdf (Mitsuba 3 / pbrt-v4 tensor, RGB), bsdf-spectral, radiance (a folder of "
+                         "PAB-Opto files), csv, h5")
+    se.add_argument("--out", required=True, metavar="FILE", help="output file (a folder for radiance)")
+    se.set_defaults(func=cmd_export)
+    sg = sub.add_parser("plot", formatter_class=fmt,
+                        help="draw a finished campaign's BRDF (a PNG/PDF figure, or the slice's float "
+                             "values as EXR)")
+    sg.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
+    sg.add_argument("--kind", required=True, metavar="KIND",
+                    help="polar (in-plane f_r for several θi), hemisphere (f_r over ωo for one ωi), merl "
+                         "((θh, θd) image), reciprocity (residual map; campaigns measured with "
+                         "reciprocity=false), albedo (directional albedo against θi)")
+    sg.add_argument("--out", required=True, metavar="FILE", help="FILE.png, FILE.pdf or FILE.exr")
+    sg.add_argument("--theta-i", type=float, default=30.0, help="θi of the hemisphere plot, degrees")
+    sg.add_argument("--phi-i", type=float, default=0.0, help="φi (plane of incidence), degrees")
+    sg.set_defaults(func=cmd_plot)
+    sq = sub.add_parser("report", formatter_class=fmt,
+                        help="a finished campaign's report as one self-contained HTML page: the campaign, "
+                             "its calibration, data checks, and several models fitted side by side")
+    sq.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
+    sq.add_argument("--out", required=True, metavar="REPORT.html", help="the page to write")
+    sq.add_argument("--models", default=None, metavar="MODELS",
+                    help="comma-separated fit MODELs as for gonio fit (default: lambert, ward, "
+                         "cook-torrance, ggx, lambert+ggx)")
+    sq.set_defaults(func=cmd_report)
+
