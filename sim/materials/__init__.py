@@ -32,7 +32,7 @@ ward                     rho_s RGB [0, 1] required; alpha > 0, or alpha_x > 0 an
                          alpha_y > 0, required; rho_d RGB [0, 1] [0]
 cook-torrance            d: beckmann | blinn | gaussian [beckmann]; m required: > 0       R (E with
                          (blinn: 0 < m < π/2 rad); the Fresnel keys (one form required):  denom=4)
-                         metal: gold | silver | copper | steel, or fresnel: conductor
+                         metal: gold | silver | copper | aluminium | steel, or fresnel: conductor
                          (eta RGB > 0, k RGB >= 0), dielectric (eta RGB > 0), none;
                          fresnel may be left out: metal or k → conductor, eta → dielectric;
                          denom: pi | 4 [pi]; rho_d RGB [0, 1] [0]; rho_s RGB [0, 1] [1];
