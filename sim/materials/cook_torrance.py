@@ -8,7 +8,8 @@
   ∫ D(h)(h·N) dω_h = 1 (see :mod:`.microfacet`).
 - G = min{1, 2(N·H)(N·V)/(V·H), 2(N·H)(N·I)/(V·H)} (V-grooves).
 - F: the notes' unpolarized Fresnel at the microfacet angle cos θ = V·H: their conductor formula
-  (``metal=gold|silver|copper|aluminium|steel``, per-channel η, k from spectral tables, or ``fresnel=conductor,eta=…,k=…``), their dielectric formula
+  (``metal=gold|silver|copper|aluminium|steel``, per-channel η, k from spectral tables, or
+  ``fresnel=conductor,eta=…,k=…``), their dielectric formula
   with Snell's law and total internal reflection (``fresnel=dielectric,eta=…``), or F = 1
   (``fresnel=none``); see :mod:`.fresnel`.
 - ρd (``rho_d``, default 0) and ρs (``rho_s``, default 1) are the notes' diffuse and glossy weights
