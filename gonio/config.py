@@ -244,6 +244,8 @@ class ReferenceConfig(_Strict):
     albedo: float = Field(0.99, gt=0.0, le=1.0)
     #: A dark and a white-reference reading every this many poses (and at the start and end).
     every: int = Field(50, ge=1)
+    #: Also one at least this often in gantry time (s) between reference readings; None: by count only.
+    every_s: float | None = Field(None, gt=0.0, le=86400.0)
     theta_i_deg: float = Field(0.0, ge=0.0, lt=90.0)
     theta_o_deg: float = Field(45.0, ge=0.0, lt=90.0)
     dphi_deg: float = Field(180.0, ge=0.0, lt=360.0)

@@ -6,6 +6,7 @@ printed, never asserted: they depend on the machine and its load.
     .venv/bin/python tools/bench_plan.py            # everything (a few minutes)
     .venv/bin/python tools/bench_plan.py --quick    # skip iso:step=1 and the 20,000-pose tour
     .venv/bin/python tools/bench_plan.py --transit  # iso:step=1 and the swept-path check alone
+    .venv/bin/python tools/bench_plan.py --bounds   # valid bound, reference share, gap to the exact optimum
 
 Figures:
 
@@ -173,15 +174,109 @@ def transit_rows() -> list[str]:
     return rows
 
 
+def _with_reference(cfg, **ref):
+    return cfg.model_copy(update={"reference": cfg.reference.model_copy(update=ref)})
+
+
+def bound_rows() -> None:
+    """Estimate over the valid bound (any order, any branches) and over the branch-fixed one, and the
+    share of the dark + reference readings, by count (every 50) and by time (every_s equal to the count
+    schedule's mean interval, and 300 s)."""
+    from gonio.plan.schedule import STEP_REFERENCE
+    rows = ["| gantry | grid | references | build s | refs | est / valid bound | est / branch-fixed bound "
+            "| reference share |", "|---|---|---|---:|---:|---:|---:|---:|"]
+    print("\n".join(rows), flush=True)
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        for grid in ("iso:step=10", "iso:step=2", "iso:step=1"):
+            base = build_plan(grid, cfg, kin)
+            mean_s = base.estimated_s / np.count_nonzero(base.step_kind == STEP_REFERENCE)
+            schedules = [("every 50 poses", cfg)]
+            if grid != "iso:step=1":
+                schedules += [(f"every_s {mean_s:.0f} (same interval)",
+                               _with_reference(cfg, every=1_000_000, every_s=float(round(mean_s)))),
+                              ("every_s 300", _with_reference(cfg, every=1_000_000, every_s=300.0))]
+            for label, c in schedules:
+                t0 = time.perf_counter()
+                plan = build_plan(grid, c, kin)
+                built = time.perf_counter() - t0
+                tm = plan.timing
+                row = (f"| {name} | `{grid}` | {label} | {built:.1f} | "
+                       f"{np.count_nonzero(plan.step_kind == STEP_REFERENCE):,} | "
+                       f"{plan.estimated_s / plan.lower_bound_s:.3f} | "
+                       f"{plan.estimated_s / tm['branch_fixed_bound']['total_s']:.3f} | "
+                       f"{tm['reference_s'] / plan.estimated_s:.3f} |")
+                print(row, flush=True)
+
+
+def exact_rows(seed: int, subsets: int = 200) -> None:
+    """Held-Karp over orders x branches on random 8-10-pose subsets of iso:step=10 plans: how often the
+    branch-fixed and the valid bound exceed the optimum, and the gap of NN + 2-opt/Or-opt (with DP
+    branches) and of gonio.motion.refine to it."""
+    import sys
+    from pathlib import Path
+
+    from gonio.motion.bound import motion_lower_bound
+    from gonio.motion.chain import free_azimuth
+    from gonio.motion.refine import refine_order, walk_costs
+    from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "plan"))
+    from exact import held_karp
+    print("| gantry | subsets | fixed bound > optimum | valid bound > optimum | optimum / valid bound (mean) "
+          "| NN+2-opt gap mean (max) | refined gap mean (max) | refined optimal |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
+        plan = build_plan("iso:step=10", cfg, kin)
+        ang = np.stack([plan.theta_i, plan.phi_i, plan.theta_o, plan.phi_o])
+        ref, home = plan.reference_axes_deg, np.asarray(kin.home_deg, float)
+        rng = np.random.default_rng(seed)
+        old_above = new_above = optimal = 0
+        ratio, g_old, g_new = [], [], []
+        for _ in range(subsets):
+            idx = rng.choice(ang.shape[1], int(rng.integers(8, 11)), replace=False)
+            sols = np.asarray(kin.solutions(*ang[:, idx], current_deg=home))
+            opt = held_karp([x[~np.isnan(x[:, 0])] for x in sols], ref, ref, kin.velocity_deg_s,
+                            kin.accel_deg_s2)
+            lb = relaxed_campaign_bound(sols, free_azimuth(*ang[:, idx]), ref[None], home, metric, 0.0, 0.0,
+                                        every=100, run_lengths=[idx.size])["move_s"]
+            lb -= 2.0 * float(metric.time(home, ref))
+            fixed = motion_lower_bound(plan.axes_deg[idx], ref, [idx.size], metric)["motion_s"]
+            old_above += fixed > opt + 1e-9
+            new_above += lb > opt + 1e-9
+            ratio.append(opt / lb)
+            b = pose_branches(sols)
+            near = kin.inverse(*ang[:, idx], current_deg=home)
+            start = improve_tour(near, nearest_neighbour_tour(near, metric, ref), metric, ref)
+            g_old.append(float(walk_costs(b, start[None], ref, ref, metric)[0]) / opt - 1)
+            g_new.append(refine_order(b, start, ref, ref, metric)[1] / opt - 1)
+            optimal += g_new[-1] < 1e-9
+        print(f"| {name} | {subsets} | {old_above} | {new_above} | {np.mean(ratio):.3f} | "
+              f"{100 * np.mean(g_old):.1f} % ({100 * np.max(g_old):.1f} %) | "
+              f"{100 * np.mean(g_new):.2f} % ({100 * np.max(g_new):.1f} %) | {optimal} |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip iso:step=1 and use 5,000 scattered poses")
     ap.add_argument("--seed", type=int, default=20240611)
+    ap.add_argument("--bounds", action="store_true",
+                    help="valid vs branch-fixed bound, reference share by count and by time, "
+                         "gap to the exact optimum on 200 subsets, iso:step=1 build time")
     ap.add_argument("--transit", action="store_true",
                     help="only the swept-path figures: iso:step=1 build and the single-move check cost")
     args = ap.parse_args()
     print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, python {platform.python_version()}, "
           f"numpy {np.__version__}; load average at start {os.getloadavg()[0]:.2f}\n")
+    if args.bounds:
+        bound_rows()
+        print()
+        exact_rows(args.seed)
+        print(f"\nload average at end {os.getloadavg()[0]:.2f}")
+        return
     if args.transit:
         transit_rows()
         print()

@@ -30,8 +30,11 @@ def plan_summary(plan: Plan) -> dict:
     ``steps`` counts the steps by kind (``pose``, ``dark``, ``reference``) and in ``total``; ``moves``
     counts the moves (every step but the darks, and the park) and ``via_moves`` those that go through
     via points to stay clear in transit. Durations
-    are seconds (``estimated_s``, ``lower_bound_s``) with ``h:mm:ss`` twins; ``timing`` holds the parts
-    of both (NaN parts, e.g. an MST skipped for a large plan, become None).
+    are seconds (``estimated_s``, ``lower_bound_s``: valid for any order and branch choice) with
+    ``h:mm:ss`` twins; ``branch_fixed_bound_s`` is the older bound for the plan's own branches only;
+    ``reference_s`` and ``reference_share`` what the dark and reference readings add (readings,
+    settles and detours); ``timing`` holds the parts (NaN parts, e.g. an MST skipped for a large plan,
+    become None).
     """
     kinds = np.asarray(plan.step_kind)
     steps = {"total": int(kinds.size), "pose": int(np.count_nonzero(kinds == STEP_POSE)),
@@ -51,6 +54,10 @@ def plan_summary(plan: Plan) -> dict:
         "estimated_hms": hms(plan.estimated_s),
         "lower_bound_s": float(plan.lower_bound_s),
         "lower_bound_hms": hms(plan.lower_bound_s),
+        "branch_fixed_bound_s": _part(plan.timing, "branch_fixed_bound"),
+        "reference_s": plan.timing.get("reference_s"),
+        "reference_share": (plan.timing["reference_s"] / plan.estimated_s
+                            if plan.timing.get("reference_s") is not None and plan.estimated_s > 0 else None),
         "timing": _jsonable(plan.timing),
         "moves": int(np.count_nonzero(kinds != STEP_DARK)) + 1,
         "via_moves": int(plan.timing.get("via_moves", len(plan.via_deg))),
@@ -81,7 +88,15 @@ def format_plan(plan: Plan) -> str:
     est, low = s["estimated_s"], s["lower_bound_s"]
     ratio = f"   (estimate / bound = {est / low:.3f})" if low > 0 else ""
     lines += [f"estimated    {hms(est):>10}   {est:,.1f} s",
-              f"lower bound  {hms(low):>10}   {low:,.1f} s{ratio}"]
+              f"lower bound  {hms(low):>10}   {low:,.1f} s{ratio}   (any order, any branches)"]
+    fixed = s["branch_fixed_bound_s"]
+    if fixed:
+        lines.append(f"  for the plan's own branches only (not a bound on other branch choices): "
+                     f"{fixed:,.1f} s (estimate / that = {est / fixed:.3f})")
+    if s["reference_share"] is not None:
+        share = 100 * s["reference_share"]
+        lines.append(f"  dark + white reference: {s['reference_s']:,.1f} s, {share:.1f} % of the campaign "
+                     " (readings, settles and detours to the reference)")
     parts = s["timing"].get("estimate") or {}
     if parts:
         lines.append(
@@ -93,6 +108,11 @@ def format_plan(plan: Plan) -> str:
         lines.append("  bound: moves >= {:,.1f} s, settle {:,.1f} s, readings {:,.1f} s".format(
             bound["move_s"], bound["settle_s"], bound["reading_s"]))
     return "\n".join(lines)
+
+
+def _part(timing: dict, name: str) -> float | None:
+    total = (timing.get(name) or {}).get("total_s")
+    return None if total is None else float(total)
 
 
 def _jsonable(value):

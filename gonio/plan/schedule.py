@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["STEP_POSE", "STEP_DARK", "STEP_REFERENCE", "STEP_NAMES", "schedule_steps", "run_starts"]
+__all__ = ["STEP_POSE", "STEP_DARK", "STEP_REFERENCE", "STEP_NAMES", "schedule_steps", "schedule_runs",
+           "run_starts"]
 
 STEP_POSE, STEP_DARK, STEP_REFERENCE = 0, 1, 2
 STEP_NAMES = ("pose", "dark", "reference")
@@ -44,12 +45,31 @@ def schedule_steps(n_poses: int, every: int) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"n_poses: must be >= 0, got {n_poses}")
     if every < 1:
         raise ValueError(f"reference.every: must be >= 1 pose between references, got {every}")
-    runs = -(-n_poses // every)  # ceil
-    checkpoints = runs + 1
+    return schedule_runs(n_poses, run_starts(n_poses, every))
+
+
+def schedule_runs(n_poses: int, starts) -> tuple[np.ndarray, np.ndarray]:
+    """Step kinds and pose indices (as :func:`schedule_steps`) for runs beginning at ``starts``
+    (sorted pose indices, 0 first; empty when there are no poses): a checkpoint before each run and
+    one at the end.
+
+    Examples
+    --------
+    >>> kind, pose = schedule_runs(3, [0, 1])
+    >>> kind.tolist(), pose.tolist()
+    ([1, 2, 0, 1, 2, 0, 0, 1, 2], [-1, -1, 0, -1, -1, 1, 2, -1, -1])
+    """
+    starts = np.asarray(starts, dtype=np.int64).reshape(-1)
+    if n_poses and (starts.size == 0 or starts[0] != 0 or np.any(np.diff(starts) <= 0)
+                    or starts[-1] >= n_poses):
+        raise ValueError(f"starts: need increasing pose indices from 0 below {n_poses}, got "
+                         f"{starts[:4].tolist()}...")
+    checkpoints = starts.size + 1
     total = n_poses + 2 * checkpoints
-    # Run r (poses r*every .. r*every + len - 1) sits after r + 1 checkpoints of two steps each.
+    # The poses of run r sit after r + 1 checkpoints of two steps each.
     pose = np.arange(n_poses)
-    pose_step = pose + 2 * (pose // every + 1)
+    run_of = np.searchsorted(starts, pose, side="right") - 1 if n_poses else pose
+    pose_step = pose + 2 * (run_of + 1)
     kind = np.full(total, STEP_REFERENCE, dtype=np.int8)
     step_pose = np.full(total, -1, dtype=np.int64)
     kind[pose_step] = STEP_POSE

@@ -1,0 +1,210 @@
+"""Orders improved with the branch choice folded in: local search whose every move is priced exactly.
+
+A move of a tour (2-opt: reverse a stretch; Or-opt: move a stretch of one to three poses elsewhere,
+either way round) is worth what it saves *after* the branches are chosen again for the new order, not
+what it saves on branches fixed beforehand. Here every candidate order is priced by dynamic
+programming over its poses' branches (the same Viterbi as :mod:`gonio.motion.branches`, batched over
+candidates), the best improving move is taken, and that repeats until none improves. Then a few
+seeded double-bridge kicks (cut the walk in four, swap the middle stretches) followed by the same
+descent look past the local optimum (iterated local search); a kick is kept only when it ends shorter.
+
+The walk is ``start → poses → end`` with fixed ends (the reference pose, or the branches on either
+side of a window of a longer tour: :func:`refine_windows`). Batched pricing is O(N² · N · W²) per
+descent step, so :func:`refine_order` is for short walks; :func:`refine_windows` slides it along long
+ones.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gonio.motion.metric import MoveMetric
+
+__all__ = ["walk_costs", "best_walk", "candidate_orders", "refine_order", "refine_windows"]
+
+# s: a candidate must save more than this to be taken.
+_GAIN_EPS = 1e-9
+
+
+def walk_costs(branches, orders, start_deg, end_deg, metric: MoveMetric) -> np.ndarray:
+    """Least move time (B,) in s of ``start → branches[orders[b]] → end`` over every branch choice.
+
+    Parameters
+    ----------
+    branches : ndarray, shape (N, W, n_axes)
+        Finite branch positions (invalid ones replaced by a valid one of the same pose), degrees.
+    orders : ndarray of int, shape (B, L)
+        Candidate orders (each a sequence of pose indices).
+    start_deg, end_deg : array_like, shape (n_axes,)
+    metric : MoveMetric
+    """
+    return _priced(_tables(branches, start_deg, end_deg, metric), orders)
+
+
+def _tables(branches, start_deg, end_deg, metric):
+    """Move times between every pair of branches (N, W, N, W), from the start (N, W) and to the end."""
+    b = np.asarray(branches, dtype=np.float64)
+    pair = metric.time(b[:, :, None, None, :], b[None, None, :, :, :])
+    first = metric.time(np.asarray(start_deg, float), b)
+    last = metric.time(b, np.asarray(end_deg, float))
+    return pair, first, last
+
+
+def _priced(tables, orders) -> np.ndarray:
+    pair, first, last = tables
+    orders = np.asarray(orders, dtype=np.int64)
+    cost = first[orders[:, 0]]  # (B, W)
+    for step in range(1, orders.shape[1]):
+        t = pair[orders[:, step - 1], :, orders[:, step], :]  # (B, W, W)
+        cost = np.min(cost[:, :, None] + t, axis=1)
+    return np.min(cost + last[orders[:, -1]], axis=1)
+
+
+def best_walk(branches, order, start_deg, end_deg, metric: MoveMetric) -> np.ndarray:
+    """The branch (L, n_axes) of each pose of ``order`` that makes the walk quickest."""
+    order = np.asarray(order, dtype=np.int64)
+    seq = branches[order]
+    n_steps, w = seq.shape[:2]
+    back = np.zeros((n_steps, w), dtype=np.int64)
+    cost = metric.time(np.asarray(start_deg, float), seq[0])
+    for step in range(1, n_steps):
+        t = cost[:, None] + metric.time(seq[step - 1][:, None, :], seq[step][None, :, :])
+        back[step] = np.argmin(t, axis=0)
+        cost = np.min(t, axis=0)
+    state = int(np.argmin(cost + metric.time(seq[-1], np.asarray(end_deg, float))))
+    out = np.empty((n_steps, seq.shape[2]))
+    for step in range(n_steps - 1, -1, -1):
+        out[step] = seq[step, state]
+        state = int(back[step, state])
+    return out
+
+
+def candidate_orders(order) -> np.ndarray:
+    """Every 2-opt and Or-opt neighbour (C, L) of ``order`` (a walk with fixed ends)."""
+    order = np.asarray(order, dtype=np.int64)
+    n = order.size
+    out = []
+    for i in range(n - 1):
+        for j in range(i + 1, n):
+            o = order.copy()
+            o[i:j + 1] = o[i:j + 1][::-1]
+            out.append(o)
+    for seg in (1, 2, 3):
+        for i in range(n - seg + 1):
+            piece = order[i:i + seg]
+            rest = np.concatenate([order[:i], order[i + seg:]])
+            for k in range(rest.size + 1):
+                if k == i:
+                    if seg > 1:
+                        out.append(np.concatenate([rest[:k], piece[::-1], rest[k:]]))
+                    continue
+                out.append(np.concatenate([rest[:k], piece, rest[k:]]))
+                if seg > 1:
+                    out.append(np.concatenate([rest[:k], piece[::-1], rest[k:]]))
+    return np.array(out, dtype=np.int64).reshape(-1, n)
+
+
+def _descend(tables, order, cost):
+    while True:
+        cands = candidate_orders(order)
+        if cands.shape[0] == 0:
+            return order, cost
+        costs = _priced(tables, cands)
+        k = int(np.argmin(costs))
+        if costs[k] >= cost - _GAIN_EPS:
+            return order, cost
+        order, cost = cands[k], float(costs[k])
+
+
+def refine_order(branches, order, start_deg, end_deg, metric: MoveMetric, kicks: int = 8,
+                 seed: int = 0) -> tuple[np.ndarray, float]:
+    """Best-improvement 2-opt/Or-opt descent with exact branch pricing, then ``kicks`` double-bridge
+    restarts (seeded; each kept only if it ends shorter).
+
+    Parameters
+    ----------
+    branches : ndarray, shape (N, W, n_axes)
+        Finite branch positions of the poses, degrees.
+    order : array_like of int, shape (L,)
+        The walk to improve (indices into ``branches``).
+    start_deg, end_deg : array_like, shape (n_axes,)
+        Fixed ends of the walk.
+    metric : MoveMetric
+    kicks : int
+        Double-bridge restarts.
+    seed : int
+        Seed of the kicks' cut points.
+
+    Returns
+    -------
+    order : ndarray of int64, shape (L,)
+        Never slower than the input.
+    cost_s : float
+        Its least move time over branch choices.
+    """
+    order = np.asarray(order, dtype=np.int64)
+    if order.size == 0:
+        return order.copy(), 0.0
+    # Only the poses of the walk, renumbered, so the tables stay small.
+    poses = order.copy()
+    tables = _tables(np.asarray(branches)[poses], start_deg, end_deg, metric)
+    local = np.arange(order.size)
+    cost = float(_priced(tables, local[None])[0])
+    if order.size < 2:
+        return order.copy(), cost
+    best, cost = _descend(tables, local, cost)
+    rng = np.random.default_rng(seed)
+    n = order.size
+    for _ in range(kicks if n >= 4 else 0):
+        a, b, c = np.sort(rng.choice(np.arange(1, n), size=3, replace=False))
+        kicked = np.concatenate([best[:a], best[b:c], best[a:b], best[c:]])
+        k_cost = float(_priced(tables, kicked[None])[0])
+        kicked, k_cost = _descend(tables, kicked, k_cost)
+        if k_cost < cost - _GAIN_EPS:
+            best, cost = kicked, k_cost
+    return poses[best], cost
+
+
+def refine_windows(branches, order, axes_deg, start_deg, end_deg, metric: MoveMetric, window: int = 9,
+                   kicks: int = 2) -> np.ndarray:
+    """A long walk improved window by window: each stretch of ``window`` poses is reordered by
+    :func:`refine_order` between the fixed positions on either side of it (the chosen branches of its
+    neighbours), so every accepted change shortens the walk on those branches.
+
+    Parameters
+    ----------
+    branches : ndarray, shape (N, W, n_axes)
+        Finite branch positions, degrees.
+    order : ndarray of int, shape (N,)
+        The walk.
+    axes_deg : ndarray, shape (N, n_axes)
+        The branch each pose of the walk stands on now, in walk order.
+    start_deg, end_deg : array_like, shape (n_axes,)
+    metric : MoveMetric
+    window : int
+        Poses per window; windows overlap by half.
+    kicks : int
+        Double-bridge restarts per window.
+
+    Returns
+    -------
+    ndarray of int64, shape (N,)
+        The walk's new order (the caller chooses the branches again over the whole of it).
+    """
+    order = np.asarray(order, dtype=np.int64).copy()
+    axes = np.asarray(axes_deg, dtype=np.float64).copy()
+    n = order.size
+    if n < 3:
+        return order
+    step = max(window // 2, 1)
+    for lo in range(0, max(n - window, 0) + 1, step):
+        hi = min(lo + window, n)
+        before = axes[lo - 1] if lo else np.asarray(start_deg, float)
+        after = axes[hi] if hi < n else np.asarray(end_deg, float)
+        piece = order[lo:hi]
+        old = float(walk_costs(branches[piece], np.arange(piece.size)[None], before, after, metric)[0])
+        new, cost = refine_order(branches, piece, before, after, metric, kicks=kicks, seed=lo)
+        if cost < old - _GAIN_EPS:
+            order[lo:hi] = new
+            axes[lo:hi] = best_walk(branches[new], np.arange(new.size), before, after, metric)
+    return order

@@ -1,0 +1,313 @@
+"""A lower bound on a campaign's duration that holds for every order *and* every branch choice.
+
+:mod:`gonio.motion.bound` bounds the moves of any order of fixed axis positions (the branches the plan
+picked). A campaign may put each pose on any of its inverse-kinematics branches, so that figure is no
+bound on what the gantry could do. Here each pose is the set of its branches, and:
+
+- the time between two poses is the least over pairs of their branches (``pair time``). A walk through
+  the poses, whatever branches it uses, pays at least the pair time on every move, so the walk is a
+  spanning structure of the graph of pair times: its pose-to-pose moves weigh at least the minimum
+  spanning forest with as many trees as the walk has runs (Prim on pair times, exact, for small plans),
+  and at least half the sum over poses of their two cheapest incident moves (the *degree* bound, from
+  a k-d tree over every branch of every pose, for any size);
+- a move between a pose and a reference costs at least the least pair time between the pose's branches
+  and every allowed reference position's branches; a run enters and leaves through at most two
+  poses, so the 2R such moves cost at least twice the R smallest of those;
+- a pose whose azimuth is free (an arm at the pole) can stand anywhere along that axis, so it has no
+  finite set of branches: it is left out of the moves. That is still a bound: the moves skipping it
+  are a walk in axis space no longer than the one through it (move time is a metric on axis
+  positions), and a run made only of such poses disappears (R' runs of the others, R' <= R).
+
+Fixed costs (settle after each move, each reading) are counted exactly; references and darks at the
+least the schedule allows: R runs need R + 1 checkpoints, R >= ceil(P / every), and with a time limit
+``every_s`` between reference readings, the inner part of the campaign (first reference reading to
+last) needs R intervals of at most ``every_s`` each, so R may only take values where the bound on that
+inner part fits in ``R * every_s``. The result is the least over the allowed R.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from gonio.motion.metric import MoveMetric
+
+__all__ = ["pose_branches", "pair_times", "branch_mst_edge_times", "branch_neighbour_times",
+           "relaxed_campaign_bound", "BRANCH_MST_MAX_PAIRS"]
+
+#: Largest N² W² (poses squared times branches squared) for which the exact MST of pair times is run.
+BRANCH_MST_MAX_PAIRS = 3e8
+
+# Poses left out (free or thinned) beyond which R' ranges over every value up to R.
+_MAX_DROPS = 256
+
+
+def pose_branches(branches_deg) -> np.ndarray:
+    """Branches (N, W, n_axes) with every invalid (NaN) branch replaced by a valid one of the same pose.
+
+    Duplicates change no minimum, and they keep every array finite for the vectorized distances.
+    Poses with no valid branch raise ``ValueError``.
+    """
+    b = np.array(branches_deg, dtype=np.float64)
+    valid = ~np.isnan(b).any(axis=-1)
+    if b.shape[0] and not valid.any(axis=1).all():
+        raise ValueError(f"branches_deg: pose {int(np.argmin(valid.any(axis=1)))} has no valid branch")
+    # Valid branches first, and only as many columns as the pose with the most of them needs.
+    by_valid = np.argsort(~valid, axis=1, kind="stable")
+    width = max(int(valid.sum(axis=1).max(initial=1)), 1)
+    b = np.take_along_axis(b, by_valid[:, :width, None], axis=1)
+    valid = np.take_along_axis(valid, by_valid[:, :width], axis=1)
+    return np.where(valid[..., None], b, b[:, :1, :])
+
+
+def pair_times(a_deg, b_deg, metric: MoveMetric) -> np.ndarray:
+    """Least move time (M, K) in s between any branch of each pose in ``a_deg`` (M, W, n) and any
+    branch of each pose in ``b_deg`` (K, V, n) (finite branches; see :func:`pose_branches`)."""
+    a = np.asarray(a_deg, dtype=np.float64)
+    b = np.asarray(b_deg, dtype=np.float64)
+    t = metric.time(a[:, None, :, None, :], b[None, :, None, :, :])
+    return t.min(axis=(2, 3))
+
+
+def branch_mst_edge_times(branches, metric: MoveMetric) -> np.ndarray:
+    """Edge times (N - 1,) in s of an exact minimum spanning tree of the poses under pair times.
+
+    Prim's algorithm over poses; each step measures the new tree pose's W branches against every
+    branch of every pose left (O(N² W² n) in all).
+
+    Parameters
+    ----------
+    branches : ndarray, shape (N, W, n_axes)
+        Finite branch positions in degrees (:func:`pose_branches`).
+    metric : MoveMetric
+
+    Returns
+    -------
+    ndarray, shape (max(N - 1, 0),)
+        Edge times in s in the order Prim added them.
+    """
+    pts = np.asarray(branches, dtype=np.float64)
+    n = pts.shape[0]
+    if n <= 1:
+        return np.empty(0)
+    if metric.uniform:
+        live = np.ascontiguousarray(np.moveaxis(pts * metric.scale, 2, 0))  # (n_axes, N, W)
+    else:
+        live = pts.copy()
+    best = np.full(n, np.inf)
+    keys = np.empty(n - 1)
+    u = live[:, 0].copy() if metric.uniform else live[0].copy()
+    if metric.uniform:
+        live[:, 0] = live[:, n - 1]
+    else:
+        live[0] = live[n - 1]
+    m = n - 1
+    for step in range(n - 1):
+        if metric.uniform:
+            # row[j] = min over (b, c) of max over axes |u[k, b] - live[k, j, c]|
+            d = np.abs(live[0, :m, None, :] - u[0][None, :, None])
+            for k in range(1, live.shape[0]):
+                np.maximum(d, np.abs(live[k, :m, None, :] - u[k][None, :, None]), out=d)
+            row = d.min(axis=(1, 2))
+        else:
+            row = metric.time(u[None, :, None, :], live[:m, None, :, :]).min(axis=(1, 2))
+        np.minimum(best[:m], row, out=best[:m])
+        j = int(np.argmin(best[:m]))
+        keys[step] = best[j]
+        m -= 1
+        if metric.uniform:
+            u = live[:, j].copy()
+            live[:, j] = live[:, m]
+        else:
+            u = live[j].copy()
+            live[j] = live[m]
+        best[j] = best[m]
+    return metric.time_from_key(keys) if metric.uniform else keys
+
+
+def branch_neighbour_times(branches, metric: MoveMetric, k: int | None = None):
+    """Lower bounds in s on each pose's cheapest and second-cheapest pair time to another pose.
+
+    A k-d tree over every branch of every pose (scaled Chebyshev coordinates) finds each branch's
+    ``k`` nearest branch points; a pose not met among them is at least the ball's radius away from
+    every branch of the pose asking.
+
+    Parameters
+    ----------
+    branches : ndarray, shape (N, W, n_axes)
+        Finite branch positions in degrees, N >= 3.
+    metric : MoveMetric
+    k : int, optional
+        Neighbours per branch point (default 2 W + 2, enough to meet two other poses in most cases).
+
+    Returns
+    -------
+    nn1, nn2 : ndarray, shape (N,)
+        Bounds on the least and second-least pair time from each pose to another pose, in s.
+    """
+    pts = np.asarray(branches, dtype=np.float64)
+    n, w, n_axes = pts.shape
+    if n < 3:
+        raise ValueError(f"branches: need at least 3 poses, got {n}")
+    flat = pts.reshape(-1, n_axes)
+    owner = np.repeat(np.arange(n), w)
+    k = min(2 * w + 2 if k is None else int(k), flat.shape[0] - 1)
+    tree = cKDTree(flat * metric.scale)
+    dist, idx = tree.query(flat * metric.scale, k=k + 1, p=np.inf, workers=-1)
+    times = metric.time(flat[:, None, :], flat[idx])
+    other = owner[idx]
+    times[other == owner[:, None]] = np.inf
+    # Per pose: its branches' candidate lists side by side (N, W (k + 1)).
+    times = times.reshape(n, -1)
+    other = other.reshape(n, -1)
+    beyond = metric.time_beyond(dist[:, -1].reshape(n, w).min(axis=1))
+    order = np.argsort(times, axis=1, kind="stable")
+    times = np.take_along_axis(times, order, axis=1)
+    other = np.take_along_axis(other, order, axis=1)
+    nn1 = times[:, 0]
+    # The second pose: the first candidate that belongs to a pose other than the first one's.
+    differs = (other != other[:, :1]) & np.isfinite(times)
+    has = differs.any(axis=1)
+    nn2 = np.where(has, times[np.arange(n), np.argmax(differs, axis=1)], np.inf)
+    return np.minimum(nn1, beyond), np.minimum(nn2, beyond)
+
+
+def relaxed_campaign_bound(branches, free, reference_options, home_deg, metric: MoveMetric,
+                           settle_s: float, reading_s: float, every: int, every_s: float | None = None,
+                           run_lengths=None, max_pairs: float = BRANCH_MST_MAX_PAIRS) -> dict[str, float]:
+    """Lower bound on the duration of any campaign over these poses, any order, any branches.
+
+    The campaign is ``home → ref → run 1 → ref → … → run R → ref → home`` with a dark reading beside
+    every reference reading (see :mod:`gonio.motion.estimate` for the cost model).
+
+    Parameters
+    ----------
+    branches : ndarray, shape (P, W, n_axes)
+        Every branch of every pose in degrees, NaN for invalid ones (rows of free poses are ignored).
+    free : ndarray of bool, shape (P,)
+        Poses with a free azimuth (left out of the moves; see the module docstring).
+    reference_options : ndarray, shape (K, n_axes)
+        Every axis position the white reference may be read at (all branches of all allowed
+        reference poses), degrees.
+    home_deg : array_like, shape (n_axes,)
+        Start and end of the campaign.
+    metric : MoveMetric
+    settle_s, reading_s : float
+        Settle time after each move, exposure × frames per reading, seconds.
+    every : int
+        At most this many poses per run.
+    every_s : float, optional
+        At most this many seconds from one reference reading to the next.
+    run_lengths : array_like of int, optional
+        The runs when the schedule fixes them (count-only schedules): R is then their number.
+    max_pairs : float
+        The exact MST of pair times runs when P² W² is at most this.
+
+    Returns
+    -------
+    dict
+        ``total_s``, ``move_s`` (moves, home legs included), ``settle_s``, ``reading_s``, ``runs``
+        (the R the bound takes), ``mst_s`` / ``forest_s`` / ``degree_s`` (motion bounds at that R, NaN
+        when not computed), ``reference_s`` (the pose ↔ reference moves bound), all seconds.
+    """
+    free = np.asarray(free, dtype=bool).reshape(-1)
+    p = free.size
+    ref = np.asarray(reference_options, dtype=np.float64).reshape(-1, metric.n_axes)
+    home = np.asarray(home_deg, dtype=np.float64).reshape(1, -1)
+    home_legs = 2.0 * float(np.min(metric.time(home, ref)))
+    if p:
+        pts = pose_branches(np.asarray(branches, dtype=np.float64)[~free])
+    else:
+        pts = np.empty((0, 1, ref.shape[1]))
+    q = pts.shape[0]
+    f = p - q
+    to_ref = pair_times(pts, ref[:, None, :], metric)[:, 0] if q else np.empty(0)
+    sorted_ref = np.concatenate([[0.0], np.cumsum(np.sort(to_ref))])
+    mst = forest_edges = np.nan
+    degree_base = np.nan
+    if q >= 2 and float(q) ** 2 * pts.shape[1] ** 2 <= max_pairs:
+        edges = np.sort(branch_mst_edge_times(pts, metric))
+        mst = float(edges.sum())
+        forest_edges = np.concatenate([[0.0], np.cumsum(edges)])  # forest(R') = forest_edges[q - R']
+    if q >= 3:
+        nn1, nn2 = branch_neighbour_times(pts, metric)
+        four = np.sort(np.stack([nn1, nn2, to_ref, to_ref], axis=1), axis=1)
+        degree_base = 0.5 * float(np.sum(four[:, 0] + four[:, 1]))
+
+    def motion(r_prime: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Motion bound for R' runs of the non-free poses: (best, forest, degree)."""
+        rp = np.clip(r_prime, 0, q)
+        ref_moves = 2.0 * sorted_ref[rp]
+        forest = (forest_edges[np.maximum(q - rp, 0)] if np.ndim(forest_edges) else
+                  np.full(rp.shape, np.nan)) + ref_moves
+        if q >= 3:
+            degree = degree_base + 0.5 * ref_moves
+        else:
+            degree = ref_moves.astype(float)
+        best = np.fmax(forest, degree)
+        best = np.where(rp == 0, 0.0, best) if q == 0 else best
+        return best, forest, degree
+
+    fixed_pose = p * (settle_s + reading_s)
+    per_checkpoint = settle_s + 2.0 * reading_s
+    r_lo = max(1, -(-p // int(every))) if p else 0
+
+    def evaluate(rs: np.ndarray):
+        """Least motion over R' in [R - f, R] (runs made of free poses only vanish), and its parts."""
+        best = np.full(rs.shape, np.inf)
+        parts_f = np.full(rs.shape, np.nan)
+        parts_d = np.full(rs.shape, np.nan)
+        if f > _MAX_DROPS:
+            # Many poses left out: take the least over every R' <= R (a weaker bound, still valid).
+            m, fo, de = motion(np.arange(1 if q else 0, max(int(rs.max(initial=1)), 1) + 1))
+            at = np.minimum.accumulate(m)
+            arg = np.maximum.accumulate(np.where(m == at, np.arange(m.size), 0))
+            k = np.clip(rs - (1 if q else 0), 0, m.size - 1)
+            return at[k], fo[arg[k]], de[arg[k]]
+        for drop in range(0, min(f, int(rs.max(initial=0))) + 1):
+            rp = np.maximum(rs - drop, 1 if q else 0)
+            m, fo, de = motion(rp)
+            better = m < best
+            best = np.where(better, m, best)
+            parts_f = np.where(better, fo, parts_f)
+            parts_d = np.where(better, de, parts_d)
+        return best, parts_f, parts_d
+
+    if p == 0:
+        chosen, m, fo, de = 0, 0.0, np.nan, np.nan
+    elif run_lengths is not None and every_s is None:
+        r = int(np.asarray(run_lengths).size)
+        mb, fob, deb = evaluate(np.array([r]))
+        chosen, m, fo, de = r, float(mb[0]), float(fob[0]), float(deb[0])
+    else:
+        # Least over the allowed R; R above the best total's reach cannot win (each checkpoint costs
+        # at least per_checkpoint and the motion is at least its least value over all R').
+        floor_motion = float(np.min(evaluate(np.arange(1, p + 1))[0])) if p <= 200_000 else 0.0
+        best_total, chosen, m, fo, de = np.inf, r_lo, np.nan, np.nan, np.nan
+        start = r_lo
+        while start <= p:
+            rs = np.arange(start, min(start + 4096, p + 1))
+            mb, fob, deb = evaluate(rs)
+            inner = mb + fixed_pose + rs * per_checkpoint
+            ok = np.ones(rs.shape, dtype=bool) if every_s is None else inner <= rs * every_s + 1e-9
+            total = np.where(ok, inner, np.inf)
+            i = int(np.argmin(total))
+            if total[i] < best_total:
+                best_total, chosen, m, fo, de = float(total[i]), int(rs[i]), float(mb[i]), float(fob[i]), \
+                    float(deb[i])
+            reach = fixed_pose + (rs[-1] + 1) * per_checkpoint + floor_motion
+            if np.isfinite(best_total) and reach >= best_total:
+                break
+            start = int(rs[-1]) + 1
+        if not np.isfinite(best_total):  # no R fits the time limit by this bound: one checkpoint per pose
+            chosen = p
+            mb, fob, deb = evaluate(np.array([p]))
+            m, fo, de = float(mb[0]), float(fob[0]), float(deb[0])
+    checkpoints = chosen + 1 if p else 1
+    parts = {"move_s": float(m) + home_legs,
+             "settle_s": float(p + checkpoints) * settle_s,
+             "reading_s": float(p + 2 * checkpoints) * reading_s}
+    parts["total_s"] = sum(parts.values())
+    parts.update({"runs": int(chosen), "mst_s": mst, "forest_s": fo, "degree_s": de,
+                  "reference_s": float(2.0 * sorted_ref[min(chosen, q)])})
+    return parts

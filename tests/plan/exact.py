@@ -1,0 +1,58 @@
+"""Exact search for tests: Held-Karp over visiting orders × inverse-kinematics branch choices.
+
+Independent of the planner's code on purpose: plain per-axis trapezoid times (numpy, no MoveMetric),
+a dynamic program over (set of poses visited, last pose, its branch). The walk is
+``start → poses (any order, each on any of its branches) → end``; fixed costs are not its business.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def trapezoid_time(a, b, v, acc) -> np.ndarray:
+    """Rest-to-rest move time (broadcast over leading axes) as the maximum over axes of each axis's
+    triangle or trapezoid profile."""
+    d = np.abs(np.asarray(b, float) - np.asarray(a, float))
+    t = np.where(d < v * v / acc, 2.0 * np.sqrt(d / acc), d / v + v / acc)
+    return t.max(axis=-1)
+
+
+def held_karp(branches, start, end, v, acc) -> float:
+    """Least move time in s of ``start → every pose once (any order, any branch) → end``.
+
+    Parameters
+    ----------
+    branches : list of ndarray (W_i, n_axes)
+        The valid branches of each pose, degrees.
+    start, end : ndarray (n_axes,)
+    v, acc : ndarray (n_axes,)
+        Axis speeds (°/s) and accelerations (°/s²).
+    """
+    n = len(branches)
+    w = max(b.shape[0] for b in branches)
+    pts = np.full((n, w, len(v)), np.nan)
+    for i, b in enumerate(branches):
+        pts[i, : b.shape[0]] = b
+    valid = ~np.isnan(pts[..., 0])
+    # d[i, b, j, c]: pose i branch b -> pose j branch c
+    d = trapezoid_time(pts[:, :, None, None, :], pts[None, None, :, :, :], v, acc)
+    d = np.where(valid[:, :, None, None] & valid[None, None, :, :], d, np.inf)
+    first = np.where(valid, trapezoid_time(start, pts, v, acc), np.inf)  # (n, w)
+    last = np.where(valid, trapezoid_time(pts, end, v, acc), np.inf)
+    full = 1 << n
+    dp = np.full((full, n, w), np.inf)
+    for i in range(n):
+        dp[1 << i, i] = first[i]
+    for mask in range(1, full):
+        cur = dp[mask]
+        if not np.isfinite(cur).any():
+            continue
+        # best[j, c] = min over (i, b) of cur[i, b] + d[i, b, j, c]
+        best = np.min(cur[:, :, None, None] + d, axis=(0, 1))
+        for j in range(n):
+            bit = 1 << j
+            if mask & bit:
+                continue
+            np.minimum(dp[mask | bit, j], best[j], out=dp[mask | bit, j])
+    return float(np.min(dp[full - 1] + last))

@@ -1,0 +1,85 @@
+"""The valid lower bound and the branch-aware order against an exact search on small real pose sets.
+
+For random subsets of 8 or 9 poses of real plans (``iso:step=10`` on both shipped gantries), the walk
+``home → reference → poses → reference → home`` is solved exactly by Held-Karp over orders × branch
+choices (:mod:`tests.plan.exact`, independent of the planner's code). The bound of
+:mod:`gonio.motion.relaxed` must never exceed that optimum, and :func:`gonio.motion.refine.refine_order`
+(from the plan's tour start) must come within 3 % of it on average.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gonio.config import CONFIG_DIR, load_config
+from gonio.kinematics import make_kinematics
+from gonio.motion.chain import free_azimuth
+from gonio.motion.metric import MoveMetric
+from gonio.motion.order import improve_tour, nearest_neighbour_tour
+from gonio.motion.refine import refine_order, walk_costs
+from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
+from gonio.plan import build_plan
+
+sys.path.insert(0, str(Path(__file__).parent))
+from exact import held_karp  # noqa: E402
+
+SUBSETS = 200
+
+
+@pytest.fixture(scope="module", params=["sim.toml", "sample-stage.toml"])
+def subsets(request):
+    cfg = load_config(CONFIG_DIR / request.param)
+    kin = make_kinematics(cfg)
+    plan = build_plan("iso:step=10", cfg, kin)
+    metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
+    angles = np.stack([plan.theta_i, plan.phi_i, plan.theta_o, plan.phi_o])
+    rng = np.random.default_rng(20240611)
+    ref, home = plan.reference_axes_deg, np.asarray(kin.home_deg, float)
+    cases = []
+    for _ in range(SUBSETS):
+        idx = rng.choice(angles.shape[1], int(rng.integers(8, 10)), replace=False)
+        sols = np.asarray(kin.solutions(*angles[:, idx], current_deg=home))
+        branches = [s[~np.isnan(s[:, 0])] for s in sols]
+        optimum = held_karp(branches, ref, ref, kin.velocity_deg_s, kin.accel_deg_s2)
+        cases.append((idx, sols, optimum))
+    return kin, metric, angles, ref, home, plan, cases
+
+
+def test_bound_is_never_above_the_exact_optimum(subsets):
+    kin, metric, angles, ref, home, plan, cases = subsets
+    home_legs = 2.0 * float(metric.time(home, ref))
+    above_old = 0
+    for idx, sols, optimum in cases:
+        free = free_azimuth(*angles[:, idx])
+        bound = relaxed_campaign_bound(sols, free, ref[None], home, metric, 0.0, 0.0, every=100,
+                                       run_lengths=[idx.size])
+        assert bound["runs"] == 1
+        assert bound["move_s"] - home_legs <= optimum + 1e-9
+    # The branch-fixed bound is no bound here: it is above the optimum on some subsets.
+    from gonio.motion.bound import motion_lower_bound
+    for idx, _, optimum in cases:
+        old = motion_lower_bound(plan.axes_deg[idx], ref, [idx.size], metric)["motion_s"]
+        above_old += old > optimum + 1e-9
+    assert above_old > 0
+
+
+def test_refined_order_is_within_3_percent_of_the_optimum_on_average(subsets):
+    kin, metric, angles, ref, home, plan, cases = subsets
+    gaps, old_gaps = [], []
+    for idx, sols, optimum in cases:
+        branches = pose_branches(sols)
+        near = kin.inverse(*angles[:, idx], current_deg=home)
+        start = improve_tour(near, nearest_neighbour_tour(near, metric, ref), metric, ref)
+        old = float(walk_costs(branches, start[None], ref, ref, metric)[0])
+        order, cost = refine_order(branches, start, ref, ref, metric)
+        assert sorted(order.tolist()) == list(range(idx.size))
+        assert cost <= old + 1e-9
+        assert cost >= optimum - 1e-9
+        gaps.append(cost / optimum - 1.0)
+        old_gaps.append(old / optimum - 1.0)
+    assert np.mean(gaps) < 0.03
+    assert np.mean(gaps) < np.mean(old_gaps)
