@@ -326,15 +326,22 @@ class CampaignQueue:
                 if self.runner is not None:
                     self.runner.request_abort()
             else:
-                c = open_campaign(rec.folder)
-                try:
-                    c.journal.log_event("state", state=str(State.ABORTED),
-                                        message=f"aborted through the API while {state}",
-                                        campaign_s=c.journal.campaign_clock()[0])
-                finally:
-                    c.close()
+                self._mark_aborted(rec, state)
                 self._cond.notify_all()
         log.info("campaign %s: abort requested", cid)
+
+    @staticmethod
+    def _mark_aborted(rec: Record, state: str) -> None:
+        """Record the abort of a campaign that is not running (its journal is closed)."""
+        c = open_campaign(rec.folder)
+        try:
+            e = c.journal.last_event("state")
+            if e is None or e["state"] != str(State.ABORTED):
+                c.journal.log_event("state", state=str(State.ABORTED),
+                                    message=f"aborted through the API while {state}",
+                                    campaign_s=c.journal.campaign_clock()[0])
+        finally:
+            c.close()
 
     def halt(self, reason: str = "halt requested through the API") -> str | None:
         """Emergency stop of the running campaign (if any): its id, or None."""
@@ -375,6 +382,15 @@ class CampaignQueue:
                 rec.save()
             finally:
                 with self._cond:
+                    # An abort that came after the runner had stopped (paused, halted, faulted) and
+                    # before the campaign left the worker: the runner never saw it, so record it here.
+                    if rec.abort_pending:
+                        try:
+                            self._mark_aborted(rec, "stopped")
+                        except Exception as err:
+                            log.exception("campaign %s: recording the abort: %s", rec.id, err)
+                        rec.abort_pending = False
+                        rec.save()
                     self.current, self.runner, self.gantry, self.run_started = None, None, None, None
                     rec.cache = rec.live = None
                     self._cond.notify_all()
@@ -418,7 +434,9 @@ class CampaignQueue:
             with self._cond:  # requests reach the runner under this lock: none after its journal closes
                 self.runner, self.gantry = None, None
             c.close()
-        rec.clear_fault = rec.abort_pending = False
+        rec.clear_fault = False
+        if result == State.ABORTED:
+            rec.abort_pending = False
         if result in (State.HALTED, State.FAULTED):
             rec.intent = "hold"
             rec.save()

@@ -187,6 +187,35 @@ def test_an_aborted_queued_campaign_never_runs_and_a_paused_one_can_be_aborted(s
     assert r.client.get("/campaigns/c00001/brdf").status_code == 409
 
 
+def test_an_abort_that_comes_as_the_paused_runner_leaves_is_not_lost(serve, monkeypatch):
+    """The window between the runner stopping (paused) and the campaign leaving the worker: the
+    runner is gone, so nobody but the worker can record the abort."""
+    import gonio.daemon.queue as queue_module
+
+    real_open, fired = queue_module.open_campaign, []
+    r = None
+
+    def open_with_late_abort(folder, **kw):
+        c = real_open(folder, **kw)
+        real_close = c.close
+
+        def close():
+            if not fired:   # the worker's own journal, closed after the runner has stopped
+                fired.append(r.client.post("/campaigns/c00001/abort").json()["state"])
+            real_close()
+        c.close = close
+        return c
+
+    monkeypatch.setattr(queue_module, "open_campaign", open_with_late_abort)
+    r = serve(pace=0.002)
+    submit(r.client, grid="iso:step=30")
+    wait_state(r.client, "c00001", "running")
+    r.client.post("/campaigns/c00001/pause").raise_for_status()
+    wait_state(r.client, "c00001", "aborted")
+    assert fired and r.client.get("/campaigns/c00001").json()["state"] == "aborted"
+    assert r.client.post("/campaigns/c00001/resume").status_code == 409
+
+
 def test_manual_moves_are_checked_and_a_halt_stops_one_mid_move(serve):
     r = serve(pace=0.5)   # the move takes about a second of wall time: the halt comes well within it
     g = r.client.get("/gantry").json()
