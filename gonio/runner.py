@@ -337,11 +337,23 @@ class Runner:
             step=step, kind=kind, pose=int(s["pose"][step]), commanded_deg=np.asarray(commanded, float),
             actual_deg=actual, angles_deg=angles, clock_s=g.clock.now(), campaign_s=self.campaign_s(),
             exposure_s=reading.exposure_s, frames=reading.frames, signal=reading.signal,
-            stderr=reading.stderr, attempts=attempt)
+            stderr=reading.stderr, attempts=attempt, extra=reading.extra)
 
     # -- motion ----------------------------------------------------------------------------------
     def _positions(self) -> np.ndarray:
+        read = getattr(self.gantry, "read_axes", None)  # batched: one read per bus (AssembledGantry)
+        if read is not None:
+            return read()[0]
         return np.array([a.position_deg() for a in self._axes], dtype=float)
+
+    def _poll(self) -> tuple[np.ndarray | None, bool]:
+        """(positions, whether any axis moves): one batched read where the gantry offers it; else the
+        axes are asked one by one, and positions come later."""
+        read = getattr(self.gantry, "read_axes", None)
+        if read is None:
+            return None, any(a.is_moving() for a in self._axes)
+        pos, moving = read()
+        return pos, bool(moving.any())
 
     def _goto(self, target: np.ndarray) -> None:
         """Move to ``target`` along a collision-free path, leg by leg; every target is checked against
@@ -364,9 +376,14 @@ class Runner:
             if self._halt.is_set():
                 raise _Halted
             try:
-                for axis, t, m in zip(self._axes, target, moved, strict=True):
-                    if m:
-                        axis.move_to(float(t))
+                move = getattr(self.gantry, "move_axes", None)  # batched: one write per bus
+                if move is not None:
+                    move({n: float(t) for n, t, m in zip(self._kin.axis_names, target, moved, strict=True)
+                          if m})
+                else:
+                    for axis, t, m in zip(self._axes, target, moved, strict=True):
+                        if m:
+                            axis.move_to(float(t))
             except BaseException:
                 # One axis refused: none of the others may go on moving toward a half-made pose.
                 self._stop_all()
@@ -375,16 +392,19 @@ class Runner:
         expected = float(np.max(move_time(target - start, self._vmax, self._amax), initial=0.0))
         self._wait(min(expected, rc.move_timeout_s))
         waited = expected
-        while any(a.is_moving() for a in self._axes):
+        actual, moving = self._poll()
+        while moving:
             if waited >= rc.move_timeout_s:
                 self._stop_all()
                 raise DeviceFault("gantry", f"axes did not arrive within move_timeout_s={rc.move_timeout_s}",
                                   transient=True)
             self._wait(rc.poll_s)
             waited += rc.poll_s
+            actual, moving = self._poll()
         if self._halt.is_set():
             raise _Halted
-        actual = self._positions()
+        if actual is None:
+            actual = self._positions()
         err = np.abs(actual - target)
         bad = np.flatnonzero(err > rc.position_tolerance_deg)
         if bad.size:
@@ -401,9 +421,11 @@ class Runner:
                               transient=True)
 
     def _wait(self, seconds: float) -> None:
-        """Sleep ``seconds`` on the gantry clock in slices of ``poll_s``, raising at a halt."""
+        """Sleep ``seconds`` on the gantry clock in slices of ``poll_s``, raising at a halt; between
+        slices a gantry with ``keep_alive`` reads its axes when an armed bus watchdog needs to hear."""
         poll = self.cfg.runner.poll_s
         clock = self.gantry.clock
+        keep_alive = getattr(self.gantry, "keep_alive", None)
         start = clock.now()
         end = start + seconds  # the instant the slowest axis arrives, computed as the axis computes it
         k = 0
@@ -412,6 +434,8 @@ class Runner:
                 raise _Halted
             k += 1
             clock.sleep_until(min(start + k * poll, end))
+            if keep_alive is not None:
+                keep_alive()
         if self._halt.is_set():
             raise _Halted
 

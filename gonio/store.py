@@ -15,7 +15,18 @@ The schema version lives in ``PRAGMA user_version`` and older journals are upgra
 numbered functions in ``_UPGRADES`` (N -> N + 1) when opened for writing.
 
 Angles are stored in degrees (a user boundary: anyone may open the file with ``sqlite3``), signals as
-little-endian float64 blobs of one value per channel.
+little-endian float64 blobs with their shape beside them (JSON: ``[C]`` for a point detector, ``[L]``
+for a spectrometer's bands, any N-D shape a detector reports). The meta key ``detector`` describes what a
+reading is (:func:`detector_descriptor`): kind, channel names, wavelengths (nm, or null), shape, dtype and
+units; a journal without it (schema < 3) reads as an RGB photodiode with its ``channels``.
+
+``Reading.extra`` is kept per measurement as JSON (numpy values as lists). A camera's frame (a
+:class:`gonio.frames.Frame` under ``extra["frame"]``) is written as an EXR file in ``frames/`` next to the
+journal, whole (written aside and renamed) and before the transaction that commits the measurement row
+naming it, with the SHA-256 of its pixels in the row: a crash between the two leaves a file no row names,
+which the replayed step (same key, same frame) overwrites. :meth:`Journal.frame` reads it back and checks
+the hash: a missing or altered file is a :class:`gonio.frames.FrameError` naming the file and the step.
+Schema 2 journals are upgraded to 3 when opened for writing and read as they are when opened read-only.
 """
 
 from __future__ import annotations
@@ -26,15 +37,18 @@ import sqlite3
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Journal", "JournalError", "Measurement", "SCHEMA_VERSION", "JOURNAL_NAME"]
+__all__ = ["Journal", "JournalError", "Measurement", "SCHEMA_VERSION", "JOURNAL_NAME", "FRAMES_DIR",
+           "detector_descriptor"]
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 JOURNAL_NAME = "campaign.sqlite"
+#: Folder (beside the journal) of the frames that measurements name.
+FRAMES_DIR = "frames"
 
 _SCHEMA = """
 CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -60,7 +74,11 @@ CREATE TABLE measurements (
     signal BLOB NOT NULL,           -- float64 per channel, dark not subtracted
     stderr BLOB NOT NULL,
     attempts INTEGER NOT NULL,      -- 1 + retries it took
-    campaign_s REAL NOT NULL        -- campaign clock at the end of the reading (continues across resumes)
+    campaign_s REAL NOT NULL,       -- campaign clock at the end of the reading (continues across resumes)
+    shape TEXT,                     -- JSON list: the shape of signal and stderr (NULL: flat, schema < 3)
+    extra TEXT,                     -- JSON: the reading's extra (NULL: none kept)
+    frame_file TEXT,                -- the frame's EXR, relative to the journal's folder (NULL: none)
+    frame_sha256 TEXT               -- SHA-256 of its pixels (gonio.frames.content_hash)
 );
 CREATE TABLE events (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -74,6 +92,8 @@ CREATE TABLE events (
 _MEASUREMENT_COLUMNS = ("step", "kind", "pose", "commanded_deg", "actual_deg", "theta_i_deg", "phi_i_deg",
                         "theta_o_deg", "phi_o_deg", "clock_s", "campaign_s", "wall_s", "exposure_s",
                         "frames", "signal", "stderr", "attempts")
+#: Columns of schema 3 (read as NULL from a schema 2 journal opened read-only).
+_V3_COLUMNS = ("shape", "extra", "frame_file", "frame_sha256")
 _EVENT_COLUMNS = ("id", "campaign_s", "wall_s", "kind", "state", "step", "message", "axes_deg")
 
 
@@ -87,7 +107,13 @@ def _upgrade_1_to_2(conn: sqlite3.Connection) -> None:
     conn.execute("ALTER TABLE events ADD COLUMN axes_deg TEXT")
 
 
-_UPGRADES: dict[int, Callable[[sqlite3.Connection], None]] = {1: _upgrade_1_to_2}
+def _upgrade_2_to_3(conn: sqlite3.Connection) -> None:
+    # Readings with a shape, their extra and the frame they name; version 2 rows stay flat (NULL shape).
+    for column in _V3_COLUMNS:
+        conn.execute(f"ALTER TABLE measurements ADD COLUMN {column} TEXT")
+
+
+_UPGRADES: dict[int, Callable[[sqlite3.Connection], None]] = {1: _upgrade_1_to_2, 2: _upgrade_2_to_3}
 
 
 class JournalError(RuntimeError):
@@ -106,17 +132,64 @@ class Measurement:
     campaign_s: float       # campaign clock at the end of the reading (continues across resumes)
     exposure_s: float
     frames: int
-    signal: np.ndarray
+    signal: np.ndarray      # any shape (the detector's); stderr alike
     stderr: np.ndarray
     attempts: int = 1
+    #: The reading's extra (JSON-able once numpy values become lists). On commit, a Frame under "frame"
+    #: is written to ``frames/`` and replaced by the file's name; read back, it holds that name.
+    extra: dict = field(default_factory=dict)
+    frame_file: str | None = None     # read back: the frame's EXR, relative to the journal's folder
+    frame_sha256: str | None = None
+
+
+def detector_descriptor(kind: str, channels, wavelengths_nm=None, shape=None, units: str = "signal") -> dict:
+    """What a reading of a detector is, as the journal's meta ``detector`` keeps it.
+
+    Parameters
+    ----------
+    kind : str
+        ``photodiode``, ``spectrometer``, ``camera``, or a real driver's kind.
+    channels : sequence of str
+        Channel names (R, G, B; or one per band).
+    wavelengths_nm : sequence of float, optional
+        Centre wavelength of each channel (nm), for spectral channels; None otherwise.
+    shape : sequence of int, optional
+        The shape of each reading's signal; default ``[len(channels)]``.
+    units : str
+        Of the signal (``signal``: the detector's own linear units, dark not subtracted).
+    """
+    channels = [str(c) for c in channels]
+    wl = None if wavelengths_nm is None else [float(w) for w in wavelengths_nm]
+    if wl is not None and len(wl) != len(channels):
+        raise ValueError(f"wavelengths_nm: {len(wl)} for {len(channels)} channels")
+    return {"kind": str(kind), "channels": channels, "wavelengths_nm": wl,
+            "shape": [len(channels)] if shape is None else [int(n) for n in shape], "dtype": "float64",
+            "units": units}
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    # Anything else a driver put there (a Path, an enum, ...) is kept as its text, never lost silently
+    # and never a reason to lose the reading.
+    return str(value)
 
 
 def _blob(x) -> bytes:
     return np.ascontiguousarray(x, dtype="<f8").tobytes()
 
 
-def _unblob(b: bytes) -> np.ndarray:
-    return np.frombuffer(b, dtype="<f8").copy()
+def _unblob(b: bytes, shape=None) -> np.ndarray:
+    x = np.frombuffer(b, dtype="<f8").copy()
+    return x if shape is None else x.reshape(shape)
+
+
+def _frame_hash(frame) -> str:
+    from gonio.frames import content_hash
+
+    return content_hash(frame.pixels)
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -158,9 +231,11 @@ class Journal:
     """
 
     def __init__(self, conn: sqlite3.Connection, path: Path,
-                 write_hook: Callable[[int], None] | None = None, readonly: bool = False):
+                 write_hook: Callable[[int], None] | None = None, readonly: bool = False,
+                 version: int = SCHEMA_VERSION):
         self._conn = conn
         self.path = path
+        self.version = version
         self.readonly = readonly
         self._write_hook = write_hook
         self._writes = 0
@@ -264,6 +339,8 @@ class Journal:
                     _UPGRADES[v](conn)
                 conn.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
             version = SCHEMA_VERSION
+        if readonly and version == 2:
+            return cls(conn, path, write_hook, readonly=readonly, version=version)
         if version != SCHEMA_VERSION:
             conn.close()
             raise JournalError(f"{path}: journal schema version {version}; this gonio reads "
@@ -317,14 +394,66 @@ class Journal:
             return self._conn.execute(sql, params).fetchall()
 
     def commit_measurement(self, m: Measurement) -> None:
-        """Commit one step's measurement in its own transaction."""
+        """Commit one step's measurement in its own transaction; its frame (if any) first, as a file."""
+        signal = np.asarray(m.signal, dtype=np.float64)
+        stderr = np.asarray(m.stderr, dtype=np.float64)
+        if stderr.shape != signal.shape:
+            raise JournalError(f"step {m.step}: stderr has shape {stderr.shape}, signal {signal.shape}")
+        extra = dict(m.extra or {})
+        frame_file, digest = m.frame_file, m.frame_sha256
+        frame = extra.pop("frame", None)
+        if frame is not None and not isinstance(frame, str):
+            frame_file, digest = self._write_frame(m.step, m.attempts, frame)
+        extra_json = json.dumps(extra, default=_json_default, sort_keys=True) if extra else None
         values = (m.step, m.kind, m.pose, json.dumps(np.asarray(m.commanded_deg, float).tolist()),
                   json.dumps(np.asarray(m.actual_deg, float).tolist()), *(float(a) for a in m.angles_deg),
                   float(m.clock_s), float(m.campaign_s), time.time(), float(m.exposure_s), int(m.frames),
-                  _blob(m.signal), _blob(m.stderr), int(m.attempts))
+                  _blob(signal), _blob(stderr), int(m.attempts),
+                  json.dumps(list(signal.shape)), extra_json, frame_file, digest)
+        columns = _MEASUREMENT_COLUMNS + _V3_COLUMNS
         with self._transaction():
-            self._write(f"INSERT INTO measurements ({', '.join(_MEASUREMENT_COLUMNS)}) "
-                        f"VALUES ({', '.join('?' * len(_MEASUREMENT_COLUMNS))})", values)
+            self._write(f"INSERT INTO measurements ({', '.join(columns)}) "
+                        f"VALUES ({', '.join('?' * len(columns))})", values)
+
+    def _write_frame(self, step: int, attempt: int, frame) -> tuple[str, str]:
+        """Write ``frame`` (a gonio.frames.Frame) to frames/ whole, and make its name durable."""
+        from gonio.frames import write_exr
+
+        if self.readonly:
+            raise JournalError(f"{self.path}: opened read-only")
+        folder = self.path.parent / FRAMES_DIR
+        folder.mkdir(exist_ok=True)
+        name = f"{FRAMES_DIR}/step{step:06d}-a{attempt}.exr"
+        digest = write_exr(self.path.parent / name, frame)
+        fd = os.open(self.path.parent / name, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        _fsync_dir(folder)
+        return name, digest
+
+    def frame(self, step: int):
+        """The frame the measurement of ``step`` names (a gonio.frames.Frame), its hash checked.
+
+        Raises
+        ------
+        gonio.frames.FrameError
+            The step has no frame, or its file is missing, unreadable or not the one committed.
+        """
+        from gonio.frames import FrameError, read_exr
+
+        rows = self._query(f"SELECT {self._v3('frame_file')}, {self._v3('frame_sha256')} FROM measurements "
+                           "WHERE step = ?", (int(step),))
+        if not rows or rows[0][0] is None:
+            raise FrameError(f"{self.path}: step {step} has no frame")
+        path = self.path.parent / rows[0][0]
+        if not path.is_file():
+            raise FrameError(f"{path}: the frame of step {step} is missing")
+        frame = read_exr(path)  # checks the pixels against the hash in the file's own header
+        if _frame_hash(frame) != rows[0][1]:
+            raise FrameError(f"{path}: the frame of step {step} is not the one committed (hash differs)")
+        return frame
 
     def log_event(self, kind: str, *, state: str | None = None, step: int | None = None,
                   message: str = "", campaign_s: float | None = None, axes_deg=None) -> None:
@@ -355,6 +484,17 @@ class Journal:
     # -- reading ---------------------------------------------------------------------------------
     def meta(self) -> dict:
         return {k: json.loads(v) for k, v in self._query("SELECT key, value FROM meta")}
+
+    def detector(self) -> dict:
+        """The detector descriptor (:func:`detector_descriptor`); for a journal without one (schema < 3),
+        an RGB photodiode with the journal's ``channels``."""
+        meta = self.meta()
+        if "detector" in meta:
+            return meta["detector"]
+        return detector_descriptor("photodiode", meta.get("channels", ["R", "G", "B"]))
+
+    def _v3(self, column: str) -> str:
+        return column if self.version >= 3 else f"NULL AS {column}"
 
     def step_count(self) -> int:
         return self._query("SELECT COUNT(*) FROM steps")[0][0]
@@ -387,8 +527,10 @@ class Journal:
     def measurements(self) -> list[Measurement]:
         out = []
         names = [c for c in _MEASUREMENT_COLUMNS if c != "wall_s"]
-        for r in self._query(f"SELECT {', '.join(names)} FROM measurements ORDER BY step"):
-            d = dict(zip(names, r, strict=True))
+        select = names + [self._v3(c) for c in _V3_COLUMNS]
+        for r in self._query(f"SELECT {', '.join(select)} FROM measurements ORDER BY step"):
+            d = dict(zip(names + list(_V3_COLUMNS), r, strict=True))
+            shape = None if d["shape"] is None else tuple(json.loads(d["shape"]))
             out.append(Measurement(
                 step=d["step"], kind=d["kind"], pose=d["pose"],
                 commanded_deg=np.array(json.loads(d["commanded_deg"])),
@@ -396,8 +538,9 @@ class Journal:
                 angles_deg=np.array([d[k] for k in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")],
                                     float),
                 clock_s=d["clock_s"], campaign_s=d["campaign_s"], exposure_s=d["exposure_s"],
-                frames=d["frames"], signal=_unblob(d["signal"]), stderr=_unblob(d["stderr"]),
-                attempts=d["attempts"]))
+                frames=d["frames"], signal=_unblob(d["signal"], shape), stderr=_unblob(d["stderr"], shape),
+                attempts=d["attempts"], extra={} if d["extra"] is None else json.loads(d["extra"]),
+                frame_file=d["frame_file"], frame_sha256=d["frame_sha256"]))
         return out
 
     def measurement_rows(self, start_step: int = 0, limit: int = 1000) -> list[dict]:

@@ -194,3 +194,137 @@ def test_next_step_fills_gaps(tmp_path):
     with pytest.raises(sqlite3.IntegrityError):
         j.commit_measurement(_m(3))  # one measurement per step, ever
     j.close()
+
+
+# -- schema 3: readings with a shape, their extra, frames beside the journal -----------------------------
+def _as_version_2(p):
+    """Turn a fresh journal into what gonio with schema 2 wrote (no shape, extra or frame columns)."""
+    con = sqlite3.connect(p)
+    for column in ("shape", "extra", "frame_file", "frame_sha256"):
+        con.execute(f"ALTER TABLE measurements DROP COLUMN {column}")
+    con.execute("PRAGMA user_version=2")
+    con.commit()
+    con.close()
+
+
+def test_readings_keep_their_shape_and_extra(tmp_path):
+    from gonio.store import detector_descriptor
+
+    p = tmp_path / "c.sqlite"
+    desc = detector_descriptor("camera", ["R", "G", "B"], shape=[4, 5, 3])
+    j = Journal.create(p, {"detector": desc}, _steps())
+    signal = np.arange(60, dtype=float).reshape(4, 5, 3)
+    extra = {"target": "sample", "key": (2, 1), "stderr_sensor": np.array([0.5, 0.25]), "n": np.int64(7)}
+    j.commit_measurement(Measurement(step=2, kind=0, pose=0, commanded_deg=np.zeros(4),
+                                     actual_deg=np.zeros(4), angles_deg=np.zeros(4), clock_s=1.0,
+                                     campaign_s=1.0, exposure_s=0.1, frames=1, signal=signal,
+                                     stderr=signal / 10, extra=extra))
+    j.close()
+    j = Journal.open(p, readonly=True)
+    (m,) = j.measurements()
+    assert m.signal.shape == (4, 5, 3) and np.array_equal(m.signal, signal)
+    assert np.array_equal(m.stderr, signal / 10)
+    assert m.extra == {"target": "sample", "key": [2, 1], "stderr_sensor": [0.5, 0.25], "n": 7}
+    assert j.detector() == desc and desc["shape"] == [4, 5, 3] and desc["wavelengths_nm"] is None
+    j.close()
+
+
+def test_a_signal_and_stderr_of_different_shapes_are_refused(tmp_path):
+    j = Journal.create(tmp_path / "c.sqlite", {}, _steps())
+    bad = Measurement(step=0, kind=1, pose=-1, commanded_deg=np.zeros(4), actual_deg=np.zeros(4),
+                      angles_deg=np.zeros(4), clock_s=0.0, campaign_s=0.0, exposure_s=0.1, frames=1,
+                      signal=np.zeros(3), stderr=np.zeros(4))
+    with pytest.raises(JournalError, match="step 0: stderr has shape"):
+        j.commit_measurement(bad)
+    assert j.done_count() == 0
+    j.close()
+
+
+def test_version_2_journals_read_as_they_are_and_upgrade_when_opened_for_writing(tmp_path):
+    p = tmp_path / "c.sqlite"
+    j = Journal.create(p, {"channels": ["R", "G", "B"]}, _steps())
+    j.close()
+    _as_version_2(p)
+    con = sqlite3.connect(p)
+    con.execute("INSERT INTO measurements (step, kind, pose, commanded_deg, actual_deg, theta_i_deg, "
+                "phi_i_deg, theta_o_deg, phi_o_deg, clock_s, wall_s, exposure_s, frames, signal, stderr, "
+                "attempts, campaign_s) VALUES (0, 1, -1, '[0,0,0,0]', '[0,0,0,0]', 0, 0, 0, 0, 1.0, 0, 0.1, "
+                "1, ?, ?, 1, 1.0)",
+                (np.array([1.0, 2.0, 3.0]).tobytes(), np.zeros(3).tobytes()))
+    con.commit()
+    con.close()
+    r = Journal.open(p, readonly=True)  # a reader (gonio status) must not need to upgrade it
+    (m,) = r.measurements()
+    assert m.signal.tolist() == [1.0, 2.0, 3.0] and m.extra == {} and m.frame_file is None
+    assert r.detector()["kind"] == "photodiode" and r.detector()["channels"] == ["R", "G", "B"]
+    r.close()
+    j = Journal.open(p)
+    j.commit_measurement(_m(1, kind=2, pose=-1))
+    assert [x.signal.shape for x in j.measurements()] == [(3,), (3,)]
+    j.close()
+    assert sqlite3.connect(p).execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+
+
+def _frame_measurement(step, frame):
+    px = frame.pixels
+    return Measurement(step=step, kind=0, pose=0, commanded_deg=np.zeros(4), actual_deg=np.zeros(4),
+                       angles_deg=np.zeros(4), clock_s=0.0, campaign_s=0.0, exposure_s=0.1, frames=1,
+                       signal=px.mean(axis=(0, 1)), stderr=np.zeros(3), extra={"frame": frame, "n": 3})
+
+
+def test_a_frame_is_written_before_its_row_and_read_back_by_hash(tmp_path):
+    from gonio.frames import Frame, FrameError, content_hash
+
+    p = tmp_path / "c.sqlite"
+    px = np.random.default_rng(1).random((6, 7, 3)).astype(np.float32)
+    seen = []
+
+    def hook(n):  # at the row's write, the frame is already on disk
+        seen.append(sorted(x.name for x in (tmp_path / "frames").glob("*.exr")))
+
+    Journal.create(p, {}, _steps()).close()
+    j = Journal.open(p, write_hook=hook)
+    j.commit_measurement(_frame_measurement(2, Frame(px, {"exposure_s": 0.1})))
+    assert seen[-1] == ["step000002-a1.exr"]
+    (m,) = j.measurements()
+    assert m.frame_file == "frames/step000002-a1.exr" and m.frame_sha256 == content_hash(px)
+    assert m.extra == {"n": 3}
+    f = j.frame(2)
+    assert np.array_equal(f.pixels, px) and f.metadata == {"exposure_s": 0.1}
+    # a frame file that went missing, or that holds other pixels, is an error naming it (never zeros)
+    with pytest.raises(FrameError, match="step 3 has no frame"):
+        j.frame(3)
+    (tmp_path / m.frame_file).rename(tmp_path / "moved.exr")
+    with pytest.raises(FrameError, match="step000002-a1.exr: the frame of step 2 is missing"):
+        j.frame(2)
+    from gonio.frames import write_exr
+
+    write_exr(tmp_path / m.frame_file, Frame(px * 2, {}))
+    with pytest.raises(FrameError, match="not the one committed"):
+        j.frame(2)
+    (tmp_path / m.frame_file).write_bytes(b"not an exr")
+    with pytest.raises(FrameError, match="cannot read EXR"):
+        j.frame(2)
+    j.close()
+
+
+def test_a_crash_after_the_frame_file_leaves_no_row_and_the_replay_overwrites_it(tmp_path):
+    from gonio.frames import Frame
+
+    p = tmp_path / "c.sqlite"
+    Journal.create(p, {}, _steps()).close()
+
+    def hook(n):
+        raise Crash
+
+    px = np.ones((4, 4, 3), np.float32)
+    j = Journal.open(p, write_hook=hook)
+    with pytest.raises(Crash):
+        j.commit_measurement(_frame_measurement(2, Frame(px, {})))
+    j.close()
+    assert (tmp_path / "frames" / "step000002-a1.exr").is_file()  # no row names it yet
+    j = Journal.open(p)
+    assert j.done_count() == 0
+    j.commit_measurement(_frame_measurement(2, Frame(px, {})))
+    assert np.array_equal(j.frame(2).pixels, px)
+    j.close()
