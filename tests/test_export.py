@@ -2,9 +2,6 @@
 
 import os
 import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -56,22 +53,6 @@ def test_radiance_files_hold_the_luminance(data, tmp_path):
     wo = sph_to_vec(np.radians(one["theta_o_deg"]), np.radians(one["phi_o_deg"]))
     y = load(SPEC).eval(np.broadcast_to(wi, wo.shape), wo, precision="float64") @ [0.2126, 0.7152, 0.0722]
     assert np.abs(one["value"] - y).sum() / y.sum() < 0.02
-
-
-def test_radiance_pabopto2bsdf_accepts_the_files(data, tmp_path):
-    tool = Path(sys.executable).parent / "pabopto2bsdf"
-    try:
-        import pyradiance
-
-        tool = Path(pyradiance.__file__).parent / "bin" / "pabopto2bsdf"
-    except ImportError:
-        pytest.skip("pyradiance is not installed (optional)")
-    coarse = sampled("lambert:albedo=0.6", "iso:step=30")
-    export(coarse, "radiance", tmp_path / "rad", theta_step_deg=30.0)
-    files = sorted(str(p) for p in (tmp_path / "rad").glob("*.dat"))
-    run = subprocess.run([str(tool), "-s", "I", *files], capture_output=True, timeout=120)
-    assert run.returncode == 0, run.stderr.decode()
-    assert run.stdout.startswith(b"#?RADIANCE")
 
 
 def test_bsdf_round_trip_through_our_layout_reader(data, tmp_path):
