@@ -48,6 +48,11 @@ log = logging.getLogger(__name__)
 
 #: Seconds a running campaign's status read from its journal is reused (progress comes from the runner).
 STATUS_TTL_S = 0.25
+#: Seconds an abort waits for a starting or stopping campaign to settle, so its reply tells the outcome.
+ABORT_WAIT_S = 10.0
+#: What a stopped runner's campaign is called while it parks and leaves the worker.
+_SETTLING = {State.DONE: "finishing", State.PAUSED: "pausing", State.ABORTED: "aborting"}
+
 
 class CampaignQueue:
     """The campaigns under ``data/campaigns`` and the worker that runs them one at a time.
@@ -82,6 +87,7 @@ class CampaignQueue:
         self.runner: Runner | None = None
         self.gantry = None           # the running campaign's gantry
         self.run_started: tuple[float, int] | None = None   # (Unix time, steps done) of this run's start
+        self.finishing = False       # the current campaign's runner has stopped; it is leaving the worker
 
     # -- start and stop --------------------------------------------------------------------------
     def start(self) -> None:
@@ -189,16 +195,19 @@ class CampaignQueue:
             j.close()
 
     def state(self, rec: Record, journal: Journal | None = None) -> str:
-        """queued, starting, running, pausing, paused, halted, faulted, done, aborted or failed."""
+        """creating, queued, starting, running, pausing, paused, aborting, finishing, halted, faulted, done,
+        aborted or failed (pausing, aborting and finishing: the runner stopped, the gantry still parks)."""
         if rec.final is not None:
             return rec.final
         with self._cond:
-            if self.current is rec:
+            # A finishing campaign's state comes from its journal, like a waiting one's.
+            if self.current is rec and not self.finishing:
                 runner = self.runner
                 if runner is None or runner.state == State.IDLE:
                     return "starting"
-                # done is final once brdf.h5 is written: until then the campaign is finishing
-                return "finishing" if runner.state == State.DONE else str(runner.state)
+                # A runner that stopped still parks (and a done one writes brdf.h5) before the campaign
+                # leaves the worker: paused, aborted and done are said once that is over.
+                return _SETTLING.get(runner.state, str(runner.state))
         if not (rec.folder / JOURNAL_NAME).is_file():
             return "failed" if rec.error else "creating"
         j = journal or self.journal(rec)
@@ -227,7 +236,7 @@ class CampaignQueue:
         come from the runner in between), a finished one's once: a status request stays cheap while
         the runner works."""
         with self._cond:
-            live = self.current is rec
+            live = self.current is rec and not self.finishing
             started = self.run_started if live else None
         cached = rec.cache
         fresh = cached is not None and live and time.monotonic() - cached[0] < STATUS_TTL_S
@@ -323,8 +332,17 @@ class CampaignQueue:
             if self.current is rec:
                 rec.intent, rec.abort_pending = "hold", True
                 rec.save()
-                if self.runner is not None:
+                if self.runner is None:
+                    # Starting (the first step boundary acts on it) or finishing (the worker records
+                    # it as the campaign leaves): wait for either, so the reply tells the outcome.
+                    self._cond.wait_for(lambda: self.current is not rec or self.runner is not None,
+                                        timeout=ABORT_WAIT_S)
+                # An idle runner is about to run (and run() would refuse an aborted one): its first
+                # step boundary acts on abort_pending.
+                if self.current is rec and self.runner is not None and self.runner.state != State.IDLE:
                     self.runner.request_abort()
+                    if self.runner.state not in (State.RUNNING, State.PAUSING):   # stopped: it parks
+                        self._cond.wait_for(lambda: self.current is not rec, timeout=ABORT_WAIT_S)
             else:
                 self._mark_aborted(rec, state)
                 self._cond.notify_all()
@@ -373,7 +391,7 @@ class CampaignQueue:
                 if rec is None:
                     self._cond.wait(0.5)
                     continue
-                self.current, self.runner = rec, None
+                self.current, self.runner, self.finishing = rec, None, False
             try:
                 self._run(rec)
             except Exception as err:  # the worker stays up; the campaign waits for the operator
@@ -392,6 +410,7 @@ class CampaignQueue:
                         rec.abort_pending = False
                         rec.save()
                     self.current, self.runner, self.gantry, self.run_started = None, None, None, None
+                    self.finishing = False
                     rec.cache = rec.live = None
                     self._cond.notify_all()
 
@@ -413,6 +432,7 @@ class CampaignQueue:
             def on_runner(runner: Runner) -> None:
                 with self._cond:
                     self.runner = runner
+                    self._cond.notify_all()
                 if rec.intent == "hold":  # paused or aborted between the pick and now
                     runner.request_pause("pause requested through the API")
 
@@ -432,7 +452,7 @@ class CampaignQueue:
                                           clear_fault=rec.clear_fault)
         finally:
             with self._cond:  # requests reach the runner under this lock: none after its journal closes
-                self.runner, self.gantry = None, None
+                self.runner, self.gantry, self.finishing = None, None, True
             c.close()
         rec.clear_fault = False
         if result == State.ABORTED:
