@@ -128,8 +128,9 @@ class AxisConfig(_Strict):
     direction: Literal[1, -1] = 1
     #: Dynamixel Present Position (ticks) at axis 0°.
     homing_offset_ticks: int = Field(0, ge=-1_048_575, le=1_048_575)
-    #: Dynamixel bus watchdog while moving (s, up to 2.54; 0 disables it). Off by default: the runner
-    #: waits out a move's profile without bus traffic, and moves last longer than the watchdog's reach.
+    #: Dynamixel bus watchdog while moving (s, up to 2.54; 0 disables it): a servo that hears nothing
+    #: for this long mid-move stops by itself (gonio died). The runner reads moving servos every
+    #: watchdog_s / 2, so it must be at least 4 x runner.poll_s. Off unless a config sets it.
     watchdog_s: float = Field(0.0, ge=0.0, le=2.54)
     #: Modbus unit id.
     device_id: int | None = Field(None, ge=1, le=247)
@@ -341,6 +342,12 @@ class GonioConfig(_Strict):
             on = [w for w, d, b in users if b == bus and d == "serial"]
             if len(on) > 1:
                 raise ValueError(f"buses.{bus}: one serial instrument per port, but {', '.join(on)} share it")
+        for n, a in self.axes.items():
+            # The runner reads the moving servos every watchdog_s / 2, checked between poll_s slices.
+            if a.driver == "dynamixel" and 0 < a.watchdog_s < 4 * self.runner.poll_s:
+                raise ValueError(f"axes.{n}.watchdog_s: {a.watchdog_s} is below 4 x runner.poll_s "
+                                 f"({4 * self.runner.poll_s:g} s); allowed: 0 (off) or "
+                                 f"[{4 * self.runner.poll_s:g}, 2.54] s")
         return self
 
     @property

@@ -2,15 +2,24 @@
 :class:`gonio.protocols.Gantry` protocol.
 
 :mod:`gonio.wiring` builds one from a config: Dynamixel servos, Modbus controllers, serial instruments
-and simulated devices side by side. The gantry itself knows nothing of buses or bytes: it connects and
+and simulated devices side by side. The gantry itself knows nothing of bytes: it connects and
 closes its devices in order, stops every axis (a halt reaches every bus), and puts the white standard
 under the beam with the config's target axis (a sample changer), or, without one, tells a simulated
 detector to render the standard.
+
+Batched motion: :meth:`AssembledGantry.move_axes`, :meth:`AssembledGantry.poll_axes` and
+:meth:`AssembledGantry.positions` move and read the kinematics' axes with one Sync Write and one Sync
+Read per Dynamixel bus (:class:`gonio.drivers.dynamixel.DynamixelGroup`) and one read per Modbus
+controller (two where its profile keeps status and position apart), and
+:meth:`AssembledGantry.keep_alive` reads them during a move often enough that an armed Dynamixel bus
+watchdog never fires while gonio lives (and stops the servos when it does not).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+
+import numpy as np
 
 from gonio.protocols import Axis, Clock, Detector, DeviceFault, LightSource
 
@@ -112,6 +121,14 @@ class AssembledGantry:
         self.changer = changer
         self.target = "sample"
         self._connected: list = []
+        # Batches, made at connect: (DynamixelGroup, its axes' indices in kinematics order); the
+        # indices read one by one (Modbus controllers, simulated axes).
+        self._groups: list = []
+        self._singles: list[int] = []
+        #: Longest quiet spell (s, gantry clock) while a Dynamixel watchdog is armed: half the shortest
+        #: watchdog; None without one.
+        self.feed_s: float | None = None
+        self._last_read = 0.0
 
     @property
     def all_axes(self) -> dict[str, Axis]:
@@ -137,6 +154,23 @@ class AssembledGantry:
                 self.close()
                 raise
             self._connected.append(device)
+        self._batch()
+
+    def _batch(self) -> None:
+        from gonio.drivers.dynamixel import DynamixelAxis, DynamixelGroup
+
+        names = list(self.axes)
+        by_bus: dict[int, list[str]] = {}
+        self._singles = []
+        for i, (name, axis) in enumerate(self.axes.items()):
+            if isinstance(axis, DynamixelAxis):
+                by_bus.setdefault(id(axis.bus), []).append(name)
+            else:
+                self._singles.append(i)
+        self._groups = [(DynamixelGroup([self.axes[n] for n in group]), [names.index(n) for n in group])
+                        for group in by_bus.values()]
+        dogs = [a.watchdog_units * 0.02 for g, _ in self._groups for a in g.axes.values() if a.watchdog_units]
+        self.feed_s = min(dogs) / 2 if dogs else None
 
     def close(self) -> None:
         """Close every connected device (axes stop first); each is closed even if another fails."""
@@ -160,6 +194,83 @@ class AssembledGantry:
         if hasattr(self.detector, "set_target"):
             self.detector.set_target(target)
         self.target = target
+
+    # -- batched motion (the runner uses these when a gantry has them) ---------------------------------
+    def move_axes(self, targets: Mapping[str, float]) -> None:
+        """Start moving the named kinematics axes to ``targets`` (°): every target is checked first
+        (nothing moves if one is refused), then one Sync Write of goals per Dynamixel bus (after one
+        arming the watchdogs of servos that are not armed yet) and one move per other axis."""
+        unknown = [n for n in targets if n not in self.axes]
+        if unknown:
+            raise ValueError(f"axes: unknown {', '.join(unknown)}; known: {', '.join(self.axes)}")
+        for name, t in targets.items():  # Dynamixel: check_target; Modbus: steps_for (both raise)
+            axis = self.axes[name]
+            check = getattr(axis, "check_target", None) or getattr(axis, "steps_for", None)
+            if check is not None:
+                check(t)
+        for group, _ in self._groups:
+            mine = {n: float(t) for n, t in targets.items() if n in group.axes}
+            if mine:
+                group.move_to(mine)
+        for i in self._singles:
+            name = self.kinematics.axis_names[i]
+            if name in targets:
+                self.axes[name].move_to(float(targets[name]))
+        self._last_read = self.clock.now()
+
+    def _read_groups(self, pos: np.ndarray, moving: np.ndarray) -> None:
+        for group, idx in self._groups:
+            states = group.read()
+            for i, axis in zip(idx, group.axes.values(), strict=True):
+                pos[i], moving[i] = states[axis.name].position_deg, states[axis.name].moving
+        self._last_read = self.clock.now()
+
+    def positions(self) -> np.ndarray:
+        """Positions (°) of the kinematics' axes, in their order: one Sync Read per Dynamixel bus (a
+        servo that does not answer raises, never a silent 0), and one read per other axis."""
+        n = len(self.axes)
+        pos = np.empty(n)
+        self._read_groups(pos, np.zeros(n, dtype=bool))
+        axes = list(self.axes.values())
+        for i in self._singles:
+            pos[i] = axes[i].position_deg()
+        return pos
+
+    def poll_axes(self) -> tuple[np.ndarray | None, bool]:
+        """One look while waiting for a move: (positions, False) once every axis is still, else
+        (None, True). The Dynamixel buses are read first (one Sync Read each); while one of their axes
+        moves, no other axis is asked, and an axis read one by one (Modbus) is asked for its position
+        only when it is still."""
+        n = len(self.axes)
+        pos, moving = np.empty(n), np.zeros(n, dtype=bool)
+        self._read_groups(pos, moving)
+        if moving.any():
+            return None, True
+        axes = list(self.axes.values())
+        apart = []
+        for i in self._singles:
+            a = axes[i]
+            if getattr(a, "state_in_one_read", False):
+                pos[i], m = a.read_state()
+            else:
+                m = a.is_moving()
+                apart.append(i)
+            if m:
+                return None, True
+        for i in apart:
+            pos[i] = axes[i].position_deg()
+        return pos, False
+
+    def keep_alive(self) -> None:
+        """Called between slices of a wait: while a Dynamixel watchdog is armed (a move under way), read
+        the Dynamixel axes (one Sync Read per bus) once every ``feed_s``, so that the watchdog hears
+        from gonio; otherwise nothing. A fault seen on the way (a hardware error, a servo that does
+        not answer, a watchdog that fired) raises as from :meth:`positions`."""
+        if self.feed_s is None or not any(g.armed for g, _ in self._groups):
+            return
+        if self.clock.now() - self._last_read >= self.feed_s:
+            n = len(self.axes)
+            self._read_groups(np.empty(n), np.zeros(n, dtype=bool))
 
     def stop(self) -> None:
         """Stop every axis on every bus (the changer's too), each even if another fails; safe from any

@@ -341,19 +341,18 @@ class Runner:
 
     # -- motion ----------------------------------------------------------------------------------
     def _positions(self) -> np.ndarray:
-        read = getattr(self.gantry, "read_axes", None)  # batched: one read per bus (AssembledGantry)
+        read = getattr(self.gantry, "positions", None)  # batched: one read per bus (AssembledGantry)
         if read is not None:
-            return read()[0]
+            return read()
         return np.array([a.position_deg() for a in self._axes], dtype=float)
 
     def _poll(self) -> tuple[np.ndarray | None, bool]:
         """(positions, whether any axis moves): one batched read where the gantry offers it; else the
         axes are asked one by one, and positions come later."""
-        read = getattr(self.gantry, "read_axes", None)
-        if read is None:
+        poll = getattr(self.gantry, "poll_axes", None)
+        if poll is None:
             return None, any(a.is_moving() for a in self._axes)
-        pos, moving = read()
-        return pos, bool(moving.any())
+        return poll()
 
     def _goto(self, target: np.ndarray) -> None:
         """Move to ``target`` along a collision-free path, leg by leg; every target is checked against

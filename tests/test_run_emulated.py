@@ -14,11 +14,14 @@ import numpy as np
 import pytest
 
 from gonio.campaign import create_campaign, run_campaign
-from gonio.clock import VirtualClock, WallClock
+from gonio.clock import WallClock
 from gonio.config import load_config, parse_config
 from gonio.dataset import read_brdf
+from gonio.motion.trapezoid import move_time
 from gonio.runner import State
+from gonio.sim.emulators.dxl_packet import Inst
 from gonio.sim.emulators.gantry import EmulatedGantry
+from gonio.sim.emulators.link import SyncedVirtualClock
 from gonio.store import JOURNAL_NAME, Journal
 from gonio.wiring import build_gantry
 
@@ -67,12 +70,23 @@ def _matches(measured, simulated, channel_mean: bool):
 
 @pytest.mark.parametrize("twin", sorted(TWINS))
 def test_a_campaign_through_the_drivers_matches_the_simulation(tmp_path, twin):
-    clock = VirtualClock()
+    clock = SyncedVirtualClock()
     with EmulatedGantry(load_config(twin), MATERIAL, clock=clock, any_port=True) as emu:
         (state, runner), _ = _emulated_run(tmp_path / "emu", emu, clock)
         assert state == State.DONE, runner.fault
         # The reference readings were taken with the changer at its reference position.
         assert emu.target_now() == "sample"
+        if emu.servos:  # the shipped Dynamixel config arms the bus watchdog: armed for the moves, fed
+            # while they last (it never fired, nothing was retried), disarmed at rest
+            armed = [p for p in emu.emulators["arm"].received if p[7] == Inst.SYNC_WRITE and p[8] == 98
+                     and any(p[13:-2:2])]
+            assert len(armed) > 10
+            assert all(s.watchdog_fired_at is None and s.value(98) == 0 for s in emu.servos.values())
+            j = Journal.open(tmp_path / "emu" / JOURNAL_NAME, readonly=True)
+            try:
+                assert not [e for e in j.events() if e["kind"] in ("retry", "fault")]
+            finally:
+                j.close()
     measured = read_brdf(tmp_path / "emu" / "brdf.h5")
     assert measured.value.shape[1] == (1 if "dynamixel" in twin else 3)
     _matches(measured, _simulated(tmp_path, TWINS[twin]), channel_mean="dynamixel" in twin)
@@ -104,7 +118,7 @@ def _faulted_then_cleared(tmp_path, emu, clock, inject, at_step=5):
 
 
 def test_a_servo_hardware_error_faults_with_its_reason_and_a_reboot_resumes(tmp_path):
-    clock = VirtualClock()
+    clock = SyncedVirtualClock()
     with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
                         any_port=True) as emu:
         reason, _ = _faulted_then_cleared(tmp_path, emu, clock,
@@ -114,7 +128,7 @@ def test_a_servo_hardware_error_faults_with_its_reason_and_a_reboot_resumes(tmp_
 
 
 def test_a_controller_alarm_faults_with_its_code_and_an_alarm_reset_resumes(tmp_path):
-    clock = VirtualClock()
+    clock = SyncedVirtualClock()
     with EmulatedGantry(load_config("emulated-sample-stage-modbus"), MATERIAL, clock=clock,
                         any_port=True) as emu:
         reason, _ = _faulted_then_cleared(tmp_path, emu, clock,
@@ -124,7 +138,7 @@ def test_a_controller_alarm_faults_with_its_code_and_an_alarm_reset_resumes(tmp_
 
 
 def test_dropped_servo_replies_are_retried_and_the_campaign_finishes(tmp_path):
-    clock = VirtualClock()
+    clock = SyncedVirtualClock()
     with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
                         any_port=True) as emu:
         fired = []
@@ -146,7 +160,7 @@ def test_dropped_servo_replies_are_retried_and_the_campaign_finishes(tmp_path):
 
 
 def test_a_lost_photodiode_port_is_reopened_and_the_step_retried(tmp_path):
-    clock = VirtualClock()
+    clock = SyncedVirtualClock()
     with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
                         any_port=True) as emu:
         fired = []
@@ -205,3 +219,56 @@ def test_gonio_run_killed_mid_campaign_resumes_when_run_again(tmp_path):
         assert "resuming" in r.stderr
     measured = read_brdf(out / "brdf.h5")
     _matches(measured, _simulated(tmp_path, "sample-stage"), channel_mean=False)
+
+
+@pytest.mark.slow
+def test_gonio_run_killed_mid_move_leaves_the_servos_stopped_by_their_bus_watchdog(tmp_path):
+    """The shipped Dynamixel config arms each servo's bus watchdog (0.5 s) for its moves: SIGKILL the
+    process mid-move and the servo stops by itself within 0.5 s of the last packet, short of its goal."""
+    data = load_config("emulated-two-arm-dynamixel").model_dump(mode="json")
+    for axis in data["axes"].values():
+        axis["max_velocity_deg_s"] = 20.0  # long moves: one is surely under way when the kill comes
+    watchdog_s = data["axes"]["light_tilt"]["watchdog_s"]
+    assert watchdog_s == 0.5
+    cfg = parse_config(data)
+    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True) as emu:
+        path = tmp_path / "gantry.toml"
+        path.write_text(emu.config_toml())
+        bus = emu.emulators["arm"]
+        argv = [*GONIO, "run", "--config", str(path), "--grid", GRID, "--out", str(tmp_path / "run"),
+                "--sample", "gold", "--quiet"]
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        victim = None
+        try:
+            deadline = time.monotonic() + 90.0
+            while victim is None and time.monotonic() < deadline and proc.poll() is None:
+                with bus.lock:
+                    for name, s in emu.servos.items():
+                        t0, start, goal, v, a = s._move
+                        left = t0 + float(move_time(goal - start, v, a)) - emu.clock.now()
+                        if s.value(98) > 0 and s.value(122) and left > 3 * watchdog_s:
+                            victim = name
+                            break
+                time.sleep(0.01)  # watching another process; bounded by the deadline
+            assert victim is not None and proc.poll() is None, proc.communicate()
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(10)
+            killed = emu.clock.now()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+        s = emu.servos[victim]
+        goal = s._move[2]
+        deadline = time.monotonic() + 10 * watchdog_s
+        while time.monotonic() < deadline:
+            with bus.lock:
+                if not s.value(122):
+                    break
+            time.sleep(0.02)  # the servo on its own; bounded by the deadline
+        with bus.lock:
+            assert not s.value(122), f"{victim} still moving {10 * watchdog_s} s after the kill"
+            assert s.value(98) == -1  # the watchdog error: goals locked until gonio clears it
+            fired, at = s.watchdog_fired_at, s.value(132) - s.value(20)
+        assert fired is not None and fired <= killed + watchdog_s
+        assert abs(at - goal) > 50  # ticks: stopped short, it did not simply arrive

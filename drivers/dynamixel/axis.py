@@ -348,7 +348,8 @@ class DynamixelGroup:
     Parameters
     ----------
     axes : sequence of DynamixelAxis
-        Connected axes sharing one :class:`DynamixelBus` (distinct IDs, same control-table family).
+        Connected axes sharing one :class:`DynamixelBus` (distinct IDs; X-series families, whose
+        watchdog, goal and present fields share addresses).
     """
 
     def __init__(self, axes: Sequence[DynamixelAxis]):
@@ -360,11 +361,18 @@ class DynamixelGroup:
             raise ValueError("dynamixel group: every axis must be on the same bus")
         if len({a.dxl_id for a in axes}) != len(axes):
             raise ValueError("dynamixel group: servo IDs must be distinct")
-        if len({a.table.family for a in axes}) != 1:
-            raise ValueError("dynamixel group: every axis must be of one control-table family")
+        shared = ("bus_watchdog", "goal_position", "present_velocity", "present_position", "moving")
+        if any(a.table[f] != axes[0].table[f] for a in axes for f in shared):
+            raise ValueError("dynamixel group: the axes' control tables must place the watchdog, goal and "
+                             "present fields at the same addresses")
         self.bus = bus
         self.axes = {a.name: a for a in axes}
         self._table = axes[0].table
+
+    @property
+    def armed(self) -> bool:
+        """Whether any servo of the group has its bus watchdog armed (a move is under way)."""
+        return any(a._armed for a in self.axes.values())
 
     def move_to(self, targets: Mapping[str, float]) -> None:
         """Check every target first (nothing moves if one is refused), arm the watchdogs that are not

@@ -15,6 +15,8 @@ typed :class:`~gonio.protocols.DeviceFault` subclasses:
 
 from __future__ import annotations
 
+import io
+import select
 import termios
 import threading
 from collections.abc import Callable, Iterable, Mapping
@@ -30,7 +32,7 @@ from gonio.drivers.dynamixel.errors import (
     PacketError,
 )
 
-__all__ = ["DynamixelBus", "StuffingPacketHandler", "BROADCAST_ID"]
+__all__ = ["DynamixelBus", "StuffingPacketHandler", "WaitingPortHandler", "BROADCAST_ID"]
 
 BROADCAST_ID = sdk.BROADCAST_ID
 _PORT_ERRORS = (termios.error, serial.SerialException, OSError)
@@ -53,6 +55,28 @@ class StuffingPacketHandler(sdk.Protocol2PacketHandler):
         return packet
 
 
+class WaitingPortHandler(sdk.PortHandler):
+    """The SDK's port handler, except that a read with nothing to read waits for bytes (``select`` on
+    the port, at most until the packet's time-out) instead of returning at once.
+
+    The SDK's receive loop calls ``readPort`` back to back until a packet is whole or its time-out
+    passes; with the port's zero read time-out that is a busy loop that keeps a core (and the GIL) busy
+    for the whole wait on every transaction. Waiting in ``select`` returns as soon as a byte arrives,
+    so replies are seen no later, and the time-outs are the SDK's own.
+    """
+
+    def readPort(self, length):  # noqa: N802 - the SDK's name
+        ser = self.ser
+        try:
+            if not ser.in_waiting:
+                left_ms = self.packet_timeout - self.getTimeSinceStart()
+                if left_ms > 0:
+                    select.select([ser.fileno()], [], [], left_ms / 1000.0)
+        except (AttributeError, ValueError, io.UnsupportedOperation):
+            pass  # a port without a file descriptor: the SDK's own polling
+        return ser.read(length)
+
+
 class DynamixelBus:
     """A Protocol 2.0 bus on one serial port.
 
@@ -67,7 +91,8 @@ class DynamixelBus:
     retries : int
         Extra attempts after a time-out or corrupt reply (0..5).
     port_factory : callable, optional
-        ``port_factory(port) -> PortHandler``; tests and socket transports inject their own.
+        ``port_factory(port) -> PortHandler`` (default :class:`WaitingPortHandler`); tests and socket
+        transports inject their own.
 
     Notes
     -----
@@ -84,7 +109,7 @@ class DynamixelBus:
         self.baudrate = baudrate
         self.name = name
         self.retries = retries
-        self._factory = port_factory or sdk.PortHandler
+        self._factory = port_factory or WaitingPortHandler
         self.lock = threading.RLock()
         self._port: sdk.PortHandler | None = None
         self._ph = StuffingPacketHandler()

@@ -231,11 +231,39 @@ class ModbusAxis:
                                       f"{self.start_timeout_s} s (moving bit never rose)")
             self.clock.sleep(0.002)
 
+    def _deg(self, steps: int) -> float:
+        return self.direction * (steps - self.zero_steps) / self.steps_per_deg
+
     def position_deg(self) -> float:
-        return self.direction * (self._read_value("actual_position") - self.zero_steps) / self.steps_per_deg
+        return self._deg(self._read_value("actual_position"))
 
     def is_moving(self) -> bool:
         return bool(self._check_status(self._read("status")[0]) >> self.profile.moving_bit & 1)
+
+    @property
+    def state_in_one_read(self) -> bool:
+        """Whether the profile's status and actual position are adjacent (one read gives both)."""
+        pos, st = self.profile["actual_position"], self.profile["status"]
+        return pos.address + pos.count == st.address or st.address + st.count == pos.address
+
+    def read_state(self) -> tuple[float, bool]:
+        """Position (°) and moving flag: one Read Holding Registers when the profile's status and
+        actual position are adjacent registers, else two reads (a read across registers the controller
+        does not assign may be refused with exception 2 on real units)."""
+        p = self.profile
+        pos, st = p["actual_position"], p["status"]
+        lo = min(pos.address, st.address)
+        count = pos.count + st.count
+        if not self.state_in_one_read:
+            status = self._check_status(self._read("status")[0])
+            steps = self._read_value("actual_position")
+        else:
+            words = self._call(f"read status and actual_position at {lo:#06x}",
+                               lambda: self.client.read_holding_registers(lo, count=count,
+                                                                          device_id=self.device_id)).registers
+            status = self._check_status(words[st.address - lo])
+            steps = pos.decode(words[pos.address - lo:pos.address - lo + pos.count], p.word_order)
+        return self._deg(steps), bool(status >> p.moving_bit & 1)
 
     def stop(self) -> None:
         self._command(self.profile.stop)

@@ -18,6 +18,7 @@ ROBOTIS e-Manual: "DYNAMIXEL Protocol 2.0"; "XM430-W350" and "XL430-W250" contro
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 
 from gonio.clock import WallClock
@@ -96,6 +97,8 @@ class EmulatedServo:
         self._mem = bytearray(_TABLE_SIZE)
         self._pending: tuple[int, bytes] | None = None
         self._last_heard = self.clock.now()
+        #: When the bus watchdog last fired (clock time), or None.
+        self.watchdog_fired_at: float | None = None
         self.reboots = 0
         self.temperature_c = 36
         self.voltage_dv = 120
@@ -159,6 +162,7 @@ class EmulatedServo:
 
     def _refresh(self) -> None:
         now = self.clock.now()
+        self._watchdog_due(now)
         offset = self._get(20, 4, True)
         self._put(120, 2, int(now * 1000) % 32768)
         moving = self._moving()
@@ -184,12 +188,18 @@ class EmulatedServo:
     def hardware_error(self) -> int:
         return self._get(70, 1)
 
-    def _check_watchdog(self, now: float) -> None:
+    def _watchdog_due(self, now: float) -> None:
+        """Fire the bus watchdog if nothing was heard for its time: the shaft stops where it stood at
+        that instant (:attr:`watchdog_fired_at`), whether or not anyone asks before ``now``."""
         wd = self._get(98, 1, True)
         if wd > 0 and self._get(64, 1) and now - self._last_heard > wd * 0.02:
             fired = self._last_heard + wd * 0.02
             self._hold(self._present_raw_f(fired))
             self._put(98, 1, -1)
+            self.watchdog_fired_at = fired
+
+    def _check_watchdog(self, now: float) -> None:
+        self._watchdog_due(now)
         self._last_heard = now
 
     # -- instructions -----------------------------------------------------------------------------------
@@ -321,10 +331,10 @@ class DynamixelBusEmulator(EmulatorThread):
         if not self.link.plugged:
             self._stop.wait(self.poll_s)
             return
-        data = self.link.read(self.poll_s)
-        if not data:
+        if not self.link.readable(self.poll_s):
             return
-        with self.lock:
+        with self.lock:  # read under the lock: drain() holding it sees every byte handled or waiting
+            data = self.link.read(0.0)
             for packet in self._reader.feed(data):
                 self.received.append(packet.raw)
                 for dxl_id, reply in self._handle(packet):
@@ -337,6 +347,19 @@ class DynamixelBusEmulator(EmulatorThread):
         served): for packets that get no reply, and before asserting on what a late reply did."""
         with self._heard:
             return self._heard.wait_for(lambda: self.handled >= count, timeout_s)
+
+    def drain(self, timeout_s: float = 2.0) -> bool:
+        """Wait (at most ``timeout_s`` s) until every byte the driver sent has been handled; False if
+        some were still waiting. :class:`~gonio.sim.emulators.link.SyncedVirtualClock` calls it
+        before time moves."""
+        deadline = time.monotonic() + timeout_s
+        with self._heard:
+            while self.link.readable(0.0) and self._thread is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._heard.wait(min(left, 0.01))
+        return True
 
     def _send(self, dxl_id: int, inst: int, reply: bytes) -> None:
         fault = self.faults.take(dxl_id, (dxl_id, inst))

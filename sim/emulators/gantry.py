@@ -13,8 +13,10 @@ material at the positions the emulated axes stand.
   emulated lamp is on, and sees the white standard when the target axis stands at ``reference_deg``.
 
 Everything runs on one clock (the wall clock by default; a test shares a virtual clock with the gantry
-it builds). :meth:`EmulatedGantry.config` is the config with each bus's port or url replaced by where its
-emulator listens; :meth:`EmulatedGantry.config_toml` writes it out for another process.
+it builds: a :class:`~gonio.sim.emulators.link.SyncedVirtualClock`, so that a Sync Write, which gets no
+reply, acts at the virtual instant it was sent). :meth:`EmulatedGantry.config` is the config with each
+bus's port or url replaced by where its emulator listens; :meth:`EmulatedGantry.config_toml` writes it
+out for another process.
 """
 
 from __future__ import annotations
@@ -210,6 +212,8 @@ class EmulatedGantry:
                 else:
                     emu.start()
                     self._locations[name] = emu.port
+                    if hasattr(emu, "drain") and hasattr(self.clock, "attach"):
+                        self.clock.attach(emu.drain)  # a SyncedVirtualClock: no time passes mid-packet
         except BaseException:
             self.stop()
             raise
@@ -219,8 +223,11 @@ class EmulatedGantry:
         """Stop every emulator that was started (each, even if another fails to stop)."""
         first = None
         for name in list(self._locations):
+            emu = self.emulators[name]
+            if hasattr(emu, "drain") and hasattr(self.clock, "detach"):
+                self.clock.detach(emu.drain)
             try:
-                self.emulators[name].stop()
+                emu.stop()
             except Exception as err:
                 first = first or err
             del self._locations[name]

@@ -17,7 +17,9 @@ import tty
 from collections import deque
 from dataclasses import dataclass
 
-__all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "mangle"]
+from gonio.clock import VirtualClock
+
+__all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "mangle", "SyncedVirtualClock"]
 
 #: Kinds of fault an emulator applies to its next matching reply.
 FAULT_KINDS = ("drop", "corrupt", "truncate", "delay", "disconnect")
@@ -71,6 +73,16 @@ class PtyLink:
     @property
     def plugged(self) -> bool:
         return self.master is not None
+
+    def readable(self, timeout_s: float = 0.0) -> bool:
+        """Whether bytes the driver wrote wait to be read (waiting at most ``timeout_s`` s)."""
+        fd = self.master
+        if fd is None:
+            return False
+        try:
+            return bool(select.select([fd], [], [], timeout_s)[0])
+        except (OSError, ValueError):
+            return False
 
     def read(self, timeout_s: float) -> bytes:
         """Bytes the driver wrote, waiting at most ``timeout_s`` s (b"" when none, or unplugged)."""
@@ -226,3 +238,32 @@ class EmulatorThread:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+class SyncedVirtualClock(VirtualClock):
+    """A virtual clock shared by emulators and the drivers that talk to them, which lets no time pass
+    while an emulator still has bytes to handle.
+
+    On a wire, a packet that gets no reply (a Dynamixel Sync Write) takes effect when it is sent. An
+    emulator thread handles it whenever it next runs, and on a plain :class:`VirtualClock` the driver's
+    side may meanwhile have slept through a whole move: the emulated servo would start late by that much.
+    Before each advance this clock calls every function given to :meth:`attach` (an emulator's
+    ``drain``, bounded), so each packet acts at the virtual instant it was sent.
+    """
+
+    def __init__(self, start: float = 0.0):
+        super().__init__(start)
+        self._drains: list = []
+
+    def attach(self, drain) -> None:
+        """Call ``drain()`` before every advance of the clock."""
+        self._drains.append(drain)
+
+    def detach(self, drain) -> None:
+        if drain in self._drains:
+            self._drains.remove(drain)
+
+    def sleep(self, seconds: float) -> None:
+        for drain in list(self._drains):
+            drain()
+        super().sleep(seconds)
