@@ -92,8 +92,9 @@ def test_a_campaign_through_the_drivers_matches_the_simulation(tmp_path, twin):
     _matches(measured, _simulated(tmp_path, TWINS[twin]), channel_mean="dynamixel" in twin)
 
 
-def _faulted_then_cleared(tmp_path, emu, clock, inject, at_step=5):
-    """Run with ``inject(emu)`` at ``at_step``; the campaign faults; clearing it finishes the campaign."""
+def _faulted_then_cleared(tmp_path, emu, clock, inject, at_step=5, between=None):
+    """Run with ``inject(emu)`` at ``at_step``; the campaign faults; ``between(emu)`` (the operator's
+    repair, if any); clearing the fault finishes the campaign."""
     fired = []
 
     def on_step(runner, step):
@@ -108,6 +109,8 @@ def _faulted_then_cleared(tmp_path, emu, clock, inject, at_step=5):
         assert state == State.FAULTED
         reason = runner.fault
         assert c.journal.latched_fault()["reason"] == reason
+        if between is not None:
+            between(emu)
         state2, _ = run_campaign(c, build_gantry(cfg, clock=clock))  # latched: nothing runs
         assert state2 == State.FAULTED
         state3, _ = run_campaign(c, build_gantry(cfg, clock=clock), clear_fault=True)
@@ -173,6 +176,26 @@ def test_a_lost_photodiode_port_is_reopened_and_the_step_retried(tmp_path):
         (state, runner), _ = _emulated_run(tmp_path / "p", emu, clock, on_step=on_step)
         assert state == State.DONE, runner.fault
         assert ("truncate", "MEAS?") in emu.meter.faults.applied
+
+
+def test_a_modbus_rtu_cable_pulled_mid_campaign_faults_with_its_reason_and_resumes_once_replugged(tmp_path):
+    """The sample tilt's controller on RTU over a pty; the pty closes under the driver at step 4. Every
+    retry finds the port gone: the campaign faults naming the axis and the lost port; replugged and
+    cleared, the same campaign reconnects and finishes."""
+    data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+    data["buses"]["tilt"]["url"] = "rtu:///dev/emulated-tilt?baudrate=115200"
+    data["buses"]["tilt"]["timeout_s"] = 0.1
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True) as emu:
+        tilt = emu.motors["sample_tilt"]
+        assert emu.config().buses["tilt"].url.startswith("rtu://")
+        reason, events = _faulted_then_cleared(
+            tmp_path, emu, clock, lambda e: tilt.faults.add("disconnect"), at_step=4,
+            between=lambda e: tilt.replug())
+        assert tilt.faults.applied == [("disconnect", 3)]
+        assert reason.startswith("sample_tilt: ") and "connection lost" in reason
+        assert "ttyMB" in reason and "gave up after 2 retries" in reason
+        assert [e["kind"] for e in events].count("retry") >= 2
 
 
 # -- gonio run as a process: killed mid-campaign, run again, it resumes --------------------------------
