@@ -2,12 +2,24 @@
 
 Every reading is first turned into a rate, signal / exposure_s, so that poses, darks and references read
 at different exposures compare (the detector is linear and its dark signal is a dark current, which
-grows with the exposure). A detector that sees reflected radiance then reads the rate S = K · f_r · cos θi
-(plus the dark rate D), where K folds together the source's irradiance at normal incidence and the
-detector's responsivity. The white standard, a Lambertian of hemispherical reflectance ρ_ref, read at
-incidence θi_ref, gives R − D = K · (ρ_ref / π) · cos θi_ref, so
+grows with the exposure; a camera's black level is taken off by the detector itself).
 
-    f_r = (S − D) / (R − D_R) · (ρ_ref / π) · cos θi_ref / cos θi      [sr⁻¹]
+Geometry. The source, of radiance L_src subtending Ω_s, gives the sample the irradiance
+E(θi) = L_src Ω_s cos θi. A detector whose field lies wholly on the sample (the photodiode's cone, the
+camera's region of interest: each sees radiance, not intensity) reads
+
+    S = R_d · L_o = R_d · f_r(ωi, ωo) · E(θi) = K · f_r(ωi, ωo) · cos θi          (+ the dark rate D)
+
+with K = R_d L_src Ω_s (R_d the responsivity): the viewing angle θo does not enter, because the radiance
+of each point is what is read and the field stays on the sample (no cos θo; a detector that saw the
+whole sample would read intensity and need one). The white standard, a Lambertian of reflectance ρ_ref
+(per channel: a number, a value per channel, or a spectral table read at the bands), has
+f_ref = ρ_ref/π at every pair of angles (its own angular response is flat), and read at incidence
+θi_ref it gives S_ref − D = K · (ρ_ref/π) · cos θi_ref, so
+
+    f_r = ρ_ref/π · (S − S_dark)/(S_ref − S_dark) · cos θi_ref / cos θi          [sr⁻¹]
+
+(with θi_ref = θi this is the textbook ρ_ref/π · (S − S_dark)/(S_ref − S_dark)).
 
 Dark and reference readings are taken periodically; each pose uses the dark interpolated linearly in
 campaign time between the dark readings around it, and K interpolated between the reference readings
@@ -61,10 +73,19 @@ def _interp(t, tk, yk, ek):
     return value, stddev
 
 
-def calibrate(measurements: list[Measurement], reference_albedo: float) -> Calibrated:
-    """Calibrated BRDF samples of every pose measurement in ``measurements`` (in step order)."""
-    if not 0.0 < reference_albedo <= 1.0:
-        raise CalibrationError(f"reference_albedo must be in (0, 1], got {reference_albedo}")
+def calibrate(measurements: list[Measurement], reference_albedo) -> Calibrated:
+    """Calibrated BRDF samples of every pose measurement in ``measurements`` (in step order).
+
+    ``reference_albedo``: the white standard's reflectance ρ_ref, one number or one per channel (C,).
+    Readings of any shape are flattened to their channels (a spectrometer's bands)."""
+    rho = np.asarray(reference_albedo, dtype=np.float64)
+    if rho.ndim > 1 or not np.all((rho > 0.0) & (rho <= 1.0)):
+        raise CalibrationError(f"reference_albedo must be in (0, 1], one value or one per channel, got "
+                               f"{reference_albedo}")
+    if measurements and rho.ndim == 1 and rho.size != np.size(measurements[0].signal):
+        raise CalibrationError(f"reference_albedo: {rho.size} values for readings of "
+                               f"{np.size(measurements[0].signal)} channels")
+    reference_albedo = float(rho) if rho.ndim == 0 else rho
     kind = np.array([m.kind for m in measurements], dtype=np.int8)
     if not np.any(kind == STEP_DARK):
         raise CalibrationError("no dark reading in the journal: cannot subtract the dark signal")
@@ -81,8 +102,8 @@ def calibrate(measurements: list[Measurement], reference_albedo: float) -> Calib
     exposure = np.array([m.exposure_s for m in measurements], dtype=np.float64)[:, None]
     if not np.all(exposure > 0.0):
         raise CalibrationError("a reading has exposure_s <= 0: cannot turn it into a rate")
-    rate = np.stack([m.signal for m in measurements]) / exposure
-    err = np.stack([m.stderr for m in measurements]) / exposure
+    rate = np.stack([np.ravel(m.signal) for m in measurements]) / exposure
+    err = np.stack([np.ravel(m.stderr) for m in measurements]) / exposure
     theta_i = np.radians([m.angles_deg[0] for m in measurements])
 
     dk = kind == STEP_DARK

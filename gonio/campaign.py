@@ -141,7 +141,8 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
         "sample": sample, "seed": int(seed), "symmetries": plan.symmetries,
         "counts": plan.counts, "infeasible": plan.infeasible, "poses": int(len(plan.theta_i)),
         "estimated_s": float(plan.estimated_s), "lower_bound_s": float(plan.lower_bound_s),
-        "axis_names": list(cfg.axis_names), "channels": list(cfg.detector.channels),
+        "axis_names": list(cfg.axis_names), "channels": list(cfg.detector.channel_names),
+        "detector": cfg.detector.descriptor(),
         "gantry": cfg.name, "config": config_snapshot(cfg), "config_sha256": config_hash(cfg),
         "software_version": software_version(), "created_unix": time.time(),
     }
@@ -219,10 +220,14 @@ def finish_campaign(c: Campaign) -> Path:
     angles, grid indices, steps, exposures, campaign times; see :mod:`gonio.dataset`)."""
     meta = c.meta
     measurements = c.journal.measurements()
-    cal = calibrate(measurements, c.cfg.reference.albedo)
+    ref, det = c.cfg.reference, c.journal.detector()
+    per_channel = ref.reflectance is not None or ref.spectrum is not None
+    rho = ref.reflectance_for(det["channels"], det["wavelengths_nm"]) if per_channel else ref.albedo
+    cal = calibrate(measurements, rho)
     exposure = {m.step: m.exposure_s for m in measurements}
     data = campaign_dataset(cal, c.journal.steps(), meta, exposure_s=[exposure[int(s)] for s in cal.steps],
-                            reference_albedo=c.cfg.reference.albedo, software_version=software_version())
+                            reference_albedo=c.cfg.reference.albedo, software_version=software_version(),
+                            reference_reflectance=rho if per_channel else None)
     return write_brdf(c.folder / BRDF_NAME, data)
 
 

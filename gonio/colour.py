@@ -46,7 +46,8 @@ from gonio.sim.materials.fresnel import conductor_exact
 from gonio.sim.materials.spectral import conductor_index
 
 __all__ = ["SPACES", "OBSERVER", "WAVELENGTH_NM", "cmf_weights", "spectral_to_XYZ", "XYZ_to_linear_rgb",
-           "spectral_to_rgb", "material_rgb", "normal_reflectance_rgb", "effective_rgb_conductor"]
+           "spectral_to_rgb", "bands_to_rgb", "material_rgb", "normal_reflectance_rgb",
+           "effective_rgb_conductor"]
 
 #: RGB spaces: name in colour-science's registry; the output is linear (no transfer function).
 SPACES = ("sRGB", "ACEScg")
@@ -113,6 +114,23 @@ def XYZ_to_linear_rgb(XYZ, space: str = "sRGB", illuminant: str = "D65") -> np.n
 def spectral_to_rgb(values, space: str = "sRGB", illuminant: str = "D65") -> np.ndarray:
     """Linear RGB (..., 3) of spectral values (..., L) on :data:`WAVELENGTH_NM`, in their unit."""
     return XYZ_to_linear_rgb(spectral_to_XYZ(values, illuminant), space, illuminant)
+
+
+def bands_to_rgb(values, wavelengths_nm, space: str = "sRGB", illuminant: str = "D65") -> np.ndarray:
+    """Linear RGB (..., 3) of spectral values (..., B) read at band centres ``wavelengths_nm`` (a
+    spectrometer's channels, e.g. 380..780 nm every 10 nm), resampled linearly onto
+    :data:`WAVELENGTH_NM`; the bands must cover it."""
+    wl = np.asarray(wavelengths_nm, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if wl.ndim != 1 or values.shape[-1:] != wl.shape or wl.size < 2 or np.any(np.diff(wl) <= 0):
+        raise ValueError(f"wavelengths_nm: ascending, one per value on the last axis; got {wl.size} for "
+                         f"shape {values.shape}")
+    if wl[0] > WAVELENGTH_NM[0] or wl[-1] < WAVELENGTH_NM[-1]:
+        raise ValueError(f"wavelengths_nm: the bands [{wl[0]:g}, {wl[-1]:g}] nm must cover "
+                         f"[{WAVELENGTH_NM[0]:g}, {WAVELENGTH_NM[-1]:g}] nm")
+    flat = values.reshape(-1, wl.size)
+    resampled = np.stack([np.interp(WAVELENGTH_NM, wl, v) for v in flat]).reshape(*values.shape[:-1], -1)
+    return spectral_to_rgb(resampled, space, illuminant)
 
 
 def material_rgb(material, wi, wo, space: str = "sRGB", illuminant: str = "D65") -> np.ndarray:

@@ -13,6 +13,7 @@ standard gets under the beam (see :class:`TargetConfig`).
 
 from __future__ import annotations
 
+import math
 import tomllib
 from importlib.resources import files
 from pathlib import Path
@@ -199,12 +200,77 @@ class NoiseConfig(_Strict):
     dark_offset: float = Field(0.0, ge=0.0)
 
 
+class SpectrometerSimConfig(_Strict):
+    """Bands of a simulated spectrometer: ``start_nm`` to ``stop_nm`` (inclusive) every ``step_nm``."""
+
+    start_nm: float = Field(380.0, ge=300.0, le=900.0)
+    stop_nm: float = Field(780.0, ge=300.0, le=900.0)
+    step_nm: float = Field(10.0, gt=0.0, le=100.0)
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.stop_nm < self.start_nm:
+            raise ValueError(f"stop_nm: must be >= start_nm ({self.start_nm:g}), got {self.stop_nm:g}")
+        if len(self.wavelengths_nm()) > 1000:
+            raise ValueError(f"step_nm: at most 1000 bands, got {len(self.wavelengths_nm())}")
+        return self
+
+    def wavelengths_nm(self) -> list[float]:
+        n = int(math.floor((self.stop_nm - self.start_nm) / self.step_nm + 1e-9)) + 1
+        return [self.start_nm + i * self.step_nm for i in range(n)]
+
+
+class CameraSimConfig(_Strict):
+    """A simulated camera on the detector arm (see :mod:`gonio.sim.camera`; lengths in m, angles in °).
+    The light's radiance and half-angle come from ``[light.sim]``."""
+
+    width: int = Field(64, ge=8, le=4096)
+    height: int = Field(64, ge=8, le=4096)
+    samples_per_pixel: int = Field(16, ge=1, le=4096)
+    fov_deg: float = Field(4.0, gt=0.0, lt=120.0)
+    distance_m: float = Field(0.5, gt=0.0)
+    sample_size_m: float = Field(0.02, gt=0.0)
+    light_distance_m: float = Field(1.0, gt=0.0)
+    vignetting: bool = False
+    black_level: float = Field(0.0, ge=0.0)
+    read_sigma: float = Field(0.0, ge=0.0)
+    shot_counts_per_unit: float = Field(0.0, ge=0.0)
+    #: Full-scale reading (signal units, black level included); None: the sensor never saturates.
+    saturation: float | None = Field(None, gt=0.0)
+    #: Pixels taken off the sample region's border (the edge pixels see part sample, part surround).
+    erode_px: int = Field(2, ge=0, le=64)
+    #: Choose each reading's exposure from a probe frame at ``detector.exposure_s``.
+    auto_exposure: bool = False
+    #: Exposure bracket: multiples of the exposure merged into one HDR frame (empty: one frame).
+    brackets: tuple[float, ...] = ()
+    #: Keep every frame as EXR in the campaign's frames/ folder.
+    save_frames: bool = True
+
+    @model_validator(mode="after")
+    def _check(self):
+        if any(not (0.0 < b <= 1e4) for b in self.brackets):
+            raise ValueError(f"brackets: each multiple must be in (0, 10000], got {list(self.brackets)}")
+        if len(self.brackets) > 16:
+            raise ValueError(f"brackets: at most 16 exposures, got {len(self.brackets)}")
+        if (self.auto_exposure or self.brackets) and self.saturation is None:
+            raise ValueError("saturation: auto_exposure and brackets need the sensor's full-scale reading")
+        return self
+
+
+#: Kinds of simulated detector (``[detector.sim] kind``, ``gonio simulate --detector``).
+SIM_DETECTOR_KINDS = ("photodiode", "spectrometer", "camera")
+
+
 class DetectorSimConfig(_Strict):
+    #: What the simulated detector is: an RGB photodiode (the default), a spectrometer, a camera.
+    kind: Literal["photodiode", "spectrometer", "camera"] = "photodiode"
     half_angle_deg: float = Field(1.0, gt=0.0, le=10.0)
     #: Monte Carlo samples per reading over the source and detector apertures (2 at least: the
     #: detector estimates its integration error from their spread).
     aperture_samples: int = Field(256, ge=2, le=1 << 20)
     noise: NoiseConfig = NoiseConfig()
+    spectrometer: SpectrometerSimConfig = SpectrometerSimConfig()
+    camera: CameraSimConfig = CameraSimConfig()
 
 
 class DetectorConfig(_Strict):
@@ -227,7 +293,34 @@ class DetectorConfig(_Strict):
         if self.driver == "serial" and self.kind == "power_meter" and len(self.channels) != 1:
             raise ValueError(f"channels: a power meter reads one value, so exactly one channel name, got "
                              f"{list(self.channels)}")
+        if self.driver == "sim" and self.sim.kind == "spectrometer" and "channels" in self.model_fields_set:
+            raise ValueError("channels: a simulated spectrometer names its bands itself (e.g. 380nm, 390nm, "
+                             "...); leave channels out and set [detector.sim.spectrometer] instead")
+        if self.driver != "sim" and self.sim.kind != "photodiode":
+            raise ValueError(f"sim.kind: '{self.sim.kind}' is a simulated detector; driver '{self.driver}' "
+                             f"reads a real one (leave sim.kind out)")
         return self
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The channels a reading has: one per band (``380nm``, ...) for a simulated spectrometer."""
+        if self.driver == "sim" and self.sim.kind == "spectrometer":
+            return tuple(f"{w:g}nm" for w in self.sim.spectrometer.wavelengths_nm())
+        return tuple(self.channels)
+
+    @property
+    def wavelengths_nm(self) -> tuple[float, ...] | None:
+        """Centre wavelength (nm) of each channel for a simulated spectrometer, else None."""
+        if self.driver == "sim" and self.sim.kind == "spectrometer":
+            return tuple(self.sim.spectrometer.wavelengths_nm())
+        return None
+
+    def descriptor(self) -> dict:
+        """What a reading is (:func:`gonio.store.detector_descriptor`), for the campaign's journal."""
+        from gonio.store import detector_descriptor
+
+        kind = self.sim.kind if self.driver == "sim" else self.kind
+        return detector_descriptor(kind, self.channel_names, self.wavelengths_nm)
 
 
 def _check_bus_use(device: str, driver: str, bus, fields_set, serial_only: set[str]) -> None:
@@ -240,9 +333,43 @@ def _check_bus_use(device: str, driver: str, bus, fields_set, serial_only: set[s
 
 
 # -- the rest -------------------------------------------------------------------------------------------
+class ReflectanceTable(_Strict):
+    """A spectral reflectance: ``reflectance`` at ``wavelength_nm`` (ascending), linear in between."""
+
+    wavelength_nm: tuple[float, ...]
+    reflectance: tuple[float, ...]
+
+    @model_validator(mode="after")
+    def _check(self):
+        wl, rho = self.wavelength_nm, self.reflectance
+        if len(wl) < 2 or len(wl) != len(rho):
+            raise ValueError(f"wavelength_nm, reflectance: two lists of equal length >= 2, got {len(wl)} "
+                             f"and {len(rho)}")
+        if any(b <= a for a, b in zip(wl, wl[1:], strict=False)):
+            raise ValueError("wavelength_nm: must be strictly ascending")
+        if any(not 0.0 < r <= 1.0 for r in rho):
+            raise ValueError(f"reflectance: each value in (0, 1], got {list(rho)}")
+        return self
+
+    def at(self, wavelength_nm):
+        import numpy as np
+
+        wl = np.asarray(wavelength_nm, dtype=float)
+        lo, hi = self.wavelength_nm[0], self.wavelength_nm[-1]
+        if wl.size and (wl.min() < lo or wl.max() > hi):
+            raise ValueError(f"reference.spectrum: the table covers [{lo:g}, {hi:g}] nm, the detector's "
+                             f"bands [{wl.min():g}, {wl.max():g}] nm")
+        return np.interp(wl, self.wavelength_nm, self.reflectance)
+
+
 class ReferenceConfig(_Strict):
     #: Hemispherical reflectance of the white standard (a Lambertian, e.g. sintered PTFE).
     albedo: float = Field(0.99, gt=0.0, le=1.0)
+    #: Instead of ``albedo``: the standard's reflectance per detector channel (one value each).
+    reflectance: tuple[float, ...] | None = None
+    #: Instead of ``albedo``: its spectral reflectance (a spectrometer reads it at its bands; an RGB
+    #: detector at the table's linear sRGB under D65, gonio.colour).
+    spectrum: ReflectanceTable | None = None
     #: A dark and a white-reference reading every this many poses (and at the start and end).
     every: int = Field(50, ge=1)
     #: Also one at least this often in gantry time (s) between reference readings; None: by count only.
@@ -250,6 +377,38 @@ class ReferenceConfig(_Strict):
     theta_i_deg: float = Field(0.0, ge=0.0, lt=90.0)
     theta_o_deg: float = Field(45.0, ge=0.0, lt=90.0)
     dphi_deg: float = Field(180.0, ge=0.0, lt=360.0)
+
+    @model_validator(mode="after")
+    def _check_reflectance(self):
+        if self.reflectance is not None and self.spectrum is not None:
+            raise ValueError("reflectance, spectrum: give one of them (or albedo alone), not both")
+        if self.reflectance is not None and any(not 0.0 < r <= 1.0 for r in self.reflectance):
+            raise ValueError(f"reflectance: each value in (0, 1], got {list(self.reflectance)}")
+        return self
+
+    def reflectance_for(self, channels, wavelengths_nm=None):
+        """The standard's reflectance per channel, (C,) float: ``reflectance``, the ``spectrum`` at the
+        bands (or as linear sRGB for R, G, B), or ``albedo`` for every channel. ValueError if they do
+        not fit the detector's channels."""
+        import numpy as np
+
+        channels = tuple(channels)
+        if self.reflectance is not None:
+            if len(self.reflectance) != len(channels):
+                raise ValueError(f"reference.reflectance: {len(self.reflectance)} values for the detector's "
+                                 f"{len(channels)} channels ({', '.join(channels[:4])}"
+                                 f"{', ...' if len(channels) > 4 else ''})")
+            return np.asarray(self.reflectance, dtype=float)
+        if self.spectrum is not None:
+            if wavelengths_nm is not None:
+                return self.spectrum.at(wavelengths_nm)
+            if channels == ("R", "G", "B"):
+                from gonio.colour import WAVELENGTH_NM, spectral_to_rgb
+
+                return spectral_to_rgb(self.spectrum.at(WAVELENGTH_NM))
+            raise ValueError(f"reference.spectrum: the detector's channels ({', '.join(channels)}) have no "
+                             "wavelengths; give reference.reflectance per channel instead")
+        return np.full(len(channels), self.albedo)
 
 
 class TargetConfig(_Strict):
@@ -350,6 +509,11 @@ class GonioConfig(_Strict):
                                  f"[{4 * self.runner.poll_s:g}, 2.54] s")
         return self
 
+    @model_validator(mode="after")
+    def _reference_fits_the_detector(self):
+        self.reference.reflectance_for(self.detector.channel_names, self.detector.wavelengths_nm)
+        return self
+
     @property
     def axis_names(self) -> tuple[str, ...]:
         return DESIGN_AXES[self.kinematics.design]
@@ -371,6 +535,25 @@ def relocate(snapshot: GonioConfig, now: GonioConfig) -> GonioConfig:
                 if key in bus and key in theirs:
                     bus[key] = theirs[key]
     return GonioConfig.model_validate(data)
+
+
+def with_sim_detector(cfg: GonioConfig, kind: str, **settings) -> GonioConfig:
+    """``cfg`` with its simulated detector made a ``kind`` of :data:`SIM_DETECTOR_KINDS` (``gonio simulate
+    --detector``); ConfigError for another kind or a real detector. ``settings`` replace sub-tables of
+    ``[detector.sim]`` (e.g. ``camera={"saturation": 0.02}``)."""
+    if kind not in SIM_DETECTOR_KINDS:
+        raise ConfigError(f"--detector: '{kind}' is not one of {', '.join(SIM_DETECTOR_KINDS)}")
+    if cfg.detector.driver != "sim":
+        raise ConfigError(f"--detector: the detector of config '{cfg.name}' is a real one (driver "
+                          f"'{cfg.detector.driver}'); --detector chooses a simulated detector")
+    if cfg.detector.sim.kind == kind and not settings:
+        return cfg
+    data = cfg.model_dump(mode="python", exclude_unset=True)
+    detector = data.setdefault("detector", {})
+    detector.setdefault("sim", {}).update(settings, kind=kind)
+    if kind == "spectrometer":
+        detector.pop("channels", None)
+    return parse_config(data, f"config '{cfg.name}' with --detector {kind}")
 
 
 def _format(err: ValidationError, source: str) -> str:

@@ -21,6 +21,9 @@ variable                        dimensions        units     what
 ``exposure_s``                  (sample)          s         exposure of the reading
 ``campaign_s``                  (sample)          s         campaign clock at the reading (continues
                                                             across resumes)
+``wavelength``                  (channel)         nm        centre of each band (spectrometer campaigns
+                                                            only; also the file attribute
+                                                            ``wavelengths_nm``)
 ``grid_index``                  (sample,          1         the planned pose's indices on the grid
                                 grid_axis)                  (``grid_axis`` names them; iso: θi, θo, Δφ
                                                             in steps; full: θi, φi, θo, φo in steps;
@@ -31,7 +34,8 @@ variable                        dimensions        units     what
 Attributes (on the file and on the group, so that a reader of either sees them): ``format``
 ("gonio-brdf"), ``format_version`` (2), ``units`` ("sr^-1"), ``cosine`` ("none"), ``angles_units``
 ("degrees"), ``frame`` and ``angle_convention`` (DESIGN.md), ``channels``, ``color_space``,
-``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo``, ``seed``,
+``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo`` (and
+``reference_reflectance`` per channel where the standard was given per channel or as a spectrum), ``seed``,
 ``software_version``, ``config_sha256`` and ``config`` (JSON: the config snapshot the campaign was
 planned with), ``created_unix``/``created_utc`` (campaign creation), ``written_unix``, and either
 ``material`` (the simulated material's spec; ``source`` = "simulated") or ``sample`` (a real sample's
@@ -167,7 +171,7 @@ def grid_indices(grid: str, planned_deg: np.ndarray) -> tuple[np.ndarray, tuple[
 
 
 def campaign_dataset(cal, steps: dict, meta: dict, *, exposure_s, reference_albedo: float,
-                     software_version: str) -> SampledBRDF:
+                     software_version: str, reference_reflectance=None) -> SampledBRDF:
     """The dataset of a finished campaign, from its calibration and its journal.
 
     Parameters
@@ -182,6 +186,9 @@ def campaign_dataset(cal, steps: dict, meta: dict, *, exposure_s, reference_albe
         Exposure of each sample's reading, seconds.
     reference_albedo : float
         Hemispherical reflectance of the white standard used for the calibration.
+    reference_reflectance : array_like, shape (C,), optional
+        The standard's reflectance per channel, where the config gave one per channel or a spectrum
+        (attribute ``reference_reflectance``).
     software_version : str
         The gonio version writing the file.
     """
@@ -201,6 +208,12 @@ def campaign_dataset(cal, steps: dict, meta: dict, *, exposure_s, reference_albe
         "created_utc": _dt.datetime.fromtimestamp(created, _dt.UTC).isoformat(timespec="seconds"),
         "material": material, "sample": sample, "source": "simulated" if material else "measured",
     }
+    if reference_reflectance is not None:
+        attrs["reference_reflectance"] = [float(r) for r in np.asarray(reference_reflectance, float)]
+    wavelengths = (meta.get("detector") or {}).get("wavelengths_nm")
+    if wavelengths is not None:  # a spectrometer's bands
+        attrs["wavelengths_nm"] = [float(w) for w in wavelengths]
+        attrs["color_space"] = "spectral (one channel per band of wavelengths_nm)"
     return SampledBRDF(
         *(cal.angles_deg[:, k].astype(np.float64) for k in range(4)),
         value=cal.value.astype(np.float64), stddev=cal.stddev.astype(np.float64), attrs=attrs,
@@ -264,6 +277,12 @@ def write_brdf(path: str | Path, data: SampledBRDF) -> Path:
         channel.make_scale("channel")
         channel.attrs.update({"long_name": "detector channel", "color_space": attrs["color_space"]})
         coords = []
+        wavelengths = attrs.get("wavelengths_nm")
+        if wavelengths is not None and len(wavelengths) == value.shape[1]:
+            wl = g.create_dataset("wavelength", data=np.asarray(wavelengths, np.float64))
+            wl.dims[0].attach_scale(channel)
+            wl.attrs.update({"units": "nm", "long_name": "centre wavelength of the channel's band"})
+            coords.append("wavelength")
 
         def put(name, arr, dims, **var_attrs):
             ds = g.create_dataset(name, data=arr)

@@ -151,18 +151,14 @@ def _serial_detector(cfg: GonioConfig, buses: dict, clock: Clock):
 
 
 def _sim_detector(cfg: GonioConfig, material, seed: int, light, axes: dict, kinematics, clock: Clock):
-    from gonio.sim import materials as _materials
-    from gonio.sim.detector import SimDetector
+    from gonio.sim.gantry import sim_detector
     from gonio.sim.light import SimLight
 
     if material is None:
         raise ValueError("the simulated detector needs a material to render, e.g. 'lambert:albedo=0.5'")
-    sample = _materials.load(material) if isinstance(material, str) else material
-    reference = _materials.load(f"lambert:albedo={cfg.reference.albedo!r}")
     views = {n: a if hasattr(a, "true_position_deg") else _ReadBack(a) for n, a in axes.items()}
     lamp = light if isinstance(light, SimLight) else _LampView(light, cfg.light.sim)
-    return SimDetector(cfg.detector, light=lamp, axes=views, kinematics=kinematics,
-                       materials={"sample": sample, "reference": reference}, clock=clock, seed=seed)
+    return sim_detector(cfg, material, light=lamp, axes=views, kinematics=kinematics, clock=clock, seed=seed)
 
 
 def build_gantry(cfg: GonioConfig, material=None, *, seed: int = 0, clock: Clock | None = None,

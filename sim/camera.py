@@ -212,13 +212,19 @@ class SimCamera:
 
     # -- rendering --------------------------------------------------------------------------------
     def radiance(self, theta_i_deg: float, phi_i_deg: float, theta_o_deg: float, phi_o_deg: float,
-                 seed_state: tuple[int, int] = (0, 0)) -> np.ndarray:
+                 seed_state: tuple[int, int] = (0, 0), source_radiance: float | None = None) -> np.ndarray:
         """Noise-free pixel radiance, (H, W, 3) float32, with the Philox (key, word) ``seed_state``.
 
         Vignetting (when on) is included: this is what reaches the sensor per unit exposure.
+        ``source_radiance`` (>= 0) replaces ``settings.radiance`` (a drifting lamp; 0: shutter closed).
         """
         pose = _check_pose(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg)
         s, t = self.settings, self._t
+        source = s.radiance if source_radiance is None else float(source_radiance)
+        if not (math.isfinite(source) and source >= 0.0):
+            raise ValueError(f"source_radiance: must be finite and >= 0, got {source_radiance!r}")
+        if source == 0.0:
+            return np.zeros((s.height, s.width, 3), np.float32)
         Float, UInt32, UInt64, Array3f = t.Float, t.UInt32, t.UInt64, t.Array3f
         spp, n_pix = s.samples_per_pixel, s.width * s.height
         origin, fwd, right, up = self._camera_frame(pose[2], pose[3])
@@ -233,7 +239,7 @@ class SimCamera:
         o, f, r, u = vec(origin), vec(fwd), vec(right), vec(up)
         lc, la, lb, lw = vec(s.light_distance_m * wi), vec(light_a * light_r), vec(light_b * light_r), vec(wi)
         half = dr.opaque(Float, 0.5 * s.sample_size_m)
-        scale = dr.opaque(Float, s.radiance * math.pi * light_r * light_r)
+        scale = dr.opaque(Float, source * math.pi * light_r * light_r)
 
         pixel = dr.arange(UInt32, n_pix)
         px, py = Float(pixel % s.width), Float(pixel // s.width)
@@ -270,7 +276,8 @@ class SimCamera:
                         axis=-1).reshape(s.height, s.width, 3)
 
     def render(self, theta_i_deg: float, phi_i_deg: float, theta_o_deg: float, phi_o_deg: float,
-               exposure_s: float, *, key: tuple[int, int] | None = None) -> Frame:
+               exposure_s: float, *, key: tuple[int, int] | None = None,
+               source_radiance: float | None = None) -> Frame:
         """One frame of the sample at a pose (°), through the sensor.
 
         Parameters
@@ -282,6 +289,9 @@ class SimCamera:
         key : (int, int), optional
             (step, attempt), each >= 0: the frame's random numbers come from streams keyed by (seed,
             step, attempt). Without it, by this camera's frame number (reproducible in one process).
+        source_radiance : float, optional
+            The light's radiance now (>= 0; 0: shutter closed, a dark frame); default
+            ``settings.radiance``.
 
         Returns
         -------
@@ -303,7 +313,8 @@ class SimCamera:
         self._count += 1
         s = self.settings
         pose = _check_pose(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg)
-        clean = self.radiance(*pose, seed_state=_seed_state(self.seed, _RENDER_STREAM, a, b))
+        clean = self.radiance(*pose, seed_state=_seed_state(self.seed, _RENDER_STREAM, a, b),
+                              source_radiance=source_radiance)
         if s.shot_counts_per_unit > 0.0 or s.read_sigma > 0.0:
             signal = clean.astype(np.float64) * exposure_s
             rng = np.random.default_rng(np.random.SeedSequence([self.seed, _NOISE_STREAM, a, b]))

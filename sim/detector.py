@@ -74,6 +74,32 @@ def _cone_directions(axis: Array3f, one_minus_cos_max: Float, u1: Float, u2: Flo
     return s * (sin_t * cos_p) + t * (sin_t * sin_p) + n * cos_t
 
 
+def aperture_directions(wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
+                        detector_half_angle_deg: float, samples: int, seed_state: tuple[int, int]):
+    """The Monte Carlo directions of :func:`aperture_radiance_factor`: ``samples`` pairs (ωi', ωo') per
+    pose, uniform in the source and detector cones, as Dr.Jit Array3f (N·samples lanes, pose-major).
+    Lane (j, p) draws from the Philox4x32 counter (j, p, word, 0) under the key of ``seed_state``."""
+    n = wi.shape[0]
+    key, word = seed_state
+    om_src = 1.0 - np.cos(np.radians(source_half_angle_deg))
+    om_det = 1.0 - np.cos(np.radians(detector_half_angle_deg))
+    lane = dr.arange(UInt32, n * samples)
+    pose = lane // samples
+    # Both axes of every pose in one buffer, (N, 6) row-major: one input whatever N.
+    axes = Float(np.ascontiguousarray(np.hstack([wi, wo]), dtype=np.float32).ravel())
+    wi_c = dr.gather(Array3f, axes, 2 * pose)
+    wo_c = dr.gather(Array3f, axes, 2 * pose + 1)
+    # A counter-based generator keyed per reading: lane (j, p) is the cipher of its own counter, so
+    # neighbouring lanes are independent (PCG32 seeded with state + k, seq + k per lane is not: its
+    # error came out up to 1.3x the independent-sample figure). Opaque key and apertures: a new
+    # reading must not compile a new kernel.
+    rng = Philox4x32(dr.opaque(UInt64, key), lane - pose * samples, pose, dr.opaque(UInt32, word))
+    u1, u2, u3, u4 = rng.next_float32x4()
+    wi_s = _cone_directions(wi_c, dr.opaque(Float, om_src), u1, u2)
+    wo_s = _cone_directions(wo_c, dr.opaque(Float, om_det), u3, u4)
+    return wi_s, wo_s
+
+
 def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
                              detector_half_angle_deg: float, samples: int,
                              seed_state: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -115,22 +141,8 @@ def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_ha
         raise ValueError(f"wo: expected {n} directions like wi, got {wo.shape[0]}")
     samples = int(samples)
     om_src = 1.0 - np.cos(np.radians(source_half_angle_deg))
-    om_det = 1.0 - np.cos(np.radians(detector_half_angle_deg))
-
-    lane = dr.arange(UInt32, n * samples)
-    pose = lane // samples
-    # Both axes of every pose in one buffer, (N, 6) row-major: one input whatever N.
-    axes = Float(np.ascontiguousarray(np.hstack([wi, wo]), dtype=np.float32).ravel())
-    wi_c = dr.gather(Array3f, axes, 2 * pose)
-    wo_c = dr.gather(Array3f, axes, 2 * pose + 1)
-    # A counter-based generator keyed per reading: lane (j, p) is the cipher of its own counter, so
-    # neighbouring lanes are independent (PCG32 seeded with state + k, seq + k per lane is not: its
-    # error came out up to 1.3x the independent-sample figure). Opaque key and apertures: a new
-    # reading must not compile a new kernel.
-    rng = Philox4x32(dr.opaque(UInt64, key), lane - pose * samples, pose, dr.opaque(UInt32, word))
-    u1, u2, u3, u4 = rng.next_float32x4()
-    wi_s = _cone_directions(wi_c, dr.opaque(Float, om_src), u1, u2)
-    wo_s = _cone_directions(wo_c, dr.opaque(Float, om_det), u3, u4)
+    wi_s, wo_s = aperture_directions(wi, wo, source_half_angle_deg, detector_half_angle_deg, samples,
+                                     (key, word))
     fr_cos = material.eval_dr(wi_s, wo_s) * dr.maximum(wi_s.z, 0.0)
     # float64 sums: Σx² − (Σx)²/n cancels down to the variance, which can be ~1e-10 of the squared
     # mean (a Lambertian in a 0.5° cone), far below float32's resolution: float32 sums gave 100x the

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import numpy as np
+
 from gonio.clock import VirtualClock
 from gonio.config import GonioConfig
 from gonio.kinematics import make_kinematics
@@ -17,7 +19,55 @@ from gonio.sim.axis import SimAxis
 from gonio.sim.detector import TARGETS, SimDetector
 from gonio.sim.light import SimLight
 
-__all__ = ["SimGantry"]
+__all__ = ["SimGantry", "sim_detector"]
+
+
+def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: Clock, seed: int = 0):
+    """The simulated detector ``[detector.sim] kind`` names: the RGB photodiode
+    (:class:`~gonio.sim.detector.SimDetector`), the spectrometer
+    (:class:`~gonio.sim.detector_spectral.SpectrometerDetector`, spectral materials) or the camera
+    (:class:`~gonio.sim.detector_camera.CameraDetector`), with the white standard a Lambertian of
+    ``reference.albedo``.
+
+    ``light`` has ``radiance()`` and ``half_angle_deg``; ``axes`` have ``true_position_deg()``.
+    """
+    kind = cfg.detector.sim.kind
+    sample = _materials.load(material) if isinstance(material, str) else material
+    if kind == "spectrometer":
+        from gonio.sim.detector_spectral import SpectrometerDetector, spectral_material
+
+        return SpectrometerDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics,
+                                    materials={"sample": spectral_material(sample),
+                                               "reference": reference_material(cfg, spectral=True)},
+                                    clock=clock, seed=seed)
+    materials = {"sample": sample, "reference": reference_material(cfg)}
+    if kind == "camera":
+        from gonio.sim.detector_camera import CameraDetector, camera_settings
+
+        return CameraDetector(cfg.detector, camera_settings(cfg.detector, cfg.light), light=light, axes=axes,
+                              kinematics=kinematics, materials=materials, clock=clock, seed=seed)
+    return SimDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics, materials=materials,
+                       clock=clock, seed=seed)
+
+
+def reference_material(cfg: GonioConfig, spectral: bool = False):
+    """The simulated white standard: a Lambertian of ``reference.albedo``, or of ``reference.reflectance``
+    per channel, or of ``reference.spectrum`` (spectral: ρ(λ) at every band; RGB: its linear sRGB)."""
+    ref, det = cfg.reference, cfg.detector
+    if spectral:
+        from gonio.sim.detector_spectral import constant_reflectance
+        from gonio.sim.materials.spectral import SpectralLambert
+
+        if ref.spectrum is not None:
+            return SpectralLambert(ref.spectrum.at)
+        if ref.reflectance is not None:
+            bands, rho = np.asarray(det.wavelengths_nm, float), np.asarray(ref.reflectance, float)
+            return SpectralLambert(lambda wl: np.interp(wl, bands, rho))
+        return SpectralLambert(constant_reflectance(ref.albedo))
+    if ref.reflectance is None and ref.spectrum is None:
+        return _materials.load(f"lambert:albedo={ref.albedo!r}")
+    rho = ref.reflectance_for(det.channel_names, det.wavelengths_nm)
+    return _materials.load("lambert:albedo=" + "/".join(repr(float(r)) for r in rho))
 
 
 class SimGantry:
@@ -31,7 +81,7 @@ class SimGantry:
         ``axis_names`` and ``directions``; the axes are held in its ``axis_names`` order.
     axes : Mapping[str, SimAxis]
     light : SimLight
-    detector : SimDetector
+    detector : SimDetector, SpectrometerDetector or CameraDetector (see :func:`sim_detector`)
         Must read the same ``axes`` and ``light``.
     clock : gonio.protocols.Clock
 
@@ -90,8 +140,6 @@ class SimGantry:
             journal last recorded: a real gantry stays where it was while no process drives it.
         """
         clock = VirtualClock() if clock is None else clock
-        sample = _materials.load(material) if isinstance(material, str) else material
-        reference = _materials.load(f"lambert:albedo={cfg.reference.albedo!r}")
         kinematics = make_kinematics(cfg)
         start = [None] * len(kinematics.axis_names) if start_deg is None else [float(x) for x in start_deg]
         if len(start) != len(kinematics.axis_names):
@@ -100,9 +148,8 @@ class SimGantry:
         axes = {a: SimAxis(a, cfg.axes[a], clock, x)
                 for a, x in zip(kinematics.axis_names, start, strict=True)}
         light = SimLight(cfg.light, clock)
-        detector = SimDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics,
-                               materials={"sample": sample, "reference": reference}, clock=clock,
-                               seed=seed)
+        detector = sim_detector(cfg, material, light=light, axes=axes, kinematics=kinematics, clock=clock,
+                                seed=seed)
         return cls(cfg.name, kinematics, axes, light, detector, clock)
 
     # -- the Gantry protocol ------------------------------------------------------------------------

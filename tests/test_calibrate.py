@@ -141,3 +141,56 @@ def test_simulated_readings_at_mixed_exposures_calibrate_to_the_material():
     np.testing.assert_allclose(cal.value, 0.4 / np.pi, rtol=0.02)
     # Without dividing by the exposure the 0.4 s pose would be 4x too bright: the test has teeth.
     assert ms[2].exposure_s / ms[1].exposure_s == 4.0
+
+
+# -- the white standard per channel, the textbook formula, readings with a shape ------------------------
+def test_the_textbook_formula_with_the_reference_at_the_poses_incidence():
+    """θi_ref = θi: f_r = ρ_ref/π · (S − S_dark)/(S_ref − S_dark), channel by channel, with ρ_ref per
+    channel (a standard that is slightly yellow)."""
+    rho = np.array([0.99, 0.97, 0.93])
+    ti, k, d = 35.0, 800.0, 3.0
+    f = np.array([0.1, 0.2, 0.3])
+    s_ref = k * rho / np.pi * np.cos(np.radians(ti)) + d
+    s = k * f * np.cos(np.radians(ti)) + d
+    ms = [_reading(0, 1, 0.0, ti, [d] * 3), _reading(1, 2, 1.0, ti, s_ref), _reading(2, 0, 2.0, ti, s)]
+    cal = calibrate(ms, rho)
+    np.testing.assert_allclose(cal.value[0], rho / np.pi * (s - d) / (s_ref - d), rtol=1e-14)
+    np.testing.assert_allclose(cal.value[0], f, rtol=1e-12)
+    # one number for all channels would call the blue channel 6 % too dark
+    assert calibrate(ms, 0.99).value[0, 2] == pytest.approx(f[2] * 0.99 / 0.93, rel=1e-12)
+
+
+def test_the_cosine_of_the_references_incidence_enters_and_the_viewing_angle_does_not():
+    """References read at θi_ref = 0 and at 60°: both give the same f_r (cos θi_ref corrects it); poses
+    read at any θo with the same θi give the same f_r for a Lambertian (no cos θo: the detector sees
+    radiance)."""
+    rho, k = 0.99, 500.0
+    f = np.full(3, 0.5 / np.pi)
+    out = []
+    for ti_ref in (0.0, 60.0):
+        ms = [_reading(0, 1, 0.0, 0.0, np.zeros(3)),
+              _reading(1, 2, 1.0, ti_ref, np.full(3, k * rho / np.pi * np.cos(np.radians(ti_ref))))]
+        for step, to in enumerate((0.0, 40.0, 80.0), start=2):
+            m = _reading(step, 0, float(step), 50.0, k * f * np.cos(np.radians(50.0)))
+            ms.append(Measurement(**{**m.__dict__, "angles_deg": np.array([50.0, 0.0, to, 180.0])}))
+        out.append(calibrate(ms, rho).value)
+    np.testing.assert_allclose(out[0], np.broadcast_to(f, (3, 3)), rtol=1e-12)
+    np.testing.assert_allclose(out[1], out[0], rtol=1e-12)
+
+
+def test_reference_reflectance_must_fit_the_channels():
+    ms = [_reading(0, 1, 0.0, 0.0, np.zeros(3)), _reading(1, 2, 1.0, 0.0, np.ones(3))]
+    with pytest.raises(CalibrationError, match="2 values for readings of 3 channels"):
+        calibrate(ms, [0.9, 0.9])
+    with pytest.raises(CalibrationError, match=r"in \(0, 1\]"):
+        calibrate(ms, [0.9, 1.2, 0.9])
+
+
+def test_readings_with_a_shape_calibrate_channel_by_channel():
+    shape = (2, 3)
+    k, d = 100.0, 1.0
+    f = np.arange(1, 7, dtype=float).reshape(shape) / 20
+    ms = [_reading(0, 1, 0.0, 0.0, np.full(shape, d)),
+          _reading(1, 2, 1.0, 0.0, np.full(shape, k * 0.99 / np.pi + d)),
+          _reading(2, 0, 2.0, 0.0, k * f + d)]
+    np.testing.assert_allclose(calibrate(ms, 0.99).value[0], f.ravel(), rtol=1e-12)

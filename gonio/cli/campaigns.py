@@ -73,7 +73,13 @@ def _model_check(folder: Path, material) -> str:
     b = read_brdf(folder / "brdf.h5")
     wi = sph_to_vec(np.radians(b.theta_i), np.radians(b.phi_i))
     wo = sph_to_vec(np.radians(b.theta_o), np.radians(b.phi_o))
-    truth = material.eval(wi, wo)
+    wavelengths = b.attrs.get("wavelengths_nm")
+    if wavelengths is not None and len(wavelengths) == b.value.shape[1]:  # a spectrometer's bands
+        from gonio.sim.detector_spectral import spectral_material
+
+        truth = spectral_material(material).eval(wi, wo, np.asarray(wavelengths, float))
+    else:
+        truth = material.eval(wi, wo)
     ok = truth > 1e-3 * truth.max()
     rel = np.abs(b.value[ok] - truth[ok]) / truth[ok]
     return (f"{len(b.value)} samples; against the simulated material's own eval: median relative error "
@@ -137,6 +143,14 @@ def cmd_simulate(args) -> int:
     parse_grid(args.grid)
     exports = _export_formats(args.export)
     cfg = load_config(args.config)
+    if args.detector is not None:
+        from gonio.config import with_sim_detector
+
+        cfg = with_sim_detector(cfg, args.detector)
+    if cfg.detector.driver == "sim" and cfg.detector.sim.kind == "spectrometer":
+        from gonio.sim.detector_spectral import spectral_material
+
+        spectral_material(material)  # a material with no spectrum is refused before anything is written
     return _campaign_command(args, cfg, material=material, sample=None, model_check=True, exports=exports)
 
 
@@ -332,6 +346,10 @@ def add_parsers(sub, fmt) -> None:
     ss.add_argument("--config", default=None,
                     help="gantry config: a TOML file or a shipped config's name (default: sim)")
     ss.add_argument("--seed", type=_seed, default=0, help="seed of the simulated detector's random numbers")
+    ss.add_argument("--detector", choices=("photodiode", "spectrometer", "camera"), default=None,
+                    help="the simulated detector (default: the config's [detector.sim] kind, photodiode): "
+                         "RGB photodiode, spectrometer (bands of [detector.sim.spectrometer], spectral "
+                         "materials) or camera (frames reduced to the sample's mean radiance)")
     ss.add_argument("--clear-fault", action="store_true",
                     help="clear the campaign's latched fault (after fixing its cause) and resume")
     ss.add_argument("--quiet", action="store_true", help="no progress output")
