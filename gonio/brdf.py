@@ -57,6 +57,8 @@ Queries themselves are never moved: only the samples are placed at their planned
 from __future__ import annotations
 
 import json
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -74,7 +76,10 @@ METHODS = ("auto", "grid", "scattered")
 #: Which directions place the samples (module docstring, "Planned or measured angles").
 ANGLES = ("auto", "planned", "measured")
 _HALF_PI = 0.5 * np.pi
-_CHUNK = 1 << 17
+# Queries are answered in chunks of this many pairs, spread over the CPU cores (the engines' NumPy and
+# kd-tree work releases the GIL): the per-chunk arrays stay a few MB each.
+_CHUNK = 1 << 15
+_THREADS = max(1, min(8, os.cpu_count() or 1))
 
 
 @dataclass(frozen=True)
@@ -294,12 +299,22 @@ class MeasuredBRDF:
             far = (reason == Reason.OK) & ((ti > self._theta_max) | (to > self._theta_max))
         reason[far] = Reason.OUT_OF_RANGE
         todo = np.flatnonzero(reason == Reason.OK)
-        for start in range(0, todo.size, _CHUNK):
+
+        def chunk(start):
             sel = todo[start:start + _CHUNK]
             angles = np.stack([ti[sel], pi_[sel], to[sel], po[sel]], axis=1)
             coords = domain_coords(self.domain, angles, self.symmetries)
-            v, s, r, e = self._engine.eval(coords)
+            v, s, r, e = self._engine.eval(coords, workers=1 if threads > 1 else -1)
             value[sel], stddev[sel], reason[sel], exact[sel] = v, s, r, e
+
+        starts = range(0, todo.size, _CHUNK)
+        threads = min(_THREADS, len(starts))
+        if threads > 1:
+            with ThreadPoolExecutor(threads) as pool:
+                list(pool.map(chunk, starts))  # list(): re-raise any error here
+        else:
+            for start in starts:
+                chunk(start)
         miss = reason != Reason.OK
         value[miss] = np.nan
         stddev[miss] = np.nan

@@ -2,8 +2,10 @@
 lattice and local linear regression over scattered samples.
 
 The engines take coordinates of a domain (:func:`domain_coords`) and return, per query, the value, its
-standard deviation, a :class:`Reason` code and whether the value is one sample as it is. What each
-engine does, and why, is described in :mod:`gonio.brdf`; this module is its machinery.
+standard deviation, a :class:`Reason` code and whether the value is one sample as it is
+(``eval(coords, workers=-1)``; ``workers`` is the thread count of the scattered engine's kd-tree search,
+scipy's meaning, and :class:`gonio.brdf.MeasuredBRDF` passes 1 when it spreads chunks over threads itself).
+What each engine does, and why, is described in :mod:`gonio.brdf`; this module is its machinery.
 """
 
 from __future__ import annotations
@@ -188,7 +190,7 @@ class Lattice:
                  for s, p in zip(spacing, periods, strict=True)]
         return cls(nodes, periods, edges, mean.reshape(shape + (c,)), sd.reshape(shape + (c,)))
 
-    def eval(self, coords):
+    def eval(self, coords, workers: int = -1):
         m, d = coords.shape
         lo = np.zeros((m, d), dtype=np.int64)
         hi = np.zeros((m, d), dtype=np.int64)
@@ -253,9 +255,21 @@ class Scattered:
     def __init__(self, kind, coords, value, stddev, sym, tol):
         pts, owner = _orbit(kind, coords, sym)
         self.kind = kind
-        self.points = self._embed(pts)
+        points = self._embed(pts)
+        # The samples are stored in a kd-tree's own leaf order, so that the points of a leaf are neighbours
+        # in memory: in the order the data came in (random, for a real gantry's scatter) every leaf visited
+        # is a cache miss. The neighbour searches get 1.3x (queries in grid order) to 2.6x (each sample's
+        # reach, below) faster for the price of a second tree build (~0.1 s per 2e5 samples).
+        order = cKDTree(points).indices
+        self.points = np.ascontiguousarray(points[order])
+        owner = owner[order]
         self.values = value[owner]
         self.variance = stddev[owner] ** 2
+        # Per-coordinate and per-channel copies: gathering (m, k) blocks from 1-D arrays is several times
+        # faster than gathering (m, k, d) rows, and each product below stays a flat (m, k) array.
+        self._coord = np.ascontiguousarray(self.points.T)
+        self._value_t = np.ascontiguousarray(self.values.T)
+        self._variance_t = np.ascontiguousarray(self.variance.T)
         self.tree = cKDTree(self.points)
         # 3(d + 1) − 2 neighbours: 2.5 per fitted parameter in 3D, enough for a stable plane, and fewer
         # than the 4(d + 1) − 2 first used (the neighbour search dominates the cost).
@@ -272,35 +286,52 @@ class Scattered:
         return np.stack([c[:, 0] * np.cos(c[:, 1]), c[:, 0] * np.sin(c[:, 1]),
                          c[:, 2] * np.cos(c[:, 3]), c[:, 2] * np.sin(c[:, 3])], axis=1)
 
-    def eval(self, coords):
+    def eval(self, coords, workers: int = -1):
         q = self._embed(coords)
         m, d = q.shape
-        dist, idx = self.tree.query(q, k=self.k, workers=-1)
+        if m == 0:
+            c = self.values.shape[1]
+            return np.zeros((0, c)), np.zeros((0, c)), np.zeros(0, np.uint8), np.zeros(0, bool)
+        # Queries answered in a spatial order (cells of a 32^3 grid): neighbouring queries then visit the
+        # same leaves while they are in cache (random queries: 1.8x faster searches; queries already in
+        # grid order lose ~5 %). Results go back to the callers' order at the end.
+        span = np.ptp(q, axis=0) + 1e-300
+        cell = np.minimum(((q - q.min(axis=0)) / span * 32).astype(np.int64), 31)
+        order = np.lexsort(cell.T[::-1])
+        q = q[order]
+        dist, idx = self.tree.query(q, k=self.k, workers=workers)
         dist, idx = dist.reshape(m, -1), idx.reshape(m, -1)
-        h = dist[:, -1:] * 1.05 + 1e-12
-        w = (1.0 - (dist / h) ** 2) ** 2
-        x = (self.points[idx] - q[:, None, :]) / h[:, :, None]
+        inv_h = 1.0 / (dist[:, -1:] * 1.05 + 1e-12)
+        w = 1.0 - (dist * inv_h) ** 2
+        w *= w
+        # offsets in units of h, one (m, k) array per coordinate
+        x = [(self._coord[i][idx] - q[:, i:i + 1]) * inv_h for i in range(d)]
+        wx = [w * xi for xi in x]
         total = w.sum(axis=1)
-        wx = w[:, :, None] * x
-        mu = wx.sum(axis=1) / total[:, None]
+        mu = np.stack([wxi.sum(axis=1) for wxi in wx], axis=1) / total[:, None]
         cov = np.empty((m, d, d))
         for i in range(d):
             for j in range(i, d):
-                cov[:, i, j] = cov[:, j, i] = np.einsum("mk,mk->m", wx[:, :, i], x[:, :, j])
+                cov[:, i, j] = cov[:, j, i] = np.einsum("mk,mk->m", wx[i], x[j])
         ridge = 1e-6 * (total + np.trace(cov, axis1=1, axis2=2))
         cov -= total[:, None, None] * mu[:, :, None] * mu[:, None, :]
         cov[:, np.arange(d), np.arange(d)] += ridge[:, None]
         z = _solve_spd(cov, mu)
-        lever = np.einsum("mkd,md->mk", x, z) - np.einsum("md,md->m", mu, z)[:, None]
+        lever = -np.einsum("md,md->m", mu, z)[:, None]
+        for i in range(d):
+            lever = lever + x[i] * z[:, i:i + 1]
         hat = w * ((1.0 / total)[:, None] - lever)
         exact = dist[:, 0] <= self.snap
         if exact.any():
             hat[exact] = 0.0
             hat[exact, 0] = 1.0
-        value = np.matmul(hat[:, None, :], self.values[idx])[:, 0]
-        var = np.matmul((hat * hat)[:, None, :], self.variance[idx])[:, 0]
+        hat2 = hat * hat
+        value = np.stack([np.einsum("mk,mk->m", hat, v[idx]) for v in self._value_t], axis=1)
+        var = np.stack([np.einsum("mk,mk->m", hat2, v[idx]) for v in self._variance_t], axis=1)
         reason = np.where(dist[:, 0] > self.reach[idx[:, 0]], Reason.NO_DATA, Reason.OK).astype(np.uint8)
-        return value, np.sqrt(var), reason, exact & (reason == Reason.OK)
+        back = np.empty_like(order)
+        back[order] = np.arange(m)
+        return value[back], np.sqrt(var)[back], reason[back], (exact & (reason == Reason.OK))[back]
 
 
 def _solve_spd(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -108,11 +108,12 @@ def test_scattered_estimate_is_the_weighted_least_squares_plane():
     q = np.radians(np.array([[30.0, 0.0, 40.0, 180.0], [50.0, 0.0, 20.0, 77.0], [10.0, 0.0, 70.0, 300.0]]))
     got = eng.eval(domain_coords("iso", q, sym))[0]
     p = eng._embed(domain_coords("iso", q, sym))
+    samples = eng._embed(domain_coords("iso", ang, sym))  # in the order of `value` (no symmetry copies)
     for row, point in enumerate(p):
-        dist = np.linalg.norm(eng.points - point, axis=1)
+        dist = np.linalg.norm(samples - point, axis=1)
         near = np.argsort(dist)[:eng.k]
         h = dist[near].max() * 1.05
         sw = np.sqrt((1 - (dist[near] / h) ** 2) ** 2)
-        design = np.concatenate([np.ones((eng.k, 1)), (eng.points[near] - point) / h], axis=1)
+        design = np.concatenate([np.ones((eng.k, 1)), (samples[near] - point) / h], axis=1)
         coef = np.linalg.lstsq(design * sw[:, None], value[near] * sw[:, None], rcond=None)[0]
         np.testing.assert_allclose(got[row], coef[0], rtol=1e-4)  # up to the 1e-6 ridge
