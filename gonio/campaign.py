@@ -219,6 +219,9 @@ def finish_campaign(c: Campaign) -> Path:
     """Calibrate every measured pose and write ``brdf.h5`` (format version 2: measured and planned
     angles, grid indices, steps, exposures, campaign times; see :mod:`gonio.dataset`)."""
     meta = c.meta
+    # The values come from the journal's rows; a frame file lost or altered since is recorded, not hidden.
+    for step, problem in c.journal.check_frames():
+        c.journal.log_event("fault", step=step, message=f"frame: {problem}")
     measurements = c.journal.measurements()
     ref, det = c.cfg.reference, c.journal.detector()
     per_channel = ref.reflectance is not None or ref.spectrum is not None

@@ -471,6 +471,20 @@ class Journal:
         with self._transaction():
             self._write("DELETE FROM meta WHERE key = ?", (key,))
 
+    def check_frames(self) -> list[tuple[int, str]]:
+        """(step, message) for every frame the journal names that is missing, unreadable or altered."""
+        from gonio.frames import FrameError
+
+        rows = self._query(f"SELECT step FROM measurements WHERE {self._v3('frame_file')} IS NOT NULL "
+                           "ORDER BY step") if self.version >= 3 else []
+        problems = []
+        for (step,) in rows:
+            try:
+                self.frame(step)
+            except FrameError as err:
+                problems.append((int(step), str(err)))
+        return problems
+
     # -- latched faults --------------------------------------------------------------------------
     def latch_fault(self, reason: str, devices: list[str]) -> None:
         """Record a fault that only an operator may clear (it survives restarts of gonio)."""

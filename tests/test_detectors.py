@@ -145,6 +145,24 @@ def test_a_camera_campaign_keeps_its_frames_and_their_region_mean_is_the_reading
     c.close()
 
 
+def test_a_frame_lost_after_the_campaign_is_a_fault_event_and_the_values_stand(tmp_path):
+    from gonio.campaign import finish_campaign
+
+    cfg = _cfg("camera")
+    c, state, _ = _campaign(tmp_path, cfg, "lambert:albedo=0.5", "iso:step=45")
+    before = read_brdf(tmp_path / "brdf.h5").value
+    ms = c.journal.measurements()
+    (tmp_path / ms[3].frame_file).unlink()
+    (tmp_path / ms[5].frame_file).write_bytes(b"garbage")
+    finish_campaign(c)
+    faults = [e for e in c.journal.events() if e["kind"] == "fault"]
+    assert [e["step"] for e in faults] == [3, 5]
+    assert "step000003-a1.exr: the frame of step 3 is missing" in faults[0]["message"]
+    assert "cannot read EXR" in faults[1]["message"]
+    assert np.array_equal(read_brdf(tmp_path / "brdf.h5").value, before)  # the rows hold the readings
+    c.close()
+
+
 class Crash(BaseException):
     """What a kill -9 does to the process: nothing after it runs (not even an except Exception)."""
 
