@@ -259,3 +259,31 @@ def test_spectral_conductor_of_the_spectrometer_is_the_tabulated_gold():
     assert isinstance(m, SpectralConductor) and m.alpha == 0.3 and "Johnson" in m.index.source
     with pytest.raises(ValueError, match="ggx:alpha=A,metal="):
         spectral_material("ward:rho_d=0.1,rho_s=0.05,alpha=0.2")
+
+
+# -- the command line -------------------------------------------------------------------------------------
+def test_gonio_simulate_with_a_camera_config_file_and_with_detector(tmp_path, capsys):
+    import h5py
+
+    from gonio.config import resolve_config
+
+    text = (resolve_config(None).read_text()
+            + '\n[detector.sim.camera]\nwidth = 32\nheight = 32\n')
+    text = text.replace("[detector.sim]             # how the simulated detector renders",
+                        '[detector.sim]\nkind = "camera"')
+    cfg_path = tmp_path / "camera.toml"
+    cfg_path.write_text(text)
+    out = tmp_path / "cam"
+    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", str(out), "--config",
+                 str(cfg_path), "--quiet"]) == 0
+    assert len(list((out / "frames").glob("*.exr"))) > 0
+    spec = tmp_path / "spec"
+    assert main(["simulate", "ggx:alpha=0.3,metal=silver", "--grid", "iso:step=45", "--out", str(spec),
+                 "--detector", "spectrometer", "--quiet"]) == 0
+    with h5py.File(spec / "brdf.h5") as f:
+        assert f["samples/value"].shape[1] == 41 and f["samples/wavelength"][0] == 380.0
+    capsys.readouterr()
+    # resuming (or re-running) the folder with another detector is refused, naming the setting
+    assert main(["simulate", "ggx:alpha=0.3,metal=silver", "--grid", "iso:step=45", "--out", str(spec),
+                 "--detector", "camera", "--quiet"]) == 2
+    assert "detector.sim.kind" in capsys.readouterr().err
