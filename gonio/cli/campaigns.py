@@ -36,11 +36,23 @@ def cmd_plan(args) -> int:
 
     cfg = load_config(args.config)
     plan = build_plan(args.grid, cfg)
+    fly = None
+    if not plan.grid.startswith("merl:"):  # lattices have lines to sweep: fly side by side
+        from gonio.plan.fly import fly_plan
+
+        fly = fly_plan(plan, cfg)
     if args.json:
-        print(json.dumps(plan_summary(plan), indent=2))
+        print(json.dumps(plan_summary(plan, fly), indent=2))
     else:
-        print(format_plan(plan))
+        print(format_plan(plan, fly))
     return 0
+
+
+def _refuse_fly(spec) -> None:
+    """Campaigns run stop-and-go: order=fly is planned and estimated (gonio plan), not run here."""
+    if spec.order == "fly":
+        raise UsageError("--grid: order=fly is planned and estimated by gonio plan; campaigns run "
+                         "stop-and-go (order=auto, serpentine, raster or tour)")
 
 
 # -- gonio config ---------------------------------------------------------------------------------
@@ -140,7 +152,7 @@ def cmd_simulate(args) -> int:
 
     # Everything the user typed is validated before anything is written.
     material = load_material(args.material)
-    parse_grid(args.grid)
+    _refuse_fly(parse_grid(args.grid))
     exports = _export_formats(args.export)
     cfg = load_config(args.config)
     if args.detector is not None:
@@ -319,7 +331,7 @@ def cmd_run(args) -> int:
     from gonio.sim.materials import load as load_material
 
     material = load_material(args.material) if args.material else None
-    parse_grid(args.grid)
+    _refuse_fly(parse_grid(args.grid))
     cfg = load_config(args.config)
     if not args.sample.strip():
         raise UsageError("--sample: give the name of the sample measured (not empty)")

@@ -18,8 +18,9 @@ Options: ``step`` degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ +
 ``stride`` an integer 1..90; ``theta_max`` degrees in (0, 90] (default: the config's
 ``kinematics.theta_max_deg``); ``reciprocity`` true|false (default true): keep one pose of each
 Helmholtz pair (ωi, ωo) ~ (ωo, ωi); ``mirror`` true|false (iso only, default false): also identify
-Δφ with −Δφ; ``order`` auto|serpentine|raster|tour (default auto: serpentine for iso and full, a
-nearest-neighbour + 2-opt tour for merl).
+Δφ with −Δφ; ``order`` auto|serpentine|raster|tour|fly (default auto: serpentine for iso and full, a
+nearest-neighbour + 2-opt tour for merl; fly, iso and full only: the serpentine's poses read while one
+axis sweeps each line, :mod:`gonio.plan.fly`).
 
 Count stages, in order (each the number of poses left after it): ``grid`` (the raw lattice), then
 ``pole_collapse`` (iso, full: one azimuth where θ = 0), ``reciprocity`` (when on), ``mirror`` (iso, when
@@ -39,7 +40,7 @@ __all__ = ["GridSpec", "GridPoses", "parse_grid", "enumerate_grid", "class_membe
            "MAX_POSES"]
 
 KINDS = ("iso", "full", "merl")
-ORDERS = ("auto", "serpentine", "raster", "tour")
+ORDERS = ("auto", "serpentine", "raster", "tour", "fly")
 #: A plan holds at most this many poses (memory and time stay within a workstation's reach).
 MAX_POSES = 3_000_000
 
@@ -203,6 +204,9 @@ def parse_grid(grid: str) -> GridSpec:
         if raw["order"] not in ORDERS:
             raise ValueError(f"grid '{kind}': option 'order' must be one of {', '.join(ORDERS)}, got "
                              f"'{raw['order']}'")
+        if raw["order"] == "fly" and kind == "merl":
+            raise ValueError("grid 'merl': option 'order=fly' needs lines of a lattice to sweep; use an iso "
+                             "or full grid")
         fields["order"] = raw["order"]
     return GridSpec(**fields)
 

@@ -24,7 +24,7 @@ def hms(seconds: float) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
-def plan_summary(plan: Plan) -> dict:
+def plan_summary(plan: Plan, fly=None) -> dict:
     """A JSON-ready dict: grid, symmetries, counts, infeasible, poses, steps, durations and their parts.
 
     ``steps`` counts the steps by kind (``pose``, ``dark``, ``reference``) and in ``total``; ``moves``
@@ -34,13 +34,14 @@ def plan_summary(plan: Plan) -> dict:
     ``h:mm:ss`` twins; ``branch_fixed_bound_s`` is the older bound for the plan's own branches only;
     ``reference_s`` and ``reference_share`` what the dark and reference readings add (readings,
     settles and detours); ``timing`` holds the parts (NaN parts, e.g. an MST skipped for a large plan,
-    become None).
+    become None). With ``fly`` (a :class:`gonio.plan.fly.FlyPlan` of the same poses), ``fly`` holds
+    its estimate, bound and parts (:func:`gonio.plan.fly.fly_summary`).
     """
     kinds = np.asarray(plan.step_kind)
     steps = {"total": int(kinds.size), "pose": int(np.count_nonzero(kinds == STEP_POSE)),
              "dark": int(np.count_nonzero(kinds == STEP_DARK)),
              "reference": int(np.count_nonzero(kinds == STEP_REFERENCE))}
-    return {
+    out = {
         "grid": plan.grid,
         "symmetries": {k: bool(v) for k, v in plan.symmetries.items()},
         "counts": {k: int(v) for k, v in plan.counts.items()},
@@ -62,12 +63,19 @@ def plan_summary(plan: Plan) -> dict:
         "moves": int(np.count_nonzero(kinds != STEP_DARK)) + 1,
         "via_moves": int(plan.timing.get("via_moves", len(plan.via_deg))),
     }
+    if fly is not None:
+        from gonio.plan.fly import fly_summary
+
+        out["fly"] = _jsonable(fly_summary(fly))
+    return out
 
 
-def format_plan(plan: Plan) -> str:
+def format_plan(plan: Plan, fly=None) -> str:
     """A human report: counts after each stage (and what each removed), infeasible poses by reason,
-    the steps, and the estimated duration with its lower bound in h:mm:ss and seconds."""
-    s = plan_summary(plan)
+    the steps, and the estimated duration with its lower bound in h:mm:ss and seconds; with ``fly``
+    (a :class:`gonio.plan.fly.FlyPlan`), the stop-and-go and fly estimates side by side, each with
+    its bound."""
+    s = plan_summary(plan, fly)
     lines = [f"plan         {s['grid']}",
              "symmetries   " + ", ".join(f"{k} {'on' if v else 'off'}" for k, v in s["symmetries"].items()),
              "", "poses after each stage"]
@@ -107,7 +115,39 @@ def format_plan(plan: Plan) -> str:
     if bound:
         lines.append("  bound: moves >= {:,.1f} s, settle {:,.1f} s, readings {:,.1f} s".format(
             bound["move_s"], bound["settle_s"], bound["reading_s"]))
+    if fly is not None:
+        lines += [""] + _format_fly(s)
     return "\n".join(lines)
+
+
+def _format_fly(s: dict) -> list[str]:
+    """Stop-and-go and fly side by side (:mod:`gonio.plan.fly`)."""
+    f = s["fly"]
+    est, low, fest, flow = s["estimated_s"], s["lower_bound_s"], f["estimated_s"], f["lower_bound_s"]
+    gain = f"   ({est / fest:.1f}x less gantry time)" if fest > 0 else ""
+
+    def ratio(e, b):
+        return f"{e / b:.3f}" if b > 0 else "-"
+
+    lines = [f"{'':<18}{'stop-and-go':>14}{'fly':>14}",
+             f"{'estimated':<18}{hms(est):>14}{hms(fest):>14}{gain}",
+             f"{'lower bound':<18}{hms(low):>14}{hms(flow):>14}",
+             f"{'estimate / bound':<18}{ratio(est, low):>14}{ratio(fest, flow):>14}"]
+    exposures = ", ".join(f"{1000 * e:.3g} ms" for e in f["exposure_s"]) or "-"
+    lines.append(f"fly          {f['lines']:,} lines sweep {f['readings'] - f['stop_and_go_readings']:,} "
+                 f"readings (exposure {exposures}, blur up to {f['max_blur_deg']:.2f}° of axis travel), "
+                 f"{f['stop_and_go_readings']:,} read stop-and-go; {f['checkpoints']:,} dark + white "
+                 f"reference checkpoints, one every {f['reference_interval_s']:.1f} s of gantry time")
+    e, b = f["estimate"], f["lower_bound"]
+    lines.append("  estimate: lines {:,.1f} s (run-up, sweep, run-down), transits {:,.1f} s, checkpoints "
+                 "{:,.1f} s, stop-and-go readings {:,.1f} s".format(e["line_s"], e["transit_s"],
+                                                                    e["reference_s"],
+                                                                    e["settle_s"] + e["reading_s"]))
+    lines.append("  bound (any order and direction of these lines): sweeps >= {:,.1f} s, entries >= {:,.1f} "
+                 "s, settles and readings {:,.1f} s".format(b["sweeps_s"], b["entries_s"], b["fixed_s"]))
+    lines += [f"  {count:,} {'line' if 'slower' in note or 'split' in note else 'pose'}(s): {note}"
+              for note, count in f["notes"].items()]
+    return lines
 
 
 def _part(timing: dict, name: str) -> float | None:
