@@ -254,6 +254,14 @@ class CameraSimConfig(_Strict):
             raise ValueError(f"brackets: at most 16 exposures, got {len(self.brackets)}")
         if (self.auto_exposure or self.brackets) and self.saturation is None:
             raise ValueError("saturation: auto_exposure and brackets need the sensor's full-scale reading")
+        if self.saturation is not None and self.saturation <= self.black_level:
+            raise ValueError(f"saturation: must exceed black_level ({self.black_level:g}), got "
+                             f"{self.saturation:g}")
+        diagonal = math.sqrt(2.0) * self.sample_size_m
+        for name in ("distance_m", "light_distance_m"):
+            if getattr(self, name) <= diagonal:
+                raise ValueError(f"{name}: must exceed the sample's diagonal ({diagonal:g} m), got "
+                                 f"{getattr(self, name):g}")
         return self
 
 
@@ -296,6 +304,9 @@ class DetectorConfig(_Strict):
         if self.driver == "sim" and self.sim.kind == "spectrometer" and "channels" in self.model_fields_set:
             raise ValueError("channels: a simulated spectrometer names its bands itself (e.g. 380nm, 390nm, "
                              "...); leave channels out and set [detector.sim.spectrometer] instead")
+        if self.driver == "sim" and self.sim.kind == "camera" and self.frames > 32:
+            raise ValueError(f"frames: the simulated camera averages at most 32 frames a reading, got "
+                             f"{self.frames}")
         if self.driver != "sim" and self.sim.kind != "photodiode":
             raise ValueError(f"sim.kind: '{self.sim.kind}' is a simulated detector; driver '{self.driver}' "
                              f"reads a real one (leave sim.kind out)")

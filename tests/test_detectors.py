@@ -59,6 +59,11 @@ def test_the_config_and_the_cli_choose_the_detector():
     ({"sim": {"kind": "spectrometer", "spectrometer": {"start_nm": 700, "stop_nm": 400}}}, "stop_nm"),
     ({"sim": {"kind": "camera", "camera": {"brackets": [1, 4]}}}, "saturation: auto_exposure and brackets"),
     ({"sim": {"kind": "microscope"}}, "kind"),
+    ({"sim": {"kind": "camera"}, "frames": 64}, "at most 32 frames"),
+    ({"sim": {"kind": "camera", "camera": {"saturation": 0.5, "black_level": 1.0}}},
+     "must exceed black_level"),
+    ({"sim": {"kind": "camera", "camera": {"distance_m": 0.02}}},
+     "distance_m: must exceed the sample's diagonal"),
 ])
 def test_bad_detector_settings_name_the_field(change, message):
     d = load_config().model_dump(mode="python", exclude_unset=True)
