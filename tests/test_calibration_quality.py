@@ -120,3 +120,16 @@ def test_a_spectral_gold_campaign_is_gold_coloured_in_srgb(tmp_path):
     ok = want[:, 1] > 1e-2 * want[:, 1].max()
     np.testing.assert_allclose(rgb[ok], want[ok], rtol=0.02)
     c.close()
+
+
+def test_with_sensor_noise_the_camera_stddev_accounts_for_the_error(tmp_path):
+    """Black level, read and shot noise: the calibrated Lambertian scatters by ~0.4 %, and its stated
+    stddev (pixel noise of pose, dark and reference frames, carried through the calibration) explains
+    that scatter: the rms of error/stddev is near 1, neither far below (stddev inflated) nor above."""
+    sensor = {"black_level": 0.001, "read_sigma": 2e-4, "shot_counts_per_unit": 1e6, "saturation": 0.02}
+    c, b = _run(tmp_path, _cfg("camera", camera=sensor))
+    c.close()
+    err = b.value - 0.5 / np.pi
+    z = err / b.stddev
+    assert 0.5 < np.sqrt(np.mean(z**2)) < 1.5
+    assert np.abs(err).max() / (0.5 / np.pi) > 0.003  # the noise is really there
