@@ -192,7 +192,7 @@ def test_a_modbus_rtu_cable_pulled_mid_campaign_faults_with_its_reason_and_resum
         reason, events = _faulted_then_cleared(
             tmp_path, emu, clock, lambda e: tilt.faults.add("disconnect"), at_step=4,
             between=lambda e: tilt.replug())
-        assert tilt.faults.applied == [("disconnect", 3)]
+        assert [kind for kind, _ in tilt.faults.applied] == ["disconnect"]
         assert reason.startswith("sample_tilt: ") and "connection lost" in reason
         assert "ttyMB" in reason and "gave up after 2 retries" in reason
         assert [e["kind"] for e in events].count("retry") >= 2

@@ -30,6 +30,9 @@ __all__ = ["Register", "Command", "MotorProfile", "load_profile", "PROFILES"]
 _TYPES = {"u16": (1, False), "s16": (1, True), "u32": (2, False), "s32": (2, True)}
 _REQUIRED = ("target_position", "velocity", "acceleration", "deceleration", "actual_position", "status",
              "alarm_code")
+#: What ``secondary`` may name besides registers: the scalar settings and the command/status tables.
+_SECONDARY_KEYS = ("word_order", "steps_per_rev", "velocity_unit", "accel_unit", "move", "status bits",
+                   "stop", "alarm_reset")
 #: Shipped profiles, by name.
 PROFILES = ("generic", "oriental_az_direct", "leadshine_pr")
 
@@ -184,6 +187,12 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
     for key in ("moving_bit", "alarm_bit"):
         if not 0 <= int(status.get(key, -1)) <= 15:
             raise _fail(where, f"status.{key} {status.get(key)!r} is outside [0, 15]")
+    secondary = tuple(data.get("secondary", ()))
+    known = set(registers) | set(_SECONDARY_KEYS)
+    unknown = [n for n in secondary if n not in known]
+    if unknown:  # a misspelt name would leave a field unmarked without a word
+        raise _fail(where, f"secondary names {', '.join(map(repr, unknown))}: not a register nor one of "
+                    f"{', '.join(_SECONDARY_KEYS)}")
     return MotorProfile(
         name=data.get("name", where), description=data.get("description", ""), word_order=word_order,
         steps_per_rev=steps, velocity_unit=data["velocity_unit"], accel_unit=data["accel_unit"],
@@ -192,7 +201,7 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
         ready_bit=None if status.get("ready_bit") is None else int(status["ready_bit"]),
         stop=_command(f"{where} [stop]", data.get("stop", {}), registers),
         alarm_reset=_command(f"{where} [alarm_reset]", data.get("alarm_reset", {}), registers),
-        secondary=tuple(data.get("secondary", ())),
+        secondary=secondary,
     )
 
 

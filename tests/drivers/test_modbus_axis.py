@@ -3,6 +3,9 @@ server on 127.0.0.1 TCP and RTU over a pty): request bytes per profile, moves, a
 
 from __future__ import annotations
 
+import tomllib
+from importlib import resources
+
 import pytest
 
 from gonio.drivers.modbus import (
@@ -53,6 +56,17 @@ def test_profiles_load_and_validate():
     assert load_profile("oriental_az_direct").block_start == 0x0058
     assert load_profile("leadshine_pr").block_start == 0x6200
     assert "status" in load_profile("leadshine_pr").secondary
+    # Every name a shipped profile marks as secondary is one of its fields; a misspelt one is refused.
+    for name in PROFILES:
+        p = load_profile(name)
+        assert set(p.secondary) <= set(p.registers) | {"status bits", "stop", "alarm_reset", "move",
+                                                        "word_order", "steps_per_rev", "velocity_unit",
+                                                        "accel_unit"}
+    typo = tomllib.loads(resources.files("gonio.drivers.modbus").joinpath(
+        "profiles/leadshine_pr.toml").read_text())
+    typo["secondary"] = ["staus"]
+    with pytest.raises(ValueError, match=r"secondary names 'staus': not a register"):
+        parse_profile(typo)
     bad = {"registers": {"status": {"address": 1, "type": "u8"}}}
     with pytest.raises(ValueError, match=r"registers.status.type 'u8' is not one of"):
         parse_profile(bad)
