@@ -46,7 +46,7 @@ from gonio.sim.materials.fresnel import conductor_exact
 from gonio.sim.materials.spectral import conductor_index
 
 __all__ = ["SPACES", "OBSERVER", "WAVELENGTH_NM", "cmf_weights", "spectral_to_XYZ", "XYZ_to_linear_rgb",
-           "spectral_to_rgb", "bands_to_rgb", "material_rgb", "normal_reflectance_rgb",
+           "spectral_to_rgb", "bands_to_XYZ", "bands_to_rgb", "material_rgb", "normal_reflectance_rgb",
            "effective_rgb_conductor"]
 
 #: RGB spaces: name in colour-science's registry; the output is linear (no transfer function).
@@ -116,10 +116,10 @@ def spectral_to_rgb(values, space: str = "sRGB", illuminant: str = "D65") -> np.
     return XYZ_to_linear_rgb(spectral_to_XYZ(values, illuminant), space, illuminant)
 
 
-def bands_to_rgb(values, wavelengths_nm, space: str = "sRGB", illuminant: str = "D65") -> np.ndarray:
-    """Linear RGB (..., 3) of spectral values (..., B) read at band centres ``wavelengths_nm`` (a
+def bands_to_XYZ(values, wavelengths_nm, illuminant: str = "D65") -> np.ndarray:
+    """CIE XYZ (..., 3) of spectral values (..., B) read at band centres ``wavelengths_nm`` (a
     spectrometer's channels, e.g. 380..780 nm every 10 nm), resampled linearly onto
-    :data:`WAVELENGTH_NM`; the bands must cover it."""
+    :data:`WAVELENGTH_NM`; the bands must cover it. Y is in the unit of ``values``."""
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if wl.ndim != 1 or values.shape[-1:] != wl.shape or wl.size < 2 or np.any(np.diff(wl) <= 0):
@@ -130,7 +130,12 @@ def bands_to_rgb(values, wavelengths_nm, space: str = "sRGB", illuminant: str = 
                          f"[{WAVELENGTH_NM[0]:g}, {WAVELENGTH_NM[-1]:g}] nm")
     flat = values.reshape(-1, wl.size)
     resampled = np.stack([np.interp(WAVELENGTH_NM, wl, v) for v in flat]).reshape(*values.shape[:-1], -1)
-    return spectral_to_rgb(resampled, space, illuminant)
+    return spectral_to_XYZ(resampled, illuminant)
+
+
+def bands_to_rgb(values, wavelengths_nm, space: str = "sRGB", illuminant: str = "D65") -> np.ndarray:
+    """Linear RGB (..., 3) of spectral values (..., B) at band centres (see :func:`bands_to_XYZ`)."""
+    return XYZ_to_linear_rgb(bands_to_XYZ(values, wavelengths_nm, illuminant), space, illuminant)
 
 
 def material_rgb(material, wi, wo, space: str = "sRGB", illuminant: str = "D65") -> np.ndarray:

@@ -129,6 +129,18 @@ def test_a_spectral_gold_campaign_lands_in_brdf_h5_with_its_wavelengths(tmp_path
     measured = open_brdf(tmp_path)  # the queryable BRDF carries the bands through
     assert list(measured.channels)[:2] == ["380nm", "390nm"]
     assert measured.eval_deg(30, 0, 30, 180).value.shape == (1, 41)
+    # the Radiance (PAB-Opto) export writes the CIE Y of the bands, not the first band
+    from gonio.colour import bands_to_rgb
+    from gonio.export import export
+    from gonio.formats.radiance import read_pabopto
+
+    report = export(tmp_path, "radiance", tmp_path / "pab", theta_step_deg=30.0)
+    assert "CIE-Y (1931 2 deg, D65) of the 41 spectral bands" in report.notes
+    f = read_pabopto(next(p for p in report.paths if "t030.0" in p.name))
+    ev = measured.eval_deg(30.0, 0.0, f["theta_o_deg"], f["phi_o_deg"]).value
+    y_srgb = bands_to_rgb(ev, measured.attrs["wavelengths_nm"]) @ np.array([0.2126, 0.7152, 0.0722])
+    np.testing.assert_allclose(f["value"], y_srgb, rtol=2e-3)
+    assert not np.allclose(f["value"], ev[:, 0], rtol=0.1)
 
 
 # -- camera ---------------------------------------------------------------------------------------------
