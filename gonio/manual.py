@@ -100,7 +100,13 @@ def drive(gantry, legs, *, cfg, clock, on_leg=None) -> np.ndarray:
             waited = 0.0
             times = move_time(leg - start, kin.velocity_deg_s, kin.accel_deg_s2)
             expected = float(np.max(times, initial=0.0))
-            clock.sleep(min(expected, rc.move_timeout_s))
+            end = clock.now() + min(expected, rc.move_timeout_s)
+            while clock.now() < end:
+                # Every axis asked every poll_s while the profile runs: an armed Dynamixel bus
+                # watchdog must hear from gonio, or the servo stops short by itself.
+                clock.sleep_until(min(clock.now() + rc.poll_s, end))
+                for axis in axes:
+                    axis.is_moving()
             waited += expected
             while any(a.is_moving() for a in axes):
                 if waited >= rc.move_timeout_s:
