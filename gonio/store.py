@@ -395,6 +395,13 @@ class Journal:
 
     def commit_measurement(self, m: Measurement) -> None:
         """Commit one step's measurement in its own transaction; its frame (if any) first, as a file."""
+        values = self._measurement_row(m)
+        columns = _MEASUREMENT_COLUMNS + _V3_COLUMNS
+        with self._transaction():
+            self._write(f"INSERT INTO measurements ({', '.join(columns)}) "
+                        f"VALUES ({', '.join('?' * len(columns))})", values)
+
+    def _measurement_row(self, m: Measurement) -> tuple:
         signal = np.asarray(m.signal, dtype=np.float64)
         stderr = np.asarray(m.stderr, dtype=np.float64)
         if stderr.shape != signal.shape:
@@ -410,10 +417,16 @@ class Journal:
                   float(m.clock_s), float(m.campaign_s), time.time(), float(m.exposure_s), int(m.frames),
                   _blob(signal), _blob(stderr), int(m.attempts),
                   json.dumps(list(signal.shape)), extra_json, frame_file, digest)
+        return values
+
+    def commit_measurements(self, ms: list[Measurement]) -> None:
+        """Commit several steps' measurements in one transaction, all or none (a fly campaign's sweep:
+        a crash loses at most that sweep); frames (if any) first, as files."""
+        rows = [self._measurement_row(m) for m in ms]
         columns = _MEASUREMENT_COLUMNS + _V3_COLUMNS
         with self._transaction():
-            self._write(f"INSERT INTO measurements ({', '.join(columns)}) "
-                        f"VALUES ({', '.join('?' * len(columns))})", values)
+            self._write_many(f"INSERT INTO measurements ({', '.join(columns)}) "
+                             f"VALUES ({', '.join('?' * len(columns))})", rows)
 
     def _write_frame(self, step: int, attempt: int, frame) -> tuple[str, str]:
         """Write ``frame`` (a gonio.frames.Frame) to frames/ whole, and make its name durable."""

@@ -129,3 +129,22 @@ def test_campaign_commands_refuse_fly_and_write_nothing(tmp_path, capsys):
     out = tmp_path / "c"
     assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=30,order=fly", "--out", str(out)]) == 2
     assert "order=fly" in capsys.readouterr().err and not out.exists()
+
+
+def test_journal_commits_a_batch_all_or_none(tmp_path):
+    from gonio.store import Journal, Measurement
+
+    steps = {"kind": np.zeros(3, np.int8), "pose": np.arange(3), "axes_deg": np.zeros((3, 4)),
+             **{f"{a}_deg": np.zeros(3) for a in ("theta_i", "phi_i", "theta_o", "phi_o")}}
+    j = Journal.create(tmp_path / "j.sqlite", {"grid": "iso:step=30"}, steps)
+
+    def m(step, shape=(3,)):
+        return Measurement(step, 0, step, np.zeros(4), np.zeros(4), np.zeros(4), 1.0 + step, 1.0 + step,
+                           0.1, 1, np.ones(3), np.ones(shape))
+
+    with pytest.raises(Exception, match="stderr has shape"):
+        j.commit_measurements([m(0), m(1, (2,))])    # the second row is bad: the first is not kept either
+    assert j.done_count() == 0
+    j.commit_measurements([m(0), m(1)])
+    assert j.done_steps().tolist() == [0, 1] and j.next_step() == 2
+    j.close()
