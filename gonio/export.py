@@ -10,7 +10,9 @@ format                  what is written
 ======================  =====================================================================================
 ``merl``                MERL ``.binary`` (f_r; empty cells −1, MERL's "no data"). A ``merl:stride=1``
                         campaign fills its cells exactly; other campaigns are resampled at bin centres.
-``bsdf``                Mitsuba 3 / pbrt-v4 measured-BSDF tensor file, RGB (:mod:`gonio.formats.rgl`).
+``bsdf``                Mitsuba 3 / pbrt-v4 measured-BSDF tensor file, RGB (:mod:`gonio.formats.rgl`). The
+                        format has no "no data": cells in gaps of a lattice campaign (unmeasured poses such
+                        as retro-reflection) take the scattered engine's value where it supports them.
 ``bsdf-spectral``       The same with ``spectra`` and ``wavelengths`` (360–830 nm every 10 nm) from R, G, B by
                         a fixed linear basis (:func:`gonio.formats.rgl.rgb_to_spectrum`).
 ``radiance``            A folder of PAB-Opto files, one per incidence (CIE-Y), for ``pabopto2bsdf``.
@@ -161,7 +163,8 @@ def export(source, fmt: str, out, *, method: str = "auto", theta_step_deg: float
     if fmt == "merl":
         report = _merl(brdf, out)
     elif fmt in ("bsdf", "bsdf-spectral"):
-        report = _bsdf(brdf, out, fmt, source, theta_step_deg, int(resolution))
+        bridge = open_brdf(data, method="scattered") if data is not None and brdf.method == "grid" else None
+        report = _bsdf(brdf, out, fmt, source, theta_step_deg, int(resolution), bridge)
     elif fmt == "radiance":
         report = _radiance(brdf, out, source, theta_step_deg)
     else:
@@ -206,31 +209,49 @@ def _theta_slices(brdf: MeasuredBRDF, step: float) -> np.ndarray:
     return np.linspace(0.0, top, n)
 
 
-def _bsdf(brdf, out, fmt, source, step, resolution) -> ExportReport:
+def _bsdf(brdf, out, fmt, source, step, resolution, bridge) -> ExportReport:
+    """The tensor file. The format has no "no data" value (a 0 is black to a renderer), and every real
+    campaign has gaps: the gantry's occlusion clearance leaves retro-reflection unmeasured, and a lattice
+    answers NO_DATA in every cell that touches a missing node. So where the lattice has a gap, ``bridge``
+    (the scattered engine of :mod:`gonio.brdf` on the same samples, which answers only within the local
+    sample spacing) fills in, and the report counts those cells."""
     if len(brdf.channels) != 3:
         raise ValueError(f"{fmt}: written from R, G, B; the dataset has channels {brdf.channels}")
     report = ExportReport(fmt)
+    bridged = [0]
 
-    def fr(wi, wo):
+    def values(wi, wo, count):
         ev = brdf.eval(wi, wo)
-        _tally(report, ev)
-        return ev.value
+        value = ev.value
+        if bridge is not None:
+            gap = np.flatnonzero(ev.reason == Reason.NO_DATA)
+            if gap.size:
+                ev2 = bridge.eval(wi[gap], wo[gap])
+                ok = ev2.reason == Reason.OK
+                value = value.copy()
+                value[gap[ok]] = ev2.value[ok]
+                bridged[0] += int(ok.sum()) if count else 0
+        return value
 
     meta = _metadata(brdf, source, "values are f_r*cos(theta_o)*4*sigma(wi)/D(m), jacobian=1 (Mitsuba 3 "
                                    "'measured' convention)")
     meta["ndf"] = "estimated from retro-reflection by fixed-point iteration (gonio.formats.rgl)"
+    if bridge is not None:
+        meta["gaps"] = "cells in gaps of the lattice filled by the scattered engine (gonio.brdf)"
     phi = (0.0,) if brdf.symmetries["isotropy"] else tuple(np.linspace(-180.0, 180.0, 25))
-    fields, counts = build_measured(fr, theta_i_deg=_theta_slices(brdf, step), phi_i_deg=phi,
+    fields, counts = build_measured(lambda wi, wo: values(wi, wo, True),
+                                    theta_i_deg=_theta_slices(brdf, step), phi_i_deg=phi,
                                     resolution=resolution,
                                     spectral_nm=SPECTRAL_NM if fmt == "bsdf-spectral" else None,
-                                    description=meta)
-    # The retro-reflection probes of the NDF estimate are not cells of the file: count the grid only.
-    report.from_data = report.interpolated = 0
-    report.empty = 0
+                                    description=meta, retro_fr=lambda w: values(w, w, False))
+    # Only the value grid counts (the retro-reflection probes of the NDF estimate are not cells).
     report.cells = counts["points"]
     report.interpolated = counts["filled"]
     report.empty = counts["empty"]
     report.notes = [meta["cosine"], meta["ndf"]]
+    if bridged[0]:
+        report.notes.append(f"{bridged[0]} of the {counts['filled']} filled cells lie in gaps of the lattice "
+                            "(unmeasured poses, e.g. retro-reflection): filled by the scattered engine")
     report.paths.append(write_tensor(out, fields))
     return report
 

@@ -293,7 +293,7 @@ def rgb_to_spectrum(rgb, wavelengths_nm):
 
 
 def build_measured(fr, *, theta_i_deg, phi_i_deg=(0.0,), resolution=32, ndf_shape=(48, 48),
-                   spectral_nm=None, description: dict | None = None):
+                   spectral_nm=None, description: dict | None = None, retro_fr=None):
     """The fields of a measured-BSDF tensor file, made by evaluating a BRDF where the reader will look.
 
     Parameters
@@ -312,6 +312,9 @@ def build_measured(fr, *, theta_i_deg, phi_i_deg=(0.0,), resolution=32, ndf_shap
         Wavelengths (nm) of a spectral file (``spectra`` + ``wavelengths``); RGB (``rgb``) when None.
     description : dict, optional
         Metadata written as JSON into ``description``.
+    retro_fr : callable, optional
+        ``retro_fr(w)`` → f_r(w, w), shape (M, 3), for the NDF estimate (default: ``fr(w, w)``); lets a
+        caller tell the NDF probes from the value grid's queries.
 
     Returns
     -------
@@ -327,7 +330,7 @@ def build_measured(fr, *, theta_i_deg, phi_i_deg=(0.0,), resolution=32, ndf_shap
         phi_i = np.zeros(1)
 
     def retro(w):
-        v = fr(w, w)
+        v = fr(w, w) if retro_fr is None else retro_fr(w)
         return v @ np.array([0.2126, 0.7152, 0.0722]) if v.shape[1] == 3 else v.mean(axis=1)
 
     ndf, sigma = estimate_ndf(retro, ndf_shape)
