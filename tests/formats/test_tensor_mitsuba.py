@@ -94,10 +94,10 @@ def test_mitsuba_measured_matches_roughconductor(exported, variant):
     a = _mitsuba_eval(measured, wi, wo, variant.endswith("spectral"))
     b = _mitsuba_eval(rough, wi, wo, variant.endswith("spectral"))
     assert np.abs(a - b).sum() / b.sum() < 0.02  # weighted (by cos θo) L1
-    # our reader of the layout evaluates the file as Mitsuba does
-    if variant == "scalar_rgb":
-        ours = eval_measured(read_tensor(path), wi, wo).mean(axis=1)
-        np.testing.assert_allclose(ours, a, rtol=1e-4, atol=1e-6)
+    # our reader of the layout evaluates the file as Mitsuba does (spectral: at _mitsuba_eval's wavelengths)
+    nm = [450.0, 550.0, 650.0, 500.0] if variant.endswith("spectral") else None
+    ours = eval_measured(read_tensor(path), wi, wo, nm).mean(axis=1)
+    np.testing.assert_allclose(ours, a, rtol=1e-4, atol=1e-6)
 
 
 # -- a sphere rendered with each ---------------------------------------------------------------------
