@@ -52,9 +52,10 @@ import numpy as np
 from gonio.motion.metric import MoveMetric
 from gonio.motion.safe import path_time, safe_path
 from gonio.motion.trapezoid import move_time
-from gonio.plan.schedule import STEP_REFERENCE
+from gonio.plan.schedule import STEP_REFERENCE, schedule_runs
 
-__all__ = ["FLY_DUTY", "FlyLine", "FlyPlan", "fly_plan", "fly_summary", "line_lengths"]
+__all__ = ["FLY_DUTY", "FlyLine", "FlyPlan", "fly_plan", "fly_summary", "fly_steps", "fly_step_table",
+           "line_lengths"]
 
 #: Exposure / time between readings at the axis's top speed: the axis travels this fraction of a grid
 #: step during one exposure.
@@ -189,7 +190,7 @@ class FlyPlan:
     Attributes
     ----------
     lines : list of FlyLine
-        In campaign order.
+        In campaign order (``line_start_s`` and ``checkpoints`` say when each happens).
     checkpoint_before : ndarray of bool, shape (len(lines) + 1,)
         A dark and a white reference before line k (True), and at the end (the last entry, always True).
     transits : list of ndarray
@@ -210,6 +211,10 @@ class FlyPlan:
     estimated_s: float = 0.0
     lower_bound_s: float = 0.0
     timing: dict = field(default_factory=dict)
+    #: Campaign time (s) each line's run-up starts (a stop-and-go reading: its exposure starts).
+    line_start_s: np.ndarray | None = None
+    #: Per checkpoint, in order: (before line k, dark start s, where the dark is read, reference start s).
+    checkpoints: list = field(default_factory=list)
 
 
 def line_lengths(plan: FlyPlan) -> np.ndarray:
@@ -357,14 +362,30 @@ def fly_plan(plan, cfg, kin=None) -> FlyPlan:
     return fp
 
 
-def fly_moves(fp: FlyPlan):
-    """The campaign as events, in order: ("checkpoint", k) before line k (k = len(lines): the end),
-    ("line", k); transits are the moves between the rest positions these imply."""
-    for k in range(len(fp.lines)):
+def fly_steps(fp: FlyPlan) -> list[tuple[str, int, int]]:
+    """The campaign's sweeps and checkpoints in order, each (kind, index, first step): kind
+    ``"checkpoint"`` (2 steps: dark, reference) with the line it comes before, or ``"line"`` (one
+    step per reading) with the line's index."""
+    out, step = [], 0
+    c = 0
+    for k in range(len(fp.lines) + 1):
         if fp.checkpoint_before[k]:
-            yield "checkpoint", k
-        yield "line", k
-    yield "checkpoint", len(fp.lines)
+            out.append(("checkpoint", c, step))
+            step += 2
+            c += 1
+        if k < len(fp.lines):
+            out.append(("line", k, step))
+            step += fp.lines[k].n
+    return out
+
+
+def fly_step_table(fp: FlyPlan) -> tuple[np.ndarray, np.ndarray]:
+    """Kind (STEP_POSE, STEP_DARK, STEP_REFERENCE) and plan pose (-1 for checkpoints) of every step, in
+    the order of :func:`fly_steps`: the lines read the plan's poses in its order, so this is the
+    stop-and-go schedule with runs starting at the lines that follow a checkpoint."""
+    n = int(sum(ln.n for ln in fp.lines))
+    starts = [int(ln.poses[0]) for ln, cp in zip(fp.lines, fp.checkpoint_before[:-1], strict=True) if cp]
+    return schedule_runs(n, starts)
 
 
 def _schedule(fp: FlyPlan, kin, metric: MoveMetric, interval: float) -> None:
@@ -382,21 +403,27 @@ def _schedule(fp: FlyPlan, kin, metric: MoveMetric, interval: float) -> None:
         here = np.asarray(target, dtype=np.float64)
         return dt
 
-    def checkpoint():
+    def checkpoint(k):
         # Dark where the gantry stands (shutter closed), then the white reference.
-        dt = fp.reading_s + go(fp.reference_deg) + fp.settle_s + fp.reading_s
+        dark_deg = here.copy()
+        dt = fp.reading_s + go(fp.reference_deg) + fp.settle_s
+        fp.checkpoints.append((k, t, dark_deg, t + dt))
+        dt += fp.reading_s
         parts["reference_s"] += dt
         return dt
 
-    t += checkpoint()
+    fp.checkpoints = []
+    fp.line_start_s = np.zeros(len(fp.lines))
+    t += checkpoint(0)
     fp.checkpoint_before[0] = True
     for k, line in enumerate(fp.lines):
         if k > 0 and since >= interval:
             fp.checkpoint_before[k] = True
-            t += checkpoint()
+            t += checkpoint(k)
             since = 0.0
         dt = go(line.start_deg)
         parts["transit_s"] += dt
+        fp.line_start_s[k] = t + dt + (0.0 if line.moving else fp.settle_s)
         if line.moving:
             dt += line.duration_s
             parts["line_s"] += line.duration_s
@@ -408,7 +435,7 @@ def _schedule(fp: FlyPlan, kin, metric: MoveMetric, interval: float) -> None:
         t += dt
         since += dt
     fp.checkpoint_before[-1] = True
-    t += checkpoint()
+    t += checkpoint(len(fp.lines))
     back = go(fp.home_deg)
     parts["transit_s"] += back
     t += back

@@ -1,0 +1,6 @@
+"""On-the-fly campaigns: planned in :mod:`gonio.plan.fly`, journaled one sweep per transaction here
+(:mod:`gonio.fly.campaign`); the simulated gantry's readings come from :mod:`gonio.sim.fly`."""
+
+from gonio.fly.campaign import create_fly_campaign, fly_plan_of, run_fly_campaign
+
+__all__ = ["create_fly_campaign", "run_fly_campaign", "fly_plan_of"]
