@@ -195,3 +195,25 @@ def test_tcp_disconnect_then_reconnect(clock):
     finally:
         axis.close()
         emu.stop()
+
+
+def test_rtu_cable_pulled_then_replugged(clock):
+    """RTU over a pty that closes under the client: every call fails as a transient 'connection lost'
+    naming the port while it is gone; after a replug the next call reconnects and reads."""
+    emu = ModbusMotorEmulator("generic", clock=clock)
+    url = _start(emu, "rtu")
+    axis = ModbusAxis("s", make_client(url, timeout_s=0.1, retries=0), "generic", limits_deg=(0.0, 90.0),
+                      clock=clock)
+    try:
+        axis.connect()
+        emu.faults.add("disconnect")
+        for _ in range(2):
+            with pytest.raises(ModbusCommError, match=r"connection lost .*ttyMB") as err:
+                axis.position_deg()
+            assert err.value.transient
+        emu.replug()
+        assert axis.position_deg() == 0.0
+        assert [kind for kind, _ in emu.faults.applied] == ["disconnect"]
+    finally:
+        axis.close()
+        emu.stop()
