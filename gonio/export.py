@@ -163,7 +163,7 @@ def export(source, fmt: str, out, *, method: str = "auto", theta_step_deg: float
     if fmt == "merl":
         report = _merl(brdf, out)
     elif fmt in ("bsdf", "bsdf-spectral"):
-        bridge = open_brdf(data, method="scattered") if data is not None and brdf.method == "grid" else None
+        bridge = _Bridge(data) if data is not None and brdf.method == "grid" else None
         report = _bsdf(brdf, out, fmt, source, theta_step_deg, int(resolution), bridge)
     elif fmt == "radiance":
         report = _radiance(brdf, out, source, theta_step_deg)
@@ -207,6 +207,18 @@ def _theta_slices(brdf: MeasuredBRDF, step: float) -> np.ndarray:
     top = min(brdf.theta_max_deg, 89.0)
     n = max(2, int(np.ceil(top / step - 1e-9)) + 1)
     return np.linspace(0.0, top, n)
+
+
+class _Bridge:
+    """The scattered engine over a dataset, built on first use (only a campaign with gaps needs it)."""
+
+    def __init__(self, data: SampledBRDF):
+        self.data, self.brdf = data, None
+
+    def eval(self, wi, wo):
+        if self.brdf is None:
+            self.brdf = open_brdf(self.data, method="scattered")
+        return self.brdf.eval(wi, wo)
 
 
 def _bsdf(brdf, out, fmt, source, step, resolution, bridge) -> ExportReport:
