@@ -49,10 +49,55 @@ def cmd_plan(args) -> int:
 
 
 def _refuse_fly(spec) -> None:
-    """Campaigns run stop-and-go: order=fly is planned and estimated (gonio plan), not run here."""
+    """gonio run: fly campaigns run on the simulated gantry only (gonio simulate)."""
     if spec.order == "fly":
-        raise UsageError("--grid: order=fly is planned and estimated by gonio plan; campaigns run "
-                         "stop-and-go (order=auto, serpentine, raster or tour)")
+        raise UsageError("--grid: order=fly campaigns run on the simulated gantry (gonio simulate); on "
+                         "hardware use order=auto, serpentine, raster or tour")
+
+
+def _fly_command(args, cfg, material, exports) -> int:
+    """gonio simulate with order=fly (:mod:`gonio.fly`): create or resume the fly campaign in --out, one
+    journal transaction per sweep; Ctrl-C loses at most the sweep in flight."""
+    from gonio.campaign import compare_campaign, open_campaign
+    from gonio.dataset import BRDF_NAME
+    from gonio.fly import create_fly_campaign, run_fly_campaign
+    from gonio.sim.fly import FlySimulator
+    from gonio.store import JOURNAL_NAME
+
+    if cfg.detector.driver != "sim" or cfg.detector.sim.kind != "photodiode":
+        raise UsageError("--grid: order=fly simulates the photodiode of a simulated gantry only "
+                         "([detector] driver = 'sim', [detector.sim] kind = 'photodiode')")
+    out = _Out(args.quiet)
+    folder = Path(args.out)
+    _check_out(folder)
+    if (folder / JOURNAL_NAME).exists():
+        c = open_campaign(folder)
+        diff = compare_campaign(c.meta, material=material.spec, grid=args.grid, seed=args.seed, cfg=cfg)
+        if diff is not None:
+            c.close()
+            raise UsageError(f"--out: {folder} holds another campaign ({diff}); repeat the original "
+                             "command to resume it, or choose another --out")
+        out(f"resuming the fly campaign in {folder} at step {c.journal.next_step()}")
+    else:
+        c = create_fly_campaign(folder, cfg, grid=args.grid, material=material.spec, seed=args.seed)
+    meta = c.meta
+    out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} in {meta['fly']['lines']} sweeps, "
+        f"estimated {_hms(meta['estimated_s'])} of gantry time (bound {_hms(meta['lower_bound_s'])}; "
+        f"stop-and-go {_hms(meta['stop_and_go_estimated_s'])})")
+    t0 = time.perf_counter()
+    try:
+        run_fly_campaign(c, FlySimulator(c.cfg, material, seed=int(meta["seed"])))
+    except KeyboardInterrupt:
+        out(f"interrupted: {c.journal.done_count()} readings of whole sweeps are kept; run the same command "
+            "to resume from the next sweep")
+        return 130
+    finally:
+        c.close()
+    out(f"fly campaign done in {time.perf_counter() - t0:.1f} s of wall time: wrote {folder / BRDF_NAME} "
+        f"and {folder / JOURNAL_NAME}")
+    out(_model_check(folder, material))
+    _write_exports(folder, exports, out)
+    return 0
 
 
 # -- gonio config ---------------------------------------------------------------------------------
@@ -152,13 +197,15 @@ def cmd_simulate(args) -> int:
 
     # Everything the user typed is validated before anything is written.
     material = load_material(args.material)
-    _refuse_fly(parse_grid(args.grid))
+    fly = parse_grid(args.grid).order == "fly"
     exports = _export_formats(args.export)
     cfg = load_config(args.config)
     if args.detector is not None:
         from gonio.config import with_sim_detector
 
         cfg = with_sim_detector(cfg, args.detector)
+    if fly:
+        return _fly_command(args, cfg, material, exports)
     if cfg.detector.driver == "sim" and cfg.detector.sim.kind == "spectrometer":
         from gonio.sim.detector_spectral import spectral_material
 

@@ -125,10 +125,15 @@ def test_fly_on_merl_is_refused_naming_the_option(capsys):
     assert len(err) == 1 and "order=fly" in err[0] and "merl" in err[0]
 
 
-def test_campaign_commands_refuse_fly_and_write_nothing(tmp_path, capsys):
+def test_gonio_simulate_runs_a_fly_campaign_and_refuses_another_in_its_folder(tmp_path, capsys):
     out = tmp_path / "c"
-    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=30,order=fly", "--out", str(out)]) == 2
-    assert "order=fly" in capsys.readouterr().err and not out.exists()
+    args = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=30,order=fly", "--out", str(out), "--quiet"]
+    assert main(args) == 0
+    assert (out / "brdf.h5").is_file() and (out / "campaign.sqlite").is_file()
+    capsys.readouterr()
+    assert main(args[:-1] + ["--seed", "4"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "seed" in err[0]
 
 
 def test_journal_commits_a_batch_all_or_none(tmp_path):

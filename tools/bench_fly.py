@@ -1,0 +1,93 @@
+"""Fly scanning against stop-and-go: gantry time, bounds, planning time, and a whole simulated fly campaign.
+
+For ``--grid`` (default ``iso:step=2``) on the default two-arm gantry: the stop-and-go plan (its estimate
+and valid lower bound) and the fly plan over the same poses (:mod:`gonio.plan.fly`: estimate and its
+bound), the planning wall time of each; then, for each material, a whole simulated fly campaign
+(:class:`gonio.sim.fly.FlySimulator` over every sweep and checkpoint, calibrated with
+:func:`gonio.calibrate.calibrate`): its gantry time (the campaign clock at the end, home included), the
+wall time, the median and 95th percentile relative error against the material's own eval at the
+measured angles, and the blur term's share of the stated stddev. ``--plan-only GRID`` adds the planning
+times of another grid (e.g. ``iso:step=1``) without simulating it.
+
+Run: ``.venv/bin/python tools/bench_fly.py [--grid iso:step=2] [--plan-only iso:step=1]``; print
+``uptime`` beside the figures (the machine is shared).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from gonio.calibrate import calibrate
+from gonio.config import load_config
+from gonio.geometry import sph_to_vec
+from gonio.plan import build_plan
+from gonio.plan.fly import fly_plan
+from gonio.plan.report import hms
+from gonio.sim import materials
+from gonio.sim.fly import FlySimulator
+
+MATERIALS = ("lambert:albedo=0.5", "ward:rho_d=0.1,rho_s=0.05,alpha_x=0.1,alpha_y=0.3",
+             "cook-torrance:d=beckmann,m=0.3,metal=gold")
+
+
+def _plans(grid: str, cfg):
+    t0 = time.perf_counter()
+    plan = build_plan(grid, cfg)
+    t1 = time.perf_counter()
+    fp = fly_plan(plan, cfg)
+    t2 = time.perf_counter()
+    return plan, fp, t1 - t0, t2 - t1
+
+
+def _report_plans(grid, plan, fp, t_plan, t_fly):
+    print(f"{grid}: {len(plan.theta_i):,} poses")
+    print(f"  stop-and-go  estimate {hms(plan.estimated_s)} ({plan.estimated_s:,.0f} s)  bound "
+          f"{plan.lower_bound_s:,.0f} s  (estimate/bound {plan.estimated_s / plan.lower_bound_s:.3f})  "
+          f"planned in {t_plan:.1f} s")
+    print(f"  fly          estimate {hms(fp.estimated_s)} ({fp.estimated_s:,.0f} s)  bound "
+          f"{fp.lower_bound_s:,.0f} s  (estimate/bound {fp.estimated_s / fp.lower_bound_s:.3f})  "
+          f"planned in {t_fly:.1f} s more")
+    print(f"  fly: {fp.timing['lines']:,} lines, {fp.timing['stop_and_go_readings']:,} stop-and-go readings, "
+          f"{fp.timing['checkpoints']:,} checkpoints; gantry time {plan.estimated_s / fp.estimated_s:.1f}x "
+          "less than stop-and-go")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--grid", default="iso:step=2")
+    ap.add_argument("--plan-only", default=None)
+    args = ap.parse_args()
+    cfg = load_config(None)
+    grid = args.grid if "order=" in args.grid else args.grid + ",order=fly"
+    plan, fp, t_plan, t_fly = _plans(grid, cfg)
+    _report_plans(grid, plan, fp, t_plan, t_fly)
+    for spec in MATERIALS:
+        t0 = time.perf_counter()
+        ms = FlySimulator(cfg, spec, seed=1).campaign(fp)
+        t1 = time.perf_counter()
+        cal = calibrate(ms, cfg.reference.albedo)
+        a = np.radians(cal.angles_deg)
+        truth = materials.load(spec).eval(sph_to_vec(a[:, 0], a[:, 1]), sph_to_vec(a[:, 2], a[:, 3]))
+        ok = truth > 1e-3 * truth.max()
+        rel = np.abs(cal.value - truth)[ok] / truth[ok]
+        poses = [m for m in ms if m.kind == 0]
+        blur = np.stack([m.extra["stderr_blur"] for m in poses])
+        se = np.stack([m.stderr for m in poses])
+        share = blur[se > 0] / se[se > 0]
+        # The campaign clock at the end of the last reading, plus the move home the plan ends with.
+        end = ms[-1].campaign_s + (fp.estimated_s - fp.checkpoints[-1][3] - fp.reading_s)
+        print(f"  {spec}: {len(cal.value):,} samples, simulated gantry time {hms(end)} ({end:,.0f} s, "
+              f"{plan.estimated_s / end:.1f}x less than stop-and-go), wall {t1 - t0:.1f} s; median error "
+              f"{100 * np.median(rel):.3f} %, 95th pct {100 * np.percentile(rel, 95):.3f} %; blur is "
+              f"{100 * np.median(share):.0f} % of stderr (median), {100 * np.percentile(share, 95):.0f} % "
+              "(95th pct)")
+    if args.plan_only:
+        other = args.plan_only if "order=" in args.plan_only else args.plan_only + ",order=fly"
+        _report_plans(other, *_plans(other, cfg))
+
+
+if __name__ == "__main__":
+    main()
