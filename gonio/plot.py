@@ -371,8 +371,10 @@ def _draw_albedo(b, data, s, title, report):
     if cov.min() < 0.999:
         ax.plot(th, cov, color="0.45", ls=":", lw=1.5, label="measured fraction\nof the projected\n"
                 "hemisphere (albedo\nis a lower bound\nwhere it is < 1)")
-        report.notes.append(f"integrated over the measured part of the hemisphere ({100 * cov.min():.0f}–"
-                            f"{100 * cov.max():.0f} % of the projected solid angle): a lower bound")
+        lo, hi = f"{100 * cov.min():.1f}", f"{100 * cov.max():.1f}"
+        span = lo if lo == hi else f"{lo}–{hi}"
+        report.notes.append(f"integrated over the measured part of the hemisphere ({span} % of the "
+                            "projected solid angle): a lower bound")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     ax.grid(alpha=0.3)
     ax.set_title(f"{title}\ndirectional albedo (energy conservation at a glance)", fontsize=10)
