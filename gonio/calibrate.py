@@ -14,8 +14,9 @@ with K = R_d L_src Ω_s (R_d the responsivity): the viewing angle θo does not e
 of each point is what is read and the field stays on the sample (no cos θo; a detector that saw the
 whole sample would read intensity and need one). The white standard, a Lambertian of reflectance ρ_ref
 (per channel: a number, a value per channel, or a spectral table read at the bands), has
-f_ref = ρ_ref/π at every pair of angles (its own angular response is flat), and read at incidence
-θi_ref it gives S_ref − D = K · (ρ_ref/π) · cos θi_ref, so
+f_ref = ρ_ref/π at every pair of angles for an ideal diffuser (a real one's own angular response at the
+angles it is read at, ``[reference] response``, multiplies ρ_ref: the caller passes ρ_ref · response),
+and read at incidence θi_ref it gives S_ref − D = K · (ρ_ref/π) · cos θi_ref, so
 
     f_r = ρ_ref/π · (S − S_dark)/(S_ref − S_dark) · cos θi_ref / cos θi          [sr⁻¹]
 

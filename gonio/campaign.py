@@ -224,8 +224,8 @@ def finish_campaign(c: Campaign) -> Path:
         c.journal.log_event("fault", step=step, message=f"frame: {problem}")
     measurements = c.journal.measurements()
     ref, det = c.cfg.reference, c.journal.detector()
-    per_channel = ref.reflectance is not None or ref.spectrum is not None
-    rho = ref.reflectance_for(det["channels"], det["wavelengths_nm"]) if per_channel else ref.albedo
+    per_channel = ref.reflectance is not None or ref.spectrum is not None or ref.response != 1.0
+    rho = ref.reference_fr(det["channels"], det["wavelengths_nm"]) if per_channel else ref.albedo
     cal = calibrate(measurements, rho)
     exposure = {m.step: m.exposure_s for m in measurements}
     data = campaign_dataset(cal, c.journal.steps(), meta, exposure_s=[exposure[int(s)] for s in cal.steps],

@@ -381,6 +381,9 @@ class ReferenceConfig(_Strict):
     #: Instead of ``albedo``: its spectral reflectance (a spectrometer reads it at its bands; an RGB
     #: detector at the table's linear sRGB under D65, gonio.colour).
     spectrum: ReflectanceTable | None = None
+    #: The standard's own angular response where it is read (θi_ref, θo_ref, Δφ_ref below): its f_r
+    #: there over ρ/π, e.g. the 0°/45° reflectance factor of its certificate; 1 for an ideal diffuser.
+    response: float = Field(1.0, ge=0.8, le=1.2)
     #: A dark and a white-reference reading every this many poses (and at the start and end).
     every: int = Field(50, ge=1)
     #: Also one at least this often in gantry time (s) between reference readings; None: by count only.
@@ -396,6 +399,10 @@ class ReferenceConfig(_Strict):
         if self.reflectance is not None and any(not 0.0 < r <= 1.0 for r in self.reflectance):
             raise ValueError(f"reflectance: each value in (0, 1], got {list(self.reflectance)}")
         return self
+
+    def reference_fr(self, channels, wavelengths_nm=None):
+        """ρ_ref · response per channel: π times the standard's f_r at the angles it is read at."""
+        return self.reflectance_for(channels, wavelengths_nm) * self.response
 
     def reflectance_for(self, channels, wavelengths_nm=None):
         """The standard's reflectance per channel, (C,) float: ``reflectance``, the ``spectrum`` at the
@@ -522,7 +529,10 @@ class GonioConfig(_Strict):
 
     @model_validator(mode="after")
     def _reference_fits_the_detector(self):
-        self.reference.reflectance_for(self.detector.channel_names, self.detector.wavelengths_nm)
+        fr = self.reference.reference_fr(self.detector.channel_names, self.detector.wavelengths_nm)
+        if self.detector.driver == "sim" and fr.max() > 1.0:
+            raise ValueError(f"reference.response: the simulated standard would reflect reflectance x "
+                             f"response = {float(fr.max()):g} > 1 of the light it receives")
         return self
 
     @property

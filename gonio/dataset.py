@@ -35,7 +35,8 @@ Attributes (on the file and on the group, so that a reader of either sees them):
 ("gonio-brdf"), ``format_version`` (2), ``units`` ("sr^-1"), ``cosine`` ("none"), ``angles_units``
 ("degrees"), ``frame`` and ``angle_convention`` (DESIGN.md), ``channels``, ``color_space``,
 ``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo`` (and
-``reference_reflectance`` per channel where the standard was given per channel or as a spectrum), ``seed``,
+``reference_reflectance``, ρ_ref · response per channel, where the standard was given per channel, as a
+spectrum or with an angular response), ``seed``,
 ``software_version``, ``config_sha256`` and ``config`` (JSON: the config snapshot the campaign was
 planned with), ``created_unix``/``created_utc`` (campaign creation), ``written_unix``, and either
 ``material`` (the simulated material's spec; ``source`` = "simulated") or ``sample`` (a real sample's
@@ -187,8 +188,9 @@ def campaign_dataset(cal, steps: dict, meta: dict, *, exposure_s, reference_albe
     reference_albedo : float
         Hemispherical reflectance of the white standard used for the calibration.
     reference_reflectance : array_like, shape (C,), optional
-        The standard's reflectance per channel, where the config gave one per channel or a spectrum
-        (attribute ``reference_reflectance``).
+        ρ_ref · response per channel (π times the standard's f_r where it was read), where the config
+        gave a reflectance per channel, a spectrum or a response other than 1 (attribute
+        ``reference_reflectance``).
     software_version : str
         The gonio version writing the file.
     """

@@ -52,21 +52,25 @@ def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: 
 
 def reference_material(cfg: GonioConfig, spectral: bool = False):
     """The simulated white standard: a Lambertian of ``reference.albedo``, or of ``reference.reflectance``
-    per channel, or of ``reference.spectrum`` (spectral: ρ(λ) at every band; RGB: its linear sRGB)."""
+    per channel, or of ``reference.spectrum`` (spectral: ρ(λ) at every band; RGB: its linear sRGB), times
+    ``reference.response`` (so that at its reading angles it reflects as the config says)."""
     ref, det = cfg.reference, cfg.detector
+    g = ref.response
     if spectral:
-        from gonio.sim.detector_spectral import constant_reflectance
         from gonio.sim.materials.spectral import SpectralLambert
 
         if ref.spectrum is not None:
-            return SpectralLambert(ref.spectrum.at)
+            return SpectralLambert(lambda wl: ref.spectrum.at(wl) * g)
         if ref.reflectance is not None:
-            bands, rho = np.asarray(det.wavelengths_nm, float), np.asarray(ref.reflectance, float)
+            bands, rho = np.asarray(det.wavelengths_nm, float), np.asarray(ref.reflectance, float) * g
             return SpectralLambert(lambda wl: np.interp(wl, bands, rho))
-        return SpectralLambert(constant_reflectance(ref.albedo))
-    if ref.reflectance is None and ref.spectrum is None:
+        return SpectralLambert(lambda wl: np.full(np.shape(wl), ref.albedo * g))
+    if ref.reflectance is None and ref.spectrum is None and g == 1.0:
         return _materials.load(f"lambert:albedo={ref.albedo!r}")
-    rho = ref.reflectance_for(det.channel_names, det.wavelengths_nm)
+    rho = ref.reference_fr(det.channel_names, det.wavelengths_nm)
+    if np.any(rho > 1.0):
+        raise ValueError(f"reference.response: the simulated standard would reflect ρ·response = "
+                         f"{float(rho.max()):g} > 1 of the light it receives")
     return _materials.load("lambert:albedo=" + "/".join(repr(float(r)) for r in rho))
 
 

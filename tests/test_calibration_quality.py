@@ -133,3 +133,17 @@ def test_with_sensor_noise_the_camera_stddev_accounts_for_the_error(tmp_path):
     z = err / b.stddev
     assert 0.5 < np.sqrt(np.mean(z**2)) < 1.5
     assert np.abs(err).max() / (0.5 / np.pi) > 0.003  # the noise is really there
+
+
+def test_the_standards_own_angular_response_enters_the_calibration(tmp_path):
+    """A standard that reflects 3 % less than an ideal diffuser at its reading angles (response 0.97, as
+    its certificate would say): with the response the calibrated Lambertian is right, without it 3 % off."""
+    cfg = _cfg(reference={"response": 0.97})
+    c, b = _run(tmp_path, cfg)
+    np.testing.assert_allclose(b.value, 0.5 / np.pi, rtol=0.005)
+    np.testing.assert_allclose(b.attrs["reference_reflectance"], [0.99 * 0.97] * 3)
+    ideal = calibrate(c.journal.measurements(), cfg.reference.albedo).value
+    np.testing.assert_allclose(ideal / b.value, 1 / 0.97, rtol=1e-12)
+    c.close()
+    with pytest.raises(ConfigError, match="reference.response: the simulated standard would reflect"):
+        _cfg(reference={"response": 1.02})
