@@ -103,6 +103,18 @@ def test_a_real_simulated_campaign_exports(tmp_path):
         pytest.skip(f"campaign runner unavailable: {exc}")
     rep = export(tmp_path / "c", "bsdf", tmp_path / "c.bsdf")
     assert rep.interpolated > 0
+    # The gantry cannot measure retro-reflection: those gaps are filled (and said so), not left black.
+    assert any("gaps of the lattice" in note for note in rep.notes), rep.notes
+    from gonio.formats.rgl import eval_measured
+
+    rng = np.random.default_rng(2)
+    th, ph = np.radians(rng.uniform(0, 75, (2, 4000))), rng.uniform(0, 2 * np.pi, (2, 4000))
+    wi, wo = sph_to_vec(th[0], ph[0]), sph_to_vec(th[1], ph[1])
+    truth = load(spec).eval(wi, wo, precision="float64") * wo[:, 2:3]
+    got = eval_measured(read_tensor(tmp_path / "c.bsdf"), wi, wo)
+    err = np.abs(got - truth).sum() / truth.sum()
+    print(f"bsdf export of a simulated iso:step=15 campaign against its material: {err:.3f}")
+    assert err < 0.06  # a 15-degree grid interpolated: 0.029; with the gaps left black it was 0.12
     shutil.rmtree(tmp_path / "c")
 
 
