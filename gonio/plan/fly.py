@@ -68,6 +68,8 @@ _MAX_TRIM = 3
 _TRIMMED = "stop-and-go: the end pose of a line with no room for its run-up or run-down"
 #: Degrees: two positions closer than this on an axis count as equal; steps equal within it are equal.
 _TOL = 1e-6
+#: Above this many lines the entry bound searches a k-d tree instead of every pair (same values).
+_PAIRWISE_MAX_LINES = 200
 #: Lines per block of the pairwise bound (memory of the (block, lines, 4, n_axes) temporaries).
 _BLOCK = 256
 
@@ -294,13 +296,13 @@ def _fit(kin, axes, i, j, axis, step, exposure_s, ladder):
         s, e = line.start_deg, line.end_deg
         if not (lo - _TOL <= s[axis] <= hi + _TOL and lo - _TOL <= e[axis] <= hi + _TOL):
             continue
-        if kin.sweep_clearance(s, e)[0][0]:
+        if kin.sweep_clear_one(s, e)[0]:
             note = "" if frac == 1.0 else (f"slower ({100 * frac:.0f} % of top speed): the run-up or "
                                            "run-down reaches a limit or collides")
             return _noted(line, note), (False, False)
     s, e = line.start_deg, line.end_deg
-    ok_s = lo - _TOL <= s[axis] <= hi + _TOL and kin.sweep_clearance(s, pts[0])[0][0]
-    ok_e = lo - _TOL <= e[axis] <= hi + _TOL and kin.sweep_clearance(pts[-1], e)[0][0]
+    ok_s = lo - _TOL <= s[axis] <= hi + _TOL and kin.sweep_clear_one(s, pts[0])[0]
+    ok_e = lo - _TOL <= e[axis] <= hi + _TOL and kin.sweep_clear_one(pts[-1], e)[0]
     return None, (not ok_s, not ok_e)
 
 
@@ -478,6 +480,24 @@ def _bound(fp: FlyPlan, kin, metric: MoveMetric) -> tuple[float, dict]:
         r = ln.readings_deg()
         ends[k, 0], ends[k, 1] = r[0], r[-1]
     rest = np.stack([fp.reference_deg, fp.home_deg])
+    if n <= _PAIRWISE_MAX_LINES:
+        entry, method = _entries_pairwise(ends, axis, rest, v_max, a_max), "pairwise"
+    else:
+        entry, method = _entries_nearest(ends, axis, rest, v_max, a_max), "nearest (k-d tree)"
+    moves = float(entry.sum())
+    total = inner + fixed + moves
+    fp.timing["entries_method"] = method
+    return total, {"sweeps_s": inner, "fixed_s": fixed, "entries_s": moves, "total_s": total}
+
+
+def _entry_times(d, still, v_max, a_max):
+    """Least time for axis changes ``d`` (..., A): rest to rest where ``still``, else at top speed."""
+    return np.where(still, move_time(d, v_max, a_max), d / v_max)
+
+
+def _entries_pairwise(ends, axis, rest, v_max, a_max) -> np.ndarray:
+    """Each line's least entry time over every other line's ends and the rest positions, exactly."""
+    n = ends.shape[0]
     entry = np.full(n, np.inf)
     cols = np.arange(v_max.size)
     for b0 in range(0, n, _BLOCK):
@@ -485,17 +505,49 @@ def _bound(fp: FlyPlan, kin, metric: MoveMetric) -> tuple[float, dict]:
         to = ends[blk]                                             # (B, 2, A)
         d = np.abs(to[:, None, :, None, :] - ends[None, :, None, :, :])   # (B, n, 2, 2, A)
         still = (cols[None, None, :] != axis[blk, None, None]) & (cols[None, None, :] != axis[None, :, None])
-        t = np.where(still[:, :, None, None, :], move_time(d, v_max, a_max), d / v_max)
-        t = t.max(axis=-1).min(axis=(2, 3))                        # (B, n)
+        t = _entry_times(d, still[:, :, None, None, :], v_max, a_max).max(axis=-1).min(axis=(2, 3))
         own = np.arange(blk.start, blk.stop)
         t[own - blk.start, own] = np.inf
         dr_ = np.abs(to[:, :, None, :] - rest[None, None, :, :])   # (B, 2, 2, A)
-        still_r = cols[None, :] != axis[blk, None]
-        tr = np.where(still_r[:, None, None, :], move_time(dr_, v_max, a_max), dr_ / v_max)
+        tr = _entry_times(dr_, (cols[None, :] != axis[blk, None])[:, None, None, :], v_max, a_max)
         entry[blk] = np.minimum(t.min(axis=1), tr.max(axis=-1).min(axis=(1, 2)))
-    moves = float(entry.sum())
-    total = inner + fixed + moves
-    return total, {"sweeps_s": inner, "fixed_s": fixed, "entries_s": moves, "total_s": total}
+    return entry
+
+
+def _entries_nearest(ends, axis, rest, v_max, a_max) -> np.ndarray:
+    """:func:`_entries_pairwise` for many lines, the same values: no move is quicker than its largest
+    |change| / v_max over axes, a Chebyshev distance in axis space scaled by 1/v_max; so for each line
+    the exact times of its nearest candidates in that distance give a time t, and only candidates
+    nearer than t (a k-d tree ball query) can do better."""
+    from scipy.spatial import cKDTree
+
+    n, _, n_axes = ends.shape
+    cand = np.concatenate([ends.reshape(2 * n, n_axes), rest])
+    owner = np.concatenate([np.repeat(np.arange(n), 2), np.full(len(rest), -1)])
+    moving_axis = np.concatenate([np.repeat(axis, 2), np.full(len(rest), -1)])
+    tree = cKDTree(cand / v_max)
+    cols = np.arange(n_axes)
+    entry = np.full(n, np.inf)
+
+    def exact(j, e, idx):
+        idx = idx[owner[idx] != j]
+        if idx.size == 0:
+            return np.inf
+        d = np.abs(cand[idx] - ends[j, e])
+        still = (cols[None, :] != axis[j]) & (cols[None, :] != moving_axis[idx, None])
+        return float(_entry_times(d, still, v_max, a_max).max(axis=-1).min())
+
+    k = min(8, cand.shape[0])
+    _, near = tree.query((ends / v_max).reshape(2 * n, n_axes), k=k, p=np.inf)
+    near = np.asarray(near).reshape(n, 2, k)
+    for j in range(n):
+        for e in (0, 1):
+            best = exact(j, e, near[j, e])
+            if np.isfinite(best):
+                ball = tree.query_ball_point(ends[j, e] / v_max, r=best, p=np.inf)
+                best = min(best, exact(j, e, np.asarray(ball, dtype=np.int64)))
+            entry[j] = min(entry[j], best)
+    return entry
 
 
 def fly_summary(fp: FlyPlan) -> dict:

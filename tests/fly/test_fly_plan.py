@@ -12,7 +12,15 @@ from gonio.config import load_config
 from gonio.kinematics import make_kinematics
 from gonio.motion.metric import MoveMetric
 from gonio.plan import build_plan
-from gonio.plan.fly import FLY_DUTY, FlyPlan, _bound, _schedule, fly_plan
+from gonio.plan.fly import (
+    FLY_DUTY,
+    FlyPlan,
+    _bound,
+    _entries_nearest,
+    _entries_pairwise,
+    _schedule,
+    fly_plan,
+)
 
 
 @pytest.fixture(scope="module")
@@ -96,6 +104,16 @@ def test_estimate_above_bound_for_any_order_of_the_lines(two_arm):
         # The bound does not depend on the order (it is over any order).
         assert _bound(other, kin, metric)[0] == pytest.approx(fp.lower_bound_s, rel=1e-9) or \
             other.checkpoint_before.sum() != fp.checkpoint_before.sum()
+
+
+def test_entry_bound_by_nearest_search_equals_the_pairwise_one(two_arm):
+    cfg, kin, plan, fp = two_arm
+    ends = np.stack([[ln.readings_deg()[0], ln.readings_deg()[-1]] for ln in fp.lines])
+    axis = np.array([ln.axis for ln in fp.lines])
+    rest = np.stack([fp.reference_deg, fp.home_deg])
+    v, a = np.asarray(kin.velocity_deg_s), np.asarray(kin.accel_deg_s2)
+    pairwise = _entries_pairwise(ends, axis, rest, v, a)
+    assert np.allclose(_entries_nearest(ends, axis, rest, v, a), pairwise, rtol=0, atol=1e-12)
 
 
 def test_estimate_adds_up_its_parts(two_arm):
