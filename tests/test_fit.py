@@ -263,3 +263,19 @@ def test_cli_fit_refuses_a_folder_that_is_not_a_finished_campaign(tmp_path, caps
     assert "not a finished campaign (no brdf.h5" in capsys.readouterr().err
     assert main(["fit", str(tmp_path / "nothing"), "--model", "lambert"]) == 2
     assert "no such campaign folder" in capsys.readouterr().err
+
+
+def test_a_spectrometer_campaign_is_fitted_in_linear_srgb_and_its_report_builds(tmp_path):
+    """The models are RGB: a spectrometer's 41 bands are converted to linear sRGB (D65) before fitting,
+    never read as if their first three bands were R, G, B (which fitted gold as grey)."""
+    from gonio.report import build_report
+
+    folder = tmp_path / "spectral"
+    assert main(["simulate", "ggx:alpha=0.3,metal=gold", "--grid", "iso:step=30", "--out", str(folder),
+                 "--detector", "spectrometer", "--quiet", "--seed", "1"]) == 0
+    r = fit(folder, "ggx", starts=2)
+    assert r.parameters["alpha"]["value"] == pytest.approx(0.3, rel=0.02)
+    rho = [r.parameters[f"rho_s.{c}"]["value"] for c in "RGB"]
+    assert rho[0] > rho[1] > rho[2] and rho[0] > 2.0 * rho[2]      # gold: red-yellow, not grey
+    rep = build_report(folder, ["ggx"], starts=2)
+    assert rep is not None

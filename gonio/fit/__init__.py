@@ -62,9 +62,26 @@ def load_samples(source) -> tuple[FitData, dict]:
         source = read_brdf(h5)
     r = {k: np.radians(np.asarray(getattr(source, k), dtype=np.float64).ravel())
          for k in ("theta_i", "phi_i", "theta_o", "phi_o")}
-    data = FitData(sph_to_vec(r["theta_i"], r["phi_i"]), sph_to_vec(r["theta_o"], r["phi_o"]),
-                   source.value, source.stddev)
-    return data, dict(source.attrs)
+    attrs = dict(source.attrs)
+    value, stddev = _as_rgb(np.asarray(source.value, np.float64), source.stddev, attrs)
+    data = FitData(sph_to_vec(r["theta_i"], r["phi_i"]), sph_to_vec(r["theta_o"], r["phi_o"]), value, stddev)
+    return data, attrs
+
+
+def _as_rgb(value, stddev, attrs):
+    """The models are fitted in R, G, B: a spectrometer's bands (``wavelengths_nm``) are converted to
+    linear sRGB under D65 (:func:`gonio.colour.bands_to_rgb`, linear in the bands), their variances
+    carried through the same weights squared (bands taken as independent). RGB data pass unchanged."""
+    wl = attrs.get("wavelengths_nm")
+    if wl is None or value.shape[1] != len(wl):
+        return value, stddev
+    from gonio.colour import bands_to_rgb
+
+    weights = bands_to_rgb(np.eye(len(wl)), np.asarray(wl, np.float64))   # (B, 3): row b = RGB of band b
+    rgb = value @ weights
+    sd = None if stddev is None else np.sqrt(np.asarray(stddev, np.float64) ** 2 @ weights ** 2)
+    attrs["fitted_from"] = f"{len(wl)} spectral bands as linear sRGB under D65"
+    return rgb, sd
 
 
 @dataclass

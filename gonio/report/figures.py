@@ -34,6 +34,30 @@ def _colour(ch: str, k: int) -> str:
     return _CHANNEL_COLOURS.get(ch, f"C{k}")
 
 
+#: Per-channel curves drawn at most: a spectrometer's 41 bands are shown as this many, evenly spaced.
+MAX_CURVES = 5
+
+
+def shown_channels(channels) -> list[int]:
+    """Indices of the channels drawn per channel: all of R, G, B; for a spectrometer's bands, at most
+    :data:`MAX_CURVES` evenly spaced ones (first and last included).
+
+    >>> shown_channels(("R", "G", "B"))
+    [0, 1, 2]
+    >>> shown_channels([f"{w}nm" for w in range(380, 790, 10)])
+    [0, 10, 20, 30, 40]
+    """
+    n = len(channels)
+    if n <= MAX_CURVES:
+        return list(range(n))
+    return sorted({int(round(x)) for x in np.linspace(0, n - 1, MAX_CURVES)})
+
+
+def _marker(n: int, k: int) -> float:
+    """Marker size: larger first for a few channels, so that coinciding ones (a grey standard) all show."""
+    return 3.5 + 2.5 * (n - 1 - k) if n <= 3 else 4.0
+
+
 def _time_axis(seconds: np.ndarray) -> tuple[np.ndarray, str]:
     top = float(np.max(seconds)) if len(seconds) else 0.0
     if top >= 3 * 3600:
@@ -96,13 +120,14 @@ def calibration(ref, dark, channels) -> bytes:
     fig = _figure(10.0, 6.4)
     ax, dx = fig.subplots(2, 1, sharex=True)
     t, label = _time_axis(ref.time_s)
-    n = len(channels)
-    for k, ch in enumerate(channels):
+    shown = shown_channels(channels)
+    n = len(shown)
+    for j, k in enumerate(shown):
+        ch = channels[k]
         pct = 100.0 * (ref.rate[:, k] / ref.scale[k] - 1.0)
         err = 100.0 * ref.stderr[:, k] / ref.scale[k]
-        # larger markers first, so that channels that coincide (a grey standard) all stay visible
-        ax.errorbar(t, pct, yerr=err, fmt="o-", ms=3.5 + 2.5 * (n - 1 - k), lw=1.0, capsize=2,
-                    color=_colour(ch, k), label=ch, alpha=0.85)
+        ax.errorbar(t, pct, yerr=err, fmt="o-", ms=_marker(n, j), lw=1.0, capsize=2,
+                    color=_colour(ch, j), label=ch, alpha=0.85)
     if ref.flagged:
         worst = np.array([100.0 * (ref.rate[i] / ref.scale - 1.0) for i in ref.flagged])
         ax.plot(t[ref.flagged], worst.min(axis=1), "o", ms=14, mfc="none", mec=_FLAG, mew=2,
@@ -117,10 +142,10 @@ def calibration(ref, dark, channels) -> bytes:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     td = _scale_like(dark.time_s, ref.time_s)
-    for k, ch in enumerate(channels):
-        dx.errorbar(td, dark.rate[:, k], yerr=dark.stderr[:, k], fmt="s-", ms=3.5 + 2.5 * (n - 1 - k), lw=1.0,
-                    capsize=2,
-                    color=_colour(ch, k), label=ch, alpha=0.85)
+    for j, k in enumerate(shown):
+        ch = channels[k]
+        dx.errorbar(td, dark.rate[:, k], yerr=dark.stderr[:, k], fmt="s-", ms=_marker(n, j), lw=1.0,
+                    capsize=2, color=_colour(ch, j), label=ch, alpha=0.85)
     if dark.flagged:
         dx.plot(td[dark.flagged], dark.rate[dark.flagged].max(axis=1), "o", ms=14, mfc="none", mec=_FLAG,
                 mew=2, label="flagged reading")
@@ -143,8 +168,9 @@ def albedo(alb: dict) -> bytes:
     fig = _figure(8.5, 4.2)
     ax = fig.add_subplot()
     th = alb["theta_i"]
-    for k, ch in enumerate(alb["channels"]):
-        ax.plot(th, alb["albedo"][:, k], "o-", ms=3.5, color=_colour(ch, k), label=ch)
+    for j, k in enumerate(shown_channels(alb["channels"])):
+        ch = alb["channels"][k]
+        ax.plot(th, alb["albedo"][:, k], "o-", ms=3.5, color=_colour(ch, j), label=ch)
     over = alb["albedo"] > 1.0
     if over.any():
         rows, cols = np.nonzero(over)

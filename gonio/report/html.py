@@ -8,6 +8,7 @@ from html import escape
 import numpy as np
 
 from gonio.report import checks, journal, models
+from gonio.report.figures import shown_channels
 
 __all__ = ["render", "SECTIONS", "LEVELS"]
 
@@ -116,13 +117,21 @@ def _section_campaign(rep) -> str:
     return html
 
 
+def _drift_words(channels, drift) -> str:
+    """Each channel's drift, or for a spectrometer's many bands the range across them."""
+    if len(channels) <= 4:
+        return ", ".join(f"{c} {100 * d:+.2f} %" for c, d in zip(channels, drift, strict=True))
+    lo, hi = int(np.argmin(drift)), int(np.argmax(drift))
+    return (f"from {100 * drift[lo]:+.2f} % ({channels[lo]}) to {100 * drift[hi]:+.2f} % ({channels[hi]}) "
+            f"across the {len(channels)} bands (figures: {len(shown_channels(channels))} of them)")
+
+
 def _section_calibration(rep) -> str:
     ref, dark, ch = rep.reference, rep.dark, rep.facts["channels"]
     html = (f"<p>Reference albedo (hemispherical reflectance of the white standard): "
             f"<b>{rep.facts['reference_albedo']:g}</b>. {len(ref.step)} white-reference and "
             f"{len(dark.step)} dark readings. Drift of the white reference from the first to the last good "
-            "reading: "
-            + ", ".join(f"{c} {100 * d:+.2f} %" for c, d in zip(ch, ref.drift, strict=True)) + ".</p>")
+            "reading: " + _drift_words(ch, ref.drift) + ".</p>")
     html += _img(rep.figures["calibration"], "white-reference and dark readings over campaign time",
                  "Top: each white-reference reading net of the dark, as % from the median, ±1 standard "
                  "error. Bottom: the dark readings. A circled reading is off the line through its neighbours "
