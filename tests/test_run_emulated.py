@@ -92,6 +92,20 @@ def test_a_campaign_through_the_drivers_matches_the_simulation(tmp_path, twin):
     _matches(measured, _simulated(tmp_path, TWINS[twin]), channel_mean="dynamixel" in twin)
 
 
+def test_the_emulated_white_standard_is_the_one_the_config_describes(tmp_path):
+    """A standard of a different reflectance per channel: the emulated detector reads that standard, so
+    the calibration (which divides by it) gives back a grey Lambertian in every channel."""
+    data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+    data["reference"]["reflectance"] = [0.9, 0.6, 0.3]
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(parse_config(data), "lambert:albedo=0.5", clock=clock, any_port=True) as emu:
+        (state, runner), _ = _emulated_run(tmp_path / "emu", emu, clock)
+        assert state == State.DONE, runner.fault
+    measured = read_brdf(tmp_path / "emu" / "brdf.h5")
+    assert measured.value.shape[1] == 3
+    np.testing.assert_allclose(measured.value, 0.5 / np.pi, rtol=0.02)
+
+
 def _faulted_then_cleared(tmp_path, emu, clock, inject, at_step=5, between=None):
     """Run with ``inject(emu)`` at ``at_step``; the campaign faults; ``between(emu)`` (the operator's
     repair, if any); clearing the fault finishes the campaign."""

@@ -153,6 +153,7 @@ class EmulatedGantry:
         from gonio.kinematics import make_kinematics
         from gonio.sim import materials as _materials
         from gonio.sim.detector import SimDetector
+        from gonio.sim.gantry import reference_material
         from gonio.sim.light import SimLight
 
         cfg = self.cfg
@@ -160,9 +161,10 @@ class EmulatedGantry:
         light = SimLight(cfg.light, self.clock)
         light.connect()
         sample = _materials.load(material) if isinstance(material, str) else material
-        reference = _materials.load(f"lambert:albedo={cfg.reference.albedo!r}")
         views = {n: _ShaftView(self._positions[n]) for n in kinematics.axis_names}
         rgb = cfg.detector.model_copy(update={"channels": ("R", "G", "B")})
+        # the standard as the config describes it (albedo, per channel or spectral; its response)
+        reference = reference_material(cfg.model_copy(update={"detector": rgb}))
         det = SimDetector(rgb, light=light, axes=views,
                           kinematics=kinematics, materials={"sample": sample, "reference": reference},
                           clock=self.clock, seed=seed, name="emulated detector")
