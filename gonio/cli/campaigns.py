@@ -351,6 +351,16 @@ def campaign_status(folder: Path) -> dict:
 
 
 def cmd_status(args) -> int:
+    import re
+
+    from gonio.daemon.records import ID_PATTERN
+
+    # A campaign id (or --url): ask the daemon, as `gonio queue ID` does; otherwise read the folder.
+    if args.url is not None or (re.match(ID_PATTERN, args.dir) and not Path(args.dir).exists()):
+        from gonio.daemon.commands import cmd_queue
+
+        args.id = args.dir
+        return cmd_queue(args)
     st = campaign_status(Path(args.dir))
     if args.json:
         print(json.dumps(st, indent=2))
@@ -417,9 +427,12 @@ def add_parsers(sub, fmt) -> None:
                          "merl, bsdf, bsdf-spectral, radiance, csv, h5")
     ss.set_defaults(func=cmd_simulate)
     st = sub.add_parser("status", formatter_class=fmt,
-                        help="a campaign's state, progress, ETA and last fault (read-only, safe while it "
-                             "runs)")
-    st.add_argument("dir", metavar="DIR", help="campaign folder")
+                        help="a campaign's state, progress, ETA and last fault, from its folder (read-only, "
+                             "safe while it runs) or from the daemon")
+    st.add_argument("dir", metavar="DIR|ID", help="campaign folder, or the id of a campaign of the daemon "
+                    "(e.g. c00001)")
+    st.add_argument("--url", default=None, help="ask this daemon about campaign ID (default for an ID: "
+                    "GONIO_URL, else http://127.0.0.1:8765)")
     st.add_argument("--json", action="store_true", help="one JSON object")
     st.set_defaults(func=cmd_status)
     sc = sub.add_parser("config", formatter_class=fmt, help="list or print the shipped gantry configs")

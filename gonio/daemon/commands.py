@@ -1,9 +1,9 @@
 """The daemon's commands on the ``gonio`` command line: ``serve`` and its clients.
 
 ``gonio serve`` runs the daemon; ``gonio submit``, ``queue``, ``watch``, ``pause``, ``resume``,
-``abort``, ``halt`` and ``fetch`` talk to it (:mod:`gonio.daemon.client`). ``gonio queue [ID]`` is the
-client form of ``gonio status``: the daemon's queue, or one campaign of it (``gonio status DIR`` still
-reads a campaign folder directly). Each returns an exit status and prints one line on failure:
+``abort``, ``halt`` and ``fetch`` talk to it (:mod:`gonio.daemon.client`). ``gonio queue [ID]`` shows
+the daemon's queue, or one campaign of it, as ``gonio status ID`` does (``gonio status DIR`` reads a
+campaign folder directly). Each returns an exit status and prints one line on failure:
 1 refused or failed, 2 a usage mistake, 3 no daemon (or lost it).
 """
 

@@ -35,6 +35,9 @@ def test_submit_watch_queue_fetch(serve, env, tmp_path, capsys):
     assert "c00001  done" in capsys.readouterr().out
     assert main(["queue", "c00001"]) == 0
     assert "progress: 30/30 steps (100.0 %)" in capsys.readouterr().out
+    assert main(["status", "c00001"]) == 0            # an id: the daemon's status of that campaign
+    out = capsys.readouterr().out
+    assert out.startswith("c00001: done") and "progress: 30/30 steps (100.0 %)" in out
     assert main(["fetch", "c00001", "--out", str(tmp_path / "b.h5")]) == 0
     with h5py.File(tmp_path / "b.h5") as f:
         assert "samples" in f
@@ -78,3 +81,6 @@ def test_one_clear_line_when_there_is_no_daemon_or_it_refuses(serve, env, capsys
     assert main(["fetch", "c00042", "--out", "x.h5"]) == 1
     assert "no such campaign" in capsys.readouterr().err
     assert main(["queue", "--url", "ftp://x"]) == 2
+    capsys.readouterr()
+    assert main(["status", "c00001", "--url", "http://127.0.0.1:9"]) == 3
+    assert capsys.readouterr().err.strip().startswith("gonio status: no gonio daemon at http://127.0.0.1:9")
