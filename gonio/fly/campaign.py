@@ -76,10 +76,17 @@ def run_fly_campaign(c: Campaign, reader, *, on_sweep: Callable[[int, int], None
     fp = fly_plan_of(c)
     items = fly_steps(fp)
     done = set(c.journal.done_steps().tolist())
-    for n, item in enumerate(items):
-        if item[2] in done:   # its first step: committed whole, one transaction per item
-            continue
-        c.journal.commit_measurements(reader.item(fp, item))
-        if on_sweep is not None:
-            on_sweep(n + 1, len(items))
+    c.journal.log_event("state", state="running", message=f"fly: from step {c.journal.next_step()}")
+    try:
+        for n, item in enumerate(items):
+            if item[2] in done:   # its first step: committed whole, one transaction per item
+                continue
+            c.journal.commit_measurements(reader.item(fp, item))
+            if on_sweep is not None:
+                on_sweep(n + 1, len(items))
+    except KeyboardInterrupt:
+        c.journal.log_event("state", state="paused", message="interrupted: the sweep in flight is not kept")
+        raise
+    c.journal.log_event("state", state="done", message="fly: every sweep read",
+                        campaign_s=float(fp.estimated_s))
     return finish_campaign(c)

@@ -166,6 +166,9 @@ def test_campaign_resumes_from_the_next_sweep_and_equals_an_uninterrupted_one(tm
     c = open_campaign(tmp_path / "b")
     run_fly_campaign(c, FlySimulator(c.cfg, spec, seed=3))
     c.close()
+    from gonio.cli.campaigns import campaign_status
+
+    assert campaign_status(tmp_path / "b")["state"] == "done"
     a, b = read_brdf(tmp_path / "a" / "brdf.h5"), read_brdf(tmp_path / "b" / "brdf.h5")
     assert len(a.value) > 200
     for name in ("value", "stddev", "theta_i", "phi_i", "theta_o", "phi_o", "campaign_s", "step", "pose"):
