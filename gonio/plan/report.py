@@ -124,7 +124,8 @@ def _format_fly(s: dict) -> list[str]:
     """Stop-and-go and fly side by side (:mod:`gonio.plan.fly`)."""
     f = s["fly"]
     est, low, fest, flow = s["estimated_s"], s["lower_bound_s"], f["estimated_s"], f["lower_bound_s"]
-    gain = f"   ({est / fest:.1f}x less gantry time)" if fest > 0 else ""
+    gain = "" if fest <= 0 else (f"   (fly: {est / fest:.1f}x less gantry time)" if est >= fest
+                                 else f"   (fly: {fest / est:.2f}x the stop-and-go time)")
 
     def ratio(e, b):
         return f"{e / b:.3f}" if b > 0 else "-"
