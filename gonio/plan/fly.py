@@ -22,9 +22,11 @@ Checks. Each line's whole travel, rest to rest (run-up, sweep, run-down), is one
 its swept path is the same set of axis positions as the rest-to-rest move between its ends, so
 :meth:`Kinematics.sweep_clearance` certifies it exactly, and both ends must be within the limits.
 Where the run-up or run-down of the top speed leaves the limits or collides, the speed is lowered
-(``_SPEED_LADDER``, the run-up shrinks as v²) and the line notes why; a line whose sweep between
-its first and last reading collides is split at the colliding step; a line that no speed in the
-ladder clears is read stop-and-go, pose by pose, with the reason. Transits between lines, to and from
+(``_SPEED_LADDER``, the run-up shrinks as v²) and the line notes why; when not even half the top speed
+fits, up to ``_MAX_TRIM`` poses at the blocked end are read stop-and-go instead (a ring that starts
+right at the other carriage has no room at all); a line whose sweep between its first and last reading
+collides is split at the colliding step; a line that no speed in the ladder clears is read
+stop-and-go, pose by pose, with the reason. Transits between lines, to and from
 the white reference and home go through :func:`gonio.motion.safe.safe_path` like every stop-and-go
 move.
 
