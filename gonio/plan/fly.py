@@ -23,10 +23,10 @@ its swept path is the same set of axis positions as the rest-to-rest move betwee
 :meth:`Kinematics.sweep_clearance` certifies it exactly, and both ends must be within the limits.
 Where the run-up or run-down of the top speed leaves the limits or collides, the speed is lowered
 (``_SPEED_LADDER``, the run-up shrinks as v²) and the line notes why; when not even half the top speed
-fits, up to ``_MAX_TRIM`` poses at the blocked end are read stop-and-go instead (a ring that starts
-right at the other carriage has no room at all); a line whose sweep between its first and last reading
-collides is split at the colliding step; a line that no speed in the ladder clears is read
-stop-and-go, pose by pose, with the reason. Transits between lines, to and from
+fits, the poses at the blocked end that half the top speed's run-up needs are read stop-and-go instead
+(a ring that starts right at the other carriage has no room at all); a line whose sweep between its
+first and last reading collides is split at the colliding step; a line that no speed in the ladder
+clears is read stop-and-go, pose by pose, with the reason. Transits between lines, to and from
 the white reference and home go through :func:`gonio.motion.safe.safe_path` like every stop-and-go
 move.
 
@@ -64,9 +64,8 @@ __all__ = ["FLY_DUTY", "FlyLine", "FlyPlan", "fly_plan", "fly_summary", "fly_ste
 FLY_DUTY = 0.5
 #: Speeds tried (fractions of the axis's top speed) when the run-up or run-down does not fit.
 _SPEED_LADDER = (1.0, 0.7, 0.5, 0.35, 0.25, 0.18, 0.12, 0.08, 0.05)
-#: The speeds tried before an end pose is given up to a stop-and-go reading, and how many per end.
+#: The speeds tried before an end pose is given up to a stop-and-go reading.
 _FAST = tuple(f for f in _SPEED_LADDER if f >= 0.5)
-_MAX_TRIM = 3
 _TRIMMED = "stop-and-go: the end pose of a line with no room for its run-up or run-down"
 #: Degrees: two positions closer than this on an axis count as equal; steps equal within it are equal.
 _TOL = 1e-6
@@ -266,22 +265,33 @@ def _lines_of_run(kin, axes, i, j, axis, step, exposure_s) -> list[FlyLine]:
         return head + tail
     # Fast lines first, trimming an end pose into a stop-and-go reading where that end has no room
     # (a ring that starts at the other carriage, an arc that ends at a limit); then any speed at all.
+    # At most as many poses per end as the run-up of the slowest fast speed covers (plus one).
+    v, a = _FAST[-1] * float(kin.velocity_deg_s[axis]), float(kin.accel_deg_s2[axis])
+    most = int(np.ceil((v * v / (2 * a) + 0.5 * v * exposure_s) / abs(step))) + 1
     front = back = 0
-    for _ in range(2 * _MAX_TRIM):
+    tried = []
+    for _ in range(2 * most + 2):
         if j - back - (i + front) < 2:
             break
+        tried.append((front, back))
         line, blocked = _fit(kin, axes, i + front, j - back, axis, step, exposure_s, _FAST)
         if line is not None:
-            return ([_still(axes, k, _TRIMMED) for k in range(i, i + front)] + [line]
-                    + [_still(axes, k, _TRIMMED) for k in range(j - back, j)])
+            return _trimmed(axes, i, j, front, back, line)
         front += blocked[0]
         back += blocked[1]
-        if not any(blocked) or front > _MAX_TRIM or back > _MAX_TRIM:
+        if not any(blocked) or front > most or back > most:
             break
-    line, _ = _fit(kin, axes, i, j, axis, step, exposure_s, _SPEED_LADDER)
-    if line is not None:
-        return [line]
+    # Then any speed at all: the whole run first, then the most trimmed one tried.
+    for front, back in [(0, 0)] + tried[-1:]:
+        line, _ = _fit(kin, axes, i + front, j - back, axis, step, exposure_s, _SPEED_LADDER)
+        if line is not None:
+            return _trimmed(axes, i, j, front, back, line)
     return [_still(axes, k, "stop-and-go: no run-up or run-down fits") for k in range(i, j)]
+
+
+def _trimmed(axes, i, j, front, back, line) -> list[FlyLine]:
+    return ([_still(axes, k, _TRIMMED) for k in range(i, i + front)] + [line]
+            + [_still(axes, k, _TRIMMED) for k in range(j - back, j)])
 
 
 def _fit(kin, axes, i, j, axis, step, exposure_s, ladder):

@@ -89,6 +89,17 @@ def test_lines_without_room_are_slowed_or_trimmed_with_a_reason(two_arm):
             assert not (inside and kin.sweep_clearance(top.start_deg, top.end_deg)[0][0])
 
 
+def test_fine_steps_trim_as_many_end_poses_as_the_run_up_needs():
+    # At step 1 a ring starting at the other carriage needs 4 poses of room for half the top speed:
+    # they are read stop-and-go and the rest of the ring is still swept.
+    cfg = load_config(None)
+    plan = build_plan("iso:step=1,theta_max=6,order=fly", cfg)
+    fp = fly_plan(plan, cfg)
+    swept = sum(ln.n for ln in fp.lines if ln.moving)
+    assert swept > 0.9 * len(plan.theta_i)
+    assert fp.estimated_s < plan.estimated_s / 5
+
+
 def test_estimate_above_bound_for_any_order_of_the_lines(two_arm):
     cfg, kin, plan, fp = two_arm
     metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
