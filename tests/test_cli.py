@@ -270,3 +270,34 @@ def test_a_signal_mid_campaign_pauses_parks_journals_and_says_how_to_resume(tmp_
     j.close()
     r = _gonio("status", str(out))
     assert "paused" in r.stdout
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_inside_a_journal_transaction_pauses_cleanly(tmp_path, capsys, monkeypatch, sig):
+    """The handler runs in the main thread wherever it is, here between the BEGIN and the COMMIT of a
+    step's measurement: the pause and its journal event must not nest a transaction in that one."""
+    from gonio.store import JOURNAL_NAME, Journal
+
+    real_write, writes = Journal._write, []
+
+    def write(self, sql, params=()):
+        real_write(self, sql, params)
+        if sql.startswith("INSERT INTO measurements"):
+            writes.append(sql)
+            if len(writes) == 10:          # inside the transaction of the 10th step
+                os.kill(os.getpid(), sig)
+
+    monkeypatch.setattr(Journal, "_write", write)
+    out = tmp_path / "run"
+    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=15", "--quiet", "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "run the same command to resume" in err
+    j = Journal.open(out / JOURNAL_NAME, readonly=True)
+    try:
+        kinds = [e["kind"] for e in j.events()]
+        assert "signal" in kinds and kinds[-1] == "park" and j.last_event("state")["state"] == "paused"
+        assert j.done_count() >= 10 and j.done_steps().tolist() == list(range(j.done_count()))
+    finally:
+        j.close()
+    monkeypatch.undo()
+    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=15", "--quiet", "--out", str(out)]) == 0

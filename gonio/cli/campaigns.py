@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import threading
 import time
 from pathlib import Path
 
@@ -262,16 +263,25 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
     t0 = time.perf_counter()
     progress, on_step = _progress(out, n_steps, c.journal.next_step(), gantry, args.quiet)
     signals: list[str] = []
+    actors: list[threading.Thread] = []   # the threads acting on signals (joined before the journal closes)
 
     def on_runner(runner):
-        def handler(signum, frame):
-            name = signal.Signals(signum).name
-            signals.append(name)
-            if len(signals) == 1:
-                runner.request_pause(f"{name}: finishing the step in flight, then parking")
+        def act(name: str, first: bool) -> None:
+            if first:
                 runner.journal.log_event("signal", message=f"{name} received", campaign_s=runner.campaign_s())
+                runner.request_pause(f"{name}: finishing the step in flight, then parking")
             else:
                 runner.request_halt(f"{name} again: halt")
+
+        def handler(signum, frame):
+            # The handler interrupts the main thread anywhere, also inside a journal transaction or a
+            # device command (their locks are re-entrant): acting from here would nest a transaction in
+            # it. Another thread acts as soon as those locks are free, as any other thread's request does.
+            name = signal.Signals(signum).name
+            signals.append(name)
+            t = threading.Thread(target=act, args=(name, len(signals) == 1), name=f"gonio-{name}", daemon=True)
+            actors.append(t)
+            t.start()
 
         if _in_main_thread():
             signal.signal(signal.SIGINT, handler)
@@ -291,6 +301,8 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
         return 1
     finally:
         _install_startup_handlers()
+        for t in actors:
+            t.join(timeout=30.0)
         c_done = c.journal.done_count()
         c.close()
     wall = time.perf_counter() - t0
