@@ -136,6 +136,13 @@ def test_read_only_folder_is_refused(tmp_path, capsys):
         ro.chmod(0o755)
 
 
+@pytest.mark.skipif(os.geteuid() != 0 or not Path("/sys/kernel").is_dir(), reason="root, on Linux's sysfs")
+def test_a_folder_root_cannot_create_is_one_line_naming_out(tmp_path, capsys):
+    """Root passes every permission check; sysfs still refuses a new folder (EPERM)."""
+    assert main([*SIM, "--out", "/sys/gonio-test-run"]) == 2
+    _one_clear_line(capsys, "--out", "/sys/gonio-test-run", "cannot be written")
+
+
 def test_read_only_folder_is_refused_even_for_root(tmp_path, capsys, monkeypatch):
     """Root ignores permission bits; what root cannot write is a read-only mount. os.access is what
     gonio asks, so the check is shown by making it answer no."""
@@ -289,7 +296,8 @@ def test_a_signal_inside_a_journal_transaction_pauses_cleanly(tmp_path, capsys, 
 
     monkeypatch.setattr(Journal, "_write", write)
     out = tmp_path / "run"
-    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=15", "--quiet", "--out", str(out)]) == 130
+    argv = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=15", "--quiet", "--out", str(out)]
+    assert main(argv) == 130
     err = capsys.readouterr().err
     assert "Traceback" not in err and "run the same command to resume" in err
     j = Journal.open(out / JOURNAL_NAME, readonly=True)
@@ -300,4 +308,4 @@ def test_a_signal_inside_a_journal_transaction_pauses_cleanly(tmp_path, capsys, 
     finally:
         j.close()
     monkeypatch.undo()
-    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=15", "--quiet", "--out", str(out)]) == 0
+    assert main(argv) == 0

@@ -6,7 +6,6 @@ import pkgutil
 
 import pytest
 
-
 # gonio.sim and gonio.drivers live in their own top-level folders (pyproject maps them into gonio), so
 # an editable install does not show them under gonio's own path: walk each root.
 ROOTS = ("gonio", "gonio.sim", "gonio.drivers")

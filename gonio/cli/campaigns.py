@@ -80,7 +80,7 @@ def _fly_command(args, cfg, material, exports) -> int:
                              "command to resume it, or choose another --out")
         out(f"resuming the fly campaign in {folder} at step {c.journal.next_step()}")
     else:
-        c = create_fly_campaign(folder, cfg, grid=args.grid, material=material.spec, seed=args.seed)
+        c = _created(create_fly_campaign, folder, cfg, grid=args.grid, material=material.spec, seed=args.seed)
     meta = c.meta
     out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} in {meta['fly']['lines']} sweeps, "
         f"estimated {_hms(meta['estimated_s'])} of gantry time (bound {_hms(meta['lower_bound_s'])}; "
@@ -142,6 +142,16 @@ def _model_check(folder: Path, material) -> str:
     rel = np.abs(b.value[ok] - truth[ok]) / truth[ok]
     return (f"{len(b.value)} samples; against the simulated material's own eval: median relative error "
             f"{100 * np.median(rel):.2f} %, 95th percentile {100 * np.percentile(rel, 95):.2f} %")
+
+
+def _created(create, folder: Path, *args, **kw):
+    """``create(folder, ...)``, with an OSError that ``_check_out`` could not foresee (root on a read-only
+    mount, a full disk) as one line naming --out; nothing is left (creation is atomic)."""
+    try:
+        return create(folder, *args, **kw)
+    except OSError as err:
+        raise UsageError(f"--out: {folder} cannot be written ({err.strerror or err}); choose another "
+                         "folder") from None
 
 
 def _check_out(out: Path) -> None:
@@ -248,7 +258,8 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
             return 0
         out(f"resuming the campaign in {folder} at step {c.journal.next_step()}")
     else:
-        c = create_campaign(folder, cfg, grid=args.grid, material=spec, seed=args.seed, sample=sample)
+        c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
+                     sample=sample)
     meta = c.meta
     n_steps = c.journal.step_count()
     try:
@@ -279,7 +290,8 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
             # it. Another thread acts as soon as those locks are free, as any other thread's request does.
             name = signal.Signals(signum).name
             signals.append(name)
-            t = threading.Thread(target=act, args=(name, len(signals) == 1), name=f"gonio-{name}", daemon=True)
+            t = threading.Thread(target=act, args=(name, len(signals) == 1), name=f"gonio-{name}",
+                                 daemon=True)
             actors.append(t)
             t.start()
 

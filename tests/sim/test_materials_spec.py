@@ -70,8 +70,8 @@ def test_model_flags():
 
 
 ERRORS = [
-    ("lamber:albedo=0.5", r"unknown material model 'lamber' .*allowed: blinn-phong, bsdf, cook-torrance, ggx, "
-                          r"lambert, merl, modified-phong, normalized-blinn-phong, phong, ward"),
+    ("lamber:albedo=0.5", r"unknown material model 'lamber' .*allowed: blinn-phong, bsdf, cook-torrance, "
+                          r"ggx, lambert, merl, modified-phong, normalized-blinn-phong, phong, ward"),
     ("lambert", r"lambert: parameter 'albedo' is required \(one number in \[0, 1\] or three as R/G/B\)"),
     ("lambert:albedo=1.2", r"lambert: parameter 'albedo' must be in \[0, 1\], got 1.2$"),
     ("lambert:albedo=0.5/1.5/0.2", r"parameter 'albedo' must be in \[0, 1\], got 1.5 in channel G"),
