@@ -21,7 +21,7 @@ import numpy as np
 from gonio.config import GonioConfig
 from gonio.daemon.pacing import PacedClock
 from gonio.daemon.records import Conflict, FieldError
-from gonio.motion.safe import check_targets, safe_path
+from gonio.manual import plan_move, pose_targets
 from gonio.protocols import DeviceFault
 
 __all__ = ["GantryOwner", "ANGLES"]
@@ -119,13 +119,10 @@ class GantryOwner:
             kin = g.kinematics
             axes = [g.axes[n] for n in kin.axis_names]
             current = np.array([a.position_deg() for a in axes], float)
-            if angles is None:
-                target = np.asarray(kin.home_deg, float)
-            else:
-                target = self._targets(kin, current, angles)
             try:
-                target = check_targets(kin, target)
-                legs = safe_path(kin, current, target)
+                target = (np.asarray(kin.home_deg, float) if angles is None
+                          else pose_targets(kin, current, *(float(angles[k]) for k in ANGLES)))
+                legs = plan_move(kin, current, target)
             except ValueError as err:
                 raise FieldError("move", str(err)) from None
             self._halt.clear()
@@ -134,18 +131,6 @@ class GantryOwner:
             return snapshot(g, None)
         finally:
             self._lock.release()
-
-    @staticmethod
-    def _targets(kin, current, angles: dict) -> np.ndarray:
-        from gonio.kinematics.base import REASONS
-
-        rad = np.radians([float(angles[k]) for k in ANGLES])
-        reason = int(kin.feasibility(*rad)[0])
-        if reason != 0:
-            text = ", ".join(f"{k}={float(angles[k]):g}" for k in ANGLES)
-            raise FieldError("move", f"pose ({text}) cannot be reached on this gantry: {REASONS[reason]} "
-                             f"(theta_max_deg={kin.theta_max_deg:g}, clearance_deg={kin.clearance_deg:g})")
-        return kin.inverse(*rad, current_deg=current)[0]
 
     def _wait_still(self, g, axes) -> None:
         """After a stop: wait (bounded) until every axis has braked, so the status says where they stand
