@@ -56,6 +56,30 @@ def config_hash(cfg: GonioConfig) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+class LockHeld(Exception):
+    """:func:`pid_lock` found the lock held; ``holder`` is the pid its holder wrote ("?" if none)."""
+
+    def __init__(self, holder: str):
+        super().__init__(holder)
+        self.holder = holder
+
+
+def pid_lock(path: Path) -> int:
+    """Take the exclusive ``flock`` on ``path`` (created if missing) without waiting and write this
+    process's pid into it; the open descriptor (closing it releases the lock). LockHeld if another
+    process holds it. The kernel drops the lock when its holder dies, even by SIGKILL."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise LockHeld(holder) from None
+    os.ftruncate(fd, 0)
+    os.write(fd, str(os.getpid()).encode())
+    return fd
+
+
 class CampaignLock:
     """An exclusive lock on a campaign folder (``campaign.lock``, ``flock``), held until :meth:`release`."""
 
@@ -64,17 +88,11 @@ class CampaignLock:
         self._fd: int | None = None
 
     def acquire(self) -> CampaignLock:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
-            os.close(fd)
-            raise JournalError(f"{self.path.parent}: another gonio process (pid {holder}) is running this "
-                               "campaign; wait for it, or stop it first") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, str(os.getpid()).encode())
-        self._fd = fd
+            self._fd = pid_lock(self.path)
+        except LockHeld as held:
+            raise JournalError(f"{self.path.parent}: another gonio process (pid {held.holder}) is running "
+                               "this campaign; wait for it, or stop it first") from None
         return self
 
     def release(self) -> None:

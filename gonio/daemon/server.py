@@ -10,7 +10,6 @@ One daemon per data folder: ``DATA/daemon.lock`` (``flock``) refuses a second.
 
 from __future__ import annotations
 
-import fcntl
 import json
 import logging
 import os
@@ -57,17 +56,13 @@ def setup_logging(json_lines: bool = False, level: int = logging.INFO) -> None:
 
 def _lock_data(data: Path) -> int:
     data.mkdir(parents=True, exist_ok=True)
-    fd = os.open(data / "daemon.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    from gonio.campaign import LockHeld, pid_lock
+
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
-        os.close(fd)
-        raise ValueError(f"--data: {data} is served by another gonio daemon (pid {holder}); stop it or "
+        return pid_lock(data / "daemon.lock")
+    except LockHeld as held:
+        raise ValueError(f"--data: {data} is served by another gonio daemon (pid {held.holder}); stop it or "
                          "choose another folder") from None
-    os.ftruncate(fd, 0)
-    os.write(fd, str(os.getpid()).encode())
-    return fd
 
 
 def build_daemon(cfg: GonioConfig, data: Path, *, token: str | None = None, pace: float = 0.0,
