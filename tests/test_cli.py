@@ -309,3 +309,19 @@ def test_a_signal_inside_a_journal_transaction_pauses_cleanly(tmp_path, capsys, 
         j.close()
     monkeypatch.undo()
     assert main(argv) == 0
+
+
+def test_a_campaign_another_process_runs_is_refused_naming_its_pid(tmp_path, capsys):
+    from gonio.campaign import CampaignLock
+
+    out = tmp_path / "run"
+    argv = [*SIM, "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    lock = CampaignLock(out).acquire()      # as `gonio simulate` in another process holds it
+    try:
+        assert main(argv) == 2
+        _one_clear_line(capsys, str(out), f"another gonio process (pid {os.getpid()})")
+    finally:
+        lock.release()
+    assert main(argv) == 0
