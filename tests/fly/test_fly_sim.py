@@ -14,9 +14,10 @@ from gonio.fly import create_fly_campaign, fly_plan_of, run_fly_campaign
 from gonio.geometry import sph_to_vec
 from gonio.plan import build_plan
 from gonio.plan.fly import FLY_DUTY, FlyLine, fly_plan, fly_steps
+from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
 from gonio.sim import materials
 from gonio.sim.detector import aperture_radiance_factor
-from gonio.sim.fly import FlySimulator
+from gonio.sim.fly import SUBFRAMES, FlySimulator
 from gonio.sim.gantry import reference_material
 
 # Fine steps (the density of iso:step=2) over a small cap of angles: cheap, yet the blur is that of
@@ -63,10 +64,11 @@ def test_calibrated_fly_readings_match_the_material(fine, spec):
     assert np.median(rel) < 0.01
 
 
-def _through_peak(theta_deg):
+def _through_peak(theta_deg, start_deg=160.0):
     """A Δφ sweep of the detector carriage through the specular direction at θi = θo = theta_deg, at
-    the fly speed and exposure of an iso:step=2 campaign (60°/s, a degree of travel per exposure)."""
-    return FlyLine(np.arange(21), 2, np.array([0.0, theta_deg, 160.0, theta_deg]), 2.0, 60.0, 120.0,
+    the fly speed and exposure of an iso:step=2 campaign (60°/s, a degree of travel per exposure); the
+    peak (Δφ = 180°) on a reading from 160°, between two from 161°."""
+    return FlyLine(np.arange(21), 2, np.array([0.0, theta_deg, start_deg, theta_deg]), 2.0, 60.0, 120.0,
                    FLY_DUTY * 2.0 / 60.0)
 
 
@@ -97,24 +99,76 @@ def test_blur_is_integrated_over_the_motion_not_the_mid_point():
     assert 0.3 < blur / abs(at_mid - mean_over_path) < 3
 
 
+def _sweep_truths(cfg, kin, m, line):
+    """What a stop-and-go reading sees at each reading's pose (16384 samples), and the mean over each
+    exposure's path (32 times, 2048 samples each): (n, C) each, per unit source radiance."""
+    src, det = cfg.light.sim.half_angle_deg, cfg.detector.sim.half_angle_deg
+    mid = aperture_radiance_factor(m, *kin.directions(line.readings_deg()), src, det, 16384, (9, 0))[0]
+    times = line.mid_times()[:, None] + line.exposure_s * ((np.arange(32) + 0.5) / 32 - 0.5)
+    wi, wo = kin.directions(line.position_at(times).reshape(-1, line.first_deg.size))
+    path = aperture_radiance_factor(m, wi, wo, src, det, 2048, (9, 1))[0].reshape(line.n, 32, -1).mean(axis=1)
+    return mid, path
+
+
 def test_blur_stated_honestly_through_sharp_peaks():
     cfg = load_config(None)
-    sim = FlySimulator(cfg, SHARP, seed=5)
     m = materials.load(SHARP)
-    z = []
+    z, big = [], []
     for theta in (30.0, 50.0, 70.0):
-        ms = sim.sweep(_through_peak(theta), 0.0, int(theta))
-        scale = cfg.light.sim.radiance * ms[0].exposure_s
-        wi, wo = sim.kin.directions(np.stack([x.actual_deg for x in ms]))
-        truth = aperture_radiance_factor(m, wi, wo, cfg.light.sim.half_angle_deg,
-                                         cfg.detector.sim.half_angle_deg, 16384, (9, 0))[0]
-        value, sd = (np.stack([getattr(x, k) for x in ms]) / scale for k in ("signal", "stderr"))
-        z.append((value - truth) / sd)
-    z = np.concatenate(z)
-    # Against the stop-and-go reading of the same pose: never more than 3 sigma off, and the stddev not
-    # inflated beyond twice what the errors show.
-    assert np.abs(z).max() < 3
-    assert 0.35 < np.sqrt(np.mean(z**2)) < 1.5
+        for start in (160.0, 161.0):
+            line = _through_peak(theta, start)
+            sims = [FlySimulator(cfg, SHARP, seed=seed) for seed in range(4)]
+            mid, path = _sweep_truths(cfg, sims[0].kin, m, line)
+            scale = cfg.light.sim.radiance * line.exposure_s
+            for sim in sims:
+                ms = sim.sweep(line, 0.0, int(theta))
+                value, sd, noise = (np.stack([getattr(x, k) if k != "mc" else x.extra["stderr_integration"]
+                                              for x in ms]) / scale for k in ("signal", "stderr", "mc"))
+                z.append((value - mid) / sd)
+                # Readings whose blur (the mean over the path against the value at the pose) is above
+                # their noise: where the blur term has to carry its weight.
+                big.append(np.abs(path - mid) > noise)
+    z, big = np.concatenate(z).ravel(), np.concatenate(big).ravel()
+    rms = np.sqrt(np.mean(z**2))
+    rms_big = np.sqrt(np.mean(z[big] ** 2))
+    # Against the stop-and-go reading of the same pose the errors are explained by the stated stddev:
+    # z rms 0.96, max 3.3 (0.55 when the blur term double-counted the sub-read noise, |ĉ|/12 ⊕ σ_c/12;
+    # 0.79 with |ĉ|/12; 1.17 with no blur term); where the blur exceeds the noise (195 readings) 1.22
+    # (0.74, 1.00 and 1.75).
+    assert 0.8 < rms < 1.2, rms
+    assert np.abs(z).max() < 4
+    assert big.sum() > 100
+    assert 0.8 < rms_big < 1.45, rms_big
+
+
+def test_blur_term_is_an_unbiased_estimate_of_the_squared_bias():
+    """The stated blur squared, over many noisy exposures of one quadratic response, averages the squared
+    bias (c/12)² where the curvature stands out of the noise, and stays a fraction of the curvature's
+    noise where there is no curvature (|ĉ|/12 ⊕ σ_c/12, the former term, averaged 2 σ_c²/144)."""
+    rng = np.random.default_rng(7)
+    m, n, sigma = SUBFRAMES, 20000, 0.01
+    tau = (np.arange(m) + 0.5) / m - 0.5
+    pinv = np.linalg.pinv(np.stack([np.ones(m), tau, tau**2], axis=1))
+    c_sd = m * sigma * np.sqrt(np.sum(pinv[2] ** 2))      # σ_c of the signal's curvature
+    noise_var = np.full((n, m, 1), sigma**2)
+    for c, lo, hi in ((0.0, 0.0, 0.6), (6 * c_sd, 0.97, 1.05)):
+        sub = ((1.0 + 0.3 * tau + c * tau**2) / m)[None, :, None] + rng.normal(0.0, sigma, (n, m, 1))
+        blur = FlySimulator._blur(sub, noise_var)
+        assert blur.shape == (n, 1)
+        assert lo * max(c, c_sd) ** 2 <= np.mean(blur**2) * 144 <= hi * max(c, c_sd) ** 2
+    # Without noise the term is the bias itself.
+    exact = FlySimulator._blur(((1.0 + 0.3 * tau - 0.6 * tau**2) / m)[None, :, None], np.zeros((1, m, 1)))
+    assert np.isclose(exact[0, 0], 0.6 / 12)
+
+
+def test_no_blur_at_rest(fine):
+    cfg, plan, fp = fine
+    ms = FlySimulator(cfg, SHARP, seed=1).campaign(fp)
+    still = [x for x in ms if x.extra["speed_deg_s"] == 0.0]
+    assert {x.kind for x in still} >= {STEP_DARK, STEP_REFERENCE}
+    assert all(np.all(x.extra["stderr_blur"] == 0.0) for x in still)
+    moving = np.stack([x.extra["stderr_blur"] for x in ms if x.extra["speed_deg_s"] > 0.0])
+    assert np.any(moving > 0.0)
 
 
 def test_blur_stated_honestly_on_a_sharp_peak(fine):
@@ -124,10 +178,13 @@ def test_blur_stated_honestly_on_a_sharp_peak(fine):
     # fly readings' errors are explained by their stddev: z-scores of unit size, on the peak too.
     truth = _truth(cfg, SHARP, cal, aperture=True)
     z = (cal.value - truth) / cal.stddev
-    assert 0.5 < np.sqrt(np.mean(z**2)) < 1.5
-    assert np.mean(np.abs(z) < 2) > 0.9
+    # z rms 0.94, 96 % within 2 (0.54 and 99.9 % when the blur term double-counted the sub-read noise).
+    # Not asserted: the largest |z| (4.2 here; 6.6 with seed 1, a reading on the lobe's far tail whose
+    # Monte Carlo stderr, from 16 samples per time, missed the rare hits that carry that tail).
+    assert 0.8 < np.sqrt(np.mean(z**2)) < 1.2
+    assert np.mean(np.abs(z) < 2) > 0.93
     top = np.argsort(-truth[:, 1])[:50]
-    assert np.sqrt(np.mean(z[top] ** 2)) < 2.0
+    assert np.sqrt(np.mean(z[top] ** 2)) < 1.4
     # ... and the blur is a visible part of the stddev there (not hidden in a generous constant).
     rel_sd = cal.stddev[top, 1] / truth[top, 1]
     assert np.median(rel_sd) > 0.001
