@@ -10,6 +10,7 @@ controller's alarm code, latched until :meth:`ModbusAxis.clear_fault`.
 from __future__ import annotations
 
 import math
+import time
 from urllib.parse import parse_qs, urlparse
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -121,6 +122,15 @@ class ModbusAxis:
         self.clock = clock or WallClock()
         self._fault: str | None = None
         self._alarm = 0
+        #: Set when the controller refused a read spanning status and position (exception 2): from then
+        #: on they are read apart.
+        self.span_refused = False
+        #: Set when the controller answered function 23 with exception 1 (not supported).
+        self.write_read_refused = False
+        #: The shortest wall time (s) of one transaction so far (None before the first): the link's own
+        #: latency, which neither a slow first call nor a busy machine inflates; what a gantry weighs to
+        #: decide whether asking several controllers at once pays.
+        self.round_trip_s: float | None = None
 
     # -- transport --------------------------------------------------------------------------------------
     def connect(self) -> None:
@@ -129,7 +139,7 @@ class ModbusAxis:
         if not self.client.connect():
             raise ModbusCommError(self.name, f"cannot connect to the controller ({self._where()})")
         try:
-            self._check_status(self._read("status")[0])
+            self._look()  # also learns whether the unit answers a spanning read
         except ModbusAlarmError:
             pass
 
@@ -143,6 +153,7 @@ class ModbusAxis:
     def _call(self, what: str, fn):
         last = None
         for attempt in range(2):
+            t0 = time.perf_counter()
             try:
                 response = fn()
             except ConnectionException as exc:
@@ -153,6 +164,8 @@ class ModbusAxis:
                 break
             except ModbusException as exc:  # no reply / bad CRC after the client's own retries
                 raise ModbusCommError(self.name, f"{what}: {exc}") from exc
+            dt = time.perf_counter() - t0
+            self.round_trip_s = dt if self.round_trip_s is None else min(self.round_trip_s, dt)
             if response.isError():
                 code = int(getattr(response, "exception_code", 4))
                 raise ModbusExceptionError(self.name, f"{what}: exception response, code {code}", code)
@@ -209,8 +222,9 @@ class ModbusAxis:
         return self.zero_steps + round(self.direction * t * self.steps_per_deg)
 
     def move_to(self, target_deg: float) -> None:
-        """Write the profile's move block (one Write Multiple Registers that also triggers), then wait
-        until the moving bit rises or the position equals the target (at most ``start_timeout_s``)."""
+        """Write the profile's move block (one Write Multiple Registers that also triggers; one Read/Write
+        Multiple Registers that also reads the state back where the profile has ``write_read``), then
+        wait until the moving bit rises or the position equals the target (at most ``start_timeout_s``)."""
         steps = self.steps_for(target_deg)
         if self._fault is not None:
             raise ModbusAlarmError(self.name, f"{self._fault} (latched; clear_fault() resets)",
@@ -219,17 +233,42 @@ class ModbusAxis:
         values = dict(p.move_constants, target_position=steps, velocity=self.velocity_value,
                       acceleration=self.accel_value, deceleration=self.accel_value)
         words = [w for name in p.move_block for w in p[name].encode(values[name], p.word_order)]
-        self._call(f"write move block at {p.block_start:#06x}", lambda: self.client.write_registers(
-            p.block_start, words, device_id=self.device_id))
+        what = f"write move block at {p.block_start:#06x}"
+        r = None
+        if p.write_read and not self.write_read_refused:
+            # Function 23 writes the block, then reads (the Modbus spec orders the write first): the
+            # start check's first look rides on the write's own request, seeing exactly what a read
+            # sent right after it would. The check itself is unchanged. (The span was tried at
+            # connect, so a span the unit refuses is not asked here.)
+            lo, count = self.state_block or (p["status"].address, p["status"].count)
+            try:
+                r = self._call(f"{what} and read {count} at {lo:#06x} (function 23)",
+                               lambda: self.client.readwrite_registers(
+                                   read_address=lo, read_count=count, write_address=p.block_start,
+                                   values=words, device_id=self.device_id))
+            except ModbusExceptionError as err:
+                if err.code != 1:
+                    raise
+                # Illegal function: the unit does not do function 23 and wrote nothing; write with
+                # function 16 (and never ask 23 again).
+                self.write_read_refused = True
+        if r is not None:
+            status, at = self._state_of(r.registers, lo)
+        else:
+            self._call(what, lambda: self.client.write_registers(p.block_start, words,
+                                                                 device_id=self.device_id))
+            status, at = self._look()
         deadline = self.clock.now() + self.start_timeout_s
         while True:
-            status = self._check_status(self._read("status")[0])
-            if status >> p.moving_bit & 1 or self._read_value("actual_position") == steps:
+            if at is None and not status >> p.moving_bit & 1:
+                at = self._read_value("actual_position")
+            if status >> p.moving_bit & 1 or at == steps:
                 return
             if self.clock.now() >= deadline:
                 raise ModbusCommError(self.name, f"move to {target_deg}° did not start within "
                                       f"{self.start_timeout_s} s (moving bit never rose)")
             self.clock.sleep(0.002)
+            status, at = self._look()
 
     def _deg(self, steps: int) -> float:
         return self.direction * (steps - self.zero_steps) / self.steps_per_deg
@@ -241,29 +280,66 @@ class ModbusAxis:
         return bool(self._check_status(self._read("status")[0]) >> self.profile.moving_bit & 1)
 
     @property
-    def state_in_one_read(self) -> bool:
-        """Whether the profile's status and actual position are adjacent (one read gives both)."""
-        pos, st = self.profile["actual_position"], self.profile["status"]
-        return pos.address + pos.count == st.address or st.address + st.count == pos.address
+    def state_block(self) -> tuple[int, int] | None:
+        """(address, count) of the one read that gives status and actual position, or None where they
+        are read apart: the profile's :attr:`MotorProfile.state_block`, unless the controller refused
+        the span, or the span's extra bytes on an RTU wire cost more than a second request would."""
+        block = self.profile.state_block
+        if block is None or self.profile.state_adjacent:
+            return block
+        if self.span_refused:
+            return None
+        if isinstance(self.client, ModbusSerialClient):
+            # Bytes on the wire: the span's registers that nobody needs, against a second request
+            # (8 bytes) and its reply (5 + 2 per register) with the 3.5-character gaps around both.
+            # The drive's own turnaround time, not known here, would only favour the span.
+            extra = 2 * (block[1] - self.profile["status"].count - self.profile["actual_position"].count)
+            second = 8 + 5 + 2 * self.profile["actual_position"].count + 2 * 3.5
+            if extra > second:
+                return None
+        return block
 
-    def read_state(self) -> tuple[float, bool]:
-        """Position (°) and moving flag: one Read Holding Registers when the profile's status and
-        actual position are adjacent registers, else two reads (a read across registers the controller
-        does not assign may be refused with exception 2 on real units)."""
+    @property
+    def state_in_one_read(self) -> bool:
+        """Whether one read gives both status and actual position (see :attr:`state_block`)."""
+        return self.state_block is not None
+
+    def _state_of(self, words: list[int], lo: int) -> tuple[int, int | None]:
+        """(status, position steps or None) from ``words`` read at ``lo``; the status checked for an
+        alarm (raises :class:`ModbusAlarmError`)."""
         p = self.profile
         pos, st = p["actual_position"], p["status"]
-        lo = min(pos.address, st.address)
-        count = pos.count + st.count
-        if not self.state_in_one_read:
-            status = self._check_status(self._read("status")[0])
-            steps = self._read_value("actual_position")
-        else:
-            words = self._call(f"read status and actual_position at {lo:#06x}",
+        status = self._check_status(words[st.address - lo])
+        off = pos.address - lo
+        if off < 0 or off + pos.count > len(words):
+            return status, None
+        return status, pos.decode(words[off:off + pos.count], p.word_order)
+
+    def _look(self) -> tuple[int, int | None]:
+        """(status, position steps or None): one read of :attr:`state_block`, else the status alone. A
+        span the controller refuses with exception 2 is not asked again (the status is read alone,
+        and the position after it as the caller needs it)."""
+        block = self.state_block
+        if block is not None:
+            lo, count = block
+            try:
+                r = self._call(f"read status and actual_position at {lo:#06x} ({count} registers)",
                                lambda: self.client.read_holding_registers(lo, count=count,
-                                                                          device_id=self.device_id)).registers
-            status = self._check_status(words[st.address - lo])
-            steps = pos.decode(words[pos.address - lo:pos.address - lo + pos.count], p.word_order)
-        return self._deg(steps), bool(status >> p.moving_bit & 1)
+                                                                          device_id=self.device_id))
+                return self._state_of(r.registers, lo)
+            except ModbusExceptionError as err:
+                if err.code != 2 or self.profile.state_adjacent:
+                    raise
+                self.span_refused = True
+        return self._check_status(self._read("status")[0]), None
+
+    def read_state(self) -> tuple[float, bool]:
+        """Position (°) and moving flag: one Read Holding Registers where :attr:`state_block` allows
+        it, else two (the status first: an alarm raises before the position is asked)."""
+        status, steps = self._look()
+        if steps is None:
+            steps = self._read_value("actual_position")
+        return self._deg(steps), bool(status >> self.profile.moving_bit & 1)
 
     def stop(self) -> None:
         self._command(self.profile.stop)

@@ -15,6 +15,11 @@ Schema (all addresses are 0-based protocol addresses)::
     [status] moving_bit, alarm_bit, ready_bit (optional)
     [stop] register, value, release (value written after, optional)
     [alarm_reset] register, value, release (optional)
+    span_read = true | false (default false): the controller answers one Read Holding Registers from
+      the lower of status/actual_position to the end of the higher across the registers between
+      them (at most 125 words); adjacent registers are always read together
+    write_read = true | false (default false): the controller supports function 23 (Read/Write
+      Multiple Registers), so a move's block write also reads the status back in the same request
     secondary = [NAMES of fields taken from a secondary source, to verify on a real unit]
 """
 
@@ -32,7 +37,9 @@ _REQUIRED = ("target_position", "velocity", "acceleration", "deceleration", "act
              "alarm_code")
 #: What ``secondary`` may name besides registers: the scalar settings and the command/status tables.
 _SECONDARY_KEYS = ("word_order", "steps_per_rev", "velocity_unit", "accel_unit", "move", "status bits",
-                   "stop", "alarm_reset")
+                   "stop", "alarm_reset", "span_read", "write_read")
+#: The most registers one Read Holding Registers may ask for (Modbus application protocol, 6.3).
+MAX_READ_WORDS = 125
 #: Shipped profiles, by name.
 PROFILES = ("generic", "oriental_az_direct", "leadshine_pr")
 
@@ -99,6 +106,8 @@ class MotorProfile:
     stop: Command
     alarm_reset: Command
     secondary: tuple[str, ...] = field(default=())
+    span_read: bool = False
+    write_read: bool = False
 
     def __getitem__(self, name: str) -> Register:
         try:
@@ -109,6 +118,24 @@ class MotorProfile:
     @property
     def block_start(self) -> int:
         return self.registers[self.move_block[0]].address
+
+    @property
+    def state_span(self) -> tuple[int, int]:
+        """(first address, word count) of the one read that holds both status and actual_position."""
+        pos, st = self.registers["actual_position"], self.registers["status"]
+        lo = min(pos.address, st.address)
+        return lo, max(pos.address + pos.count, st.address + st.count) - lo
+
+    @property
+    def state_adjacent(self) -> bool:
+        """Whether status and actual_position are side by side (their span holds nothing else)."""
+        return self.state_span[1] == self.registers["actual_position"].count + self.registers["status"].count
+
+    @property
+    def state_block(self) -> tuple[int, int] | None:
+        """The one read that gives status and actual position, where the profile allows it: always when
+        they are adjacent, across the registers between them when ``span_read`` says so; else None."""
+        return self.state_span if self.state_adjacent or self.span_read else None
 
     def velocity_value(self, motor_rev_s: float) -> int:
         """The velocity register value for ``motor_rev_s`` motor revolutions per second."""
@@ -187,6 +214,16 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
     for key in ("moving_bit", "alarm_bit"):
         if not 0 <= int(status.get(key, -1)) <= 15:
             raise _fail(where, f"status.{key} {status.get(key)!r} is outside [0, 15]")
+    flags = {}
+    for key in ("span_read", "write_read"):
+        flags[key] = data.get(key, False)
+        if not isinstance(flags[key], bool):
+            raise _fail(where, f"{key} {flags[key]!r} is not one of true, false")
+    pos, st = registers["actual_position"], registers["status"]
+    span = max(pos.address + pos.count, st.address + st.count) - min(pos.address, st.address)
+    if flags["span_read"] and span > MAX_READ_WORDS:
+        raise _fail(where, f"span_read: status ({st.address:#06x}) and actual_position ({pos.address:#06x}) "
+                    f"span {span} registers, more than one read may ask for ({MAX_READ_WORDS})")
     secondary = tuple(data.get("secondary", ()))
     known = set(registers) | set(_SECONDARY_KEYS)
     unknown = [n for n in secondary if n not in known]
@@ -201,7 +238,7 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
         ready_bit=None if status.get("ready_bit") is None else int(status["ready_bit"]),
         stop=_command(f"{where} [stop]", data.get("stop", {}), registers),
         alarm_reset=_command(f"{where} [alarm_reset]", data.get("alarm_reset", {}), registers),
-        secondary=secondary,
+        secondary=secondary, **flags,
     )
 
 

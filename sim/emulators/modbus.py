@@ -5,7 +5,9 @@ Writing the profile's move block with its trigger value starts a trapezoidal mov
 reads see the actual position and the status word (ready, moving, alarm bits) of that instant. Faults:
 :attr:`ModbusMotorEmulator.faults` mangles replies (drop, corrupt, truncate, delay, disconnect; match by
 function code), :meth:`fail_next` answers the next request with an exception code, :meth:`raise_alarm`
-trips an alarm (the motor stops, the alarm bit and code are set until the profile's alarm reset).
+trips an alarm (the motor stops, the alarm bit and code are set until the profile's alarm reset);
+:attr:`ModbusMotorEmulator.refuse_gaps` answers a read that touches a register the profile does not
+name with exception 2, as some units do. Function 23 (Read/Write Multiple Registers) writes, then reads.
 """
 
 from __future__ import annotations
@@ -46,6 +48,9 @@ class ModbusMotorEmulator:
         self.device_id = device_id
         self.faults = FaultPlan()
         self.requests: list[bytes] = []  # raw request frames, for byte-exact tests
+        #: Refuse (exception 2) a read touching an address that no register of the profile covers.
+        self.refuse_gaps = False
+        self._named = {r.address + i for r in self.profile.registers.values() for i in range(r.count)}
         self._exceptions: deque[tuple[int, int | None]] = deque()
         self._lock = threading.Lock()
         self.alarm_code = 0
@@ -148,6 +153,8 @@ class ModbusMotorEmulator:
             if off < 0 or off + count > len(self._regs):
                 return ExcCodes.ILLEGAL_ADDRESS
             if set_values is None:
+                if self.refuse_gaps and not self._named.issuperset(range(address, address + count)):
+                    return ExcCodes.ILLEGAL_ADDRESS
                 self._refresh()
                 at = address - start_address
                 registers[at:at + count] = self._regs[off:off + count]

@@ -1,6 +1,7 @@
 """The assembled gantry's batched motion, byte by byte at the emulators: one Sync Write and one Sync Read
 per Dynamixel bus per step and poll (never a read per servo), one read per Modbus controller where its
-profile allows, and the bus watchdog fed while a move is under way (and firing when it is not)."""
+profile allows (several controllers asked at once where that pays), and the bus watchdog fed while a
+move is under way (and firing when it is not)."""
 
 from __future__ import annotations
 
@@ -118,12 +119,18 @@ def test_the_watchdog_is_fed_during_a_move_and_stops_the_servos_when_nobody_talk
             gantry.close()
 
 
-@pytest.mark.parametrize(("profile", "requests"), [("generic", 1), ("oriental_az_direct", 2)])
-def test_a_modbus_state_read_is_one_request_where_status_and_position_are_adjacent(profile, requests):
+@pytest.mark.parametrize(("profile", "transport", "requests"), [
+    ("generic", "tcp", 1), ("generic", "rtu", 1),  # adjacent
+    ("oriental_az_direct", "tcp", 1),  # 79 registers spanned (span_read)
+    ("oriental_az_direct", "rtu", 2),  # the span's bytes cost more than a second read on the wire
+    ("leadshine_pr", "tcp", 2),  # far apart, no span_read
+])
+def test_a_modbus_state_read_is_one_request_where_the_profile_allows_it(profile, transport, requests):
     emu = ModbusMotorEmulator(profile, clock=SyncedVirtualClock())
-    host, port = emu.start_tcp()
-    axis = ModbusAxis("m", make_client(f"tcp://{host}:{port}", timeout_s=0.5, retries=0), profile,
-                      limits_deg=(-180.0, 180.0), clock=emu.clock)
+    url = (f"tcp://{':'.join(map(str, emu.start_tcp()))}" if transport == "tcp"
+           else f"rtu://{emu.start_rtu()}?baudrate=115200")
+    axis = ModbusAxis("m", make_client(url, timeout_s=0.5, retries=0), profile, limits_deg=(-180.0, 180.0),
+                      velocity_deg_s=90.0, accel_deg_s2=180.0, clock=emu.clock)
     try:
         axis.connect()
         emu.set_position(axis.steps_for(36.0))  # 1000 steps (generic), exact

@@ -61,7 +61,7 @@ def test_profiles_load_and_validate():
         p = load_profile(name)
         assert set(p.secondary) <= set(p.registers) | {"status bits", "stop", "alarm_reset", "move",
                                                         "word_order", "steps_per_rev", "velocity_unit",
-                                                        "accel_unit"}
+                                                        "accel_unit", "span_read", "write_read"}
     typo = tomllib.loads(resources.files("gonio.drivers.modbus").joinpath(
         "profiles/leadshine_pr.toml").read_text())
     typo["secondary"] = ["staus"]
@@ -103,8 +103,10 @@ def test_move_waits_for_moving_bit_and_reaches_target(motor, clock):
 @pytest.mark.parametrize("profile, request_hex", [
     # FC16 at 0x0100, 9 registers: target 2500 steps, 2500 steps/s, 5000 steps/s² (twice), trigger 1.
     ("generic", "01 10 01 00 00 09 12 00 00 09 C4 00 00 09 C4 00 00 13 88 00 00 13 88 00 01"),
-    # AZ direct data: data no. 0, type 1 (absolute), 250 steps, 250 Hz, 500 Hz/s ×2, 100.0 %, trigger 1.
-    ("oriental_az_direct", "01 10 00 58 00 10 20 00 00 00 00 00 00 00 01 00 00 00 FA 00 00 00 FA "
+    # AZ direct data: data no. 0, type 1 (absolute), 250 steps, 250 Hz, 500 Hz/s ×2, 100.0 %, trigger 1,
+    # written with function 23 that reads the status (0x007F, 1 register) back; over RTU the status and
+    # the position (0x00CC) are not read in one span: its 150 extra bytes cost more than a second read.
+    ("oriental_az_direct", "01 17 00 7F 00 01 00 58 00 10 20 00 00 00 00 00 00 00 01 00 00 00 FA 00 00 00 FA "
                            "00 00 01 F4 00 00 01 F4 00 00 03 E8 00 00 00 01"),
     # Leadshine PR0: mode 1, 2500 pulses, 15 rpm, 33333 ms per 1000 rpm (30 rpm/s) ×2, delay 0, trigger 0x10.
     ("leadshine_pr", "01 10 62 00 00 08 10 00 01 00 00 09 C4 00 0F 82 35 82 35 00 00 00 10"),
@@ -120,6 +122,8 @@ def test_move_request_bytes_per_profile(clock, profile, request_hex):
         axis.move_to(90.0)
         frame = emu.requests[n]
         assert frame[:-2] == bytes.fromhex(request_hex)  # RTU: the CRC follows
+        assert len(emu.requests) - n == 1 + (not axis.profile.write_read)  # the start check's read
+        assert axis.is_moving()
     finally:
         axis.close()
         emu.stop()
@@ -217,3 +221,104 @@ def test_rtu_cable_pulled_then_replugged(clock):
     finally:
         axis.close()
         emu.stop()
+
+
+def test_span_read_and_write_read_flags_are_validated():
+    data = tomllib.loads(resources.files("gonio.drivers.modbus").joinpath(
+        "profiles/leadshine_pr.toml").read_text())
+    data["span_read"] = "yes"
+    with pytest.raises(ValueError, match=r"span_read 'yes' is not one of true, false"):
+        parse_profile(data)
+    data["span_read"] = True  # status 0x1003, position 0x602A: far more than one read may ask for
+    with pytest.raises(ValueError, match=r"span_read: status \(0x1003\) and actual_position \(0x602a\) "
+                                         r"span 20521 registers, more than one read may ask for \(125\)"):
+        parse_profile(data)
+    p = load_profile("oriental_az_direct")
+    assert (p.span_read, p.write_read, p.state_block) == (True, True, (0x007F, 0x4F))
+    assert load_profile("generic").state_block == (0x0110, 3)  # adjacent: always one read
+    assert load_profile("leadshine_pr").state_block is None
+
+
+@pytest.fixture
+def az(clock):
+    """(emulator, axis): an Oriental AZ profile over TCP, 36:1 (100 steps per degree)."""
+    emu = ModbusMotorEmulator("oriental_az_direct", clock=clock)
+    host, port = emu.start_tcp()
+    axis = ModbusAxis("tilt", make_client(f"tcp://{host}:{port}", timeout_s=0.2, retries=0),
+                      "oriental_az_direct", limits_deg=(-175.0, 175.0), gear_ratio=36.0, velocity_deg_s=45.0,
+                      accel_deg_s2=90.0, clock=clock)
+    try:
+        yield emu, axis
+    finally:
+        axis.close()
+        emu.stop()
+
+
+def _pdus(emu, since):
+    """The request PDUs (function code onwards) the TCP emulator got since index ``since``; each
+    frame's unit id (MBAP byte 6) must be 1."""
+    frames = emu.requests[since:]
+    assert all(f[6] == 1 for f in frames)
+    return [f[7:] for f in frames]
+
+
+def test_one_read_spans_status_and_position_on_the_wire_and_decodes_both(az, clock):
+    emu, axis = az
+    axis.connect()
+    emu.set_position(-17000)  # -170°: 0xFFFF 0xBD98 across the two words, high word first
+    n = len(emu.requests)
+    assert axis.read_state() == (-170.0, False)
+    # FC3 from 0x007F (status) through 0x00CD (the position's low word): 79 registers, one request.
+    assert _pdus(emu, n) == [bytes.fromhex("03 00 7F 00 4F")]
+    n = len(emu.requests)
+    axis.move_to(0.0)
+    # One request for the move and its start check: FC23 reading the same span, writing the block at
+    # 0x0058 (16 registers: target 0, 4500 Hz, 9000 Hz/s twice...).
+    (pdu,) = _pdus(emu, n)
+    assert pdu[:10] == bytes.fromhex("17 00 7F 00 4F 00 58 00 10 20")
+    assert pdu[10:] == b"".join(w.to_bytes(2, "big") for w in (0, 0, 0, 1, 0, 0, 0, 4500, 0, 9000, 0, 9000,
+                                                                0, 1000, 0, 1))
+    clock.sleep(1.0)
+    pos, moving = axis.read_state()
+    assert moving and -170.0 < pos < 0.0 and pos == emu.position_steps() / 100.0
+    emu.raise_alarm(0x30)  # the span carries the status word: the alarm bit raises, code read after it
+    with pytest.raises(ModbusAlarmError) as err:
+        axis.read_state()
+    assert err.value.alarm_code == 0x30 and err.value.device == "tilt"
+    assert _pdus(emu, len(emu.requests) - 2) == [bytes.fromhex("03 00 7F 00 4F"),
+                                                  bytes.fromhex("03 00 81 00 01")]
+
+
+def test_a_unit_that_refuses_the_span_is_read_in_two_from_then_on(az, clock):
+    emu, axis = az
+    emu.refuse_gaps = True  # exception 2 for a read touching a register the profile does not name
+    n = len(emu.requests)
+    axis.connect()  # tries the span once, then reads the status alone
+    assert axis.span_refused and axis.state_block is None and not axis.state_in_one_read
+    assert _pdus(emu, n) == [bytes.fromhex("03 00 7F 00 4F"), bytes.fromhex("03 00 7F 00 01")]
+    emu.set_position(12345)
+    n = len(emu.requests)
+    assert axis.read_state() == (123.45, False)
+    axis.move_to(-10.0)  # FC23 reads the status alone
+    assert _pdus(emu, n)[:2] == [bytes.fromhex("03 00 7F 00 01"), bytes.fromhex("03 00 CC 00 02")]
+    assert _pdus(emu, n)[2][:10] == bytes.fromhex("17 00 7F 00 01 00 58 00 10 20")
+    assert len(emu.requests) == n + 3 and axis.is_moving()
+
+
+def test_a_unit_without_function_23_gets_the_block_by_function_16(az, clock):
+    emu, axis = az
+    axis.connect()
+    emu.fail_next(1)  # illegal function: the unit does not do 23 (and wrote nothing)
+    n = len(emu.requests)
+    axis.move_to(10.0)
+    assert axis.write_read_refused and axis.is_moving()
+    assert [p[:1] for p in _pdus(emu, n)] == [b"\x17", b"\x10", b"\x03", b"\x03"]  # 23, 16, start, is_moving
+    clock.sleep(10.0)
+    n = len(emu.requests)
+    axis.move_to(0.0)  # not asked again
+    assert [p[:1] for p in _pdus(emu, n)] == [b"\x10", b"\x03"]
+    emu.fail_next(3)  # any other exception to function 23 is the move's failure, as before
+    axis.write_read_refused = False
+    with pytest.raises(ModbusExceptionError, match=r"tilt: write move block at 0x0058 and read 79 at 0x007f "
+                                                   r"\(function 23\): exception response, code 3"):
+        axis.move_to(5.0)
