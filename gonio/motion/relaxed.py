@@ -154,7 +154,8 @@ def branch_neighbour_times(branches, metric: MoveMetric, k: int | None = None):
     k = min(2 * w + 2 if k is None else int(k), flat.shape[0] - 1)
     tree = cKDTree(flat * metric.scale)
     dist, idx = tree.query(flat * metric.scale, k=k + 1, p=np.inf, workers=-1)
-    times = metric.time(flat[:, None, :], flat[idx])
+    # With one v/a ratio the tree's distance is the metric's key: no need to measure the pairs again.
+    times = metric.time_from_key(dist) if metric.uniform else metric.time(flat[:, None, :], flat[idx])
     other = owner[idx]
     times[other == owner[:, None]] = np.inf
     # Per pose: its branches' candidate lists side by side (N, W (k + 1)).
@@ -221,7 +222,7 @@ def relaxed_campaign_bound(branches, free, reference_options, home_deg, metric: 
         pts = np.empty((0, 1, ref.shape[1]))
     q = pts.shape[0]
     f = p - q
-    to_ref = pair_times(pts, ref[:, None, :], metric)[:, 0] if q else np.empty(0)
+    to_ref = _to_nearest(pts, ref, metric) if q else np.empty(0)
     sorted_ref = np.concatenate([[0.0], np.cumsum(np.sort(to_ref))])
     mst = forest_edges = np.nan
     degree_base = np.nan
@@ -311,3 +312,14 @@ def relaxed_campaign_bound(branches, free, reference_options, home_deg, metric: 
     parts.update({"runs": int(chosen), "mst_s": mst, "forest_s": fo, "degree_s": de,
                   "reference_s": float(2.0 * sorted_ref[min(chosen, q)])})
     return parts
+
+
+def _to_nearest(branches, options, metric: MoveMetric) -> np.ndarray:
+    """Least move time (N,) from any branch of each pose (N, W, n) to any of ``options`` (K, n): a
+    k-d tree search when the metric's key is a scaled Chebyshev distance, else every pair."""
+    if not metric.uniform:
+        return pair_times(branches, options[None], metric)[:, 0]
+    n, w, n_axes = branches.shape
+    dist, _ = cKDTree(options * metric.scale).query(branches.reshape(-1, n_axes) * metric.scale, k=1,
+                                                      p=np.inf, workers=-1)
+    return metric.time_from_key(dist.reshape(n, w).min(axis=1))

@@ -92,3 +92,22 @@ def test_bad_run_lengths():
         mst_edge_times(np.zeros((3, 2)), UNIFORM)
     with pytest.raises(ValueError, match="positions must be finite"):
         mst_edge_times(np.full((3, 4), np.nan), UNIFORM)
+
+
+@pytest.mark.parametrize("metric", [UNIFORM, MIXED], ids=["uniform", "mixed"])
+def test_relaxed_bound_takes_the_nearest_of_several_reference_positions(metric, rng):
+    """Every allowed reference position counts, not the first listed: the bound does not depend on
+    their order, and stays below a walk that goes to the nearer one (which the first is not)."""
+    from gonio.motion.relaxed import relaxed_campaign_bound
+
+    near = np.array([0.0, 10.0, 0.0, 10.0])
+    far = near + 150.0
+    poses = near + rng.uniform(-5.0, 5.0, (6, 1, 4))        # one branch each, all around `near`
+    free = np.zeros(6, dtype=bool)
+    args = dict(settle_s=0.0, reading_s=0.0, every=1, run_lengths=[1] * 6)
+    a = relaxed_campaign_bound(poses, free, np.stack([far, near]), near, metric, **args)
+    b = relaxed_campaign_bound(poses, free, np.stack([near, far]), near, metric, **args)
+    assert a["total_s"] == pytest.approx(b["total_s"], rel=1e-12)
+    # One pose per run, each run from and back to the near reference position.
+    walk = 2.0 * metric.time(near, poses[:, 0]).sum()
+    assert a["move_s"] <= walk + 1e-9
