@@ -3,7 +3,8 @@
 1. Dynamixel: one multi-axis move command (one Sync Write of goal positions) and one Sync Read of
    the state block (watchdog .. present position, 38 bytes per servo), for 2, 4 and 8 servos on one bus.
 2. Modbus: one move (the profile's block write, then the status read that sees the moving bit) and one
-   position read, TCP on 127.0.0.1 and RTU over a pty.
+   position read, TCP on 127.0.0.1 and RTU over a pty; one look at four controllers on four TCP
+   gateways, in turn and at once, with replies held back 0, 1 and 3 ms (a wire's latency).
 
 The emulators run in Python threads on the same machine, so the figures are the driver + library +
 emulator cost, not a wire's: at 1 Mbit/s a real 4-servo Sync Read adds ~0.5 ms of bytes on the wire.
@@ -14,10 +15,15 @@ emulator cost, not a wire's: at 1 Mbit/s a real 4-servo Sync Read adds ~0.5 ms o
    overhead beyond the physical motion, split into: driver round trips (time inside the drivers'
    transactions, emulator included, less the render), safe-path planning, the journal (commits and
    events), the runner and the rest, and the emulated detector's Dr.Jit render (the emulator's work, not
-   the drivers': reported apart). Each gantry runs twice: per axis (the gantry's batched reads hidden, so
-   the runner asks each axis in turn: the "before") and batched (one Sync Read per bus per poll).
+   the drivers': reported apart). Each gantry runs in several ways (:data:`WAYS`): per axis (the
+   gantry's batched reads hidden, so the runner asks each axis in turn: the "before") and batched (one
+   Sync Read per bus per poll); the Modbus gantry also batched with its profiles' ``span_read`` and
+   ``write_read`` off (one request per register read and a separate start check: the batched "before"),
+   as shipped, and with its connections asked at once. The ways of a gantry take turns, one campaign
+   each, ``--repeat`` rounds, so that a load that changes during the run weighs on all alike.
 
 Run: .venv/bin/python tools/bench_drivers.py [--n 300] [--grid iso:step=15] [--repeat 3]
+[--only dynamixel|modbus]
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from gonio.clock import VirtualClock
 from gonio.drivers.dynamixel import DynamixelAxis, DynamixelBus, DynamixelGroup
 from gonio.drivers.modbus import ModbusAxis, make_client
 from gonio.sim.emulators.dynamixel import DynamixelBusEmulator, EmulatedServo
+from gonio.sim.emulators.link import FaultPlan
 from gonio.sim.emulators.modbus import ModbusMotorEmulator
 
 
@@ -97,6 +104,40 @@ def bench_modbus(transport, n):
         emu.stop()
 
 
+def bench_modbus_looks(n, latencies_ms=(0.0, 1.0, 3.0)):
+    """One look (``poll_axes``) at the emulated sample stage's four controllers (four TCP gateways), with
+    each reply held back ``latency`` ms (what a wire and the unit's turnaround add; 0: the in-process
+    emulator alone), asking the connections in turn and at once."""
+    from gonio.config import load_config
+    from gonio.sim.emulators.gantry import EmulatedGantry
+    from gonio.sim.emulators.link import SyncedVirtualClock
+    from gonio.wiring import build_gantry
+
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(load_config("emulated-sample-stage-modbus"), "lambert:albedo=0.5", clock=clock,
+                        any_port=True) as emu:
+        gantry = build_gantry(emu.config(), clock=clock)
+        gantry.connect()
+        try:
+            for latency in latencies_ms:
+                figures = []
+                for concurrent in (False, True):
+                    gantry.concurrent = concurrent
+                    for name in gantry.axes:
+                        emu.motors[name].faults = FaultPlan()
+                        if latency:
+                            emu.motors[name].faults.add("delay", times=n + 10, delay_s=latency / 1e3)
+                    gantry.poll_axes()
+                    figures.append(timed(gantry.poll_axes, n))
+                (turn, turn95), (once, once95) = figures
+                print(f"modbus look at 4 controllers, reply latency {latency:g} ms: in turn {turn:.2f} ms "
+                      f"(p95 {turn95:.2f}), at once {once:.2f} ms (p95 {once95:.2f})")
+        finally:
+            for name in gantry.axes:
+                emu.motors[name].faults = FaultPlan()
+            gantry.close()
+
+
 class _Split:
     """Wall time spent inside chosen functions (wrapped in place; :meth:`undo` restores them). A call
     made inside another wrapped call of the same thread counts for the outer one only."""
@@ -151,21 +192,43 @@ class _PerAxis:
         return getattr(self._g, name)
 
 
-def bench_campaign(twin, grid, per_axis=False, repeat=3, watchdog=True):
-    """The best of ``repeat`` campaigns on ``twin`` (the machine is shared: the least disturbed run is
-    the closest to the cost itself); prints its wall time per pose and where it went. ``watchdog``
-    False turns the Dynamixel bus watchdogs off (the per-axis path does not feed them: a move longer
-    than the watchdog would stop short)."""
-    runs = [_campaign(twin, grid, per_axis, watchdog) for _ in range(repeat)]
-    bad = [r["state"] for r in runs if r["state"] != "done"]
-    if bad:
-        raise SystemExit(f"campaign {twin}: ended {bad[0]}, not done")
-    _report(twin, grid, per_axis, repeat, watchdog, **min(runs, key=lambda r: r["wall"]))
+#: How each gantry runs: (label, per axis, Dynamixel watchdog on, Modbus way). Modbus way: None (as
+#: shipped: spanning reads and function 23 where the profile has them, connections asked at once only
+#: above ``CONCURRENT_ABOVE_S``), "plain" (span_read and write_read off, connections in turn: before),
+#: "at once" (``AssembledGantry.concurrent = True``).
+WAYS = {
+    "emulated-two-arm-dynamixel": [("per axis (before), watchdog off", True, False, None),
+                                   ("batched, watchdog off", False, False, None),
+                                   ("batched, watchdog 0.5 s (shipped)", False, True, None)],
+    "emulated-sample-stage-modbus": [("per axis (before)", True, True, "plain"),
+                                     ("batched, a request per register, start check apart (before)", False,
+                                      True, "plain"),
+                                     ("batched (shipped)", False, True, None),
+                                     ("batched, connections asked at once", False, True, "at once")],
+}
 
 
-def _campaign(twin, grid, per_axis, watchdog):
+def bench_campaigns(twin, grid, repeat=3):
+    """The best of ``repeat`` campaigns on ``twin`` in each of its :data:`WAYS` (taking turns; the
+    machine is shared: the least disturbed run is the closest to the cost itself); prints, for each, its
+    wall time per pose and where it went. The per-axis path does not feed the Dynamixel watchdogs (a
+    move longer than the watchdog would stop short): it runs with them off."""
+    runs = {way: [] for way in WAYS[twin]}
+    for _ in range(repeat):
+        for way in WAYS[twin]:
+            runs[way].append(_campaign(twin, grid, *way[1:]))
+    for way, done in runs.items():
+        bad = [r["state"] for r in done if r["state"] != "done"]
+        if bad:
+            raise SystemExit(f"campaign {twin}, {way[0]}: ended {bad[0]}, not done")
+        _report(twin, grid, way[0], repeat, **min(done, key=lambda r: r["wall"]))
+
+
+def _campaign(twin, grid, per_axis, watchdog, modbus):
+    import dataclasses
     import tempfile
 
+    import gonio.drivers.modbus.axis
     import gonio.runner
     from gonio.campaign import create_campaign, run_campaign
     from gonio.config import GonioConfig, load_config
@@ -188,6 +251,10 @@ def _campaign(twin, grid, per_axis, watchdog):
     split.wrap(Journal, "log_event", "journal")
     if per_axis:
         split.replace(gonio.runner.Runner, "_start_positions", gonio.runner.Runner._positions)
+    if modbus == "plain":
+        load = gonio.drivers.modbus.axis.load_profile
+        split.replace(gonio.drivers.modbus.axis, "load_profile",
+                      lambda name: dataclasses.replace(load(name), span_read=False, write_read=False))
     clock = SyncedVirtualClock()
     try:
         cfg = load_config(twin)
@@ -202,6 +269,7 @@ def _campaign(twin, grid, per_axis, watchdog):
             c = create_campaign(d, cfg, grid=grid, material=None, sample="bench")
             poses, steps = c.meta["poses"], c.journal.step_count()
             gantry = build_gantry(cfg, clock=clock)
+            gantry.concurrent = {"plain": False, "at once": True}.get(modbus)
             split.s.clear()
             split.n.clear()
             sent = {n: len(getattr(e, "received", getattr(e, "requests", [])))
@@ -218,14 +286,13 @@ def _campaign(twin, grid, per_axis, watchdog):
                 dxl=dxl, mb=mb)
 
 
-def _report(twin, grid, per_axis, repeat, watchdog, *, wall, state, poses, steps, gantry_s, s, n, dxl, mb):
+def _report(twin, grid, how, repeat, *, wall, state, poses, steps, gantry_s, s, n, dxl, mb):
     ms = {k: 1e3 * v / poses for k, v in s.items()}
     render = ms.get("render", 0.0)
     parts = {"driver round trips": ms.get("driver", 0.0) - render,
              "watchdog feeding reads (during the motion on a real gantry)": ms.get("feeding", 0.0),
              "safe-path planning": ms.get("planning", 0.0), "journal": ms.get("journal", 0.0)}
     parts["runner and the rest"] = 1e3 * wall / poses - render - sum(parts.values())
-    how = ("per axis (before)" if per_axis else "batched") + ("" if watchdog else ", watchdog off")
     print(f"campaign {twin} {grid}, {how}, best of {repeat}: {state}, {poses} poses / {steps} steps, "
           f"gantry time {gantry_s:.0f} s, wall {wall:.2f} s = {1e3 * wall / poses:.2f} ms per pose, of which "
           f"the emulated detector's Dr.Jit render {render:.2f} ms ({n['render']} renders) and through the "
@@ -239,17 +306,22 @@ def main():
     ap.add_argument("--n", type=int, default=300, help="repetitions per figure")
     ap.add_argument("--grid", default="iso:step=15", help="GRID of the campaign benchmark")
     ap.add_argument("--repeat", type=int, default=3, help="campaigns per figure (the best is shown)")
+    ap.add_argument("--only", choices=("dynamixel", "modbus"), help="benchmark one family only")
     args = ap.parse_args()
+    families = (args.only,) if args.only else ("dynamixel", "modbus")
     print("load average (1, 5, 15 min): " + " ".join(f"{x:.2f}" for x in os.getloadavg()))
     for twin in ("emulated-two-arm-dynamixel", "emulated-sample-stage-modbus"):
-        for per_axis, watchdog in ((True, False), (False, False), (False, True)):
-            if watchdog and "dynamixel" not in twin:
-                continue
-            bench_campaign(twin, args.grid, per_axis, args.repeat, watchdog)
-    for k in (2, 4, 8):
-        bench_dynamixel(k, args.n)
-    for t in ("tcp", "rtu"):
-        bench_modbus(t, max(20, args.n // 3))
+        if not any(f in twin for f in families):
+            continue
+        bench_campaigns(twin, args.grid, args.repeat)
+    if "dynamixel" in families:
+        for k in (2, 4, 8):
+            bench_dynamixel(k, args.n)
+    if "modbus" in families:
+        for t in ("tcp", "rtu"):
+            bench_modbus(t, max(20, args.n // 3))
+        bench_modbus_looks(max(20, args.n // 3))
+    print("load average at the end: " + " ".join(f"{x:.2f}" for x in os.getloadavg()))
 
 
 if __name__ == "__main__":
