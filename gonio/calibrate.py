@@ -22,14 +22,16 @@ and read at incidence θi_ref it gives S_ref − D = K · (ρ_ref/π) · cos θi
 
 (with θi_ref = θi this is the textbook ρ_ref/π · (S − S_dark)/(S_ref − S_dark)).
 
-Dark and reference readings are taken periodically; each pose uses the dark interpolated linearly in
-campaign time between the dark readings around it, and K interpolated between the reference readings
-around it, which tracks a slowly drifting source. The campaign clock (``Measurement.campaign_s``)
+Dark and reference readings are taken periodically; each pose uses the dark and K interpolated in
+campaign time from the readings around it, which tracks a drifting source: a cubic through the two
+readings around the pose and the next one on either side (a straight line would miss a curving drift,
+a lamp's warm-up or wander, by (Δt²/8)·|d²K/dt²| between references Δt apart; the cubic's error is of
+order Δt⁴, which lets references be sparse in time and cheap). The campaign clock (``Measurement.campaign_s``)
 continues across resumes; a journal whose clock goes backwards is refused, since interpolating on it
 would silently mix up which references bracket which poses.
 
-Uncertainty (first order, independent errors): an interpolated quantity (1 − w)·a + w·b has variance
-(1 − w)²σa² + w²σb²; the relative errors of the net pose signal and of K add in quadrature.
+Uncertainty (first order, independent errors): an interpolated quantity Σ w_j·y_j has variance
+Σ w_j²·σ_j²; the relative errors of the net pose signal and of K add in quadrature.
 """
 
 from __future__ import annotations
@@ -41,7 +43,11 @@ import numpy as np
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.store import Measurement
 
-__all__ = ["CalibrationError", "Calibrated", "calibrate"]
+__all__ = ["CalibrationError", "Calibrated", "calibrate", "interpolation_weights", "SPACING_RATIO"]
+
+#: The drift interpolation uses a reading beyond the two around a pose only when the interval to it is
+#: within this factor of theirs.
+SPACING_RATIO = 2.0
 
 
 class CalibrationError(ValueError):
@@ -58,19 +64,54 @@ class Calibrated:
     campaign_s: np.ndarray   # (N,) campaign clock at each sample's reading
 
 
-def _interp(t, tk, yk, ek):
-    """Linear interpolation in time of values ``yk`` (K, C) with standard errors ``ek`` (K, C) at the
-    times ``t`` (N,); constant beyond the ends. Returns (value, stddev), each (N, C)."""
-    hi = np.clip(np.searchsorted(tk, t, side="right"), 1, max(len(tk) - 1, 1))
+def interpolation_weights(t, tk, ratio: float = None) -> tuple[np.ndarray, np.ndarray]:
+    """How the drift correction interpolates readings taken at the times ``tk`` (K,), sorted, at the
+    times ``t`` (N,): indices (N, 4) into the readings and their weights (N, 4), each row summing to 1.
+
+    A cubic through the two readings around each time and one more on either side, constant beyond the
+    ends. The outer two readings take part only when their interval is within a factor ``ratio``
+    (default :data:`SPACING_RATIO`) of the bracketing one (at the ends of the campaign, or across a long pause
+    before a resume, fewer readings are used: a quadratic or a straight line). The weights are those of
+    the Lagrange polynomial through the readings used, so it reproduces a constant or a linear drift
+    exactly and a smooth one to the fourth order in the interval.
+    """
+    ratio = SPACING_RATIO if ratio is None else float(ratio)
+    t = np.asarray(t, dtype=np.float64)
+    tk = np.asarray(tk, dtype=np.float64)
+    k = tk.size
+    if k == 1:
+        return np.zeros((t.size, 4), dtype=np.int64), np.tile([1.0, 0.0, 0.0, 0.0], (t.size, 1))
+    t = np.clip(t, tk[0], tk[-1])
+    hi = np.clip(np.searchsorted(tk, t, side="right"), 1, k - 1)
     lo = hi - 1
-    if len(tk) == 1:
-        return np.repeat(yk, len(t), axis=0), np.repeat(ek, len(t), axis=0)
+    nodes = np.stack([lo - 1, lo, hi, hi + 1], axis=1)
     span = tk[hi] - tk[lo]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = np.where(span > 0.0, (t - tk[lo]) / span, 0.0)
-    w = np.clip(w, 0.0, 1.0)[:, None]
-    value = (1.0 - w) * yk[lo] + w * yk[hi]
-    stddev = np.hypot((1.0 - w) * ek[lo], w * ek[hi])
+    use = np.ones(nodes.shape, dtype=bool)
+    for col, inner in ((0, lo), (3, hi)):
+        inside = (nodes[:, col] >= 0) & (nodes[:, col] < k)
+        gap = np.abs(tk[np.clip(nodes[:, col], 0, k - 1)] - tk[inner])
+        use[:, col] = inside & (gap <= ratio * span) & (ratio * gap >= span) & (span > 0.0)
+    use[:, 2] &= span > 0.0                      # two readings at one time: take the first
+    idx = np.clip(nodes, 0, k - 1)
+    tn = tk[idx]
+    weights = np.zeros(nodes.shape)
+    for j in range(4):
+        w = np.where(use[:, j], 1.0, 0.0)
+        for m in range(4):
+            if m != j:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    factor = np.where(use[:, m], (t - tn[:, m]) / (tn[:, j] - tn[:, m]), 1.0)
+                w = w * np.where(use[:, j], factor, 1.0)
+        weights[:, j] = np.where(use[:, j], w, 0.0)
+    return idx, weights
+
+
+def _interp(t, tk, yk, ek):
+    """Values ``yk`` (K, C) with standard errors ``ek`` (K, C), read at the times ``tk``, interpolated at
+    the times ``t`` (N,) as :func:`interpolation_weights` says. Returns (value, stddev), each (N, C)."""
+    idx, weights = interpolation_weights(t, tk)
+    value = np.einsum("nj,njc->nc", weights, yk[idx])
+    stddev = np.sqrt(np.einsum("nj,njc->nc", weights**2, ek[idx] ** 2))
     return value, stddev
 
 

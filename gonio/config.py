@@ -172,6 +172,13 @@ class LightSimConfig(_Strict):
     half_angle_deg: float = Field(0.5, gt=0.0, le=10.0)
     #: Relative change of radiance per hour of (virtual) time: what the periodic white reference tracks.
     drift_per_hour: float = Field(0.0, ge=-0.5, le=0.5)
+    #: Warm-up: the output starts this fraction below its settled value and approaches it as
+    #: exp(-t / warmup_s) (a lamp switched on when the campaign began; 0: already warm).
+    warmup_fraction: float = Field(0.0, ge=0.0, le=0.5)
+    warmup_s: float = Field(600.0, gt=0.0, le=86400.0)
+    #: A slow periodic wander (room temperature, supply) of this relative amplitude and period.
+    wander_fraction: float = Field(0.0, ge=0.0, le=0.2)
+    wander_period_s: float = Field(1800.0, gt=0.0, le=86400.0)
 
 
 class LightConfig(_Strict):
@@ -373,6 +380,10 @@ class ReflectanceTable(_Strict):
         return np.interp(wl, self.wavelength_nm, self.reflectance)
 
 
+#: Poses between checkpoints when the config schedules them neither by count nor by time.
+DEFAULT_EVERY = 50
+
+
 class ReferenceConfig(_Strict):
     #: Hemispherical reflectance of the white standard (a Lambertian, e.g. sintered PTFE).
     albedo: float = Field(0.99, gt=0.0, le=1.0)
@@ -384,13 +395,22 @@ class ReferenceConfig(_Strict):
     #: The standard's own angular response where it is read (θi_ref, θo_ref, Δφ_ref below): its f_r
     #: there over ρ/π, e.g. the 0°/45° reflectance factor of its certificate; 1 for an ideal diffuser.
     response: float = Field(1.0, ge=0.8, le=1.2)
-    #: A dark and a white-reference reading every this many poses (and at the start and end).
-    every: int = Field(50, ge=1)
-    #: Also one at least this often in gantry time (s) between reference readings; None: by count only.
+    #: A dark and a white-reference reading every this many poses (and at the start and end). Left out,
+    #: it is 50 when ``every_s`` is left out too, and no count limit when ``every_s`` is given.
+    every: int | None = Field(None, ge=1)
+    #: One at least this often in gantry time (s) between reference readings (as well as ``every``
+    #: when both are given); None: by count only.
     every_s: float | None = Field(None, gt=0.0, le=86400.0)
     theta_i_deg: float = Field(0.0, ge=0.0, lt=90.0)
     theta_o_deg: float = Field(45.0, ge=0.0, lt=90.0)
     dphi_deg: float = Field(180.0, ge=0.0, lt=360.0)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_count(cls, data):
+        if isinstance(data, dict) and data.get("every") is None and data.get("every_s") is None:
+            data = {**data, "every": DEFAULT_EVERY}
+        return data
 
     @model_validator(mode="after")
     def _check_reflectance(self):
@@ -399,6 +419,13 @@ class ReferenceConfig(_Strict):
         if self.reflectance is not None and any(not 0.0 < r <= 1.0 for r in self.reflectance):
             raise ValueError(f"reflectance: each value in (0, 1], got {list(self.reflectance)}")
         return self
+
+    def poses_per_run(self, n_poses: int) -> int:
+        """At most this many poses between two checkpoints by count (``n_poses`` when only the time
+        limit ``every_s`` schedules them), >= 1."""
+        if self.every is not None:
+            return int(self.every)
+        return DEFAULT_EVERY if self.every_s is None else max(int(n_poses), 1)
 
     def reference_fr(self, channels, wavelengths_nm=None):
         """ρ_ref · response per channel: π times the standard's f_r at the angles it is read at."""

@@ -1,4 +1,8 @@
-"""A simulated light source: a lamp of finite angular size whose radiance drifts linearly in time.
+"""A simulated light source: a lamp of finite angular size whose radiance drifts in time.
+
+The drift has three parts, each off by default: a linear trend, a warm-up (the output rises to its
+settled value exponentially after power-on) and a slow periodic wander; the last two curve, so a
+drift correction that only interpolates straight lines between white references is put to the test.
 
 The lamp was switched on when the campaign began (clock time 0, the campaign clock's origin) and drifts
 from then on, across resumes of the campaign; ``set_on`` opens and closes its shutter, so dark readings
@@ -6,6 +10,8 @@ taken between white references do not reset the drift the references are there t
 """
 
 from __future__ import annotations
+
+import math
 
 from gonio.config import LightConfig
 from gonio.protocols import Clock, DeviceFault
@@ -31,9 +37,10 @@ class SimLight:
 
     Notes
     -----
-    Radiance at clock time t is ``radiance · (1 + drift_per_hour · t / 3600 s)``: the clock is the
-    campaign clock (a resumed simulation starts its virtual clock where the journal left off). The
-    shutter starts closed.
+    Radiance at clock time t is ``radiance · (1 + drift_per_hour · t / 3600 s)
+    · (1 − warmup_fraction · exp(−t / warmup_s)) · (1 + wander_fraction · sin(2π t / wander_period_s))``:
+    the clock is the campaign clock (a resumed simulation starts its virtual clock where the journal
+    left off). The shutter starts closed.
     """
 
     def __init__(self, cfg: LightConfig, clock: Clock, name: str = "light"):
@@ -75,13 +82,16 @@ class SimLight:
         """
         t = self._clock.now() if t_s is None else float(t_s)
         hours = t / _SECONDS_PER_HOUR
-        factor = 1.0 + self.cfg.sim.drift_per_hour * hours
+        sim = self.cfg.sim
+        factor = 1.0 + sim.drift_per_hour * hours
         if factor <= 0.0:
             raise DeviceFault(
                 self.name, f"lamp output drifted to zero after {hours:.2f} h "
                 f"(drift_per_hour = {self.cfg.sim.drift_per_hour})", transient=False,
             )
-        return self.cfg.sim.radiance * factor
+        curve = (1.0 - sim.warmup_fraction * math.exp(-t / sim.warmup_s)) \
+            * (1.0 + sim.wander_fraction * math.sin(2.0 * math.pi * t / sim.wander_period_s))
+        return sim.radiance * factor * curve
 
     def radiance(self) -> float:
         """Radiance reaching the sample now: the lamp's when the shutter is open, else 0."""

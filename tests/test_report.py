@@ -18,6 +18,7 @@ from gonio.cli import main
 from gonio.config import load_config, parse_config
 from gonio.plan.schedule import STEP_POSE, STEP_REFERENCE
 from gonio.report import build_report, report
+from gonio.report.checks import NOISE_UNDERSTATED
 from gonio.report.html import SECTIONS
 from gonio.store import Journal
 from gonio.wiring import build_gantry
@@ -40,10 +41,11 @@ def _run(folder, material, grid, cfg=None, seed=1, before=None):
     return folder
 
 
-def _often_referenced():
-    """The sim gantry with a dark and a white reference every 8 poses (a few of each on a small grid)."""
+def _often_referenced(every: int = 8):
+    """The sim gantry with a dark and a white reference every ``every`` poses (as well as every 300 s):
+    enough of each on a small grid for the report's scatter checks."""
     data = load_config().model_dump()
-    data["reference"]["every"] = 8
+    data["reference"]["every"] = every
     return parse_config(data)
 
 
@@ -73,7 +75,7 @@ def _verdict(rep, topic):
 def copper(tmp_path_factory):
     """Measured without the reciprocity shortcut, with one transient axis time-out (one retry)."""
     folder = tmp_path_factory.mktemp("report") / "copper"
-    _run(folder, COPPER, GRID + ",reciprocity=false", seed=2,
+    _run(folder, COPPER, GRID + ",reciprocity=false", _often_referenced(50), seed=2,
          before=lambda g: g.axes["detector_tilt"].fail_next("timeout"))
     out = folder.parent / "copper.html"
     return folder, out, report(folder, out)
@@ -310,3 +312,28 @@ def test_the_page_renders_in_a_headless_browser(copper, tmp_path):
     top = img[:700]
     green = (top[..., 1] > 0.4) & (top[..., 0] < 0.2) & (top[..., 2] < 0.3)
     assert green.sum() > 200
+
+
+def test_a_lamp_drifting_smoothly_between_sparse_references_is_not_flagged(tmp_path):
+    """References far apart in time on a lamp that warms up and wanders: the calibration's cubic follows
+    the drift, so the report does not call those readings jumps or their noise understated, although
+    the straight line through each one's two neighbours misses them by several standard errors."""
+    data = load_config().model_dump()
+    data["light"]["sim"].update(drift_per_hour=-0.2, warmup_fraction=0.03, warmup_s=180.0,
+                                wander_fraction=0.05, wander_period_s=540.0)
+    data["reference"].update(every=None, every_s=30.0)
+    data["detector"]["sim"].update(aperture_samples=4096)
+    data["detector"]["sim"]["noise"].update(shot_counts_per_unit=1e9)
+    folder = _run(tmp_path / "drift", "lambert:albedo=0.5", "iso:step=15", parse_config(data))
+    rep = build_report(folder)
+    r = rep.reference
+    assert len(r.step) >= 8
+    assert r.flagged == [] and not rep.flags["reference"] and not rep.flags["noise"]
+    rows = {row["what"].split(" ")[0]: row for row in rep.noise["rows"]}
+    assert 0.5 < rows["white-reference"]["rms_z"] < 2.0
+    # The straight line through each one's two neighbours would not do: its scatter would call the
+    # stated stddev understated.
+    t, y, s = r.time_s, r.rate[:, 1], r.stderr[:, 1]
+    line = y[:-2] + (y[2:] - y[:-2]) * ((t[1:-1] - t[:-2]) / (t[2:] - t[:-2]))
+    z_line = (y[1:-1] - line) / np.hypot(s[1:-1], 0.7 * s[2:])
+    assert np.sqrt(np.mean(z_line**2)) > NOISE_UNDERSTATED

@@ -12,10 +12,11 @@
   coverage is below 1). Flagged where any channel exceeds 1.
 - **Invalid values** (:func:`invalid_values`): samples with a negative or NaN f_r in any channel.
 - **Noise** (:func:`noise_check`): the scatter of repeated readings against the standard error they
-  state: the white-reference and dark readings against the line through their neighbours in time
-  (:mod:`gonio.report.journal`), and the reciprocal pairs above. The rms of those z-scores is ≈ 1 when
-  the stated stddev is honest; above :data:`NOISE_UNDERSTATED` the stated stddev is too small (every
-  uncertainty derived from it is too optimistic), below :data:`NOISE_OVERSTATED` too large.
+  state: the white-reference and dark readings against what their neighbours in time predict (the
+  calibration's interpolation, :mod:`gonio.report.journal`), and the reciprocal pairs above. The rms of
+  those z-scores is ≈ 1 when the stated stddev is honest; above :data:`NOISE_UNDERSTATED` the stated
+  stddev is too small (every uncertainty derived from it is too optimistic), below
+  :data:`NOISE_OVERSTATED` too large.
 """
 
 from __future__ import annotations
@@ -173,8 +174,8 @@ def noise_check(reference, dark, pairs: dict) -> dict:
         above :data:`NOISE_UNDERSTATED`).
     """
     rows = []
-    for what, r in (("white-reference readings against the line through their neighbours", reference),
-                    ("dark readings against the line through their neighbours", dark)):
+    for what, r in (("white-reference readings against their neighbours' interpolation", reference),
+                    ("dark readings against their neighbours' interpolation", dark)):
         keep = [k for k in range(len(r.step)) if k not in r.flagged]
         rms, n = _rms(r.z[keep]) if r.z is not None else (float("nan"), 0)
         rows.append({"what": what, "rms_z": rms, "n": n})

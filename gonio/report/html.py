@@ -134,7 +134,7 @@ def _section_calibration(rep) -> str:
             "reading: " + _drift_words(ch, ref.drift) + ".</p>")
     html += _img(rep.figures["calibration"], "white-reference and dark readings over campaign time",
                  "Top: each white-reference reading net of the dark, as % from the median, ±1 standard "
-                 "error. Bottom: the dark readings. A circled reading is off the line through its neighbours "
+                 "error. Bottom: the dark readings. A circled reading is off its neighbours' interpolation "
                  f"by more than {100 * journal.REFERENCE_JUMP_RELATIVE:g} % (dark: "
                  f"{100 * journal.DARK_JUMP_RELATIVE:g} % of the reference level) and more than "
                  f"{journal.JUMP_Z:g} standard errors.")
@@ -146,7 +146,7 @@ def _section_calibration(rep) -> str:
                          f"{100 * r.deviation[i][worst]:+.1f} % ({ch[worst]})"])
     if rows:
         html += "<h3>Flagged readings</h3>" + _table(
-            ["reading", "step", "campaign time", "off the line through its neighbours"], rows, num={1, 3})
+            ["reading", "step", "campaign time", "off its neighbours' interpolation"], rows, num={1, 3})
     return html
 
 
@@ -276,7 +276,7 @@ def _section_definitions() -> str:
         "(not in the first two); body: the rest. θh, θd: Rusinkiewicz half and difference angles.",
         f"A region fails when rms(model − data)/rms(data) > {100 * models.REGION_RELATIVE:g} % and mean z² > "
         f"{models.REGION_CHI2:g}, with at least {models.REGION_MIN_SAMPLES} samples.",
-        f"White reference: a reading off the line through its neighbours in time by > "
+        f"White reference: a reading off its neighbours' interpolation in time by > "
         f"{100 * journal.REFERENCE_JUMP_RELATIVE:g} % and > {journal.JUMP_Z:g} σ; dark: by > "
         f"{100 * journal.DARK_JUMP_RELATIVE:g} % of the net reference rate and > {journal.JUMP_Z:g} σ.",
         f"Reciprocity: flagged when > {100 * checks.RECIPROCITY_BEYOND_3:g} % of the pairs lie beyond ±3σ "

@@ -2,9 +2,11 @@
 
 :func:`campaign_facts` reads the plan (gantry, grid, shortcuts, counts), the run (campaign time against the
 plan's estimate, resumes) and the events (faults, retries, pauses, halts). :func:`calibration_readings`
-takes the white-reference and dark readings over campaign time and checks each one against the straight
-line through its two nearest neighbours in time (the calibration interpolates linearly between readings,
-so a reading off that line is one the calibration cannot absorb):
+takes the white-reference and dark readings over campaign time and checks each one against what the
+others predict for it: inside, the calibration's own interpolation through the readings around it (a
+cubic through two on each side, :func:`gonio.calibrate.interpolation_weights`), at either end the line
+through its two nearest neighbours. A reading off that prediction is one the calibration cannot absorb
+(a lamp's smooth drift, even sparse in time, is absorbed):
 
 - a white-reference reading is flagged when its net rate (dark subtracted) is more than
   :data:`REFERENCE_JUMP_RELATIVE` off that line *and* more than :data:`JUMP_Z` of its standard errors;
@@ -27,13 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
+from gonio.calibrate import SPACING_RATIO, _interp, interpolation_weights
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.store import JOURNAL_NAME, Journal
 
 __all__ = ["campaign_facts", "calibration_readings", "Readings", "REFERENCE_JUMP_RELATIVE",
            "DARK_JUMP_RELATIVE", "JUMP_Z"]
 
-#: A white-reference reading this far (relative) off the line through its neighbours is flagged ...
+#: A white-reference reading this far (relative) off what its neighbours predict is flagged ...
 REFERENCE_JUMP_RELATIVE = 0.02
 #: ... a dark reading this far off its line, relative to the median net reference rate ...
 DARK_JUMP_RELATIVE = 0.01
@@ -119,9 +122,9 @@ class Readings:
     rate, stderr : numpy.ndarray, shape (K, C)
         Signal per second of exposure (net of the dark for white references) and its standard error.
     deviation, z : numpy.ndarray, shape (K, C)
-        Leave-one-out deviation from the line through the two nearest readings in time that are not
-        flagged (relative to the reference level ``scale``), and in standard errors; NaN where there are
-        not enough readings.
+        Leave-one-out deviation from what the nearest readings in time that are not flagged predict
+        (relative to the reference level ``scale``), and in standard errors; NaN where there are not
+        enough readings.
     flagged : list of int
         Indices (into the K readings) of flagged readings, worst first.
     scale : numpy.ndarray, shape (C,)
@@ -147,9 +150,11 @@ class Readings:
 
 
 def _leave_one_out(r: Readings, skip: set) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Deviation of each reading from the line through its two nearest others (not in ``skip``), in
-    units of the reference level and of standard errors, and the leverage √(1 + Σa²) of that line
-    (1.22 between two neighbours, 2.45 extrapolated from two on one side)."""
+    """Deviation of each reading from what the others (not in ``skip``) predict for it, in units of the
+    reference level and of standard errors, and the leverage √(1 + Σa²) of that prediction (a·: its
+    weights). Inside, the prediction is the calibration's cubic through two others on each side
+    (:func:`gonio.calibrate.interpolation_weights`; 1.37), or the line between its two neighbours where
+    there are fewer (1.22); at either end, the line through the two nearest (2.45)."""
     k_all, c = r.rate.shape
     dev = np.full((k_all, c), np.nan)
     z = np.full((k_all, c), np.nan)
@@ -162,15 +167,27 @@ def _leave_one_out(r: Readings, skip: set) -> tuple[np.ndarray, np.ndarray, np.n
         before = [i for i in others if r.time_s[i] <= r.time_s[k]]
         after = [i for i in others if r.time_s[i] > r.time_s[k]]
         if before and after:
-            pick = [before[-1], after[0]]
+            # inside: the calibration's own interpolation through the others (a cubic where it can;
+            # leaving this reading out doubles the interval around it, hence the doubled ratio)
+            idx, w = interpolation_weights([r.time_s[k]], r.time_s[others], 2.0 * SPACING_RATIO)
+            used = w[0] != 0.0
+            if used.sum() == 4:
+                pick = [others[i] for i in idx[0]]
+                a = w[0]
+            else:
+                # Short of two on each side a lopsided quadratic would lean on one neighbour so much
+                # that a bad reading there condemns this one first: the line between the two.
+                i, j = before[-1], after[0]
+                f = (r.time_s[k] - r.time_s[i]) / (r.time_s[j] - r.time_s[i])
+                pick, a = [i, j], np.array([1.0 - f, f])
         else:
             pick = sorted(others, key=lambda i: abs(r.time_s[i] - r.time_s[k]))[:2]
-        if len(pick) == 1 or r.time_s[pick[0]] == r.time_s[pick[1]]:
-            a = np.full(len(pick), 1.0 / len(pick))
-        else:
-            (i, j) = pick
-            w = (r.time_s[k] - r.time_s[i]) / (r.time_s[j] - r.time_s[i])
-            a = np.array([1.0 - w, w])
+            if len(pick) == 1 or r.time_s[pick[0]] == r.time_s[pick[1]]:
+                a = np.full(len(pick), 1.0 / len(pick))
+            else:
+                (i, j) = pick
+                w = (r.time_s[k] - r.time_s[i]) / (r.time_s[j] - r.time_s[i])
+                a = np.array([1.0 - w, w])
         predicted = sum(a[n] * r.rate[i] for n, i in enumerate(pick))
         var = r.stderr[k] ** 2 + sum(a[n] ** 2 * r.stderr[i] ** 2 for n, i in enumerate(pick))
         d = r.rate[k] - predicted
@@ -215,8 +232,7 @@ def calibration_readings(measurements: list) -> tuple[Readings, Readings]:
     dk, rk = kind == STEP_DARK, kind == STEP_REFERENCE
     if not dk.any() or not rk.any():
         raise ValueError("the journal holds no dark or no white-reference reading: nothing calibrated it")
-    dark_at_ref = np.stack([np.interp(t[rk], t[dk], rate[dk][:, c]) for c in range(rate.shape[1])], axis=1)
-    dark_err = np.stack([np.interp(t[rk], t[dk], err[dk][:, c]) for c in range(rate.shape[1])], axis=1)
+    dark_at_ref, dark_err = _interp(t[rk], t[dk], rate[dk], err[dk])
     net = rate[rk] - dark_at_ref
     scale = np.median(net, axis=0)
     scale = np.where(np.abs(scale) > 0, np.abs(scale), 1.0)
