@@ -192,11 +192,11 @@ def bound_rows() -> None:
         for grid in ("iso:step=10", "iso:step=2", "iso:step=1"):
             base = build_plan(grid, cfg, kin)
             mean_s = base.estimated_s / np.count_nonzero(base.step_kind == STEP_REFERENCE)
-            schedules = [("every 50 poses", cfg)]
+            schedules = [("every 50 poses", _with_reference(cfg, every=50, every_s=None))]
             if grid != "iso:step=1":
                 schedules += [(f"every_s {mean_s:.0f} (same interval)",
-                               _with_reference(cfg, every=1_000_000, every_s=float(round(mean_s)))),
-                              ("every_s 300", _with_reference(cfg, every=1_000_000, every_s=300.0))]
+                               _with_reference(cfg, every=None, every_s=float(round(mean_s)))),
+                              ("every_s 300 (shipped)", _with_reference(cfg, every=None, every_s=300.0))]
             for label, c in schedules:
                 t0 = time.perf_counter()
                 plan = build_plan(grid, c, kin)

@@ -17,8 +17,8 @@ Choices worth knowing:
   (:func:`gonio.motion.chain.chain_branches`, used to try serpentine cuts) and avoids its needless
   unwinding and flips. The reference pose takes, of its branches, the one that makes the trips to and
   from the runs shortest.
-- Checkpoints: by count (``reference.every``) and, with ``reference.every_s``, by gantry time between
-  reference readings, each run ended where its detour to the reference is least
+- Checkpoints: by gantry time between reference readings (``reference.every_s``, the shipped configs'
+  way) and/or by count (``reference.every``), each run ended where its detour to the reference is least
   (:mod:`gonio.plan.checkpoints`).
 - Tours are not reordered again with branches priced exactly: on the shipped merl grids
   :func:`gonio.motion.refine.refine_windows` saved under 0.01 s of 1,418 s for 10 s of planning.
@@ -55,9 +55,13 @@ __all__ = ["Plan", "build_plan", "TOUR_MAX_POSES", "REASON_CAUSES"]
 
 #: Largest pose set ordered by a tour (nearest neighbour is O(N) scans in the worst case).
 TOUR_MAX_POSES = 50_000
-#: Largest plan whose valid bound uses every pose; above it an evenly spread subset of this many
-#: (the moves through a subset are no longer than through all: still a bound, a weaker one).
-BOUND_MAX_POSES = 20_000
+#: Largest plan whose valid bound uses every pose (``iso:step=2``, 142,879 poses, takes ~4 s of it);
+#: above it an evenly spread subset of this many (the moves through a subset are no longer than
+#: through all: still a bound, a weaker one).
+BOUND_MAX_POSES = 250_000
+#: Run length the serpentine's cut trials choose branches in (the count between checkpoints when it is
+#: smaller): a stand-in for the runs a time-scheduled campaign will have, which are cut later.
+CUT_RUN_LENGTH = 50
 # Times the runs are cut again when via points push a run past reference.every_s.
 _RECUT_TRIES = 3
 
@@ -120,6 +124,9 @@ class Plan:
         ``gonio.motion.safe.safe_path(kin, previous target, target)[:-1]`` (from home for the first).
     park_deg : ndarray, shape (K, n_axes)
         The path home after the last step (``gonio.motion.safe.park_path``); its last row is home.
+    step_end_s : ndarray, shape (S,)
+        Estimated gantry time at the end of each step's reading, seconds from the start (the campaign
+        clock of a simulated run).
     """
 
     grid: str
@@ -141,6 +148,7 @@ class Plan:
     timing: dict = field(default_factory=dict)
     via_deg: dict[int, np.ndarray] = field(default_factory=dict)
     park_deg: np.ndarray | None = None
+    step_end_s: np.ndarray | None = None
 
 
 def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
@@ -199,14 +207,17 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
     elif order == "raster":
         perm = raster_order(loops)
     else:
-        perm = serpentine_order(_cut_loops(spec, kin, angles, loops, ref_first, metric, cfg.reference.every))
+        perm = serpentine_order(_cut_loops(spec, kin, angles, loops, ref_first, metric,
+                                           min(cfg.reference.poses_per_run(n), CUT_RUN_LENGTH)))
     angles = tuple(a[perm] for a in angles)
 
-    every = int(cfg.reference.every)
+    every = cfg.reference.poses_per_run(n)
     every_s = cfg.reference.every_s
     reading_s = cfg.detector.exposure_s * cfg.detector.frames
     settle_s = cfg.runner.settle_s
-    starts = run_starts(n, every)
+    # With a time limit the runs are cut below, on these first branches: chosen in runs of at most
+    # CUT_RUN_LENGTH (one run of the whole campaign would be a DP of as many steps as poses).
+    starts = run_starts(n, every if every_s is None else min(every, CUT_RUN_LENGTH))
     ref = _best_reference(kin, ref_options, angles, starts, home, metric)
     axes = best_branches(kin, *angles, starts, ref)
     for attempt in range(_RECUT_TRIES + 1):
@@ -262,6 +273,7 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
         timing=timing,
         via_deg=via,
         park_deg=park,
+        step_end_s=np.cumsum(step_s),
     )
 
 

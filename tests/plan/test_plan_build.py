@@ -91,8 +91,15 @@ def test_reference_axes_point_at_the_reference_pose(cfg):
     np.testing.assert_allclose(wo[0], [np.sin(t) * np.cos(d), np.sin(t) * np.sin(d), np.cos(t)], atol=1e-9)
     kind = plan.step_kind
     assert kind[0] == STEP_DARK and kind[1] == STEP_REFERENCE and kind[-1] == STEP_REFERENCE
-    runs = np.diff(np.flatnonzero(kind == STEP_DARK)) - 2
-    assert runs.max() == cfg.reference.every
+    # The shipped configs schedule checkpoints by gantry time: none further apart than every_s.
+    assert cfg.reference.every is None and cfg.reference.every_s == 300.0
+    gaps = np.diff(plan.step_end_s[kind == STEP_REFERENCE])
+    assert gaps.size >= 1 and gaps.max() <= cfg.reference.every_s
+    # By count instead: runs of exactly `every` poses, the last one shorter.
+    counted = build_plan("iso:step=15", cfg.model_copy(update={"reference": cfg.reference.model_copy(
+        update={"every": 50, "every_s": None})}))
+    runs = np.diff(np.flatnonzero(counted.step_kind == STEP_DARK)) - 2
+    assert runs.max() == 50 and np.all(runs[:-1] == 50)
 
 
 @pytest.mark.parametrize("grid", ["iso:step=30", "full:step=60"])

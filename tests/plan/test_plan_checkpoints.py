@@ -23,8 +23,8 @@ def test_time_checkpoints_keep_every_interval_and_the_estimate_is_exact(name):
     cfg = load_config(CONFIG_DIR / name)
     kin = make_kinematics(cfg)
     metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
-    count = build_plan("iso:step=15", cfg, kin)
-    timed = build_plan("iso:step=15", _with(cfg, every=100_000, every_s=120.0), kin)
+    count = build_plan("iso:step=15", _with(cfg, every=50, every_s=None), kin)
+    timed = build_plan("iso:step=15", _with(cfg, every=None, every_s=120.0), kin)
     targets = step_targets(timed.step_kind, timed.step_pose, timed.axes_deg, timed.reference_axes_deg)
     reading = cfg.detector.exposure_s * cfg.detector.frames
     step_s = (step_move_times(targets, kin.home_deg, metric) + reading
