@@ -16,7 +16,7 @@ from gonio.motion.safe import check_targets, safe_path
 from gonio.motion.trapezoid import move_time
 from gonio.protocols import DeviceFault
 
-__all__ = ["axis_report", "pose_targets", "plan_move", "drive", "connect_axes", "close_axes"]
+__all__ = ["axis_report", "pose_targets", "plan_move", "arrived", "drive", "connect_axes", "close_axes"]
 
 
 def connect_axes(gantry, keep_faulted: bool = False) -> dict:
@@ -85,6 +85,18 @@ def plan_move(kin, current_deg, target_deg) -> np.ndarray:
     return safe_path(kin, np.asarray(current_deg, float), target)
 
 
+def arrived(axes, targets_deg, tolerance_deg: float) -> np.ndarray:
+    """The axes' positions (°) read back, once each is within ``tolerance_deg`` of its target; else a
+    DeviceFault naming the first axis that stopped elsewhere."""
+    actual = np.array([a.position_deg() for a in axes])
+    bad = np.flatnonzero(np.abs(actual - targets_deg) > tolerance_deg)
+    if bad.size:
+        i = int(bad[0])
+        raise DeviceFault(axes[i].name, f"stopped at {actual[i]:.4f}°, not at its target "
+                          f"{targets_deg[i]:.4f}° (position_tolerance_deg={tolerance_deg})")
+    return actual
+
+
 def drive(gantry, legs, *, cfg, clock, on_leg=None) -> np.ndarray:
     """Drive ``legs`` in order on the kinematics' axes, each waited for and verified; the axes' final
     positions (°). A failure stops every axis and raises DeviceFault."""
@@ -117,12 +129,7 @@ def drive(gantry, legs, *, cfg, clock, on_leg=None) -> np.ndarray:
         except BaseException:
             gantry.stop()
             raise
-        actual = np.array([a.position_deg() for a in axes])
-        bad = np.flatnonzero(np.abs(actual - leg) > rc.position_tolerance_deg)
-        if bad.size:
-            i = int(bad[0])
-            raise DeviceFault(axes[i].name, f"stopped at {actual[i]:.4f}°, not at its target {leg[i]:.4f}° "
-                              f"(position_tolerance_deg={rc.position_tolerance_deg})")
+        actual = arrived(axes, leg, rc.position_tolerance_deg)
         if on_leg is not None:
             on_leg(leg)
         start = actual

@@ -21,7 +21,7 @@ import numpy as np
 from gonio.config import GonioConfig
 from gonio.daemon.pacing import PacedClock
 from gonio.daemon.records import Conflict, FieldError
-from gonio.manual import plan_move, pose_targets
+from gonio.manual import arrived, plan_move, pose_targets
 from gonio.protocols import DeviceFault
 
 __all__ = ["GantryOwner", "ANGLES"]
@@ -168,9 +168,4 @@ class GantryOwner:
             raise
         if self._halt.is_set():
             raise Conflict("halted: the move was stopped; the axes are left where they stopped")
-        actual = np.array([a.position_deg() for a in axes])
-        bad = np.flatnonzero(np.abs(actual - leg) > rc.position_tolerance_deg)
-        if bad.size:
-            i = int(bad[0])
-            raise DeviceFault(axes[i].name, f"stopped at {actual[i]:.4f}°, not at its target {leg[i]:.4f}° "
-                              f"(position_tolerance_deg={rc.position_tolerance_deg})")
+        arrived(axes, leg, rc.position_tolerance_deg)
