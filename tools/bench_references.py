@@ -13,8 +13,8 @@ against real runs by ``tests/plan/test_plan_drift.py``) a lamp with a warm-up, a
 darks nothing, and ``gonio.calibrate.calibrate`` (the real code) turns them into f_r. Its relative error
 against the truth is the drift correction's error: first noise-free (the interpolation's bias alone),
 then with a relative sensor noise per reading (seeded), as a detector has. The baseline beside the
-shipped cubic is the straight-line interpolation gonio used before (``--linear`` swaps it in for one
-row). No test asserts these figures.
+shipped cubic is the straight-line interpolation gonio used before, swapped into
+``gonio.calibrate`` for its rows of the same run. No test asserts these figures.
 """
 
 from __future__ import annotations
