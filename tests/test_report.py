@@ -337,3 +337,20 @@ def test_a_lamp_drifting_smoothly_between_sparse_references_is_not_flagged(tmp_p
     line = y[:-2] + (y[2:] - y[:-2]) * ((t[1:-1] - t[:-2]) / (t[2:] - t[:-2]))
     z_line = (y[1:-1] - line) / np.hypot(s[1:-1], 0.7 * s[2:])
     assert np.sqrt(np.mean(z_line**2)) > NOISE_UNDERSTATED
+
+
+def test_the_noise_check_judges_readings_not_channels_and_only_enough_of_them():
+    """Three grey readings of three channels are three readings, not nine: too few to call their stated
+    stddev too large from an rms z of 0.2; ten such readings are enough."""
+    from gonio.report.checks import NOISE_MIN_READINGS, noise_check
+    from gonio.report.journal import Readings
+
+    def readings(k):
+        z = np.full((k, 3), 0.2)
+        one = np.ones((k, 3))
+        return Readings(np.arange(k), np.arange(k, dtype=float), one, one, np.ones(3), z=z, deviation=z)
+
+    none = {"applicable": False}
+    few = noise_check(readings(3), readings(NOISE_MIN_READINGS), none)["rows"]
+    assert few[0]["n"] == 3 and not few[0]["tested"] and few[0]["verdict"].startswith("too few readings")
+    assert few[1]["tested"] and "overstated" in few[1]["verdict"]

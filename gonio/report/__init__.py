@@ -193,8 +193,8 @@ def _verdicts(rep: Report) -> list[tuple[str, str, str]]:
     v = rep.invalid
     out.append(("flag", "values", f"{v['negative']} negative and {v['nan']} NaN samples of {v['samples']:,}")
                if v["flag"] else ("ok", "values", f"no negative or NaN values in {v['samples']:,} samples"))
-    bad = [row for row in rep.noise["rows"] if row["n"] >= 3 and row["rms_z"] > checks.NOISE_UNDERSTATED]
-    low = [row for row in rep.noise["rows"] if row["n"] >= 3 and row["rms_z"] < checks.NOISE_OVERSTATED]
+    bad = [row for row in rep.noise["rows"] if row["tested"] and row["rms_z"] > checks.NOISE_UNDERSTATED]
+    low = [row for row in rep.noise["rows"] if row["tested"] and row["rms_z"] < checks.NOISE_OVERSTATED]
     if bad:
         out.append(("flag", "noise", "stated stddev understated: " + "; ".join(
             f"{row['what'].split(':')[0]} scatter {row['rms_z']:.2g}×" for row in bad)))
@@ -202,7 +202,7 @@ def _verdicts(rep: Report) -> list[tuple[str, str, str]]:
         out.append(("note", "noise", "stated stddev larger than the scatter: " + "; ".join(
             f"{row['what'].split(':')[0]} {row['rms_z']:.2g}×" for row in low)))
     else:
-        tested = [row for row in rep.noise["rows"] if row["n"] >= 3]
+        tested = [row for row in rep.noise["rows"] if row["tested"]]
         out.append(("ok" if tested else "info", "noise",
                     "repeat readings scatter as their stated stddev says" if tested else
                     "too few repeat readings with a stddev to compare"))

@@ -29,13 +29,16 @@ from gonio.slices import LUMA, albedo_slice, luminance
 
 __all__ = ["reciprocity_pairs", "albedo_check", "invalid_values", "noise_check", "sample_angles",
            "RECIPROCITY_BEYOND_3", "RECIPROCITY_RELATIVE", "ALBEDO_STEP_DEG", "NOISE_UNDERSTATED",
-           "NOISE_OVERSTATED"]
+           "NOISE_OVERSTATED", "NOISE_MIN_READINGS"]
 
 RECIPROCITY_BEYOND_3 = 0.05
 RECIPROCITY_RELATIVE = 0.01
 ALBEDO_STEP_DEG = 5.0
 NOISE_UNDERSTATED = 2.0
 NOISE_OVERSTATED = 0.5
+#: Fewest readings (or pairs) whose rms z is judged: the rms of a few honest z-scores strays far from 1
+#: (below 0.5 for 3 of them one time in seven; for 8, one time in fifty).
+NOISE_MIN_READINGS = 8
 #: Planned angles are matched to this many decimals (degrees).
 _DECIMALS = 2
 
@@ -159,9 +162,13 @@ def invalid_values(data: SampledBRDF) -> dict:
 
 
 def _rms(z: np.ndarray) -> tuple[float, int]:
-    z = np.asarray(z, np.float64).ravel()
-    z = z[np.isfinite(z)]
-    return (float(np.sqrt(np.mean(z ** 2))) if z.size else float("nan")), int(z.size)
+    """rms of the finite z-scores (readings, or readings × channels) and how many readings have one:
+    the channels of one reading share its sources of error, so they do not count apart."""
+    z = np.asarray(z, np.float64)
+    rows = z.reshape(z.shape[0], -1) if z.ndim else z.reshape(1, 1)
+    finite = z[np.isfinite(z)]
+    return (float(np.sqrt(np.mean(finite ** 2))) if finite.size else float("nan")), \
+        int(np.isfinite(rows).any(axis=1).sum())
 
 
 def noise_check(reference, dark, pairs: dict) -> dict:
@@ -170,8 +177,9 @@ def noise_check(reference, dark, pairs: dict) -> dict:
     Returns
     -------
     dict
-        ``rows``: per source (``what``, ``rms_z``, ``n``, ``verdict``), and ``flag`` (a source whose rms z is
-        above :data:`NOISE_UNDERSTATED`).
+        ``rows``: per source (``what``, ``rms_z``, ``n`` readings, ``tested`` (n at least
+        :data:`NOISE_MIN_READINGS`), ``verdict``), and ``flag`` (a tested source whose rms z is above
+        :data:`NOISE_UNDERSTATED`).
     """
     rows = []
     for what, r in (("white-reference readings against their neighbours' interpolation", reference),
@@ -183,13 +191,15 @@ def noise_check(reference, dark, pairs: dict) -> dict:
         rms, n = _rms(pairs["z"])
         rows.append({"what": "reciprocal pairs: f(ωi, ωo) against f(ωo, ωi)", "rms_z": rms, "n": n})
     for row in rows:
-        if row["n"] < 3:
-            row["verdict"] = "too few values with a stated stddev > 0 to tell"
+        row["tested"] = row["n"] >= NOISE_MIN_READINGS
+        if not row["tested"]:
+            row["verdict"] = (f"too few readings with a stated stddev > 0 to tell ({row['n']}; "
+                              f"{NOISE_MIN_READINGS} needed)")
         elif row["rms_z"] > NOISE_UNDERSTATED:
             row["verdict"] = f"scatter {row['rms_z']:.2g}× the stated stddev: the stddev is understated"
         elif row["rms_z"] < NOISE_OVERSTATED:
             row["verdict"] = f"scatter {row['rms_z']:.2g}× the stated stddev: the stddev is overstated"
         else:
             row["verdict"] = "consistent with the stated stddev"
-    flag = any(r["n"] >= 3 and r["rms_z"] > NOISE_UNDERSTATED for r in rows)
+    flag = any(r["tested"] and r["rms_z"] > NOISE_UNDERSTATED for r in rows)
     return {"rows": rows, "flag": flag}

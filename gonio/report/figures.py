@@ -137,8 +137,8 @@ def calibration(ref, dark, channels) -> bytes:
                         textcoords="offset points", xytext=(8, -14), color=_FLAG, fontsize=9)
     ax.axhline(0.0, color="0.5", lw=0.8)
     ax.set_ylabel("white reference, net of dark:\n% from its median")
-    ax.set_title("White-reference readings over the campaign (the calibration interpolates linearly "
-                 "between them)", fontsize=10)
+    ax.set_title("White-reference readings over the campaign (the calibration interpolates between them "
+                 "in time)", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     td = _scale_like(dark.time_s, ref.time_s)

@@ -198,10 +198,11 @@ def _section_noise(rep) -> str:
     html = ("<p>What is measured: repeated readings of the same thing, compared with the standard error each "
             "reading states. z = deviation / stated stddev; its rms is ≈ 1 when the stated stddev is honest, "
             f"above {checks.NOISE_UNDERSTATED:g} it is understated (uncertainties too optimistic), below "
-            f"{checks.NOISE_OVERSTATED:g} overstated.</p>")
+            f"{checks.NOISE_OVERSTATED:g} overstated; judged from {checks.NOISE_MIN_READINGS} readings or "
+            "more.</p>")
     rows = [[r["what"], r["n"], "–" if not np.isfinite(r["rms_z"]) else f"{r['rms_z']:.2f}", r["verdict"]]
             for r in rep.noise["rows"]]
-    html += _table(["repeat readings", "values", "rms z", "verdict"], rows, num={1, 2},
+    html += _table(["repeat readings", "readings", "rms z", "verdict"], rows, num={1, 2},
                    fail=lambda r, c: c == 3 and "understated" in rows[r][3])
     best = next((m for m in rep.fits if m["result"] is not None), None)
     if best is not None:
@@ -282,7 +283,8 @@ def _section_definitions() -> str:
         f"Reciprocity: flagged when > {100 * checks.RECIPROCITY_BEYOND_3:g} % of the pairs lie beyond ±3σ "
         f"and the median |relative difference| is > {100 * checks.RECIPROCITY_RELATIVE:g} %.",
         "Energy: directional albedo above 1 in any channel at any θi.",
-        f"Noise: rms z of repeat readings > {checks.NOISE_UNDERSTATED:g} (understated stddev).",
+        f"Noise: rms z of {checks.NOISE_MIN_READINGS} or more repeat readings > "
+        f"{checks.NOISE_UNDERSTATED:g} (understated stddev).",
     ]
     return "<ul>" + "".join(f"<li>{escape(t)}</li>" for t in items) + "</ul>"
 
