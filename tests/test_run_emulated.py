@@ -40,9 +40,9 @@ def _simulated(tmp_path, sim_config: str, grid: str = GRID):
     return read_brdf(tmp_path / "sim" / "brdf.h5")
 
 
-def _emulated_run(folder, emu, clock, **run):
+def _emulated_run(folder, emu, clock, grid: str = GRID, **run):
     cfg = emu.config()
-    c = create_campaign(folder, cfg, grid=GRID, material=None, sample="gold")
+    c = create_campaign(folder, cfg, grid=grid, material=None, sample="gold")
     try:
         return run_campaign(c, build_gantry(cfg, clock=clock), **run), c
     finally:
@@ -309,3 +309,37 @@ def test_gonio_run_killed_mid_move_leaves_the_servos_stopped_by_their_bus_watchd
             fired, at = s.watchdog_fired_at, s.value(132) - s.value(20)
         assert fired is not None and fired <= killed + watchdog_s
         assert abs(at - goal) > 50  # ticks: stopped short, it did not simply arrive
+
+
+@pytest.mark.slow
+def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp_path):
+    """The shipped Dynamixel twin (bus watchdog 0.5 s) on the wall clock, with moves slowed so that many
+    last several watchdog periods: only the feeding reads keep the servos going. The campaign finishes
+    with no watchdog fired, no retry, every servo disarmed at rest, and the simulation's values."""
+    data = _fast("emulated-two-arm-dynamixel")
+    for axis in data["axes"].values():
+        axis["max_velocity_deg_s"] = 60.0  # within the slowest servo's velocity limit, gear included
+        axis["max_accel_deg_s2"] = 240.0
+    cfg = parse_config(data)
+    watchdog_s = data["axes"]["light_tilt"]["watchdog_s"]
+    assert watchdog_s == 0.5
+    clock = WallClock()
+    with EmulatedGantry(cfg, MATERIAL, clock=clock, any_port=True) as emu:
+        lasted: list[float] = []
+        for s in emu.servos.values():
+            def start(goal, s=s, start=s._start_move):
+                start(goal)
+                _t0, a, b, v, acc = s._move
+                lasted.append(float(move_time(b - a, v, acc)))
+            s._start_move = start
+        (state, runner), _ = _emulated_run(tmp_path / "emu", emu, clock, grid="iso:step=45")
+        assert state == State.DONE, runner.fault
+        assert sum(t > 2 * watchdog_s for t in lasted) >= 5, sorted(lasted)[-5:]
+        assert all(s.watchdog_fired_at is None and s.value(98) == 0 for s in emu.servos.values())
+        j = Journal.open(tmp_path / "emu" / JOURNAL_NAME, readonly=True)
+        try:
+            assert not [e for e in j.events() if e["kind"] in ("retry", "fault")]
+        finally:
+            j.close()
+    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path, "sim", "iso:step=45"),
+             channel_mean=True)
