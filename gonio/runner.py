@@ -126,6 +126,8 @@ class Runner:
         self._offset_s = 0.0  # campaign clock − gantry clock
         # (positions, clock) of the last committed reading: where the next step's path starts
         self._rest: tuple[np.ndarray, float] | None = None
+        # The last leg target the axes arrived at (within position_tolerance_deg), or None
+        self._arrived: np.ndarray | None = None
         latched = journal.latched_fault()
         if latched is not None:
             self._state = State.FAULTED
@@ -213,6 +215,7 @@ class Runner:
             return self._state
         self._pause.clear()
         self._rest = None
+        self._arrived = None
         self._halt.clear()
         self._start_clock()
         step = self.journal.next_step()
@@ -353,11 +356,23 @@ class Runner:
     def _start_positions(self) -> np.ndarray:
         """Where the axes stand before a move: the positions the last committed reading read, when
         nothing was commanded since and no more than ``poll_s`` passed (one read of every axis fewer
-        per step on real buses); otherwise read now."""
+        per step on real buses); otherwise read now.
+
+        When every axis is within ``position_tolerance_deg`` of the last target it arrived at, that
+        target is returned instead: the axes are there as far as the arrival check can tell, and the
+        path then starts where the planner certified it. A read-back a few encoder ticks from a pose
+        planned exactly at a clearance (a free azimuth stepped aside to arm_collision_deg) would
+        otherwise count as a start inside the forbidden zone, from which no path is clear; and axes
+        whose target does not change are not commanded again."""
         rest, self._rest = self._rest, None
         if rest is not None and self.gantry.clock.now() - rest[1] <= self.cfg.runner.poll_s:
-            return rest[0].copy()
-        return self._positions()
+            actual = rest[0].copy()
+        else:
+            actual = self._positions()
+        there = self._arrived
+        if there is not None and np.all(np.abs(actual - there) <= self.cfg.runner.position_tolerance_deg):
+            return there.copy()
+        return actual
 
     def _poll(self) -> tuple[np.ndarray | None, bool]:
         """(positions, whether any axis moves): one batched read where the gantry offers it; else the
@@ -377,9 +392,11 @@ class Runner:
             path = safe_path(self._kin, start, target)
         except ValueError as err:
             raise _Fault("gantry", str(err)) from None
+        self._arrived = None
         for leg in path:
             self._move_leg(start, leg)
             start = leg
+        self._arrived = np.array(target, dtype=float)
 
     def _move_leg(self, start: np.ndarray, target: np.ndarray) -> None:
         rc = self.cfg.runner

@@ -7,12 +7,13 @@ import pytest
 
 from gonio.campaign import create_campaign
 from gonio.clock import VirtualClock
-from gonio.config import load_config
+from gonio.config import load_config, parse_config
+from gonio.plan import STEP_POSE
 from gonio.protocols import DeviceFault
 from gonio.runner import TRANSITIONS, Runner, State, TransitionError
 from gonio.wiring import build_gantry
 
-GRID = "iso:step=45"  # 3 θ values x 8 Δφ: a handful of poses, every step kind
+GRID = "iso:step=45,order=serpentine"  # 3 θ values x 8 Δφ: a handful of poses, every step kind
 
 
 @pytest.fixture
@@ -369,3 +370,26 @@ def test_pause_and_abort_requests_from_another_thread(tmp_path, cfg):
     t.join(timeout=10)
     assert r.state == State.ABORTED
     assert [e["state"] for e in _events(c, "state")][-1] == "aborted"
+
+
+@pytest.mark.parametrize("grid", ["iso:step=10,theta_max=20,order=serpentine", "iso:step=45,order=tour"])
+def test_encoder_counts_beside_a_clearance_do_not_block_the_next_move(tmp_path, grid):
+    """Free azimuths step aside to exactly kinematics.arm_collision_deg from the other carriage, and a
+    Δφ = 10° pose puts the carriages that far apart. With encoders of 0.3° counts the read-back of a
+    light carriage at −10° is −9.9°, inside that zone; the runner starts the next path from the target
+    it arrived at (within position_tolerance_deg), as the planner did, instead of faulting with "no
+    collision-free path" from the read-back."""
+    data = load_config().model_dump(mode="json")
+    for axis in data["axes"].values():
+        axis.setdefault("sim", {})["resolution_deg"] = 0.3
+    data["runner"]["position_tolerance_deg"] = 0.3
+    cfg = parse_config(data)
+    c = create_campaign(tmp_path / "c", cfg, grid=grid, material="lambert:albedo=0.5", seed=1)
+    g = build_gantry(cfg, "lambert:albedo=0.5", seed=1)
+    g.connect()
+    steps = c.journal.steps()
+    poses = steps["axes_deg"][steps["kind"] == STEP_POSE]
+    gap = np.abs((poses[:, 0] - poses[:, 2] + 180.0) % 360.0 - 180.0)
+    assert np.any(np.abs(gap - g.kinematics.arm_collision_deg) < 1e-9)  # a pose right at the clearance
+    r = Runner(g, c.journal, cfg)
+    assert r.run() == State.DONE, r.fault
