@@ -90,20 +90,27 @@ def test_noise_gives_stddev_that_scatters_the_values_about_the_truth(tmp_path):
     ("lambert:albedo=0.5", True),             # sensor noise dominates
 ])
 def test_reported_stddev_matches_the_spread_across_seeds(tmp_path, material, noisy):
-    """The quality bar: across seeds, the observed spread of each calibrated sample divided by the
-    stddev brdf.h5 reports lies in [0.8, 1.25]."""
+    """The quality bar: across seeds, each calibrated sample's deviation from its mean over the seeds,
+    in units of the stddev brdf.h5 reports, has an rms in [0.8, 1.25].
+
+    Every sample weighs the same. Pooling the variances instead (spread² / reported² summed over
+    samples) lets the brightest sample decide alone: on the glossy lobe the specular pose has 100x the
+    variance of the next, its 8-seed variance is itself uncertain by ±50 %, and that ratio wandered
+    from 0.74 to 1.25 across seed sets and visiting orders while this one stayed within 0.89-1.05."""
     cfg = _noisy_config() if noisy else load_config()
     values, stddevs = [], []
-    for seed in range(8):
+    seeds = 8
+    for seed in range(seeds):
         _run(tmp_path / f"s{seed}", cfg, material, "iso:step=30", seed=seed)
         _, value, stddev, _ = _h5(tmp_path / f"s{seed}")
         values.append(value)
         stddevs.append(stddev)
     values, stddevs = np.array(values), np.array(stddevs)
     keep = np.mean(values, axis=0) > 1e-3 * values.max()  # where the lobe has signal
-    spread = np.sqrt(np.mean(np.var(values, axis=0, ddof=1)[keep]))
-    reported = np.sqrt(np.mean((stddevs**2)[:, keep]))
-    assert 0.8 <= spread / reported <= 1.25, spread / reported
+    # Deviations from the mean of the seeds understate the spread by (n - 1) / n in variance.
+    z = (values - values.mean(axis=0)) / stddevs * np.sqrt(seeds / (seeds - 1))
+    rms = np.sqrt(np.mean(z[:, keep] ** 2))
+    assert 0.8 <= rms <= 1.25, rms
 
 
 @pytest.mark.slow

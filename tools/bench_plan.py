@@ -7,6 +7,7 @@ printed, never asserted: they depend on the machine and its load.
     .venv/bin/python tools/bench_plan.py --quick    # skip iso:step=1 and the 20,000-pose tour
     .venv/bin/python tools/bench_plan.py --transit  # iso:step=1 and the swept-path check alone
     .venv/bin/python tools/bench_plan.py --bounds   # valid bound, reference share, gap to the exact optimum
+    .venv/bin/python tools/bench_plan.py --orders   # serpentine vs tour (with and without kicks) vs auto
 
 Figures:
 
@@ -34,7 +35,7 @@ import time
 
 import numpy as np
 
-from gonio.config import DEFAULT_CONFIG, load_config
+from gonio.config import CONFIG_DIR, DEFAULT_CONFIG, load_config
 from gonio.kinematics import make_kinematics
 from gonio.motion.bound import mst_edge_times, neighbour_times
 from gonio.motion.metric import MoveMetric
@@ -259,6 +260,33 @@ def exact_rows(seed: int, subsets: int = 200) -> None:
               f"{100 * np.mean(g_new):.2f} % ({100 * np.max(g_new):.1f} %) | {optimal} |", flush=True)
 
 
+def order_rows() -> None:
+    """Estimate / valid bound per order on the coarse grids, where the serpentine's row ends cost most:
+    the serpentine, the tour without kicks (2-opt/Or-opt alone: the baseline), the tour with them
+    (shipped), and what ``order=auto`` keeps; planning seconds of each."""
+    import gonio.plan.build as build
+
+    print("| gantry | grid | poses | serpentine | tour, no kicks | tour, kicked | auto keeps | "
+          "planning s (serp. / no kicks / kicked / auto) |")
+    print("|---|---|---:|---:|---:|---:|---|---|")
+    kicks = build.TOUR_KICKS_PER_POSE
+    for name in ("sim.toml", "sample-stage.toml"):
+        cfg = load_config(CONFIG_DIR / name)
+        kin = make_kinematics(cfg)
+        for grid in ("iso:step=15", "iso:step=10", "iso:step=5", "full:step=15"):
+            ratios, secs = [], []
+            for order, per_pose in (("serpentine", kicks), ("tour", 0), ("tour", kicks), ("auto", kicks)):
+                build.TOUR_KICKS_PER_POSE = per_pose
+                t0 = time.perf_counter()
+                plan = build.build_plan(f"{grid},order={order}", cfg, kin)
+                secs.append(time.perf_counter() - t0)
+                ratios.append(plan.estimated_s / plan.lower_bound_s)
+            build.TOUR_KICKS_PER_POSE = kicks
+            print(f"| {name.removesuffix('.toml')} | `{grid}` | {plan.theta_i.size:,} | "
+                  + " | ".join(f"{r:.3f}" for r in ratios[:3]) + f" | {plan.order} ({ratios[3]:.3f}) | "
+                  + " / ".join(f"{t:.1f}" for t in secs) + " |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip iso:step=1 and use 5,000 scattered poses")
@@ -266,6 +294,8 @@ def main() -> None:
     ap.add_argument("--bounds", action="store_true",
                     help="valid vs branch-fixed bound, reference share by count and by time, "
                          "gap to the exact optimum on 200 subsets, iso:step=1 build time")
+    ap.add_argument("--orders", action="store_true",
+                    help="estimate / bound of the serpentine, the tour with and without kicks, and auto")
     ap.add_argument("--transit", action="store_true",
                     help="only the swept-path figures: iso:step=1 build and the single-move check cost")
     args = ap.parse_args()
@@ -275,6 +305,10 @@ def main() -> None:
         bound_rows()
         print()
         exact_rows(args.seed)
+        print(f"\nload average at end {os.getloadavg()[0]:.2f}")
+        return
+    if args.orders:
+        order_rows()
         print(f"\nload average at end {os.getloadavg()[0]:.2f}")
         return
     if args.transit:

@@ -39,9 +39,13 @@ def cmd_plan(args) -> int:
     plan = build_plan(args.grid, cfg)
     fly = None
     if not plan.grid.startswith("merl:"):  # lattices have lines to sweep: fly side by side
+        from gonio.plan import parse_grid
         from gonio.plan.fly import fly_plan
 
-        fly = fly_plan(plan, cfg)
+        # A fly campaign sweeps the serpentine's lines (order=fly), whatever order auto chose here.
+        lines = plan if plan.order == "serpentine" else build_plan(
+            parse_grid(args.grid).spelled(order="fly"), cfg)
+        fly = fly_plan(lines, cfg)
     if args.json:
         print(json.dumps(plan_summary(plan, fly), indent=2))
     else:

@@ -16,11 +16,13 @@ from scipy.spatial import cKDTree
 
 from gonio.motion.metric import MoveMetric
 
-__all__ = ["raster_order", "serpentine_order", "nearest_neighbour_tour", "improve_tour", "tour_time",
-           "neighbour_lists"]
+__all__ = ["raster_order", "serpentine_order", "nearest_neighbour_tour", "improve_tour", "perturb_tour",
+           "tour_time", "neighbour_lists", "PERTURB_SPAN"]
 
 # s: a move must save more than this to be taken (float noise must not make the search cycle).
 _GAIN_EPS = 1e-9
+#: Poses within which a kick's three cuts fall (:func:`perturb_tour`).
+PERTURB_SPAN = 30
 
 
 def raster_order(loops) -> np.ndarray:
@@ -184,33 +186,133 @@ def improve_tour(points_deg, order, metric: MoveMetric, depot_deg, neighbours=No
     ndarray of int64, shape (N,)
         The improved order.
     """
-    pts = np.asarray(points_deg, dtype=np.float64)
-    n = pts.shape[0]
     order = np.asarray(order, dtype=np.int64)
+    if order.size < 3:
+        return order.copy()
+    search = _TourSearch(points_deg, order, metric, depot_deg, neighbours)
+    search.descend(order, 50 * order.size if max_moves is None else int(max_moves))
+    return search.order()
+
+
+def perturb_tour(points_deg, order, metric: MoveMetric, depot_deg, neighbours=None, kicks: int = 0,
+                 seed: int = 0, span: int = PERTURB_SPAN) -> np.ndarray:
+    """Iterated local search: :func:`improve_tour`, then ``kicks`` seeded segment double bridges, each
+    followed by the same 2-opt/Or-opt descent from the poses it touched and kept only when the tour
+    ends shorter (by more than 1 ns), so the result is never longer than the input.
+
+    A double bridge cuts the tour at three points within ``span`` consecutive poses and swaps the two
+    stretches between them (``A B C D -> A C B D``): a change no sequence of improving 2-opt and
+    Or-opt moves makes, which is what keeps local search stuck (row ends of a grid joined the wrong
+    way). Kicks near each other let the descent repair them locally, so each costs about as much as
+    a few moves, not a pass over the tour. Deterministic for a given seed.
+
+    Parameters
+    ----------
+    points_deg, order, metric, depot_deg, neighbours
+        As for :func:`improve_tour`.
+    kicks : int
+        Double bridges tried.
+    seed : int
+        Seed of the cut points.
+    span : int
+        Poses within which the three cuts fall.
+
+    Returns
+    -------
+    ndarray of int64, shape (N,)
+    """
+    order = np.asarray(order, dtype=np.int64)
+    n = order.size
     if n < 3:
         return order.copy()
-    if neighbours is None:
-        neighbours = neighbour_lists(pts, metric)[0]
-    depot = n  # the depot is node n of the cycle
-    allpts = np.concatenate([pts, np.asarray(depot_deg, dtype=np.float64).reshape(1, -1)])
-    dist = _scalar_metric(allpts, metric)
-    # The depot has no neighbour list of its own, but it is a neighbour of nobody either; tours pass
-    # through it like any other node.
-    neigh = neighbours.tolist() + [[]]
-    tour = np.concatenate([[depot], order]).astype(np.int64)
+    search = _TourSearch(points_deg, order, metric, depot_deg, neighbours)
+    search.descend(order, 50 * n)
     m = n + 1
-    pos = np.empty(m, dtype=np.int64)
-    pos[tour] = np.arange(m)
-    budget = 50 * n if max_moves is None else int(max_moves)
+    span = min(int(span), m - 1)
+    if span < 4:
+        return search.order()
+    rng = np.random.default_rng(seed)
+    for _ in range(int(kicks)):
+        lo = int(rng.integers(0, m - span))
+        a, b, c = np.sort(rng.choice(np.arange(lo + 1, lo + span + 1), size=3, replace=False)).tolist()
+        saved = search.tour.copy()
+        gain = search.double_bridge(a, b, c)
+        gain += search.descend(saved[[a - 1, a, b - 1, b, c - 1, c % m]], 50 * span)
+        if gain <= _GAIN_EPS:
+            search.restore(saved)
+    return search.order()
 
-    def succ(x):
-        return int(tour[(pos[x] + 1) % m])
 
-    def pred(x):
-        return int(tour[pos[x] - 1])
+class _TourSearch:
+    """A closed tour over poses 0..N-1 and the depot (node N) with its 2-opt and Or-opt moves.
 
-    def reverse(x, y):
+    Every move returns what it saved (s), so a caller can add up the gain of a kick and its repair.
+    """
+
+    def __init__(self, points_deg, order, metric: MoveMetric, depot_deg, neighbours=None):
+        pts = np.asarray(points_deg, dtype=np.float64)
+        n = pts.shape[0]
+        if neighbours is None:
+            neighbours = neighbour_lists(pts, metric)[0]
+        self.depot = n
+        allpts = np.concatenate([pts, np.asarray(depot_deg, dtype=np.float64).reshape(1, -1)])
+        self.dist = _scalar_metric(allpts, metric)
+        # The depot has no neighbour list of its own, but it is a neighbour of nobody either; tours
+        # pass through it like any other node.
+        self.neigh = neighbours.tolist() + [[]]
+        self.m = n + 1
+        self.tour = np.concatenate([[self.depot], np.asarray(order, dtype=np.int64)]).astype(np.int64)
+        self.pos = np.empty(self.m, dtype=np.int64)
+        self.pos[self.tour] = np.arange(self.m)
+
+    def order(self) -> np.ndarray:
+        start = int(self.pos[self.depot])
+        return np.concatenate([self.tour[start + 1:], self.tour[:start]]).astype(np.int64)
+
+    def restore(self, tour: np.ndarray) -> None:
+        self.tour = tour
+        self.pos[tour] = np.arange(self.m)
+
+    def succ(self, x: int) -> int:
+        return int(self.tour[(self.pos[x] + 1) % self.m])
+
+    def pred(self, x: int) -> int:
+        return int(self.tour[self.pos[x] - 1])
+
+    def descend(self, look_at, budget: int) -> float:
+        """Take improving moves, searching from the poses ``look_at`` and every pose a taken move
+        touches, until none improves or ``budget`` moves were taken; what they saved in all."""
+        queue = deque(int(x) for x in look_at if x != self.depot)
+        queued = np.zeros(self.m, dtype=bool)
+        queued[list(queue)] = True
+        moves, saved = 0, 0.0
+        while queue and moves < budget:
+            a = queue.popleft()
+            queued[a] = False
+            found = self.two_opt(a) or self.or_opt(a)
+            if found is None:
+                continue
+            touched, gain = found
+            moves += 1
+            saved += gain
+            for x in touched:
+                if x != self.depot and not queued[x]:
+                    queued[x] = True
+                    queue.append(x)
+        return saved
+
+    def double_bridge(self, a: int, b: int, c: int) -> float:
+        """Swap the stretches [a, b) and [b, c) of the tour array (0 < a < b < c <= N); the gain."""
+        t, dist, m = self.tour, self.dist, self.m
+        p, q, r = int(t[a - 1]), int(t[b - 1]), int(t[c - 1])
+        x, y, z = int(t[a]), int(t[b]), int(t[c % m])
+        gain = dist(p, x) + dist(q, y) + dist(r, z) - dist(p, y) - dist(r, x) - dist(q, z)
+        self.restore(np.concatenate([t[:a], t[b:c], t[a:b], t[c:]]))
+        return gain
+
+    def _reverse(self, x: int, y: int) -> None:
         """Reverse the stretch of the cycle from node x forward to node y (both included)."""
+        m, tour, pos = self.m, self.tour, self.pos
         i, j = int(pos[x]), int(pos[y])
         length = (j - i) % m + 1
         if 2 * length > m:  # reversing the complement gives the same cycle with less copying
@@ -220,35 +322,38 @@ def improve_tour(points_deg, order, metric: MoveMetric, depot_deg, neighbours=No
         tour[idx] = tour[idx[::-1]]
         pos[tour[idx]] = idx
 
-    def two_opt(a) -> list[int] | None:
+    def two_opt(self, a: int):
+        dist, neigh = self.dist, self.neigh
         for forward in (True, False):
-            b = succ(a) if forward else pred(a)
+            b = self.succ(a) if forward else self.pred(a)
             d_ab = dist(a, b)
             for c in neigh[a]:
                 g1 = d_ab - dist(a, c)
                 if g1 <= _GAIN_EPS:
                     break  # neighbours are sorted: no later c can do better
-                d = succ(c) if forward else pred(c)
+                d = self.succ(c) if forward else self.pred(c)
                 if c == b or d == a:
                     continue
-                if g1 + dist(c, d) - dist(b, d) > _GAIN_EPS:
+                gain = g1 + dist(c, d) - dist(b, d)
+                if gain > _GAIN_EPS:
                     if forward:
-                        reverse(b, c)  # a b … c d …  ->  a c … b d …
+                        self._reverse(b, c)  # a b … c d …  ->  a c … b d …
                     else:
-                        reverse(a, d)  # a … d c … b  ->  d … a c … b (joined b-d, a-c)
-                    return [a, b, c, d]
+                        self._reverse(a, d)  # a … d c … b  ->  d … a c … b (joined b-d, a-c)
+                    return [a, b, c, d], gain
         return None
 
-    def or_opt(a) -> list[int] | None:
+    def or_opt(self, a: int):
+        dist, neigh, depot = self.dist, self.neigh, self.depot
         for seg in (1, 2, 3):
             # The run a .. e of `seg` poses going forward; the depot never moves.
             run = [a]
             for _ in range(seg - 1):
-                run.append(succ(run[-1]))
+                run.append(self.succ(run[-1]))
             if depot in run:
                 return None
             e = run[-1]
-            p, q = pred(a), succ(e)
+            p, q = self.pred(a), self.succ(e)
             if q == a or p == e:
                 return None
             removed = dist(p, a) + dist(e, q) - dist(p, q)
@@ -260,20 +365,21 @@ def improve_tour(points_deg, order, metric: MoveMetric, depot_deg, neighbours=No
                         continue
                     if dist(end, c) >= removed:
                         break
-                    for d in (succ(c), pred(c)):
+                    for d in (self.succ(c), self.pred(c)):
                         if d in run:
                             continue
+                        # Either way round the run fits between c and d; _move_run takes the better.
                         added = min(dist(c, a) + dist(e, d), dist(c, e) + dist(a, d)) - dist(c, d)
                         if removed - added > _GAIN_EPS:
-                            move_run(run, c, d)
-                            return [p, q, c, d, a, e]
+                            self._move_run(run, c, d)
+                            return [p, q, c, d, a, e], removed - added
         return None
 
-    def move_run(run, c, d):
+    def _move_run(self, run, c, d):
         """Take the run out and put it between the adjacent nodes c and d, in the better direction."""
-        nonlocal tour
+        dist, m = self.dist, self.m
         a, e = run[0], run[-1]
-        keep = tour[np.isin(tour, run, invert=True)]
+        keep = self.tour[np.isin(self.tour, run, invert=True)]
         # c and d are still adjacent in the tour without the run.
         kpos = np.empty(m, dtype=np.int64)
         kpos[keep] = np.arange(keep.size)
@@ -282,26 +388,7 @@ def improve_tour(points_deg, order, metric: MoveMetric, depot_deg, neighbours=No
         seq = np.array(run if dist(left, a) + dist(e, right) <= dist(left, e) + dist(a, right)
                        else run[::-1], dtype=np.int64)
         cut = int(kpos[left]) + 1
-        tour = np.concatenate([keep[:cut], seq, keep[cut:]])
-        pos[tour] = np.arange(m)
-
-    queue = deque(int(x) for x in order)
-    queued = np.ones(m, dtype=bool)
-    queued[depot] = False
-    moves = 0
-    while queue and moves < budget:
-        a = queue.popleft()
-        queued[a] = False
-        touched = two_opt(a) or or_opt(a)
-        if touched is None:
-            continue
-        moves += 1
-        for x in touched:
-            if x != depot and not queued[x]:
-                queued[x] = True
-                queue.append(x)
-    start = int(pos[depot])
-    return np.concatenate([tour[start + 1:], tour[:start]]).astype(np.int64)
+        self.restore(np.concatenate([keep[:cut], seq, keep[cut:]]))
 
 
 def _scalar_metric(points: np.ndarray, metric: MoveMetric):
