@@ -13,10 +13,11 @@ Choices worth knowing:
   :data:`TOUR_KICKS_PER_POSE` seeded double-bridge kicks per pose (at most :data:`TOUR_KICKS_MAX`),
   each repaired by the same local search and kept when shorter (iterated local search,
   :func:`gonio.motion.order.perturb_tour`). ``auto`` takes a tour for merl grids up to
-  :data:`TOUR_MAX_POSES` poses; for iso and full grids up to :data:`AUTO_TOUR_MAX_POSES` it plans
-  both the serpentine and the tour and keeps the one estimated quicker (coarse grids: the
-  serpentine's row ends and the sample stage's coupled axes leave 4-8 % above the bound, the tour
-  2-6 %), above that the serpentine (whose cut trials scale; the tour gains under 0.2 % there).
+  :data:`TOUR_MAX_POSES` poses and the serpentine for full grids (a tour was 0.4-0.8 % slower on
+  ``full:step=15``); for iso grids up to :data:`AUTO_TOUR_MAX_POSES` poses it plans both and keeps
+  the one estimated quicker (the serpentine's row ends and the sample stage's coupled axes leave it
+  3-8 % above the bound on coarse grids, the tour 2-6 %: ``tools/bench_plan.py --orders``), above
+  that the serpentine.
 - Branches: for the chosen order, each run's inverse-kinematics branches minimize its total move
   time, trips from and back to the reference included (:func:`gonio.motion.branches.best_branches`,
   dynamic programming). That is never slower than chaining each pose to the branch nearest the last
@@ -61,8 +62,8 @@ __all__ = ["Plan", "build_plan", "TOUR_MAX_POSES", "AUTO_TOUR_MAX_POSES", "REASO
 
 #: Largest pose set ordered by a tour (nearest neighbour is O(N) scans in the worst case).
 TOUR_MAX_POSES = 50_000
-#: Largest iso or full grid for which ``order=auto`` also plans a tour and keeps the quicker.
-AUTO_TOUR_MAX_POSES = 2_000
+#: Largest iso grid for which ``order=auto`` also plans a tour and keeps the quicker.
+AUTO_TOUR_MAX_POSES = 10_000
 #: Double-bridge kicks per pose of a tour, and at most (about 0.7 ms each on this project's machine).
 TOUR_KICKS_PER_POSE = 2
 TOUR_KICKS_MAX = 4_000
@@ -189,7 +190,7 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
         from gonio.kinematics import make_kinematics
 
         kin = make_kinematics(cfg)
-    if spec.order == "auto" and spec.kind != "merl":
+    if spec.order == "auto" and spec.kind == "iso":
         first = build_plan(spec.spelled(order="serpentine"), cfg, kin)
         if first.theta_i.size > AUTO_TOUR_MAX_POSES:
             return first

@@ -18,8 +18,9 @@ Options: ``step`` degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ +
 ``stride`` an integer 1..90; ``theta_max`` degrees in (0, 90] (default: the config's
 ``kinematics.theta_max_deg``); ``reciprocity`` true|false (default true): keep one pose of each
 Helmholtz pair (ωi, ωo) ~ (ωo, ωi); ``mirror`` true|false (iso only, default false): also identify
-Δφ with −Δφ; ``order`` auto|serpentine|raster|tour|fly (default auto: for iso and full the serpentine, or the tour
-when that is estimated quicker on a grid of up to 2,000 poses; a tour for merl; fly, iso and full only: the serpentine's poses read while one
+Δφ with −Δφ; ``order`` auto|serpentine|raster|tour|fly (default auto: the serpentine for full; for
+iso the serpentine, or the tour when that is estimated quicker on a grid of up to 10,000 poses; a
+tour for merl; fly, iso and full only: the serpentine's poses read while one
 axis sweeps each line, :mod:`gonio.plan.fly`).
 
 Count stages, in order (each the number of poses left after it): ``grid`` (the raw lattice), then
