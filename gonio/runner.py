@@ -155,8 +155,10 @@ class Runner:
         log.info("campaign %s -> %s %s", old, new, message)
 
     def request_pause(self, reason: str = "pause requested") -> None:
-        """Pause at the next step boundary, then park (from any thread)."""
-        self._pause.set()
+        """Pause at the next step boundary, then park (from any thread).
+
+        The request is journaled before the runner's thread is told, so the journal never shows the
+        park (or the paused state) before the pause that caused it."""
         with self._lock:
             pausing = self._state == State.RUNNING
             if pausing:
@@ -164,6 +166,7 @@ class Runner:
         if pausing:
             self.journal.log_event("pause", state=str(State.PAUSING), message=reason,
                                    campaign_s=self.campaign_s())
+        self._pause.set()
 
     def request_abort(self) -> None:
         """Abort at the next step boundary and park; a paused, halted, faulted or idle campaign aborts at
