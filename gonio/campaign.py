@@ -262,7 +262,7 @@ def run_campaign(c: Campaign, gantry: Gantry,
                  on_runner: Callable[[Runner], None] | None = None,
                  clear_fault: bool = False) -> tuple[State, Runner]:
     """Run (or resume) ``c`` on ``gantry``; writes ``brdf.h5`` when the campaign is done. A fly campaign
-    (``order=fly``, :func:`gonio.fly.create_fly_campaign`) runs its sweeps on the gantry's axes
+    (made by :func:`gonio.fly.create_fly_campaign`) runs its sweeps on the gantry's axes
     (:mod:`gonio.fly.hardware`; a ValueError, before anything moves, when its sweeping axes cannot).
 
     ``on_runner(runner)`` is called once the runner exists and before it starts (signal handlers, the
@@ -270,7 +270,7 @@ def run_campaign(c: Campaign, gantry: Gantry,
     """
     runner = Runner(gantry, c.journal, c.cfg, on_step=on_step)
     units = None
-    if parse_grid(c.meta["grid"]).order == "fly":  # one unit per sweep and checkpoint (gonio.fly.hardware)
+    if "fly" in c.meta:  # made by create_fly_campaign: one unit per sweep and checkpoint (gonio.fly.hardware)
         from gonio.fly.hardware import fly_units
 
         units = fly_units(runner, c)

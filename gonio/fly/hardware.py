@@ -53,7 +53,7 @@ from functools import partial
 import numpy as np
 
 from gonio.fly.blur import motion_blur
-from gonio.plan.fly import FlyLine, FlyPlan, fly_steps
+from gonio.plan.fly import _TOL, FlyLine, FlyPlan, fly_steps
 from gonio.plan.schedule import STEP_POSE
 from gonio.runner import Runner, Unit
 from gonio.store import Measurement
@@ -119,6 +119,17 @@ def fly_units(runner: Runner, c) -> list[Unit]:
     return units
 
 
+def _on_limits(kin, axes_deg: np.ndarray) -> np.ndarray:
+    """A line's rest position with the planner's rounding at a limit taken off: the planner lets a run-up
+    end within its tolerance (``_TOL``, 1e-6°) beyond a limit, which a driver refuses; further than
+    that is left for the driver to refuse."""
+    lo, hi = np.asarray(kin.limits_deg, dtype=np.float64).T
+    out = np.asarray(axes_deg, dtype=np.float64).copy()
+    near = ((out < lo) & (out >= lo - _TOL)) | ((out > hi) & (out <= hi + _TOL))
+    out[near] = np.clip(out, lo, hi)[near]
+    return out
+
+
 def _checkpoint(runner: Runner, step: int, attempt: int) -> list[Measurement]:
     return [runner._measure_step(step, attempt), runner._measure_step(step + 1, attempt)]
 
@@ -153,16 +164,16 @@ class FlySweeper:
             return [r._measure_step(step, attempt)]
         g, kin = r.gantry, r._kin
         name = kin.axis_names[line.axis]
-        r._goto(line.start_deg)
+        start, end = _on_limits(kin, line.start_deg), _on_limits(kin, line.end_deg)
+        r._goto(start)
         r._wait(r.cfg.runner.settle_s)
         reads: list[tuple[np.ndarray, np.ndarray]] = []
-        v, a = r._command(lambda: g.sweep(name, float(line.end_deg[line.axis]), line.speed_deg_s,
-                                          line.accel_deg_s2))
+        v, a = r._command(lambda: g.sweep(name, float(end[line.axis]), line.speed_deg_s, line.accel_deg_s2))
         t_go = g.clock.now()
         try:
             out = self._readings(line, step, attempt, v, reads)
             # The run-down: the axis arrives at the line's end (the runner faults one that stopped short).
-            r._arrive(line.start_deg, line.end_deg, max(t_go + line.duration_s - g.clock.now(), 0.0))
+            r._arrive(start, end, max(t_go + line.duration_s - g.clock.now(), 0.0))
         except BaseException:
             try:
                 g.end_sweep(name)
