@@ -282,3 +282,17 @@ def test_gonio_run_refuses_order_fly_where_a_sweeping_axis_is_not_a_dynamixel_se
     assert code == 2
     assert len(err) == 1 and "axes." in err[0] and "'modbus' cannot sweep" in err[0], err
     assert not out.exists()
+
+
+def test_a_run_up_ending_within_the_planners_rounding_of_a_limit_is_taken_to_the_limit():
+    """The planner lets a line's rest position lie within 1e-6° beyond a limit (float rounding of
+    v²/2a + v·e/2), which the driver would refuse; further beyond is left for the driver to refuse."""
+    from gonio.fly.hardware import _on_limits
+    from gonio.kinematics import make_kinematics
+
+    kin = make_kinematics(load_config(TWIN))
+    lo, hi = np.asarray(kin.limits_deg).T
+    near = np.array([lo[0] - 1e-9, hi[1] + 5e-7, 10.0, lo[3]])
+    np.testing.assert_array_equal(_on_limits(kin, near), [lo[0], hi[1], 10.0, lo[3]])
+    far = np.array([lo[0] - 1e-3, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(_on_limits(kin, far), far)
