@@ -22,11 +22,14 @@ A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
    every ``read_s`` until the start is nearer than that, so the prediction follows the axis, not the
    plan's clock;
 4. a reading is ``subreads`` sub-reads of the detector (exposure / subreads each), with a stamped axis
-   read after each (so the exposure is bracketed by reads), their signals summed; its mid-time is the
-   mean of the sub-reads' mid-times and the axis positions there are interpolated linearly in time
-   between the reads around it. The forward kinematics of those positions give the sample's
-   (θi, φi, θo, φo): the direction at the mean position of the exposure (on a constant-velocity
-   sweep the mean position is the mid-time one);
+   read after each (so the exposure is bracketed by reads), their signals summed. A sub-read exposes
+   from its request for its exposure (a request-triggered photodiode: its reply, processing and
+   transfer, comes after and is not exposure), so its mid-time is half an exposure after the request;
+   the reading's mid-time is the mean of its sub-reads' mid-times, and the start of the next reading
+   allows for the dead time seen between sub-reads. The axis positions at the mid-time are
+   interpolated linearly in time between the reads around it, and their forward kinematics give the
+   sample's (θi, φi, θo, φo): the direction at the mean position of the exposure (on a
+   constant-velocity sweep the mean position is the mid-time one);
 5. after the last reading the axis runs down to the line's end; the runner's arrival check faults
    an axis that stopped short; the campaign's profile is written back (before any later move if it
    could not be then).
@@ -156,6 +159,7 @@ class FlySweeper:
         self.runner = runner
         self.read_s = float(read_s)
         self.subreads = subreads
+        self._gaps: list[float] = []   # the latest dead times between sub-reads, over sweeps
 
     def sweep(self, line: FlyLine, step: int, attempt: int) -> list[Measurement]:
         """The readings of ``line`` (steps from ``step``), attempt ``attempt`` (from 1)."""
@@ -200,11 +204,14 @@ class FlySweeper:
         planned = line.readings_deg()
         self._look(reads)
         spans, signals, variances, ends = [], [], [], []
+        gaps = self._gaps   # dead time between sub-reads seen so far (their reads and replies)
         for j in range(line.n):
-            # Start when the axis, at its speed from the last read, passes the pose at the mid-time.
+            # Start when the axis, at its speed from the last read, passes the pose at the mid-time of
+            # the sub-reads (their exposures and the dead time between them, as seen so far).
+            span = e + (m - 1) * (float(np.median(gaps)) if gaps else 0.0)
             while True:
                 t, x = reads[-1][0][ax], reads[-1][1][ax]
-                start = t + sign * (planned[j, ax] - x) / v - 0.5 * e
+                start = t + sign * (planned[j, ax] - x) / v - 0.5 * span
                 wait = start - clock.now()
                 if wait <= self.read_s:
                     if wait > 0:
@@ -215,12 +222,16 @@ class FlySweeper:
             subs, var, mids = [], [], []
             for k in range(m):
                 t0 = clock.now()
+                if k:
+                    gaps.append(t0 - mids[-1] - 0.5 * e / m)
+                    del gaps[:-64]
                 reading = g.detector.measure(e / m, 1, key=(step + j, (attempt - 1) * m + k))
                 t1 = clock.now()
                 self._look(reads)
                 subs.append(reading.signal)
                 var.append(np.asarray(reading.stderr, dtype=np.float64) ** 2)
-                mids.append(0.5 * (t0 + t1))
+                # The photodiode integrates from the request for its exposure; its reply comes after.
+                mids.append(t0 + 0.5 * reading.exposure_s)
             spans.append((float(np.mean(mids)), e))
             signals.append(np.asarray(subs, dtype=np.float64))
             variances.append(np.asarray(var))
