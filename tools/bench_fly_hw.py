@@ -5,7 +5,8 @@ over ptys to the emulators, on a SyncedVirtualClock, so gantry time is the emula
 stop-and-go campaign and a fly campaign (:mod:`gonio.fly.hardware`) of the same material: each one's
 gantry time (the campaign clock at the end, park included) and the plan's estimate, the wall time in
 all and per reading (what the drivers, the pty round trips and the emulators' Dr.Jit renders cost per
-reading on this machine), the Sync Reads per fly reading, and the fly values against the stop-and-go
+reading on this machine), the Sync Reads per fly reading and the wall time of one stamped Sync Read and
+of one photodiode read, and the fly values against the stop-and-go
 ones: z-scores with both stated uncertainties plus the simulated gantry's stop-and-go stddev (the
 emulated serial power meter states none of its own).
 
@@ -43,15 +44,27 @@ def _campaign(folder: Path, grid: str, fly: bool) -> dict:
         cfg = emu.config()
         create = create_fly_campaign if fly else create_campaign
         c = create(folder, cfg, grid=grid, material=None, sample="gold")
-        reads = [0]
+        reads, spent = [0, 0], [0.0, 0.0]   # stamped Sync Reads, detector reads: count, wall s
         gantry = build_gantry(cfg, clock=clock)
-        stamped = gantry.stamped_positions
+        stamped, measure = gantry.stamped_positions, gantry.detector.measure
 
         def counted():
             reads[0] += 1
-            return stamped()
+            t = time.perf_counter()
+            try:
+                return stamped()
+            finally:
+                spent[0] += time.perf_counter() - t
 
-        gantry.stamped_positions = counted
+        def timed(*a, **kw):
+            reads[1] += 1
+            t = time.perf_counter()
+            try:
+                return measure(*a, **kw)
+            finally:
+                spent[1] += time.perf_counter() - t
+
+        gantry.stamped_positions, gantry.detector.measure = counted, timed
         t0 = time.perf_counter()
         state, runner = run_campaign(c, gantry)
         wall = time.perf_counter() - t0
@@ -65,6 +78,8 @@ def _campaign(folder: Path, grid: str, fly: bool) -> dict:
         j.close()
     return {"gantry_s": runner.campaign_s(), "estimate_s": meta["estimated_s"], "wall_s": wall,
             "readings": readings, "sync_reads": reads[0], "poses": meta["poses"],
+            "sync_read_ms": 1e3 * spent[0] / max(reads[0], 1), "detector_reads": reads[1],
+            "detector_read_ms": 1e3 * spent[1] / max(reads[1], 1),
             "brdf": read_brdf(folder / "brdf.h5")}
 
 
@@ -96,7 +111,10 @@ def main() -> None:
     print(f"  fly / stop-and-go gantry time: {fly['gantry_s'] / sg['gantry_s']:.3f} "
           f"({sg['gantry_s'] / fly['gantry_s']:.2f}x less)")
     per = fly["sync_reads"] / fly["poses"]
-    print(f"  fly: {fly['sync_reads']} stamped Sync Reads ({per:.1f} per reading)")
+    print(f"  fly: {fly['sync_reads']} stamped Sync Reads ({per:.1f} per reading, "
+          f"{fly['sync_read_ms']:.2f} ms wall each), {fly['detector_reads']} photodiode reads "
+          f"({fly['detector_read_ms']:.1f} ms wall each, the emulator's render included; stop-and-go "
+          f"{sg['detector_read_ms']:.1f} ms)")
     a, b, s = fly["brdf"], sg["brdf"], sim
     (ia, ka), (ib, kb), (i_s, ks) = _rows(a), _rows(b), _rows(s)
     assert np.array_equal(ka[ia], kb[ib]) and np.array_equal(ka[ia], ks[i_s])
