@@ -261,19 +261,26 @@ def run_campaign(c: Campaign, gantry: Gantry,
                  on_step: Callable[[Runner, int], None] | None = None,
                  on_runner: Callable[[Runner], None] | None = None,
                  clear_fault: bool = False) -> tuple[State, Runner]:
-    """Run (or resume) ``c`` on ``gantry``; writes ``brdf.h5`` when the campaign is done.
+    """Run (or resume) ``c`` on ``gantry``; writes ``brdf.h5`` when the campaign is done. A fly campaign
+    (made by :func:`gonio.fly.create_fly_campaign`) runs its sweeps on the gantry's axes
+    (:mod:`gonio.fly.hardware`; a ValueError, before anything moves, when its sweeping axes cannot).
 
     ``on_runner(runner)`` is called once the runner exists and before it starts (signal handlers, the
     daemon). ``clear_fault`` is the operator's explicit clearing of a latched fault.
     """
     runner = Runner(gantry, c.journal, c.cfg, on_step=on_step)
+    units = None
+    if "fly" in c.meta:  # made by create_fly_campaign: one unit per sweep and checkpoint (gonio.fly.hardware)
+        from gonio.fly.hardware import fly_units
+
+        units = fly_units(runner, c)
     if on_runner is not None:
         on_runner(runner)
     gantry.connect()
     try:
         if clear_fault and runner.state == State.FAULTED:
             runner.clear_fault()
-        state = runner.run()
+        state = runner.run(units)
     finally:
         gantry.close()
     if state == State.DONE:

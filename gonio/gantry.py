@@ -247,6 +247,53 @@ class AssembledGantry:
                 pos[i], moving[i] = states[axis.name].position_deg, states[axis.name].moving
         self._last_read = self.clock.now()
 
+    def stamped_positions(self) -> tuple[np.ndarray, np.ndarray]:
+        """(times, positions) of the kinematics' axes, in their order: one stamped Sync Read per
+        Dynamixel bus (:meth:`DynamixelGroup.read_stamped`: each axis carries its own bus's stamp, on
+        the gantry clock), and each other axis read one by one, stamped halfway through its read."""
+        n = len(self.axes)
+        pos, stamp = np.empty(n), np.empty(n)
+        for group, idx in self._groups:
+            t, states = group.read_stamped(self.clock)
+            for i, axis in zip(idx, group.axes.values(), strict=True):
+                pos[i], stamp[i] = states[axis.name].position_deg, t
+        self._last_read = self.clock.now()
+        axes = list(self.axes.values())
+        for i in self._singles:
+            t0 = self.clock.now()
+            pos[i] = axes[i].position_deg()
+            stamp[i] = 0.5 * (t0 + self.clock.now())
+        return stamp, pos
+
+    def sweep(self, name: str, target_deg: float, velocity_deg_s: float,
+              accel_deg_s2: float) -> tuple[float, float]:
+        """Start axis ``name`` toward ``target_deg`` at a set velocity and acceleration (a fly sweep);
+        returns the (velocity, acceleration) it runs at, quantised by its driver. Only an axis whose
+        driver can be given a profile per move (a Dynamixel servo) sweeps; :meth:`end_sweep` restores
+        its campaign profile.
+
+        Raises
+        ------
+        ValueError
+            ``name`` is unknown, or its driver cannot sweep (the message names it and why).
+        """
+        axis = self.axes.get(name)
+        if axis is None:
+            raise ValueError(f"axes: unknown {name}; known: {', '.join(self.axes)}")
+        sweep = getattr(axis, "sweep", None)
+        if sweep is None:
+            raise ValueError(f"axes.{name}: its driver cannot sweep at a set velocity (on-the-fly "
+                             "scanning needs a Dynamixel servo)")
+        out = sweep(float(target_deg), float(velocity_deg_s), float(accel_deg_s2))
+        self._last_read = self.clock.now()
+        return out
+
+    def end_sweep(self, name: str) -> None:
+        """Restore axis ``name``'s campaign profile after :meth:`sweep`."""
+        restore = getattr(self.axes[name], "restore_profile", None)
+        if restore is not None:
+            restore()
+
     def positions(self) -> np.ndarray:
         """Positions (°) of the kinematics' axes, in their order: one Sync Read per Dynamixel bus (a
         servo that does not answer raises, never a silent 0), and one read per other axis."""

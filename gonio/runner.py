@@ -36,7 +36,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
@@ -48,7 +49,7 @@ from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
 from gonio.protocols import DeviceFault, Gantry
 from gonio.store import Journal, Measurement
 
-__all__ = ["Runner", "State", "TRANSITIONS", "TransitionError"]
+__all__ = ["Runner", "State", "TRANSITIONS", "TransitionError", "Unit"]
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +80,26 @@ TRANSITIONS: dict[State, frozenset[State]] = {
 
 class TransitionError(RuntimeError):
     pass
+
+
+@dataclass(frozen=True)
+class Unit:
+    """What the runner measures and commits whole: one step (stop-and-go), or a fly campaign's sweep or
+    checkpoint (:mod:`gonio.fly.hardware`), committed in one transaction so that a crash loses at most
+    the unit in flight.
+
+    Attributes
+    ----------
+    first, count : int
+        Its steps: ``first`` .. ``first + count - 1``.
+    measure : callable
+        ``measure(attempt) -> list[Measurement]`` (attempt from 1), one per step in order; may raise a
+        :class:`~gonio.protocols.DeviceFault` (transient ones are retried after the axes are still).
+    """
+
+    first: int
+    count: int
+    measure: Callable[[int], list[Measurement]]
 
 
 class _Halted(Exception):
@@ -203,8 +224,11 @@ class Runner:
         self.fault = None
 
     # -- running ---------------------------------------------------------------------------------
-    def run(self) -> State:
+    def run(self, units: Iterable[Unit] | None = None) -> State:
         """Run (or resume) from the first step the journal has no measurement for.
+
+        ``units`` (default: one per step, stop-and-go) are measured and committed whole, in order; the
+        units whose first step the journal holds are skipped (a fly campaign's sweeps).
 
         Returns the state it stopped in: done, paused, halted, aborted or faulted. A campaign whose
         fault is latched returns ``faulted`` at once without touching the gantry.
@@ -229,17 +253,23 @@ class Runner:
         try:
             self.gantry.light.set_on(True)
             self.gantry.set_target("sample")
-            while step < n:
+            if units is None:
+                units = (Unit(s, 1, lambda attempt, s=s: [self._measure_step(s, attempt)])
+                         for s in range(step, n))
+            else:
+                done = set(self.journal.done_steps().tolist())
+                units = [u for u in units if u.first not in done]
+            for unit in units:
+                step = unit.first
                 if self._abort.is_set():
                     self._to(State.ABORTED, f"aborted before step {step}")
                     return self._state
                 if self._pause.is_set():
                     self._to(State.PAUSED, f"paused before step {step}")
                     return self._state
-                self._run_step(step)
+                self._run_unit(unit)
                 if self.on_step is not None:
-                    self.on_step(self, step)
-                step += 1
+                    self.on_step(self, unit.first + unit.count - 1)
             self._to(State.DONE, f"{n} steps measured")
             return self._state
         except _Halted:
@@ -292,12 +322,14 @@ class Runner:
         except Exception as err:
             self.journal.log_event("fault", message=f"park failed: {err}", campaign_s=self.campaign_s())
 
-    def _run_step(self, step: int) -> None:
-        """Measure and commit one step, retrying transient faults."""
+    def _run_unit(self, unit: Unit) -> None:
+        """Measure and commit one unit (a step, or a sweep in one transaction), retrying transient
+        faults."""
         retries = self.cfg.runner.retries
+        step = unit.first
         for attempt in range(1, retries + 2):
             try:
-                m = self._measure_step(step, attempt)
+                ms = unit.measure(attempt)
             except DeviceFault as err:
                 if not err.transient:
                     raise _Fault(err.device, str(err).removeprefix(f"{err.device}: ")) from None
@@ -310,8 +342,11 @@ class Runner:
                 continue
             if self._halt.is_set():
                 raise _Halted  # the reading is whole, but a halt means nothing more is committed
-            self.journal.commit_measurement(m)
-            self._rest = (m.actual_deg, self.gantry.clock.now())
+            if unit.count == 1:
+                self.journal.commit_measurement(ms[0])
+                self._rest = (ms[0].actual_deg, self.gantry.clock.now())
+            else:  # a sweep: the axes stand at its run-down's end, not where its readings were
+                self.journal.commit_measurements(ms)
             return
         raise AssertionError("unreachable")  # pragma: no cover
 
@@ -401,27 +436,40 @@ class Runner:
             start = leg
         self._arrived = np.array(target, dtype=float)
 
-    def _move_leg(self, start: np.ndarray, target: np.ndarray) -> None:
-        rc = self.cfg.runner
-        moved = target != start
+    def _command(self, send: Callable[[], object]) -> object:
+        """``send()`` (commands to the axes) under the command lock, unless a halt was requested; if it
+        fails, every axis stops (none may go on toward a half-made pose)."""
         with self._command_lock:
             if self._halt.is_set():
                 raise _Halted
             try:
-                move = getattr(self.gantry, "move_axes", None)  # batched: one write per bus
-                if move is not None:
-                    move({n: float(t) for n, t, m in zip(self._kin.axis_names, target, moved, strict=True)
-                          if m})
-                else:
-                    for axis, t, m in zip(self._axes, target, moved, strict=True):
-                        if m:
-                            axis.move_to(float(t))
+                return send()
             except BaseException:
-                # One axis refused: none of the others may go on moving toward a half-made pose.
                 self._stop_all()
                 raise
-        # Wait the time the profile needs in short slices (a halt acts within one), then poll.
+
+    def _move_leg(self, start: np.ndarray, target: np.ndarray) -> None:
+        moved = target != start
+
+        def send():
+            move = getattr(self.gantry, "move_axes", None)  # batched: one write per bus
+            if move is not None:
+                move({n: float(t) for n, t, m in zip(self._kin.axis_names, target, moved, strict=True) if m})
+            else:
+                for axis, t, m in zip(self._axes, target, moved, strict=True):
+                    if m:
+                        axis.move_to(float(t))
+
+        self._command(send)
         expected = float(np.max(move_time(target - start, self._vmax, self._amax), initial=0.0))
+        self._arrive(start, target, expected)
+
+    def _arrive(self, start: np.ndarray, target: np.ndarray, expected: float) -> None:
+        """Wait for a commanded move from ``start`` to ``target`` (``expected`` s) to end, then check
+        every axis arrived: a fault where one stopped short, a transient fault where one is a little off."""
+        rc = self.cfg.runner
+        # Wait the time the profile needs in short slices (a halt acts within one), then poll.
+        expected = max(float(expected), 0.0)
         self._wait(min(expected, rc.move_timeout_s))
         waited = expected
         actual, moving = self._poll()

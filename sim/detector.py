@@ -18,6 +18,14 @@ Sensor. signal = L · exposure_s (linear), plus ``dark_offset · exposure_s``; s
 same aperture samples (the pose does not change during a reading): only the sensor noise differs
 between frames.
 
+Motion. Given ``motion`` (a function from clock times to the axes' positions then: the trajectories of
+an emulated gantry's servos), a reading whose axes move during the integration integrates over that
+motion instead of taking the pose at its start: ``MOTION_TIMES`` times stratified uniformly over the
+integration (one uniform draw in each of equal slices), the axes put where ``motion`` has them, turned
+into directions by the forward kinematics and rendered with ``aperture_samples / MOTION_TIMES`` aperture
+pairs each (as many Monte Carlo lanes as a still reading), the factors averaged. The light's radiance is
+the one at the start. A still gantry (every time at the start pose) takes the still path, unchanged.
+
 Uncertainty. A reading's ``stderr`` is the standard error of its ``signal`` from both sources, added in
 quadrature: the integration error L_src · Ω_s · s/√n · exposure_s (shared by all frames, so averaging
 frames does not shrink it), and the sensor's, the spread of the frames over √frames (frames > 1) or the
@@ -36,7 +44,7 @@ own fixed stream, so it returns the same values on every call.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import drjit as dr
 import numpy as np
@@ -45,7 +53,7 @@ from drjit.llvm import Array3f, Array3f64, Float, Philox4x32, UInt32, UInt64
 from gonio.config import DetectorConfig
 from gonio.protocols import Clock, DeviceFault, Reading
 
-__all__ = ["SimDetector", "TARGETS", "aperture_radiance_factor"]
+__all__ = ["SimDetector", "TARGETS", "MOTION_TIMES", "aperture_radiance_factor"]
 
 #: What can be under the beam: the sample, or the white reference standard.
 TARGETS = ("sample", "reference")
@@ -53,6 +61,10 @@ TARGETS = ("sample", "reference")
 #: Keyed readings, ``expected_signal``, and readings without a key (by reading number) each have their
 #: own: SeedSequence pads short entropy with zeros, so [s, 0, n] would alias the key (n, 0).
 _MC_STREAM, _NOISE_STREAM, _EXPECTED_STREAM, _MC_COUNTER_STREAM, _NOISE_COUNTER_STREAM = 0, 1, 2, 3, 4
+#: The stratified times of a reading integrated over the motion (``motion``) draw from this stream.
+_MOTION_STREAM = 5
+#: Times per reading at which a moving gantry is sampled (stratified over the integration).
+MOTION_TIMES = 16
 #: Above this many expected counts numpy's Poisson sampler is replaced by its Gaussian limit.
 _POISSON_MAX = 1e15
 
@@ -225,11 +237,13 @@ class SimDetector:
         self._connected = False
 
     def measure(self, exposure_s: float, frames: int = 1, *,
-                key: tuple[int, int] | None = None) -> Reading:
+                key: tuple[int, int] | None = None,
+                motion: Callable[[np.ndarray], np.ndarray] | None = None) -> Reading:
         """Integrate ``frames`` frames of ``exposure_s`` seconds each at the current pose.
 
         The pose and the source radiance are those at the start of the integration; the clock then
-        advances by exposure_s × frames. (The runner measures at rest, so motion blur is not modelled.)
+        advances by exposure_s × frames. With ``motion``, a pose that moves during the integration is
+        integrated over (see the module docstring).
 
         Parameters
         ----------
@@ -241,6 +255,9 @@ class SimDetector:
             (step, attempt), both >= 0: the aperture samples and the sensor noise come from streams
             keyed by (seed, step, attempt), so the reading does not depend on anything this process
             did before. Without it the streams are keyed by this detector's reading number.
+        motion : callable, optional
+            ``motion(times) -> positions``: clock times (K,) to axis positions (K, n_axes), in
+            ``kinematics.axis_names`` order (an emulated gantry's servo trajectories).
 
         Returns
         -------
@@ -268,7 +285,22 @@ class SimDetector:
             mc_id, noise_id = (_MC_COUNTER_STREAM, n, 0), (_NOISE_COUNTER_STREAM, n, 0)
         else:
             mc_id, noise_id = (_MC_STREAM, *key), (_NOISE_STREAM, *key)
-        if source > 0.0:
+        path = None
+        if source > 0.0 and motion is not None:
+            rng_t = np.random.default_rng(np.random.SeedSequence([self._seed, _MOTION_STREAM, *mc_id]))
+            frac = (np.arange(MOTION_TIMES) + rng_t.random(MOTION_TIMES)) / MOTION_TIMES
+            times = t0 + exposure_s * frames * frac
+            path = np.asarray(motion(times), dtype=np.float64).reshape(MOTION_TIMES, -1)
+            if np.array_equal(path, np.broadcast_to(axes_deg, path.shape)):
+                path = None  # still: the exact still reading
+        if path is not None:
+            wi, wo = self._kinematics.directions(path)
+            per = max(2, self.cfg.sim.aperture_samples // MOTION_TIMES)
+            factors, ses = aperture_radiance_factor(
+                self._materials[self._target], wi, wo, self._light.half_angle_deg,
+                self.cfg.sim.half_angle_deg, per, _seed_state(self._seed, *mc_id))
+            factor, factor_se = factors.mean(axis=0), np.sqrt((ses**2).sum(axis=0)) / MOTION_TIMES
+        elif source > 0.0:
             factor, factor_se = self._radiance_factor(axes_deg[None, :], self._target,
                                                       _seed_state(self._seed, *mc_id))
             factor, factor_se = factor[0], factor_se[0]
@@ -288,7 +320,7 @@ class SimDetector:
         self._clock.sleep(exposure_s * frames)
         extra = {"target": self._target, "axes_deg": dict(zip(self._kinematics.axis_names,
                                                               axes_deg.tolist(), strict=True)),
-                 "t_s": t0, "reading": n, "key": key,
+                 "t_s": t0, "reading": n, "key": key, "moving": path is not None,
                  "stderr_integration": integration_se, "stderr_sensor": sensor_se}
         return Reading(signal=mean, stderr=stderr, exposure_s=exposure_s, frames=int(frames), extra=extra)
 

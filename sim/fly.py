@@ -55,6 +55,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.clock import VirtualClock
+from gonio.fly.blur import motion_blur
 from gonio.kinematics import make_kinematics
 from gonio.plan.fly import FlyLine, FlyPlan, fly_steps
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
@@ -155,7 +156,7 @@ class FlySimulator:
         signal = sub.sum(axis=1)
         sub_noise_var = self._noise_var(sub_clean) + sub_mc_var
         # Only motion blurs: a reading at rest (dark, reference, a pose read stop-and-go) states none.
-        blur_sd = self._blur(sub, sub_noise_var) if line.moving else np.zeros_like(signal)
+        blur_sd = motion_blur(sub, sub_noise_var) if line.moving else np.zeros_like(signal)
         mc_se = np.sqrt(mc_var.sum(axis=1)) / TIME_SAMPLES
         sensor_se = np.sqrt(self._noise_var(sub_clean).sum(axis=1))
         stderr = np.sqrt(mc_se**2 + sensor_se**2 + blur_sd**2)
@@ -175,22 +176,6 @@ class FlySimulator:
                                    "stderr_blur": blur_sd[j], "stderr_integration": mc_se[j],
                                    "stderr_sensor": sensor_se[j]})
                 for j in range(n)]
-
-    @staticmethod
-    def _blur(sub, noise_var):
-        """The motion blur of each reading (n, C) from its sub-reads (n, M, C): the bias of the mean over
-        the exposure against the value at its mid-time. A quadratic y = a + b·τ + c·τ² through the
-        sub-reads (τ the slice centres, in exposures) has its exposure mean c/12 above its mid-time
-        value. The fitted ĉ carries the noise of the sub-reads (``noise_var``), of variance σ_c², so
-        E[ĉ²] = c² + σ_c²: the bias squared is estimated by ĉ² − σ_c² (clipped at 0), not by ĉ², whose
-        excess is noise the sensor term already states."""
-        m = sub.shape[1]
-        tau = (np.arange(m) + 0.5) / m - 0.5
-        design = np.stack([np.ones(m), tau, tau**2], axis=1)
-        pinv = np.linalg.pinv(design)                   # (3, M)
-        c = np.einsum("m,nmc->nc", pinv[2], sub)
-        c_var = np.einsum("m,nmc->nc", pinv[2] ** 2, noise_var)
-        return m * np.sqrt(np.maximum(c * c - c_var, 0.0)) / 12.0
 
     def _noise_var(self, clean):
         noise = self.cfg.detector.sim.noise

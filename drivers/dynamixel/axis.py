@@ -7,6 +7,13 @@ Angles: an axis position in degrees is ``direction * (ticks - homing_offset_tick
 the servo's Homing Offset(20): the servo's own setting is left as the lab made it, and position mode's
 0..4095 goal range then covers an axis range centred anywhere on the turn.
 
+Sweeps (on-the-fly scanning, :mod:`gonio.fly.hardware`): :meth:`DynamixelAxis.sweep` moves one axis to
+a goal at a velocity and acceleration given in °/s and °/s²; the servo takes them in whole profile units
+(0.229 rev/min, 214.577 rev/min²), so the speed it runs at differs from the one asked (it returns the
+quantised pair), which is why a sweep's positions come from timestamped reads
+(:meth:`DynamixelGroup.read_stamped`), never from the plan. The campaign's profile comes back with
+:meth:`DynamixelAxis.restore_profile`, and before any later move if that could not be written.
+
 Safety: while a move is under way the servo's Bus Watchdog is armed (``watchdog_s``): if gonio stops
 talking to the bus (a crash, a hung host), the servo stops by itself. It is disarmed when the axis is
 found at rest, so a long exposure with a quiet bus does not trip it.
@@ -118,6 +125,8 @@ class DynamixelAxis:
         self._flags = HardwareError(0)
         self._armed = False
         self._connected = False
+        # The profile registers hold a sweep's velocity and acceleration, not the campaign's.
+        self._profile_dirty = False
         self.model_name: str | None = None
 
     # -- unit conversions -----------------------------------------------------------------------------
@@ -135,6 +144,14 @@ class DynamixelAxis:
             raise ValueError(
                 f"axis '{self.name}': velocity_deg_s {v} is below the smallest step {vmin:.3g} °/s")
         return units
+
+    def velocity_deg_s_of(self, units: int) -> float:
+        """The axis speed (°/s) of a Profile Velocity of ``units``."""
+        return units * self.table.velocity_unit_rpm * 360.0 / 60.0 / self.gear_ratio
+
+    def accel_deg_s2_of(self, units: int) -> float:
+        """The axis acceleration (°/s²) of a Profile Acceleration of ``units``."""
+        return units * self.table.accel_unit_rpm2 * 360.0 / 3600.0 / self.gear_ratio
 
     def _accel_units(self, a: float) -> int:
         rpm2 = a * self.gear_ratio * 3600.0 / 360.0
@@ -182,6 +199,7 @@ class DynamixelAxis:
         self._armed = False
         b.write(i, t["profile_acceleration"], self.profile_acceleration)
         b.write(i, t["profile_velocity"], self.profile_velocity)
+        self._profile_dirty = False
         if self._fault is None:
             b.write(i, t["torque_enable"], 1)
 
@@ -253,9 +271,19 @@ class DynamixelAxis:
 
     def move_to(self, target_deg: float) -> None:
         """Arm the watchdog and write the goal position; returns at once."""
-        goal = self.check_target(target_deg)
+        self._write_goal(self.check_target(target_deg))
+
+    def _write_goal(self, goal: int, profile: tuple[int, int] | None = None) -> None:
+        """Under the bus lock: the campaign's profile (``profile`` None; restored if a sweep left its
+        own) or ``profile`` = (velocity, acceleration) units, the watchdog armed, the goal written."""
         t, b, i = self.table, self.bus, self.dxl_id
         with b.lock:
+            if profile is None:
+                self.restore_profile()
+            else:
+                self._profile_dirty = True
+                b.write(i, t["profile_acceleration"], profile[1])
+                b.write(i, t["profile_velocity"], profile[0])
             if not self._armed and self.watchdog_units:
                 b.write(i, t["bus_watchdog"], self.watchdog_units)
                 self._armed = True
@@ -264,6 +292,42 @@ class DynamixelAxis:
             finally:
                 if self._check_alert():
                     raise self._hardware_error()
+
+    def sweep(self, target_deg: float, velocity_deg_s: float, accel_deg_s2: float) -> tuple[float, float]:
+        """Start a move to ``target_deg`` at ``velocity_deg_s`` and ``accel_deg_s2`` (a fly sweep): the
+        profile is written in whole units, the watchdog armed, the goal written; returns at once.
+
+        Returns
+        -------
+        (float, float)
+            The velocity (°/s) and acceleration (°/s²) the servo runs at: the asked ones quantised to
+            its profile units. The campaign's profile stays replaced until :meth:`restore_profile`
+            (or the next :meth:`move_to`).
+
+        Raises
+        ------
+        ValueError
+            The target is outside the limits, or the velocity or acceleration outside what the servo
+            can be given (nothing is written).
+        DynamixelHardwareError
+            A hardware error is latched (nothing is written), or latched on the way.
+        """
+        goal = self.check_target(target_deg)
+        v_units = self._velocity_units(velocity_deg_s)
+        a_units = self._accel_units(accel_deg_s2)
+        self._write_goal(goal, (v_units, a_units))
+        return self.velocity_deg_s_of(v_units), self.accel_deg_s2_of(a_units)
+
+    def restore_profile(self) -> None:
+        """Write back the campaign's profile velocity and acceleration after a :meth:`sweep` (nothing
+        when they were not replaced)."""
+        if not self._profile_dirty:
+            return
+        t, b, i = self.table, self.bus, self.dxl_id
+        with b.lock:
+            b.write(i, t["profile_acceleration"], self.profile_acceleration)
+            b.write(i, t["profile_velocity"], self.profile_velocity)
+            self._profile_dirty = False
 
     def position_deg(self) -> float:
         ticks = self.bus.read(self.dxl_id, self.table["present_position"])
@@ -382,6 +446,8 @@ class DynamixelGroup:
             raise ValueError(f"dynamixel group: unknown axes {sorted(unknown)}; known: {sorted(self.axes)}")
         goals = {self.axes[n].dxl_id: self.axes[n].check_target(v) for n, v in targets.items()}
         with self.bus.lock:
+            for n in targets:  # a sweep's profile left behind (its restore failed): the campaign's first
+                self.axes[n].restore_profile()
             arm = {a.dxl_id: a.watchdog_units for a in self.axes.values()
                    if a.name in targets and not a._armed and a.watchdog_units}
             if arm:
@@ -390,6 +456,20 @@ class DynamixelGroup:
                     if a.dxl_id in arm:
                         a._armed = True
             self.bus.sync_write(self._table["goal_position"], goals)
+
+    def read_stamped(self, clock) -> tuple[float, dict[str, AxisState]]:
+        """:meth:`read`, stamped: (time, states), the time on ``clock`` (the gantry's) halfway through
+        the Sync Read transaction. Each servo latches its Present Position while it answers, within the
+        transaction, so the stamp is off by at most half of it (~0.5 ms for four servos at 1 Mbit/s);
+        timestamps of a sweep's reads are what its positions are interpolated on.
+
+        Raises
+        ------
+        As :meth:`read`.
+        """
+        t0 = clock.now()
+        states = self.read()
+        return 0.5 * (t0 + clock.now()), states
 
     def read(self) -> dict[str, AxisState]:
         """Every axis's state from one Sync Read; a servo that does not answer raises (never a silent 0).

@@ -53,11 +53,17 @@ def cmd_plan(args) -> int:
     return 0
 
 
-def _refuse_fly(spec) -> None:
-    """gonio run: fly campaigns run on the simulated gantry only (gonio simulate)."""
-    if spec.order == "fly":
-        raise UsageError("--grid: order=fly campaigns run on the simulated gantry (gonio simulate); on "
-                         "hardware use order=auto, serpentine, raster or tour")
+def _check_fly_gantry(args, cfg) -> None:
+    """gonio run with order=fly: the config's sweeping axes must be Dynamixel servos and its detector
+    read on request (:func:`gonio.fly.hardware.check_fly_gantry`); one line naming what cannot."""
+    from gonio.fly.hardware import check_fly_gantry
+    from gonio.plan import build_plan
+    from gonio.plan.fly import fly_plan
+
+    try:
+        check_fly_gantry(cfg, fly_plan(build_plan(args.grid, cfg), cfg))
+    except ValueError as err:
+        raise UsageError(f"--config: {err}") from None
 
 
 def _fly_command(args, cfg, material, exports) -> int:
@@ -229,9 +235,10 @@ def cmd_simulate(args) -> int:
 
 
 def _campaign_command(args, cfg, *, material, sample: str | None, model_check: bool, exports=(),
-                      relocate_buses: bool = False) -> int:
+                      relocate_buses: bool = False, fly: bool = False) -> int:
     """Create or resume the campaign in ``args.out`` and run it on the gantry ``cfg`` wires (``gonio
     simulate`` and ``gonio run``): progress, signals, latched faults, ``--clear-fault``, brdf.h5.
+    ``fly``: an order=fly campaign (:func:`gonio.fly.create_fly_campaign`), one sweep per unit.
 
     ``relocate_buses``: a resumed campaign's devices are reached where ``cfg``'s buses say now (a
     re-plugged adapter, a restarted emulator); every other setting must match the campaign's."""
@@ -262,6 +269,8 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
             return 0
         out(f"resuming the campaign in {folder} at step {c.journal.next_step()}")
     else:
+        if fly:
+            from gonio.fly import create_fly_campaign as create_campaign
         c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
                      sample=sample)
     meta = c.meta
@@ -272,7 +281,8 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
     except BaseException:
         c.close()
         raise
-    out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} ({n_steps} steps with dark and "
+    sweeps = f" in {meta['fly']['lines']} sweeps" if "fly" in meta else ""
+    out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']}{sweeps} ({n_steps} steps with dark and "
         f"white-reference readings), estimated {_hms(meta['estimated_s'])} of gantry time (lower bound "
         f"{_hms(meta['lower_bound_s'])})")
     t0 = time.perf_counter()
@@ -416,15 +426,17 @@ def cmd_run(args) -> int:
     from gonio.sim.materials import load as load_material
 
     material = load_material(args.material) if args.material else None
-    _refuse_fly(parse_grid(args.grid))
+    fly = parse_grid(args.grid).order == "fly"
     cfg = load_config(args.config)
     if not args.sample.strip():
         raise UsageError("--sample: give the name of the sample measured (not empty)")
     if cfg.detector.driver == "sim" and material is None:
         raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
                          "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
+    if fly:
+        _check_fly_gantry(args, cfg)
     return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
-                             relocate_buses=True)
+                             relocate_buses=True, fly=fly)
 
 
 def add_parsers(sub, fmt) -> None:

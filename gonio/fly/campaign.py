@@ -35,9 +35,11 @@ def _plans(grid: str, cfg: GonioConfig):
     return plan, fly_plan(plan, cfg)
 
 
-def create_fly_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material: str, seed: int = 0,
-                        write_hook=None) -> Campaign:
-    """Plan a fly campaign over ``grid`` (``order=fly``) and journal it in ``folder``.
+def create_fly_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material: str | None,
+                        seed: int = 0, write_hook=None, sample: str | None = None) -> Campaign:
+    """Plan a fly campaign over ``grid`` (``order=fly``) and journal it in ``folder``: read by
+    :func:`run_fly_campaign` on the simulated gantry, or by :func:`gonio.campaign.run_campaign` on a
+    configured one (``material`` None, ``sample`` the real sample's name).
 
     The journal's meta is the stop-and-go campaign's, with ``estimated_s`` and ``lower_bound_s`` those
     of the fly plan, ``stop_and_go_estimated_s`` beside them and ``fly`` its summary.
@@ -47,7 +49,7 @@ def create_fly_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, mate
     as_flown = dataclasses.replace(plan, step_kind=kind, step_pose=pose, estimated_s=fp.estimated_s,
                                    lower_bound_s=fp.lower_bound_s)
     c = create_campaign(folder, cfg, grid=grid, material=material, seed=seed, plan=as_flown,
-                        write_hook=write_hook)
+                        write_hook=write_hook, sample=sample)
     c.journal.set_meta("fly", fly_summary(fp))
     c.journal.set_meta("stop_and_go_estimated_s", float(plan.estimated_s))
     return c

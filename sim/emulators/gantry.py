@@ -11,6 +11,10 @@ material at the positions the emulated axes stand.
   spectrometer reporting one band per channel) renders the material through the Dr.Jit simulation
   (:class:`gonio.sim.detector.SimDetector`) at the poses the emulated axes' shafts are at, lit while the
   emulated lamp is on, and sees the white standard when the target axis stands at ``reference_deg``.
+  While axes move (a fly sweep) a reading integrates over their motion: stratified times through the
+  exposure, each axis where its trajectory (the servo's profile as commanded when the reading starts)
+  has it then, rendered and averaged (``SimDetector.measure(motion=...)``); a still gantry's reading is
+  the still one, unchanged.
 
 Everything runs on one clock (the wall clock by default; a test shares a virtual clock with the gantry
 it builds: a :class:`~gonio.sim.emulators.link.SyncedVirtualClock`, so that a Sync Write, which gets no
@@ -24,6 +28,8 @@ from __future__ import annotations
 import json
 import threading
 from urllib.parse import urlparse
+
+import numpy as np
 
 from gonio.clock import WallClock
 from gonio.config import GonioConfig
@@ -46,7 +52,7 @@ class _ShaftView:
         self._position = position
 
     def true_position_deg(self) -> float:
-        return self._position()
+        return self._position(None)
 
 
 class EmulatedGantry:
@@ -137,16 +143,16 @@ class EmulatedGantry:
         if a.driver == "dynamixel":
             per_deg = _TICKS_PER_REV * a.gear_ratio / 360.0
 
-            def dxl() -> float:
+            def dxl(t=None) -> float:
                 s = self.servos[name]
-                ticks = s._present_raw_f() + s._get(20, 4, True)
+                ticks = s._present_raw_f(t) + s._get(20, 4, True)
                 return a.direction * (ticks - a.homing_offset_ticks) / per_deg
             return dxl
 
-        def modbus() -> float:
+        def modbus(t=None) -> float:
             m = self.motors[name]
             per_deg = m.profile.steps_per_rev * a.gear_ratio / 360.0
-            return a.direction * (m.position_steps_f() - a.zero_steps) / per_deg
+            return a.direction * (m.position_steps_f(t) - a.zero_steps) / per_deg
         return modbus
 
     def _renderer(self, material, seed: int):
@@ -162,6 +168,7 @@ class EmulatedGantry:
         light.connect()
         sample = _materials.load(material) if isinstance(material, str) else material
         views = {n: _ShaftView(self._positions[n]) for n in kinematics.axis_names}
+        self._detector_axes = list(kinematics.axis_names)
         rgb = cfg.detector.model_copy(update={"channels": ("R", "G", "B")})
         # the standard as the config describes it (albedo, per channel or spectral; its response)
         reference = reference_material(cfg.model_copy(update={"detector": rgb}))
@@ -177,18 +184,24 @@ class EmulatedGantry:
         t = self.cfg.target
         if t.axis is None:
             return "sample"
-        at = self._positions[t.axis]()
+        at = self._positions[t.axis](None)
         return "reference" if abs(at - t.reference_deg) < abs(at - t.sample_deg) else "sample"
 
     def axes_deg(self) -> dict[str, float]:
         """Every emulated axis's shaft angle (°) now."""
-        return {n: f() for n, f in self._positions.items()}
+        return {n: f(None) for n, f in self._positions.items()}
+
+    def axes_at(self, times) -> np.ndarray:
+        """The kinematics' axes (°, columns in ``axis_names`` order) at clock ``times`` (K,), on the
+        trajectories the emulated devices follow now."""
+        names = self._detector_axes
+        return np.array([[self._positions[n](float(t)) for n in names] for t in np.ravel(times)])
 
     def _render(self, exposure_s: float):
         with self._render_lock:
             self._light.set_on(bool(self.lamp.on) if self.lamp is not None else True)
             self._detector.set_target(self.target_now())
-            return self._detector.measure(exposure_s).signal
+            return self._detector.measure(exposure_s, motion=self.axes_at).signal
 
     def _power(self, exposure_s: float) -> float:
         return float(self._render(exposure_s).mean())

@@ -83,12 +83,13 @@ class ModbusMotorEmulator:
         with self._lock:
             self._move = (self.clock.now(), float(steps), float(steps), 1.0, 1.0)
 
-    def position_steps_f(self) -> float:
-        """The shaft position (steps, unrounded): what an optical model of the gantry sees."""
+    def position_steps_f(self, t: float | None = None) -> float:
+        """The shaft position (steps, unrounded) now, or at clock time ``t`` on the move under way:
+        what an optical model of the gantry sees."""
         t0, start, goal, v, a = self._move
         if start == goal:
             return goal
-        return float(position_at(self.clock.now() - t0, start, goal, v, a))
+        return float(position_at((self.clock.now() if t is None else t) - t0, start, goal, v, a))
 
     def _hold(self) -> None:
         p = float(self.position_steps())

@@ -299,3 +299,36 @@ def test_telemetry(rig, dxl_emu):
     xl = DynamixelAxis("xl", a.bus, 3, limits_deg=(0.0, 90.0), family="XL430")
     with pytest.raises(DeviceFault, match="report load, not current"):
         xl.current_a()
+
+
+def test_a_sweep_runs_at_the_quantised_profile_and_the_campaign_profile_comes_back(rig, dxl_emu, clock):
+    """On-the-fly scanning: the sweep writes the profile in whole units and returns the speed the servo
+    runs at (not the one asked); the emulated shaft moves at exactly that speed; stamped reads give the
+    positions with their times; the campaign's profile is written back after, and before a later move
+    if a sweep left its own."""
+    _bus, a, b = rig
+    group = DynamixelGroup([a, b])
+    servo = dxl_emu.servos[1]
+    v, acc = a.sweep(80.0, 33.3, 150.0)
+    assert (servo.value(112), servo.value(108)) == (24, 7)  # 33.3 °/s and 150 °/s² in profile units
+    assert v == pytest.approx(24 * 0.229 * 6.0) and v != 33.3
+    assert acc == pytest.approx(7 * 214.577 / 10.0) and acc != 150.0
+    assert servo.value(98) == 10  # the watchdog armed, as for any move
+    reads = []
+    for _ in range(8):  # reads every 0.15 s keep the 0.2 s watchdog fed
+        clock.sleep(0.15)
+        reads.append(group.read_stamped(clock))
+    (t1, s1), (t2, s2) = reads[1], reads[-1]  # past the run-up (v / acc = 0.22 s)
+    assert (t1, t2) == pytest.approx((0.3, 1.2))  # the virtual clock stands still during a transaction
+    speed = (s2["a"].position_deg - s1["a"].position_deg) / (t2 - t1)
+    assert speed == pytest.approx(v, abs=2 * 360 / 4096 / 0.9)  # two reads, each within a tick
+    assert abs(speed - 33.3) > 0.2
+    a.restore_profile()
+    assert (servo.value(112), servo.value(108)) == (a.profile_velocity, a.profile_acceleration)
+    settle(clock, a)
+    a.sweep(0.0, 20.0, 100.0)  # a restore that could not be written: the next move restores first
+    settle(clock, a)
+    group.move_to({"a": 10.0})
+    assert (servo.value(112), servo.value(108)) == (a.profile_velocity, a.profile_acceleration)
+    with pytest.raises(ValueError, match="outside the limit"):
+        a.sweep(120.0, 20.0, 100.0)

@@ -11,6 +11,7 @@ from gonio.campaign import open_campaign
 from gonio.config import load_config
 from gonio.dataset import read_brdf
 from gonio.fly import create_fly_campaign, fly_plan_of, run_fly_campaign
+from gonio.fly.blur import motion_blur
 from gonio.geometry import sph_to_vec
 from gonio.plan import build_plan
 from gonio.plan.fly import FLY_DUTY, FlyLine, fly_plan, fly_steps
@@ -153,11 +154,11 @@ def test_blur_term_is_an_unbiased_estimate_of_the_squared_bias():
     noise_var = np.full((n, m, 1), sigma**2)
     for c, lo, hi in ((0.0, 0.0, 0.6), (6 * c_sd, 0.97, 1.05)):
         sub = ((1.0 + 0.3 * tau + c * tau**2) / m)[None, :, None] + rng.normal(0.0, sigma, (n, m, 1))
-        blur = FlySimulator._blur(sub, noise_var)
+        blur = motion_blur(sub, noise_var)
         assert blur.shape == (n, 1)
         assert lo * max(c, c_sd) ** 2 <= np.mean(blur**2) * 144 <= hi * max(c, c_sd) ** 2
     # Without noise the term is the bias itself.
-    exact = FlySimulator._blur(((1.0 + 0.3 * tau - 0.6 * tau**2) / m)[None, :, None], np.zeros((1, m, 1)))
+    exact = motion_blur(((1.0 + 0.3 * tau - 0.6 * tau**2) / m)[None, :, None], np.zeros((1, m, 1)))
     assert np.isclose(exact[0, 0], 0.6 / 12)
 
 

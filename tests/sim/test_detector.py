@@ -445,3 +445,34 @@ def test_readings_track_the_lamp_drift():
     want = (1 + 0.2 * hours[1]) / (1 + 0.2 * hours[0])
     assert want == pytest.approx(1.6, rel=1e-3)
     np.testing.assert_allclose(after.signal / before.signal, want, rtol=2e-3)
+
+
+def test_a_reading_integrates_over_the_motion_and_a_still_one_is_unchanged():
+    """``measure(motion=...)`` (the emulated photodiode during a fly sweep): on a still gantry exactly the
+    still reading; while the detector carriage sweeps 20° through the specular peak, the mean of the
+    response along the path (not the value at the start, nor at the middle)."""
+    gantry = make_gantry(GLOSSY, noise={"read_sigma": 0.0, "shot_counts_per_unit": 0.0})
+    det = gantry.detector
+    move(gantry, light_azimuth=0.0, light_tilt=45.0, detector_azimuth=170.0, detector_tilt=45.0)
+    still = actual_axes(gantry)[0]
+    t0 = gantry.clock.now()
+    held = det.measure(0.2, key=(3, 1), motion=lambda t: np.repeat(still[None], len(t), axis=0))
+    plain = det.measure(0.2, key=(3, 1))
+    np.testing.assert_array_equal(held.signal, plain.signal)
+    np.testing.assert_array_equal(held.stderr, plain.stderr)
+    assert not held.extra["moving"]
+
+    def sweep(t):  # the detector azimuth from 170° to 190° over the exposure, at constant speed
+        out = np.repeat(still[None], len(t), axis=0)
+        out[:, 2] += 20.0 * (np.asarray(t) - start) / 0.2
+        return out
+
+    start = gantry.clock.now()
+    moving = det.measure(0.2, key=(4, 1), motion=sweep)
+    assert moving.extra["moving"] and gantry.clock.now() == pytest.approx(start + 0.2)
+    path = sweep(start + 0.2 * (np.arange(400) + 0.5) / 400)
+    mean = det.expected_signal(path, exposure_s=0.2).mean(axis=0)
+    np.testing.assert_allclose(moving.signal, mean, rtol=0.01, atol=4 * moving.stderr.max())
+    ends = det.expected_signal(path[[0, 200]], exposure_s=0.2)   # at the start, and at the middle
+    assert np.all(np.abs(ends - mean) > 0.1 * mean), (ends, mean)
+    assert t0 < start

@@ -1,0 +1,298 @@
+"""Fly campaigns through the real drivers (dynamixel-sdk and pyserial over ptys to the emulators, on a
+SyncedVirtualClock): the result matches the stop-and-go simulation of the same material and grid within
+its stated uncertainty, the stored directions come from the timestamped axis reads, a campaign halted
+mid-sweep resumes (through ``gonio run``) with that sweep done again, a servo's hardware error mid-sweep
+faults naming the axis, and a gantry whose sweeping axis is not a Dynamixel servo is refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gonio.campaign import create_campaign, run_campaign
+from gonio.cli import main
+from gonio.config import load_config
+from gonio.dataset import read_brdf
+from gonio.fly import create_fly_campaign, fly_plan_of
+from gonio.plan.fly import fly_steps
+from gonio.runner import State
+from gonio.sim.emulators.gantry import EmulatedGantry
+from gonio.sim.emulators.link import SyncedVirtualClock
+from gonio.store import JOURNAL_NAME, Journal
+from gonio.wiring import build_gantry
+
+MATERIAL = "cook-torrance:d=beckmann,m=0.3,metal=gold"
+GRID = "iso:step=30"
+TWIN = "emulated-two-arm-dynamixel"
+TICK_DEG = 360.0 / 4096 / 1.5   # the coarsest encoder step of the twin's axes (tilts, 1.5:1)
+
+
+def _fly(folder, emu, clock, *, on_runner=None, detector_hook=None, clear_fault=False, create=True):
+    """Create (or reopen) and run the fly campaign in ``folder`` on the emulators; ``detector_hook(g)``
+    may wrap the gantry's detector. Returns (state, runner, campaign meta, journal measurements)."""
+    from gonio.campaign import open_campaign
+
+    cfg = emu.config()
+    c = (create_fly_campaign(folder, cfg, grid=GRID + ",order=fly", material=None, sample="gold") if create
+         else open_campaign(folder))
+    try:
+        g = build_gantry(cfg, clock=clock)
+        if detector_hook is not None:
+            detector_hook(g)
+        state, runner = run_campaign(c, g, on_runner=on_runner, clear_fault=clear_fault)
+        return state, runner, c.meta
+    finally:
+        c.close()
+
+
+def _measurements(folder):
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        return j.measurements(), j.events()
+    finally:
+        j.close()
+
+
+@pytest.fixture(scope="module")
+def stop_and_go(tmp_path_factory):
+    """The stop-and-go simulation of the same material and grid (the twin's simulated gantry)."""
+    folder = tmp_path_factory.mktemp("sim")
+    cfg = load_config("sim")
+    c = create_campaign(folder, cfg, grid=GRID, material=MATERIAL)
+    state, _ = run_campaign(c, build_gantry(cfg, MATERIAL))
+    c.close()
+    assert state == State.DONE
+    return read_brdf(folder / "brdf.h5")
+
+
+@pytest.fixture(scope="module")
+def flown(tmp_path_factory):
+    """An uninterrupted fly campaign on the emulated Dynamixel gantry."""
+    folder = tmp_path_factory.mktemp("fly")
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+        state, runner, meta = _fly(folder, emu, clock)
+        assert state == State.DONE, runner.fault
+        servos = {n: (s.watchdog_fired_at, s.value(98), s.value(112), s.value(108))
+                  for n, s in emu.servos.items()}
+        profiles = {n: (a.profile_velocity, a.profile_acceleration)
+                    for n, a in runner.gantry.axes.items()}
+    return folder, servos, profiles, meta
+
+
+def _rows(b):
+    """Sample order by planned pose (θi, θo, Δφ): the same in every campaign of the grid."""
+    ti, pi, to, po = b.planned.T
+    keys = np.round(np.stack([ti, to, np.mod(po - pi, 360.0)], axis=1), 6)
+    return np.lexsort(keys.T[::-1]), keys
+
+
+def _z(measured, simulated):
+    """Per pose: (fly value, simulated value, z) with z against both stated uncertainties. The emulated
+    photodiode renders with the same 256 aperture samples as the simulated gantry, whose stddev states
+    that Monte Carlo error: counted once for each side; the fly side adds its motion blur term (the
+    serial power meter states no noise of its own)."""
+    (m_order, m_keys), (s_order, s_keys) = _rows(measured), _rows(simulated)
+    np.testing.assert_array_equal(m_keys[m_order], s_keys[s_order])
+    # and measured where planned, to within the encoders' resolution (the fly readings: interpolated)
+    for b, order in ((measured, m_order), (simulated, s_order)):
+        np.testing.assert_allclose(np.stack([b.theta_i, b.theta_o], axis=1)[order],
+                                   b.planned[order][:, [0, 2]], atol=0.1)
+    sim = simulated.value.mean(axis=1)[s_order]
+    sd_sim = simulated.stddev.mean(axis=1)[s_order]
+    value, sd = measured.value[m_order, 0], measured.stddev[m_order, 0]
+    return value, sim, (value - sim) / np.sqrt(2 * sd_sim**2 + sd**2)
+
+
+def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(flown, stop_and_go):
+    folder, servos, profiles, meta = flown
+    assert meta["fly"]["lines"] >= 4
+    measured = read_brdf(folder / "brdf.h5")
+    value, sim, z = _z(measured, stop_and_go)
+    # Within 4 σ each, plus 1 % for the poses, which differ by the encoders' resolution (as the
+    # stop-and-go emulated campaign's own check), and honest on the whole: rms z about 1.
+    assert np.all(np.abs(value - sim) <= 4 * np.abs((value - sim) / z) + 0.01 * sim), z
+    assert np.sqrt(np.mean(z**2)) < 1.5, z
+    rows, events = _measurements(folder)
+    swept = [m for m in rows if m.frames > 1]
+    assert len(swept) == meta["poses"]  # every pose read on the fly, none stop-and-go
+    assert any(np.max(m.extra["stderr_blur"]) > 0 for m in swept)
+    # The watchdog was fed through every sweep (never fired), nothing was retried, and every sweeping
+    # servo runs with the campaign's profile again.
+    assert not [e for e in events if e["kind"] in ("retry", "fault")]
+    for name, (fired, armed, velocity, accel) in servos.items():
+        assert fired is None and armed == 0
+        if name in profiles:
+            assert (velocity, accel) == profiles[name]
+
+
+def test_the_stored_directions_follow_the_axis_reads_not_the_plan(tmp_path):
+    """Every servo runs 6 % faster than its profile says. The stored axis positions are the shafts' true
+    positions at each reading's mid-time (within an encoder step), where a reader timed by the plan
+    would be degrees off; the readings still land on their poses (the reads time them)."""
+    clock = SyncedVirtualClock()
+    truth: list[tuple[float, np.ndarray]] = []
+    starts: list[float] = []
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+        for s in emu.servos.values():
+            s._velocity_ticks_s = (lambda f: lambda: 1.06 * f())(s._velocity_ticks_s)
+
+        def hook(g):
+            measure, sweep = g.detector.measure, g.sweep
+
+            def logged(*args, **kw):
+                truth.append((clock.now(), emu.axes_at([clock.now()])[0]))
+                out = measure(*args, **kw)
+                truth.append((clock.now(), emu.axes_at([clock.now()])[0]))
+                return out
+
+            def swept(*args):
+                out = sweep(*args)
+                starts.append(clock.now())
+                return out
+
+            g.detector.measure, g.sweep = logged, swept
+
+        state, runner, c = _fly(tmp_path / "fly", emu, clock, detector_hook=hook)
+        assert state == State.DONE, runner.fault
+    fp = fly_plan_of_folder(tmp_path / "fly")
+    rows, _ = _measurements(tmp_path / "fly")
+    by_step = {m.step: m for m in rows}
+    t_truth = np.array([t for t, _ in truth])
+    x_truth = np.array([x for _, x in truth])
+    lines = [(fp.lines[k], step) for kind, k, step in fly_steps(fp) if kind == "line" and fp.lines[k].moving]
+    assert len(lines) == len(starts)
+    off_plan = []
+    for (line, step), t_go in zip(lines, starts, strict=True):
+        for j in range(line.n):
+            m = by_step[step + j]
+            mid = m.extra["mid_s"]
+            true = np.array([np.interp(mid, t_truth, x_truth[:, i]) for i in range(x_truth.shape[1])])
+            np.testing.assert_allclose(m.actual_deg, true, atol=TICK_DEG)
+            off_plan.append(abs(line.position_at(mid - t_go)[line.axis] - true[line.axis]))
+            # Centred on its pose: within a fraction of the blur (speed × exposure).
+            assert abs(m.actual_deg[line.axis] - m.commanded_deg[line.axis]) < \
+                0.05 * line.speed_deg_s * line.exposure_s
+    assert max(off_plan) > 1.0  # what the plan's clock would have put there
+
+
+def fly_plan_of_folder(folder):
+    from gonio.campaign import open_campaign
+
+    c = open_campaign(folder, readonly=True)
+    try:
+        return fly_plan_of(c)
+    finally:
+        c.close()
+
+
+def _after_subreads(count, action):
+    """A detector hook: ``action()`` once the gantry's detector has answered ``count`` sub-reads of
+    sweeps (single readings of checkpoints are not counted)."""
+    seen = [0]
+
+    def hook(g):
+        measure = g.detector.measure
+
+        def counted(exposure_s, frames=1, **kw):
+            out = measure(exposure_s, frames, **kw)
+            if exposure_s < g.detector_exposure_s:
+                seen[0] += 1
+                if seen[0] == count:
+                    action(g)
+            return out
+
+        g.detector_exposure_s = load_config(TWIN).detector.exposure_s
+        g.detector.measure = counted
+
+    return hook
+
+
+def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_done_again(tmp_path, flown, monkeypatch,
+                                                                            capsys):
+    clock = SyncedVirtualClock()
+    runners = []
+    folder = tmp_path / "fly"
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+        hook = _after_subreads(30, lambda g: runners[0].request_halt("operator: emergency stop"))
+        state, runner, _ = _fly(folder, emu, clock, on_runner=runners.append, detector_hook=hook)
+        assert state == State.HALTED
+        rows, events = _measurements(folder)
+        fp = fly_plan_of_folder(folder)
+        sweeps = [(step, fp.lines[k].n) for kind, k, step in fly_steps(fp) if kind == "line"]
+        done = {m.step for m in rows}
+        in_flight = [(s, n) for s, n in sweeps if s not in done][0]
+        assert in_flight[0] < len(rows) + 2 * len(fp.checkpoints)  # halted inside a sweep, nothing of it kept
+        assert not done & set(range(in_flight[0], in_flight[0] + in_flight[1]))
+        halted_at = max(m.campaign_s for m in rows)
+        # gonio run on the same folder resumes (the config written for another process; the CLI's wall
+        # clock is the emulators' virtual one here, so the test does not wait for the gantry).
+        path = tmp_path / "gantry.toml"
+        path.write_text(emu.config_toml())
+        monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
+        code = main(["run", "--config", str(path), "--grid", GRID + ",order=fly", "--out", str(folder),
+                     "--sample", "gold"])
+        err = capsys.readouterr().err
+        assert code == 0, err
+        assert "resuming the campaign" in err
+    rows, _ = _measurements(folder)
+    redone = [m for m in rows if in_flight[0] <= m.step < in_flight[0] + in_flight[1]]
+    assert len(redone) == in_flight[1] and all(m.campaign_s > halted_at for m in redone)
+    resumed, whole = read_brdf(folder / "brdf.h5"), read_brdf(flown[0] / "brdf.h5")
+    assert resumed.value.shape == whole.value.shape
+    value, other, z = _z(resumed, whole)
+    assert np.all(np.abs(z) < 4), z  # the same campaign, read twice: equal within both uncertainties
+
+
+def test_a_servo_hardware_error_mid_sweep_faults_naming_the_axis(tmp_path):
+    clock = SyncedVirtualClock()
+    folder = tmp_path / "fly"
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+        def overload(g):
+            moving = [n for n, s in emu.servos.items() if s._moving() and n != "changer"]
+            assert len(moving) == 1  # one axis sweeps
+            emu.servos[moving[0]].inject_hardware_error(0x20)   # overload
+            fired.append(moving[0])
+
+        fired: list[str] = []
+        state, runner, c = _fly(folder, emu, clock, detector_hook=_after_subreads(10, overload))
+        assert state == State.FAULTED
+        assert fired and fired[0] in runner.fault and "hardware error" in runner.fault, runner.fault
+        assert "overload" in runner.fault
+        assert all(not s._moving() for s in emu.servos.values())  # every axis stopped
+        rows, _ = _measurements(folder)
+        fp = fly_plan_of_folder(folder)
+        done = {m.step for m in rows}
+        sizes = [(step, 2 if kind == "checkpoint" else fp.lines[k].n) for kind, k, step in fly_steps(fp)]
+        kept = [all(s + i in done for i in range(n)) for s, n in sizes]
+        assert done == {s + i for (s, n), whole in zip(sizes, kept, strict=True) if whole for i in range(n)}
+        assert kept.index(False) > 1 and not any(kept[kept.index(False):])  # whole sweeps before it, only
+        state, runner, _ = _fly(folder, emu, clock, create=False)   # latched: nothing runs
+        assert state == State.FAULTED
+        state, runner, _ = _fly(folder, emu, clock, create=False, clear_fault=True)  # rebooted, resumed
+        assert state == State.DONE, runner.fault
+    assert read_brdf(folder / "brdf.h5").value.shape[0] == sum(ln.n for ln in fp.lines)
+
+
+def test_gonio_run_refuses_order_fly_where_a_sweeping_axis_is_not_a_dynamixel_servo(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = main(["run", "--config", "emulated-sample-stage-modbus", "--grid", GRID + ",order=fly",
+                 "--out", str(out), "--sample", "x"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and "axes." in err[0] and "'modbus' cannot sweep" in err[0], err
+    assert not out.exists()
+
+
+def test_a_run_up_ending_within_the_planners_rounding_of_a_limit_is_taken_to_the_limit():
+    """The planner lets a line's rest position lie within 1e-6° beyond a limit (float rounding of
+    v²/2a + v·e/2), which the driver would refuse; further beyond is left for the driver to refuse."""
+    from gonio.fly.hardware import _on_limits
+    from gonio.kinematics import make_kinematics
+
+    kin = make_kinematics(load_config(TWIN))
+    lo, hi = np.asarray(kin.limits_deg).T
+    near = np.array([lo[0] - 1e-9, hi[1] + 5e-7, 10.0, lo[3]])
+    np.testing.assert_array_equal(_on_limits(kin, near), [lo[0], hi[1], 10.0, lo[3]])
+    far = np.array([lo[0] - 1e-3, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(_on_limits(kin, far), far)
