@@ -88,9 +88,10 @@ def check_fly_gantry(cfg, fp: FlyPlan) -> None:
         driver = cfg.axes[name].driver
         if driver != "dynamixel":
             lines = sum(ln.axis == axis for ln in fp.lines)
-            raise ValueError(f"axes.{name}: driver '{driver}' cannot sweep a line of order=fly (it sweeps "
-                             f"{lines} lines; fly scanning on hardware needs Dynamixel servos, whose "
-                             "velocity is set per sweep and whose positions are sync-read with "
+            plural = "s" if lines != 1 else ""
+            raise ValueError(f"axes.{name}: driver '{driver}' cannot sweep a line of order=fly (it would "
+                             f"sweep {lines} line{plural}; fly scanning on hardware needs Dynamixel servos, "
+                             "whose velocity is set per sweep and whose positions are sync-read with "
                              "timestamps); use order=auto for this gantry")
     det = cfg.detector
     if det.driver == "sim" and det.sim.kind == "camera":
