@@ -18,10 +18,7 @@ from gonio.sim.light import SimLight
 from gonio.wiring import build_gantry
 
 MATERIAL = "lambert:albedo=0.5"
-# The serpentine, pinned: both schedules then cut the same walk (order=auto takes a tour on this grid,
-# whose time checkpoints leave a 14 s interval at the end beside an 87 s one, where the calibration
-# falls back from the cubic; its median error is then 1.2e-4 instead of 7.8e-5).
-GRID = "iso:step=15,order=serpentine"
+GRID = "iso:step=15"  # order=auto: a tour here
 # A lamp drifting on the scale of this short campaign (~330 s) as a real one does on a long one: it
 # warms up by 3 % with a 3 min time constant, wanders by 1 % with a 9 min period and trends by -20 %/h.
 LAMP = {"drift_per_hour": -0.2, "warmup_fraction": 0.03, "warmup_s": 180.0, "wander_fraction": 0.01,
