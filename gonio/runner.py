@@ -147,7 +147,8 @@ class Runner:
         self._offset_s = 0.0  # campaign clock − gantry clock
         # (positions, clock) of the last committed reading: where the next step's path starts
         self._rest: tuple[np.ndarray, float] | None = None
-        # The last leg target the axes arrived at (within position_tolerance_deg), or None
+        # The target the axes last arrived at (within position_tolerance_deg; set by _arrive, cleared by
+        # every command), or None
         self._arrived: np.ndarray | None = None
         latched = journal.latched_fault()
         if latched is not None:
@@ -430,11 +431,9 @@ class Runner:
             path = safe_path(self._kin, start, target)
         except ValueError as err:
             raise _Fault("gantry", str(err)) from None
-        self._arrived = None
         for leg in path:
             self._move_leg(start, leg)
             start = leg
-        self._arrived = np.array(target, dtype=float)
 
     def _command(self, send: Callable[[], object]) -> object:
         """``send()`` (commands to the axes) under the command lock, unless a halt was requested; if it
@@ -442,6 +441,7 @@ class Runner:
         with self._command_lock:
             if self._halt.is_set():
                 raise _Halted
+            self._arrived = None  # the axes leave where they arrived; _arrive records the new target
             try:
                 return send()
             except BaseException:
@@ -499,6 +499,7 @@ class Runner:
             raise DeviceFault(name, f"position {actual[i]:.4f}° is {err[i]:.4f}° from target "
                               f"{target[i]:.4f}° (position_tolerance_deg={rc.position_tolerance_deg})",
                               transient=True)
+        self._arrived = np.array(target, dtype=float)
 
     def _wait(self, seconds: float) -> None:
         """Sleep ``seconds`` on the gantry clock in slices of ``poll_s``, raising at a halt; between

@@ -173,14 +173,12 @@ class FlySweeper:
         r._goto(start)
         r._wait(r.cfg.runner.settle_s)
         reads: list[tuple[np.ndarray, np.ndarray]] = []
-        r._arrived = None   # the axes leave the start the runner's move arrived at
         v, a = r._command(lambda: g.sweep(name, float(end[line.axis]), line.speed_deg_s, line.accel_deg_s2))
         t_go = g.clock.now()
         try:
             out = self._readings(line, step, attempt, v, reads)
             # The run-down: the axis arrives at the line's end (the runner faults one that stopped short).
             r._arrive(start, end, max(t_go + line.duration_s - g.clock.now(), 0.0))
-            r._arrived = end.copy()   # where the planner certified the sweep to end, as after a move
         except BaseException:
             try:
                 g.end_sweep(name)
