@@ -49,6 +49,14 @@ def _emulated_run(folder, emu, clock, grid: str = GRID, **run):
         c.close()
 
 
+def _assert_no_retry_or_fault(folder):
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        assert not [e for e in j.events() if e["kind"] in ("retry", "fault")]
+    finally:
+        j.close()
+
+
 def _rows(b):
     """Row order by pose: (θi, θo, Δφ) rounded to 0.1°."""
     dphi = np.mod(b.phi_o - b.phi_i, 360.0)
@@ -82,11 +90,7 @@ def test_a_campaign_through_the_drivers_matches_the_simulation(tmp_path, twin):
                      and any(p[13:-2:2])]
             assert len(armed) > 10
             assert all(s.watchdog_fired_at is None and s.value(98) == 0 for s in emu.servos.values())
-            j = Journal.open(tmp_path / "emu" / JOURNAL_NAME, readonly=True)
-            try:
-                assert not [e for e in j.events() if e["kind"] in ("retry", "fault")]
-            finally:
-                j.close()
+            _assert_no_retry_or_fault(tmp_path / "emu")
     measured = read_brdf(tmp_path / "emu" / "brdf.h5")
     assert measured.value.shape[1] == (1 if "dynamixel" in twin else 3)
     _matches(measured, _simulated(tmp_path, TWINS[twin]), channel_mean="dynamixel" in twin)
@@ -336,10 +340,6 @@ def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp
         assert state == State.DONE, runner.fault
         assert sum(t > 2 * watchdog_s for t in lasted) >= 5, sorted(lasted)[-5:]
         assert all(s.watchdog_fired_at is None and s.value(98) == 0 for s in emu.servos.values())
-        j = Journal.open(tmp_path / "emu" / JOURNAL_NAME, readonly=True)
-        try:
-            assert not [e for e in j.events() if e["kind"] in ("retry", "fault")]
-        finally:
-            j.close()
+        _assert_no_retry_or_fault(tmp_path / "emu")
     _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path, "sim", "iso:step=45"),
              channel_mean=True)

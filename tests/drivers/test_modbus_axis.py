@@ -182,45 +182,31 @@ def test_stop_holds_position(motor, clock):
     assert axis.position_deg() == held and not axis.is_moving()
 
 
-def test_tcp_disconnect_then_reconnect(clock):
-    emu = ModbusMotorEmulator("generic", clock=clock)
-    url = _start(emu, "tcp")
-    axis = ModbusAxis("s", make_client(url, timeout_s=0.2, retries=0), "generic", limits_deg=(0.0, 90.0),
-                      clock=clock)
+@pytest.mark.parametrize("transport", ["tcp"])
+def test_tcp_disconnect_then_reconnect(motor):
+    emu, axis = motor
+    emu.faults.add("disconnect")
     try:
-        axis.connect()
-        emu.faults.add("disconnect")
-        try:
-            axis.position_deg()  # the server drops the connection instead of answering
-        except ModbusCommError as exc:
-            assert exc.transient
-        assert emu.faults.applied == [("disconnect", 3)]
-        assert axis.position_deg() == 0.0  # reconnected
-    finally:
-        axis.close()
-        emu.stop()
+        axis.position_deg()  # the server drops the connection instead of answering
+    except ModbusCommError as exc:
+        assert exc.transient
+    assert emu.faults.applied == [("disconnect", 3)]
+    assert axis.position_deg() == 0.0  # reconnected
 
 
-def test_rtu_cable_pulled_then_replugged(clock):
+@pytest.mark.parametrize("transport", ["rtu"])
+def test_rtu_cable_pulled_then_replugged(motor):
     """RTU over a pty that closes under the client: every call fails as a transient 'connection lost'
     naming the port while it is gone; after a replug the next call reconnects and reads."""
-    emu = ModbusMotorEmulator("generic", clock=clock)
-    url = _start(emu, "rtu")
-    axis = ModbusAxis("s", make_client(url, timeout_s=0.1, retries=0), "generic", limits_deg=(0.0, 90.0),
-                      clock=clock)
-    try:
-        axis.connect()
-        emu.faults.add("disconnect")
-        for _ in range(2):
-            with pytest.raises(ModbusCommError, match=r"connection lost .*ttyMB") as err:
-                axis.position_deg()
-            assert err.value.transient
-        emu.replug()
-        assert axis.position_deg() == 0.0
-        assert [kind for kind, _ in emu.faults.applied] == ["disconnect"]
-    finally:
-        axis.close()
-        emu.stop()
+    emu, axis = motor
+    emu.faults.add("disconnect")
+    for _ in range(2):
+        with pytest.raises(ModbusCommError, match=r"connection lost .*ttyMB") as err:
+            axis.position_deg()
+        assert err.value.transient
+    emu.replug()
+    assert axis.position_deg() == 0.0
+    assert [kind for kind, _ in emu.faults.applied] == ["disconnect"]
 
 
 def test_span_read_and_write_read_flags_are_validated():
