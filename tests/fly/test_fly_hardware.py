@@ -296,3 +296,80 @@ def test_a_run_up_ending_within_the_planners_rounding_of_a_limit_is_taken_to_the
     np.testing.assert_array_equal(_on_limits(kin, near), [lo[0], hi[1], 10.0, lo[3]])
     far = np.array([lo[0] - 1e-3, 0.0, 0.0, 0.0])
     np.testing.assert_array_equal(_on_limits(kin, far), far)
+
+
+@pytest.mark.slow
+def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp_path):
+    """kill -9 of ``gonio run ... order=fly`` on the wall clock while a sweep is under way: the journal
+    holds every sweep whole or not at all (one transaction per sweep), and the same command run again
+    resumes and completes the campaign with exactly one reading per step."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from gonio.clock import WallClock
+    from gonio.config import parse_config
+
+    data = load_config(TWIN).model_dump(mode="json")
+    for name, axis in data["axes"].items():   # near each servo's velocity limit, quick ramps
+        axis["max_velocity_deg_s"] = 65.0 if "azimuth" in name else 150.0
+        axis["max_accel_deg_s2"] = 1000.0
+    data["runner"].update(settle_s=0.0, poll_s=0.02)
+    data["detector"]["exposure_s"] = 0.02
+    cfg = parse_config(data)
+    out = tmp_path / "run"
+    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True) as emu:
+        path = tmp_path / "gantry.toml"
+        path.write_text(emu.config_toml())
+        argv = [sys.executable, "-m", "gonio.cli", "run", "--config", str(path), "--grid",
+                GRID + ",order=fly", "--out", str(out), "--sample", "gold", "--quiet"]
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        in_flight = None
+        try:
+            # Wait until a sweep of several readings is under way: the journal holds every unit before
+            # it, that unit's line is next, and the photodiode has answered several sub-reads since the
+            # journal last grew (a transit reads nothing).
+            fp, units, last, answered = None, [], None, 0
+            deadline = time.monotonic() + 90.0
+            while in_flight is None and time.monotonic() < deadline and proc.poll() is None:
+                if (out / JOURNAL_NAME).exists():
+                    j = Journal.open(out / JOURNAL_NAME, readonly=True)
+                    try:
+                        done = set(j.done_steps().tolist())
+                    finally:
+                        j.close()
+                    if fp is None and done:
+                        fp = fly_plan_of_folder(out)
+                        units = [(step, 2 if kind == "checkpoint" else fp.lines[k].n,
+                                  kind == "line" and fp.lines[k].moving and fp.lines[k].n >= 3)
+                                 for kind, k, step in fly_steps(fp)]
+                    if len(done) != last:
+                        last, answered = len(done), emu.meter.answered
+                    nxt = next((u for u in units if u[0] not in done), None)
+                    if nxt is not None and nxt[2] and done and emu.meter.answered >= answered + 6:
+                        in_flight = nxt
+                time.sleep(0.002)  # polling what another process writes; bounded by the deadline
+            assert in_flight is not None and proc.poll() is None, proc.communicate()
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+        rows, _ = _measurements(out)
+        done = {m.step for m in rows}
+        for step, n, _ in units:
+            part = done & set(range(step, step + n))
+            assert len(part) in (0, n), (step, n, sorted(part))   # whole or nothing
+        assert not done & set(range(in_flight[0], in_flight[0] + in_flight[1]))  # read in part, not kept
+        r = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert "resuming" in r.stderr
+    j = Journal.open(out / JOURNAL_NAME, readonly=True)
+    try:
+        assert j.done_steps().tolist() == list(range(j.step_count()))
+    finally:
+        j.close()
+    b = read_brdf(out / "brdf.h5")
+    assert np.all(np.isfinite(b.value)) and np.all(b.value > 0)
