@@ -9,14 +9,15 @@ Choices worth knowing:
   the reachable member is measured instead; a class counts as infeasible only when no member is
   reachable, under the reason of the kept pose.
 - Orders: ``serpentine`` and ``raster`` follow the grid's loops; ``tour`` is nearest neighbour then
-  2-opt/Or-opt on the branches nearest home, from and back to the reference pose, then
-  :data:`TOUR_KICKS_PER_POSE` seeded double-bridge kicks per pose (at most :data:`TOUR_KICKS_MAX`),
-  each repaired by the same local search and kept when shorter (iterated local search,
-  :func:`gonio.motion.order.perturb_tour`). ``auto`` takes a tour for merl grids up to
+  2-opt/Or-opt on one branch per pose (those nearest home or a reference branch; the two sets lying
+  closest together are each ordered and planned, the quicker kept: :func:`_tour_seeds`), from and
+  back to the reference pose, then :data:`TOUR_KICKS_PER_POSE` seeded double-bridge kicks per pose
+  (at most :data:`TOUR_KICKS_MAX`), each repaired by the same local search and kept when shorter
+  (iterated local search, :func:`gonio.motion.order.perturb_tour`). ``auto`` takes a tour for merl grids up to
   :data:`TOUR_MAX_POSES` poses and the serpentine for full grids (a tour was 0.4-0.8 % slower on
   ``full:step=15``); for iso grids up to :data:`AUTO_TOUR_MAX_POSES` poses it plans both and keeps
   the one estimated quicker (the serpentine's row ends and the sample stage's coupled axes leave it
-  3-8 % above the bound on coarse grids, the tour 2-6 %: ``tools/bench_plan.py --orders``), above
+  3-8 % above the bound on coarse grids, the tour 2-5 %: ``tools/bench_plan.py --orders``), above
   that the serpentine.
 - Branches: for the chosen order, each run's inverse-kinematics branches minimize its total move
   time, trips from and back to the reference included (:func:`gonio.motion.branches.best_branches`,
@@ -67,6 +68,10 @@ AUTO_TOUR_MAX_POSES = 10_000
 #: Double-bridge kicks per pose of a tour, and at most (about 0.7 ms each on this project's machine).
 TOUR_KICKS_PER_POSE = 2
 TOUR_KICKS_MAX = 4_000
+#: Seeded branch sets a tour is ordered on and planned through, the best kept (:func:`_tour_seeds`),
+#: for plans up to this many poses; above, only the most promising one.
+TOUR_SEED_TRIALS = 2
+TOUR_SEED_TRIALS_MAX_POSES = 2_000
 #: Largest plan whose valid bound uses every pose (``iso:step=2``, 142,879 poses, takes ~4 s of it);
 #: above it an evenly spread subset of this many (the moves through a subset are no longer than
 #: through all: still a bound, a weaker one).
@@ -163,7 +168,8 @@ class Plan:
     step_end_s: np.ndarray | None = None
 
 
-def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
+def build_plan(grid: str, cfg: GonioConfig, kin=None, *, _tour_seed: int | None = None,
+               _bound: dict | None = None) -> Plan:
     """Plan a campaign over ``grid`` on the gantry ``cfg`` describes.
 
     Parameters
@@ -194,7 +200,7 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
         first = build_plan(spec.spelled(order="serpentine"), cfg, kin)
         if first.theta_i.size > AUTO_TOUR_MAX_POSES:
             return first
-        second = build_plan(spec.spelled(order="tour"), cfg, kin)
+        second = build_plan(spec.spelled(order="tour"), cfg, kin, _bound=first.timing["lower_bound"])
         return second if second.estimated_s < first.estimated_s else first
     theta_max = spec.theta_max_deg if spec.theta_max_deg is not None else cfg.kinematics.theta_max_deg
     poses = enumerate_grid(spec, theta_max)
@@ -218,10 +224,16 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
 
     order = _resolve_order(spec, n)
     if order == "tour":
-        near_home = kin.inverse(*angles, current_deg=home)
-        neigh = neighbour_lists(near_home, metric)[0]
-        perm = nearest_neighbour_tour(near_home, metric, ref_first, neigh)
-        perm = perturb_tour(near_home, perm, metric, ref_first, neigh,
+        seeds = _tour_seeds(kin, angles, np.vstack([home, reachable]), metric)
+        trials = min(len(seeds), TOUR_SEED_TRIALS if n <= TOUR_SEED_TRIALS_MAX_POSES else 1)
+        if _tour_seed is None and trials > 1:
+            plans = [build_plan(grid, cfg, kin, _tour_seed=0, _bound=_bound)]
+            bound = plans[0].timing["lower_bound"]  # the same pose set, whatever the order
+            plans += [build_plan(grid, cfg, kin, _tour_seed=i, _bound=bound) for i in range(1, trials)]
+            return min(plans, key=lambda p: p.estimated_s)
+        points, neigh = seeds[_tour_seed or 0]
+        perm = nearest_neighbour_tour(points, metric, ref_first, neigh)
+        perm = perturb_tour(points, perm, metric, ref_first, neigh,
                             kicks=min(TOUR_KICKS_PER_POSE * n, TOUR_KICKS_MAX))
     elif order == "raster":
         perm = raster_order(loops)
@@ -264,8 +276,9 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None) -> Plan:
     n_dark = int(np.count_nonzero(step_kind == STEP_DARK))
     fixed_bound = campaign_lower_bound(axes, ref, np.diff(np.append(starts, n)), n_ref, n_dark, home,
                                        metric, settle_s, reading_s)
-    bound = _valid_bound(kin, angles, ref_options, home, metric, settle_s, reading_s, every, every_s,
-                         np.diff(np.append(starts, n)))
+    bound = _bound if _bound is not None else _valid_bound(
+        kin, angles, ref_options, home, metric, settle_s, reading_s, every, every_s,
+        np.diff(np.append(starts, n)))
     follows_pose = np.zeros(n, dtype=bool)
     follows_pose[1:] = True
     follows_pose[starts] = False
@@ -403,6 +416,29 @@ def _resolve_order(spec: GridSpec, n: int) -> str:
     return "serpentine"
 
 
+def _tour_seeds(kin, angles, seeds, metric: MoveMetric) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Candidate branches per pose for a tour to be ordered on, with their neighbour lists, most
+    promising first.
+
+    A tour is searched over one fixed position per pose; its branches are chosen again afterwards, for
+    the order found. Taking each pose's branch nearest home mixes branch families where they are about
+    as near (the sample stage's two tilt signs: 194 of 304 poses one way and 105 the other on
+    ``iso:step=15``), and the order then pays for flips the branch choice can only partly undo. So each
+    seed (home and every reference branch reachable from it) picks the branches nearest itself, and
+    the sets are ranked by how close together their poses lie (the sum of each pose's two nearest
+    moves, twice the degree bound of a tour through them). The ranking is a good guide, not a sure
+    one: the swept-path check may re-choose branches after ordering, so :func:`build_plan` orders the
+    first :data:`TOUR_SEED_TRIALS` of them and keeps the quickest plan.
+    """
+    ranked = []
+    for seed in np.unique(np.asarray(seeds, dtype=np.float64), axis=0):
+        points = kin.inverse(*angles, current_deg=seed)
+        neigh, times = neighbour_lists(points, metric)
+        ranked.append((float(times[:, :2].sum()), len(ranked), points, neigh))
+    ranked.sort(key=lambda r: (r[0], r[1]))
+    return [(points, neigh) for _, _, points, neigh in ranked]
+
+
 def _branch_table(kin, angles, home, ref) -> np.ndarray:
     """Every valid branch (P, W, n_axes) of the poses reachable from the reference without a collision,
     invalid ones replaced by a valid one of the same pose (:func:`gonio.motion.relaxed.pose_branches`)."""
@@ -416,7 +452,12 @@ def _branch_table(kin, angles, home, ref) -> np.ndarray:
 
 def _valid_bound(kin, angles, ref_options, home, metric, settle_s, reading_s, every, every_s,
                  run_lengths) -> dict:
-    """The lower bound over every order and branch choice (:mod:`gonio.motion.relaxed`)."""
+    """The lower bound over every order and branch choice (:mod:`gonio.motion.relaxed`).
+
+    It depends on the pose set, not on its order (``run_lengths`` only through their number, on
+    count-only schedules, which is the same for every order): the poses are taken in a canonical order
+    so that every order of the same grid gets the same figure, to the last digit."""
+    angles = tuple(a[np.lexsort(angles[::-1])] for a in angles)
     n = angles[0].size
     keep = np.arange(n)
     if n > BOUND_MAX_POSES:
