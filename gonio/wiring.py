@@ -7,7 +7,9 @@ Which implementation drives each device is decided here from the config's ``driv
 axes, light and detector. A real device puts the gantry on the wall clock.
 
 A ``sim`` detector beside real (or emulated) axes is a dry run: it renders the material at the
-positions the axes report, lit by the real lamp's shutter state and the ``[light.sim]`` radiance.
+positions the axes report, lit by the real lamp's shutter state and the ``[light.sim]`` radiance. It
+reads the axes when a reading starts and again when it ends and integrates along the line between
+(``track_motion``): a reading taken while a servo sweeps (``order=fly``) is blurred as a real one is.
 
 The white standard: a config with a ``target.axis`` (a sample changer) moves it for
 ``set_target("reference")`` and back; without one only a simulated detector can render the standard
@@ -158,7 +160,9 @@ def _sim_detector(cfg: GonioConfig, material, seed: int, light, axes: dict, kine
         raise ValueError("the simulated detector needs a material to render, e.g. 'lambert:albedo=0.5'")
     views = {n: a if hasattr(a, "true_position_deg") else _ReadBack(a) for n, a in axes.items()}
     lamp = light if isinstance(light, SimLight) else _LampView(light, cfg.light.sim)
-    return sim_detector(cfg, material, light=lamp, axes=views, kinematics=kinematics, clock=clock, seed=seed)
+    real = any(isinstance(v, _ReadBack) for v in views.values())
+    return sim_detector(cfg, material, light=lamp, axes=views, kinematics=kinematics, clock=clock, seed=seed,
+                        track_motion=real)
 
 
 def build_gantry(cfg: GonioConfig, material=None, *, seed: int = 0, clock: Clock | None = None,

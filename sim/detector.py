@@ -25,6 +25,11 @@ integration (one uniform draw in each of equal slices), the axes put where ``mot
 into directions by the forward kinematics and rendered with ``aperture_samples / MOTION_TIMES`` aperture
 pairs each (as many Monte Carlo lanes as a still reading), the factors averaged. The light's radiance is
 the one at the start. A still gantry (every time at the start pose) takes the still path, unchanged.
+With ``track_motion`` (real axes seen through their read-backs: a dry run on hardware, see
+:mod:`gonio.wiring`) and no ``motion`` given, the detector reads the axes again when the integration
+ends and integrates along the straight line between the two read-backs, stamped when each was asked:
+during a fly sweep the servo runs at constant speed, so the line is the path; a still gantry reads the
+same twice and takes the still path.
 
 Uncertainty. A reading's ``stderr`` is the standard error of its ``signal`` from both sources, added in
 quadrature: the integration error L_src · Ω_s · s/√n · exposure_s (shared by all frames, so averaging
@@ -112,6 +117,16 @@ def aperture_directions(wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: f
     return wi_s, wo_s
 
 
+def _straight(t0: float, a_deg: np.ndarray, t1: float, b_deg: np.ndarray):
+    """``motion(times)`` along the straight line from ``a_deg`` at ``t0`` to ``b_deg`` at ``t1``."""
+    a = np.asarray(a_deg, dtype=np.float64)
+    d = np.asarray(b_deg, dtype=np.float64) - a
+
+    def motion(times) -> np.ndarray:
+        return a + ((np.asarray(times, dtype=np.float64) - t0) / (t1 - t0))[:, None] * d
+    return motion
+
+
 def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
                              detector_half_angle_deg: float, samples: int,
                              seed_state: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -197,7 +212,7 @@ class SimDetector:
     """
 
     def __init__(self, cfg: DetectorConfig, *, light, axes: Mapping, kinematics, materials: Mapping,
-                 clock: Clock, seed: int = 0, name: str = "detector"):
+                 clock: Clock, seed: int = 0, name: str = "detector", track_motion: bool = False):
         if len(cfg.channels) != 3:
             raise ValueError(
                 f"detector.channels: the simulated detector renders RGB materials and needs exactly "
@@ -225,6 +240,7 @@ class SimDetector:
         self._materials = dict(materials)
         self._clock = clock
         self._seed = int(seed)
+        self._track_motion = bool(track_motion)
         self._count = 0
         self._target = "sample"
         self._connected = False
@@ -286,6 +302,16 @@ class SimDetector:
         else:
             mc_id, noise_id = (_MC_STREAM, *key), (_NOISE_STREAM, *key)
         path = None
+        slept = False
+        if source > 0.0 and motion is None and self._track_motion:
+            # Real axes seen through their read-backs: where they stand at the end too, and the
+            # straight line between (a sweep runs at constant speed; a still gantry reads the same).
+            self._clock.sleep(exposure_s * frames)
+            slept = True
+            t1 = self._clock.now()
+            end_deg = self.actual_axes_deg()
+            if not np.array_equal(end_deg, axes_deg) and t1 > t0:
+                motion = _straight(t0, axes_deg, t1, end_deg)
         if source > 0.0 and motion is not None:
             rng_t = np.random.default_rng(np.random.SeedSequence([self._seed, _MOTION_STREAM, *mc_id]))
             frac = (np.arange(MOTION_TIMES) + rng_t.random(MOTION_TIMES)) / MOTION_TIMES
@@ -294,11 +320,8 @@ class SimDetector:
             if np.array_equal(path, np.broadcast_to(axes_deg, path.shape)):
                 path = None  # still: the exact still reading
         if path is not None:
-            wi, wo = self._kinematics.directions(path)
             per = max(2, self.cfg.sim.aperture_samples // MOTION_TIMES)
-            factors, ses = aperture_radiance_factor(
-                self._materials[self._target], wi, wo, self._light.half_angle_deg,
-                self.cfg.sim.half_angle_deg, per, _seed_state(self._seed, *mc_id))
+            factors, ses = self._radiance_factor(path, self._target, _seed_state(self._seed, *mc_id), per)
             factor, factor_se = factors.mean(axis=0), np.sqrt((ses**2).sum(axis=0)) / MOTION_TIMES
         elif source > 0.0:
             factor, factor_se = self._radiance_factor(axes_deg[None, :], self._target,
@@ -317,7 +340,8 @@ class SimDetector:
             sensor_se = self.noise_sigma(clean)
         integration_se = source * factor_se * exposure_s
         stderr = np.hypot(integration_se, sensor_se)
-        self._clock.sleep(exposure_s * frames)
+        if not slept:
+            self._clock.sleep(exposure_s * frames)
         extra = {"target": self._target, "axes_deg": dict(zip(self._kinematics.axis_names,
                                                               axes_deg.tolist(), strict=True)),
                  "t_s": t0, "reading": n, "key": key, "moving": path is not None,
@@ -385,12 +409,14 @@ class SimDetector:
         return np.sqrt(var)
 
     # -- internals ----------------------------------------------------------------------------------
-    def _radiance_factor(self, axes_deg: np.ndarray, target: str,
-                         seed_state) -> tuple[np.ndarray, np.ndarray]:
+    def _radiance_factor(self, axes_deg: np.ndarray, target: str, seed_state,
+                         samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(factor, stderr) per pose of ``axes_deg`` (K, n_axes), ``samples`` aperture pairs each
+        (default ``aperture_samples``)."""
         wi, wo = self._kinematics.directions(axes_deg)
         return aperture_radiance_factor(
             self._materials[target], wi, wo, self._light.half_angle_deg, self.cfg.sim.half_angle_deg,
-            self.cfg.sim.aperture_samples, seed_state,
+            self.cfg.sim.aperture_samples if samples is None else samples, seed_state,
         )
 
     def _noisy_frames(self, clean: np.ndarray, exposure_s: float, frames: int, rng) -> np.ndarray:

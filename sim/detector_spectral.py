@@ -106,18 +106,19 @@ class SpectrometerDetector(SimDetector):
     """
 
     def __init__(self, cfg, *, light, axes, kinematics, materials, clock, seed: int = 0,
-                 name: str = "detector"):
+                 name: str = "detector", track_motion: bool = False):
         super().__init__(cfg, light=light, axes=axes, kinematics=kinematics,
                          materials={t: spectral_material(m) for t, m in materials.items()}, clock=clock,
-                         seed=seed, name=name)
+                         seed=seed, name=name, track_motion=track_motion)
         wl = cfg.wavelengths_nm
         if wl is None:
             raise ValueError("detector.sim.kind: a SpectrometerDetector needs kind = 'spectrometer'")
         self.wavelengths_nm = np.asarray(wl, dtype=np.float64)
         self.channels = tuple(cfg.channel_names)
 
-    def _radiance_factor(self, axes_deg: np.ndarray, target: str, seed_state):
+    def _radiance_factor(self, axes_deg: np.ndarray, target: str, seed_state, samples: int | None = None):
         wi, wo = self._kinematics.directions(axes_deg)
         return spectral_aperture_factor(
             self._materials[target], wi, wo, self.wavelengths_nm, self._light.half_angle_deg,
-            self.cfg.sim.half_angle_deg, self.cfg.sim.aperture_samples, seed_state)
+            self.cfg.sim.half_angle_deg, self.cfg.sim.aperture_samples if samples is None else samples,
+            seed_state)

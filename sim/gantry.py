@@ -22,7 +22,8 @@ from gonio.sim.light import SimLight
 __all__ = ["SimGantry", "sim_detector"]
 
 
-def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: Clock, seed: int = 0):
+def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: Clock, seed: int = 0,
+                 track_motion: bool = False):
     """The simulated detector ``[detector.sim] kind`` names: the RGB photodiode
     (:class:`~gonio.sim.detector.SimDetector`), the spectrometer
     (:class:`~gonio.sim.detector_spectral.SpectrometerDetector`, spectral materials) or the camera
@@ -30,6 +31,8 @@ def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: 
     ``reference.albedo``.
 
     ``light`` has ``radiance()`` and ``half_angle_deg``; ``axes`` have ``true_position_deg()``.
+    ``track_motion``: the photodiode and the spectrometer integrate along the axes' read-backs at the
+    start and the end of each reading (real axes: :class:`~gonio.sim.detector.SimDetector`).
     """
     kind = cfg.detector.sim.kind
     sample = _materials.load(material) if isinstance(material, str) else material
@@ -39,7 +42,7 @@ def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: 
         return SpectrometerDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics,
                                     materials={"sample": spectral_material(sample),
                                                "reference": reference_material(cfg, spectral=True)},
-                                    clock=clock, seed=seed)
+                                    clock=clock, seed=seed, track_motion=track_motion)
     materials = {"sample": sample, "reference": reference_material(cfg)}
     if kind == "camera":
         from gonio.sim.detector_camera import CameraDetector, camera_settings
@@ -47,7 +50,7 @@ def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: 
         return CameraDetector(cfg.detector, camera_settings(cfg.detector, cfg.light), light=light, axes=axes,
                               kinematics=kinematics, materials=materials, clock=clock, seed=seed)
     return SimDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics, materials=materials,
-                       clock=clock, seed=seed)
+                       clock=clock, seed=seed, track_motion=track_motion)
 
 
 def reference_material(cfg: GonioConfig, spectral: bool = False):

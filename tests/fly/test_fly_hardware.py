@@ -126,6 +126,53 @@ def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(f
             assert (velocity, accel) == profiles[name]
 
 
+def test_a_dry_run_fly_campaign_renders_along_the_servos_read_backs(tmp_path, stop_and_go):
+    """A dry run: the emulated servos with a simulated photodiode in place of the serial power meter.
+    The detector reads the servos at each sub-read's start and end and integrates along the line
+    between; the campaign matches the stop-and-go simulation as the real-detector one does, and the
+    readings taken mid-sweep rendered a moving pose (the start and end read-backs differ)."""
+    from gonio.config import parse_config
+    from gonio.sim.detector import SimDetector
+
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+        data = emu.config().model_dump(mode="python", exclude_unset=True)
+        data["detector"] = {"driver": "sim", "channels": ["R", "G", "B"], "exposure_s": 0.1, "frames": 1,
+                            "sim": {"half_angle_deg": 1.0, "aperture_samples": 256,
+                                    "noise": {"shot_counts_per_unit": 0.0, "read_sigma": 0.0}}}
+        cfg = parse_config(data)
+        c = create_fly_campaign(tmp_path, cfg, grid=GRID + ",order=fly", material=MATERIAL, sample="gold")
+        moving = []
+        try:
+            g = build_gantry(cfg, MATERIAL, clock=clock)
+            assert isinstance(g.detector, SimDetector)
+            measure = g.detector.measure
+
+            def spy(*args, **kw):
+                reading = measure(*args, **kw)
+                moving.append(reading.extra["moving"])
+                return reading
+
+            g.detector.measure = spy
+            state, runner = run_campaign(c, g)
+            assert state == State.DONE, runner.fault
+            poses = c.meta["poses"]
+        finally:
+            c.close()
+    rows, events = _measurements(tmp_path)
+    assert not [e for e in events if e["kind"] in ("retry", "fault")]
+    swept = [m for m in rows if m.frames > 1]
+    assert len(swept) == poses and sum(moving) >= len(swept) * swept[0].frames // 2
+    measured = read_brdf(tmp_path / "brdf.h5")
+    (m_order, m_keys), (s_order, s_keys) = _rows(measured), _rows(stop_and_go)
+    np.testing.assert_array_equal(m_keys[m_order], s_keys[s_order])
+    value, sd = measured.value[m_order], measured.stddev[m_order]
+    sim, sd_sim = stop_and_go.value[s_order], stop_and_go.stddev[s_order]
+    z = (value - sim) / np.sqrt(sd**2 + sd_sim**2)
+    assert np.all(np.abs(value - sim) <= 4 * np.sqrt(sd**2 + sd_sim**2) + 0.01 * sim), z
+    assert np.sqrt(np.mean(z**2)) < 1.5, z
+
+
 def test_the_stored_directions_follow_the_axis_reads_not_the_plan(tmp_path):
     """Every servo runs 6 % faster than its profile says. The stored axis positions are the shafts' true
     positions at each reading's mid-time (within an encoder step), where a reader timed by the plan

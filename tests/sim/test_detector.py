@@ -25,14 +25,19 @@ GLOSSY = "cook-torrance:d=beckmann,m=0.1,metal=gold"
 SHARP = "ggx:alpha=0.05,fresnel=conductor,eta=0.37,k=2.82"
 
 
-def make_gantry(material="lambert:albedo=0.5", *, seed=0, light=None, detector=None, noise=None,
-                reference=None, on=True) -> SimGantry:
+def make_config(*, light=None, detector=None, noise=None, reference=None):
     data = load_config().model_dump()
     data["light"]["sim"].update({"radiance": RADIANCE, **(light or {})})
     data["detector"]["sim"].update(detector or {})
     data["detector"]["sim"]["noise"].update(noise or {})
     data["reference"].update(reference or {})
-    gantry = SimGantry.from_config(parse_config(data), material, seed=seed)
+    return parse_config(data)
+
+
+def make_gantry(material="lambert:albedo=0.5", *, seed=0, light=None, detector=None, noise=None,
+                reference=None, on=True) -> SimGantry:
+    cfg = make_config(light=light, detector=detector, noise=noise, reference=reference)
+    gantry = SimGantry.from_config(cfg, material, seed=seed)
     gantry.connect()
     gantry.light.set_on(on)
     return gantry
@@ -476,3 +481,61 @@ def test_a_reading_integrates_over_the_motion_and_a_still_one_is_unchanged():
     ends = det.expected_signal(path[[0, 200]], exposure_s=0.2)   # at the start, and at the middle
     assert np.all(np.abs(ends - mean) > 0.1 * mean), (ends, mean)
     assert t0 < start
+
+
+@pytest.mark.parametrize(("kind", "material"), [("photodiode", GLOSSY),
+                                                ("spectrometer", "ggx:alpha=0.1,metal=gold")])
+def test_a_dry_run_detector_integrates_along_its_read_backs(kind, material):
+    """Real axes seen through their read-backs (``track_motion``, a dry run on hardware): the detector
+    reads them again when the integration ends and integrates along the straight line between, the same
+    reading as ``measure(motion=...)`` given that line; a still gantry reads exactly as before, and
+    without ``track_motion`` a moving one is read at its start (the shortcut the flag removes)."""
+    from gonio.sim.gantry import sim_detector
+
+    zero = {"read_sigma": 0.0, "shot_counts_per_unit": 0.0}
+    from gonio.config import with_sim_detector
+
+    gantry = make_gantry(GLOSSY, noise=zero)
+    cfg = with_sim_detector(make_config(noise=zero), kind)
+    move(gantry, light_azimuth=0.0, light_tilt=45.0, detector_azimuth=170.0, detector_tilt=45.0)
+    still = actual_axes(gantry)[0]
+    clock = gantry.clock
+    names = gantry.kinematics.axis_names
+    speed = {"detector_azimuth": 100.0}   # °/s: 20° over a 0.2 s exposure, through the specular peak
+    since = [clock.now()]
+
+    class ReadBack:   # what a servo reports: its position at the clock's now
+        def __init__(self, name):
+            self.name = name
+
+        def true_position_deg(self):
+            return still[names.index(self.name)] + speed.get(self.name, 0.0) * (clock.now() - since[0])
+
+    def detector(track):
+        return sim_detector(cfg, material, light=gantry.light, axes={n: ReadBack(n) for n in names},
+                            kinematics=gantry.kinematics, clock=clock, seed=7, track_motion=track)
+
+    tracking, plain = detector(True), detector(False)
+    for d in (tracking, plain):
+        d.connect()
+    start = since[0] = clock.now()
+    moving = tracking.measure(0.2, key=(4, 1))
+    assert moving.extra["moving"] and clock.now() == pytest.approx(start + 0.2)
+
+    def line(t):
+        out = np.repeat(still[None], len(t), axis=0)
+        out[:, names.index("detector_azimuth")] += 100.0 * (np.asarray(t) - start)
+        return out
+
+    since[0] = start = clock.now()
+    given = plain.measure(0.2, key=(4, 1), motion=line)
+    np.testing.assert_array_equal(moving.signal, given.signal)
+    np.testing.assert_array_equal(moving.stderr, given.stderr)
+    since[0] = start = clock.now()
+    at_start = plain.measure(0.2, key=(4, 1))
+    assert not at_start.extra["moving"]
+    assert np.all(np.abs(at_start.signal - moving.signal) > 0.1 * moving.signal)
+    speed.clear()   # still: both read exactly as a still reading
+    a, b = tracking.measure(0.2, key=(5, 1)), plain.measure(0.2, key=(5, 1))
+    assert not a.extra["moving"]
+    np.testing.assert_array_equal(a.signal, b.signal)
