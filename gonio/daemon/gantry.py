@@ -60,11 +60,14 @@ class GantryOwner:
         The daemon's gantry.
     pace : float
         Real seconds per gantry second of a simulated gantry.
+    clock : Clock, optional
+        Time source of a gantry with real devices (default: the wall clock).
     """
 
-    def __init__(self, cfg: GonioConfig, pace: float = 0.0):
+    def __init__(self, cfg: GonioConfig, pace: float = 0.0, *, clock=None):
         self.cfg = cfg
         self.pace = pace
+        self.clock = clock
         self._gantry = None
         self._lock = threading.Lock()        # held while the idle gantry moves or is closed
         self._build = threading.Lock()       # held while it is wired and connected
@@ -82,7 +85,7 @@ class GantryOwner:
             sim = self.cfg.drivers() == {"sim"}
             material = f"lambert:albedo={self.cfg.reference.albedo!r}" if self.cfg.detector.driver == "sim" \
                 else None
-            g = build_gantry(self.cfg, material, clock=PacedClock(0.0, self.pace) if sim else None)
+            g = build_gantry(self.cfg, material, clock=PacedClock(0.0, self.pace) if sim else self.clock)
             g.connect()
             self._gantry = g
         return self._gantry

@@ -69,11 +69,14 @@ class CampaignQueue:
         Campaigns that were running when the daemon stopped are held paused instead of resumed.
     before_run : callable, optional
         Called by the worker before it connects a campaign's gantry (the daemon releases its idle one).
+    clock : Clock, optional
+        Time source of a gantry with real devices (default: the wall clock; tests pass the emulators').
     """
 
     def __init__(self, data: Path, cfg: GonioConfig, *, pace: float = 0.0, hold: bool = False,
-                 before_run=None):
+                 before_run=None, clock=None):
         self.data = Path(data)
+        self.clock = clock
         self.root = self.data / "campaigns"
         self.cfg = cfg
         self.pace = pace
@@ -151,15 +154,20 @@ class CampaignQueue:
             rec.intent = "run"
             rec.save()
             self._cond.notify_all()
-        log.info("campaign %s submitted: %s, grid %s, %d steps", rec.id, spec or req.get("sample"),
-                 plan.grid, len(plan.step_kind))
+        log.info("campaign %s submitted: %s, grid %s", rec.id, spec or req.get("sample"), req["grid"])
         return rec
 
     def _create_journal(self, rec: Record, *, spec=None, cfg=None, plan=None) -> None:
         if cfg is None:
             spec, cfg, plan = validate_request(self.cfg, rec.request)
-        c = create_campaign(rec.folder, cfg, grid=rec.request["grid"], material=spec,
-                            seed=int(rec.request.get("seed", 0)), plan=plan, sample=rec.request.get("sample"))
+        args = dict(grid=rec.request["grid"], material=spec, seed=int(rec.request.get("seed", 0)),
+                    sample=rec.request.get("sample"))
+        if isinstance(plan, tuple):   # order=fly: one unit per sweep (gonio.fly.hardware)
+            from gonio.fly.campaign import create_fly_campaign
+
+            c = create_fly_campaign(rec.folder, cfg, plans=plan, **args)
+        else:
+            c = create_campaign(rec.folder, cfg, plan=plan, **args)
         c.close()
 
     # -- reading ---------------------------------------------------------------------------------
@@ -423,7 +431,8 @@ class CampaignQueue:
         try:
             meta = c.meta
             state = gantry_state(c)
-            clock = PacedClock(state[1] if state else 0.0, self.pace) if c.cfg.drivers() == {"sim"} else None
+            clock = (PacedClock(state[1] if state else 0.0, self.pace) if c.cfg.drivers() == {"sim"}
+                     else self.clock)
             gantry = build_gantry(c.cfg, meta.get("material"), seed=meta["seed"], state=state, clock=clock)
             with self._cond:
                 self.gantry = gantry

@@ -89,7 +89,8 @@ def _with_detector(cfg: GonioConfig, detector: dict | None) -> GonioConfig:
 
 
 def validate_request(cfg: GonioConfig, req: dict):
-    """Check a campaign request against the daemon's gantry; (material spec or None, cfg, plan).
+    """Check a campaign request against the daemon's gantry; (material spec or None, cfg, plan), the
+    plan a (stop-and-go plan, fly plan) pair for ``order=fly``.
 
     Raises :class:`FieldError` naming the field at fault. Material specs that name a file (``merl:``)
     are refused: no request may name a path on the daemon's machine.
@@ -120,17 +121,42 @@ def validate_request(cfg: GonioConfig, req: dict):
             raise FieldError("sample", f"required on gantry '{cfg.name}' (a real detector): the name of the "
                              "sample measured")
     try:
-        parse_grid(req["grid"])
+        fly = parse_grid(req["grid"]).order == "fly"
     except ValueError as err:
         raise FieldError("grid", str(err)) from None
     cfg = _with_detector(cfg, req.get("detector"))
+    if fly:
+        return spec, cfg, _fly_plans(cfg, req["grid"])
     try:
         plan = build_plan(req["grid"], cfg)
     except ValueError as err:
         raise FieldError("grid", str(err)) from None
-    steps = len(plan.step_kind)
+    _check_steps(cfg, plan, len(plan.step_kind))
+    return spec, cfg, plan
+
+
+def _fly_plans(cfg: GonioConfig, grid: str):
+    """A request with ``order=fly``: (plan, fly plan) for a gantry that can fly it (its sweeping axes
+    Dynamixel servos, its detector read on request: :func:`gonio.fly.hardware.check_fly_gantry`)."""
+    from gonio.fly.campaign import fly_plans
+    from gonio.fly.hardware import check_fly_gantry
+    from gonio.plan.fly import fly_step_table
+
+    if cfg.drivers() == {"sim"}:
+        raise FieldError("grid", f"order=fly on the simulated gantry '{cfg.name}': the daemon flies "
+                         "configured gantries (Dynamixel sweeping axes); simulate a fly campaign with "
+                         "'gonio simulate MATERIAL --grid GRID,order=fly --out DIR'")
+    try:
+        plan, fp = fly_plans(grid, cfg)
+        check_fly_gantry(cfg, fp)
+    except ValueError as err:
+        raise FieldError("grid", str(err)) from None
+    _check_steps(cfg, plan, len(fly_step_table(fp)[0]))
+    return plan, fp
+
+
+def _check_steps(cfg: GonioConfig, plan, steps: int) -> None:
     if steps > MAX_STEPS:
         raise FieldError("grid", f"{steps} steps; the daemon accepts at most {MAX_STEPS} per campaign")
     if steps == 0:
         raise FieldError("grid", f"no pose of {plan.grid} can be measured on gantry '{cfg.name}'")
-    return spec, cfg, plan

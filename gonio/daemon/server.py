@@ -66,12 +66,13 @@ def _lock_data(data: Path) -> int:
 
 
 def build_daemon(cfg: GonioConfig, data: Path, *, token: str | None = None, pace: float = 0.0,
-                 hold: bool = False, max_streams: int = 16) -> Daemon:
-    """The daemon's parts (queue not started yet)."""
+                 hold: bool = False, max_streams: int = 16, clock=None) -> Daemon:
+    """The daemon's parts (queue not started yet). ``clock``: the time source of a gantry with real
+    devices (default the wall clock; tests of emulated devices pass the emulators' clock)."""
     from gonio.campaign import software_version
 
-    owner = GantryOwner(cfg, pace)
-    queue = CampaignQueue(data, cfg, pace=pace, hold=hold, before_run=owner.release)
+    owner = GantryOwner(cfg, pace, clock=clock)
+    queue = CampaignQueue(data, cfg, pace=pace, hold=hold, before_run=owner.release, clock=clock)
     return Daemon(cfg=cfg, queue=queue, gantry=owner, token=token or None,
                   streams=StreamLimit(max_streams), version=software_version())
 

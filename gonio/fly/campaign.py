@@ -21,13 +21,15 @@ import numpy as np
 
 from gonio.campaign import Campaign, create_campaign, finish_campaign
 from gonio.config import GonioConfig
-from gonio.plan import build_plan, parse_grid
+from gonio.plan import Plan, build_plan, parse_grid
 from gonio.plan.fly import FlyPlan, fly_plan, fly_step_table, fly_steps, fly_summary
 
-__all__ = ["create_fly_campaign", "run_fly_campaign", "fly_plan_of"]
+__all__ = ["create_fly_campaign", "run_fly_campaign", "fly_plan_of", "fly_plans"]
 
 
-def _plans(grid: str, cfg: GonioConfig):
+def fly_plans(grid: str, cfg: GonioConfig) -> tuple[Plan, FlyPlan]:
+    """The stop-and-go plan of ``grid`` (``order=fly``) and its fly plan; ValueError for another order
+    or a grid the planner refuses."""
     spec = parse_grid(grid)
     if spec.order != "fly":
         raise ValueError(f"grid: a fly campaign needs order=fly, got order={spec.order}")
@@ -36,15 +38,17 @@ def _plans(grid: str, cfg: GonioConfig):
 
 
 def create_fly_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material: str | None,
-                        seed: int = 0, write_hook=None, sample: str | None = None) -> Campaign:
+                        seed: int = 0, write_hook=None, sample: str | None = None,
+                        plans: tuple[Plan, FlyPlan] | None = None) -> Campaign:
     """Plan a fly campaign over ``grid`` (``order=fly``) and journal it in ``folder``: read by
     :func:`run_fly_campaign` on the simulated gantry, or by :func:`gonio.campaign.run_campaign` on a
     configured one (``material`` None, ``sample`` the real sample's name).
 
     The journal's meta is the stop-and-go campaign's, with ``estimated_s`` and ``lower_bound_s`` those
-    of the fly plan, ``stop_and_go_estimated_s`` beside them and ``fly`` its summary.
+    of the fly plan, ``stop_and_go_estimated_s`` beside them and ``fly`` its summary. ``plans``: what
+    :func:`fly_plans` gave for this grid and config, when the caller has it already.
     """
-    plan, fp = _plans(grid, cfg)
+    plan, fp = plans if plans is not None else fly_plans(grid, cfg)
     kind, pose = fly_step_table(fp)
     as_flown = dataclasses.replace(plan, step_kind=kind, step_pose=pose, estimated_s=fp.estimated_s,
                                    lower_bound_s=fp.lower_bound_s)
@@ -58,7 +62,7 @@ def create_fly_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, mate
 def fly_plan_of(c: Campaign) -> FlyPlan:
     """The fly plan of a journaled campaign, rebuilt from its grid and config snapshot; a ValueError
     when it does not give the journal's steps (a different gonio planned it)."""
-    _, fp = _plans(c.meta["grid"], c.cfg)
+    _, fp = fly_plans(c.meta["grid"], c.cfg)
     kind, pose = fly_step_table(fp)
     steps = c.journal.steps()
     if not (np.array_equal(kind, steps["kind"]) and np.array_equal(pose, steps["pose"])):
