@@ -7,7 +7,7 @@ printed, never asserted: they depend on the machine and its load.
     .venv/bin/python tools/bench_plan.py --quick    # skip iso:step=1 and the 20,000-pose tour
     .venv/bin/python tools/bench_plan.py --transit  # iso:step=1 and the swept-path check alone
     .venv/bin/python tools/bench_plan.py --bounds   # valid bound, reference share, gap to the exact optimum
-    .venv/bin/python tools/bench_plan.py --orders   # serpentine vs tour (with and without kicks) vs auto
+    .venv/bin/python tools/bench_plan.py --orders   # serpentine vs tours (kicks, seeds) vs auto; bounds
 
 Figures:
 
@@ -262,14 +262,22 @@ def exact_rows(seed: int, subsets: int = 200) -> None:
 
 def order_rows() -> None:
     """Estimate / valid bound per order on the coarse grids, where the serpentine's row ends cost most:
-    the serpentine, the tour without kicks (2-opt/Or-opt alone: the baseline), the tour with them
-    (shipped), and what ``order=auto`` keeps; planning seconds of each."""
+    the serpentine, the tour without kicks (2-opt/Or-opt alone), the tour with them, both on the seeded
+    branch sets (shipped), the kicked tour on the branches nearest home (the way before the seeds: the
+    baseline), and what ``order=auto`` keeps; then auto's estimate over the bound without the Held-Karp
+    Lagrangian (forest and degree bounds only: the bound before); planning seconds of each."""
+    import gonio.motion.relaxed as relaxed
     import gonio.plan.build as build
 
-    print("| gantry | grid | poses | serpentine | tour, no kicks | tour, kicked | auto keeps | "
-          "planning s (serp. / no kicks / kicked / auto) |")
-    print("|---|---|---:|---:|---:|---:|---|---|")
-    kicks = build.TOUR_KICKS_PER_POSE
+    print("| gantry | grid | poses | serpentine | tour, no kicks | tour, kicked "
+          "| kicked, nearest home (before) | auto keeps | auto / bound without Lagrangian (before) "
+          "| planning s (serp. / no kicks / kicked / auto) |")
+    print("|---|---|---:|---:|---:|---:|---:|---|---:|---|")
+    kicks, seeds = build.TOUR_KICKS_PER_POSE, build._tour_seeds
+
+    def nearest_home(kin, angles, _seeds, metric):
+        return seeds(kin, angles, np.asarray(kin.home_deg, float)[None], metric)
+
     for name in ("sim.toml", "sample-stage.toml"):
         cfg = load_config(CONFIG_DIR / name)
         kin = make_kinematics(cfg)
@@ -282,9 +290,21 @@ def order_rows() -> None:
                 secs.append(time.perf_counter() - t0)
                 ratios.append(plan.estimated_s / plan.lower_bound_s)
             build.TOUR_KICKS_PER_POSE = kicks
+            build._tour_seeds = nearest_home
+            try:
+                before = build.build_plan(f"{grid},order=tour", cfg, kin)
+            finally:
+                build._tour_seeds = seeds
+            steps, relaxed.LAGRANGE_STEPS = relaxed.LAGRANGE_STEPS, 0
+            try:
+                loose = build.build_plan(f"{grid},order=serpentine", cfg, kin).lower_bound_s
+            finally:
+                relaxed.LAGRANGE_STEPS = steps
             print(f"| {name.removesuffix('.toml')} | `{grid}` | {plan.theta_i.size:,} | "
-                  + " | ".join(f"{r:.3f}" for r in ratios[:3]) + f" | {plan.order} ({ratios[3]:.3f}) | "
-                  + " / ".join(f"{t:.1f}" for t in secs) + " |", flush=True)
+                  + " | ".join(f"{r:.3f}" for r in ratios[:3])
+                  + f" | {before.estimated_s / plan.lower_bound_s:.3f} | {plan.order} ({ratios[3]:.3f}) | "
+                  + f"{plan.estimated_s / loose:.3f} | " + " / ".join(f"{t:.1f}" for t in secs) + " |",
+                  flush=True)
 
 
 def main() -> None:
@@ -295,7 +315,8 @@ def main() -> None:
                     help="valid vs branch-fixed bound, reference share by count and by time, "
                          "gap to the exact optimum on 200 subsets, iso:step=1 build time")
     ap.add_argument("--orders", action="store_true",
-                    help="estimate / bound of the serpentine, the tour with and without kicks, and auto")
+                    help="estimate / bound of the serpentine, the tours (kicks, seeds), auto; the bound "
+                         "without the Lagrangian")
     ap.add_argument("--transit", action="store_true",
                     help="only the swept-path figures: iso:step=1 build and the single-move check cost")
     args = ap.parse_args()
