@@ -53,6 +53,7 @@ from gonio.motion.order import (
     raster_order,
     serpentine_order,
 )
+from gonio.motion.refine import refine_order
 from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
 from gonio.plan.checkpoints import cut_runs, overdue_runs
 from gonio.plan.grids import GridSpec, class_members, enumerate_grid, parse_grid
@@ -72,6 +73,8 @@ TOUR_KICKS_MAX = 4_000
 #: for plans up to this many poses; above, only the most promising one.
 TOUR_SEED_TRIALS = 2
 TOUR_SEED_TRIALS_MAX_POSES = 2_000
+#: Tours of at most this many poses are refined with every move priced after the branch choice.
+TOUR_REFINE_MAX_POSES = 24
 #: Largest plan whose valid bound uses every pose (``iso:step=2``, 142,879 poses, takes ~4 s of it);
 #: above it an evenly spread subset of this many (the moves through a subset are no longer than
 #: through all: still a bound, a weaker one).
@@ -231,10 +234,7 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None, *, _tour_seed: int | None 
             bound = plans[0].timing["lower_bound"]  # the same pose set, whatever the order
             plans += [build_plan(grid, cfg, kin, _tour_seed=i, _bound=bound) for i in range(1, trials)]
             return min(plans, key=lambda p: p.estimated_s)
-        points, neigh = seeds[_tour_seed or 0]
-        perm = nearest_neighbour_tour(points, metric, ref_first, neigh)
-        perm = perturb_tour(points, perm, metric, ref_first, neigh,
-                            kicks=min(TOUR_KICKS_PER_POSE * n, TOUR_KICKS_MAX))
+        perm = _tour_order(kin, angles, *seeds[_tour_seed or 0], ref_first, home, metric)
     elif order == "raster":
         perm = raster_order(loops)
     else:
@@ -437,6 +437,22 @@ def _tour_seeds(kin, angles, seeds, metric: MoveMetric) -> list[tuple[np.ndarray
         ranked.append((float(times[:, :2].sum()), len(ranked), points, neigh))
     ranked.sort(key=lambda r: (r[0], r[1]))
     return [(points, neigh) for _, _, points, neigh in ranked]
+
+
+def _tour_order(kin, angles, points, neighbours, depot, home, metric: MoveMetric) -> np.ndarray:
+    """A tour from and back to ``depot`` through the poses at ``points`` (one branch each: see
+    :func:`_tour_seeds`): nearest neighbour, 2-opt/Or-opt with kicks; then, for at most
+    :data:`TOUR_REFINE_MAX_POSES` poses, the same moves priced after choosing every pose's branch again
+    (:func:`gonio.motion.refine.refine_order`), which on a few poses is affordable and finds what a
+    search on fixed branches cannot (on 8-9-pose sets of the sample stage, 4 % above the exact optimum
+    on average without it)."""
+    n = points.shape[0]
+    perm = nearest_neighbour_tour(points, metric, depot, neighbours)
+    perm = perturb_tour(points, perm, metric, depot, neighbours,
+                        kicks=min(TOUR_KICKS_PER_POSE * n, TOUR_KICKS_MAX))
+    if 2 <= n <= TOUR_REFINE_MAX_POSES:
+        perm, _ = refine_order(_branch_table(kin, angles, home, depot), perm, depot, depot, metric)
+    return perm
 
 
 def _branch_table(kin, angles, home, ref) -> np.ndarray:
