@@ -176,14 +176,27 @@ def test_a_tour_is_ordered_on_the_seeded_branches_that_lie_closest_and_the_quick
     on them alone is clearly slower."""
     import gonio.plan.build as build
 
-    tour = build_plan("iso:step=15,order=tour", cfg)
-    trials = [build_plan("iso:step=15,order=tour", cfg, _tour_seed=i) for i in range(build.TOUR_SEED_TRIALS)]
+    seeds, sets = build._tour_seeds, []
+
+    def counted(*args):
+        out = seeds(*args)
+        sets.append(len(out))
+        return out
+
+    build._tour_seeds = counted
+    try:
+        tour = build_plan("iso:step=15,order=tour", cfg)
+    finally:
+        build._tour_seeds = seeds
+    trials = [build_plan("iso:step=15,order=tour", cfg, _tour_seed=i)
+              for i in range(min(sets[0], build.TOUR_SEED_TRIALS))]
     assert tour.estimated_s == min(p.estimated_s for p in trials)
     assert all(p.lower_bound_s == tour.lower_bound_s for p in trials)
+    # several sets within the margin on the sample stage; on the two-arm gantry the next is 2.3 % apart
+    assert sets[0] >= 2 if cfg.kinematics.design == "sample-stage" else sets[0] == 1
     # The seed trials against ordering on the branches nearest home (the former way).
     kin = make_kinematics(cfg)
     home = np.asarray(kin.home_deg, float)
-    seeds = build._tour_seeds
 
     def home_only(kin, angles, _seeds, metric):
         return seeds(kin, angles, home[None], metric)
