@@ -72,7 +72,7 @@ TOUR_KICKS_MAX = 4_000
 #: Seeded branch sets a tour is ordered on and planned through, the best kept (:func:`_tour_seeds`),
 #: for plans up to this many poses; above, only the most promising one.
 TOUR_SEED_TRIALS = 2
-TOUR_SEED_TRIALS_MAX_POSES = 2_000
+TOUR_SEED_TRIALS_MAX_POSES = 1_500
 #: A seeded set is a candidate only when its poses lie at most this much (relative) less close together
 #: than the closest set's (on the sample stage's iso:step=10 the best two differ by 0.3 %; on the
 #: two-arm gantry the next distinct set is 2.3 % apart and loses).
@@ -430,8 +430,9 @@ def _tour_seeds(kin, angles, seeds, metric: MoveMetric) -> list[tuple[np.ndarray
     ``iso:step=15``), and the order then pays for flips the branch choice can only partly undo. So each
     seed (home and every reference branch reachable from it) picks the branches nearest itself, and
     the sets are ranked by how close together their poses lie (the sum of each pose's two nearest
-    moves, twice the degree bound of a tour through them); seeds giving the same branches count once, and
-    sets more than :data:`TOUR_SEED_MARGIN` less close together than the closest are dropped. The
+    moves, twice the degree bound of a tour through them); sets lying exactly as close together count
+    once, and sets more than :data:`TOUR_SEED_MARGIN` less close together than the closest are dropped.
+    The
     ranking is a good guide, not a sure one: the swept-path check may re-choose branches after
     ordering, so :func:`build_plan` orders the first :data:`TOUR_SEED_TRIALS` of them and keeps the
     quickest plan.
@@ -439,10 +440,13 @@ def _tour_seeds(kin, angles, seeds, metric: MoveMetric) -> list[tuple[np.ndarray
     ranked = []
     for seed in np.unique(np.asarray(seeds, dtype=np.float64), axis=0):
         points = kin.inverse(*angles, current_deg=seed)
-        if any(np.array_equal(points, r[2]) for r in ranked):
-            continue   # the same branches as a seed before
         neigh, times = neighbour_lists(points, metric)
-        ranked.append((float(times[:, :2].sum()), len(ranked), points, neigh))
+        spread = float(times[:, :2].sum())
+        # The same spread as a set before: the same branches but at the poles, where a free azimuth
+        # stands wherever the seed has it (the two-arm gantry's home and reference seeds).
+        if any(abs(spread - r[0]) <= 1e-9 * spread for r in ranked):
+            continue
+        ranked.append((spread, len(ranked), points, neigh))
     ranked.sort(key=lambda r: (r[0], r[1]))
     # Only sets about as close together as the closest are worth planning.
     return [(points, neigh) for spread, _, points, neigh in ranked
