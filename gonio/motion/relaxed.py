@@ -377,8 +377,10 @@ def relaxed_campaign_bound(branches, free, reference_options, home_deg, metric: 
     sorted_ref = np.concatenate([[0.0], np.cumsum(np.sort(to_ref))])
     mst = forest_edges = np.nan
     degree_base = np.nan
+    # The table of pair times, where the Lagrangian uses it: its Prim is the MST as well.
+    pair = pair_time_matrix(pts, metric) if 3 <= q <= LAGRANGE_MAX_POSES else None
     if q >= 2 and float(q) ** 2 * pts.shape[1] ** 2 <= max_pairs:
-        edges = np.sort(branch_mst_edge_times(pts, metric))
+        edges = np.sort(branch_mst_edge_times(pts, metric) if pair is None else pair[_prim(pair)])
         mst = float(edges.sum())
         forest_edges = np.concatenate([[0.0], np.cumsum(edges)])  # forest(R') = forest_edges[q - R']
     if q >= 3:
@@ -387,8 +389,7 @@ def relaxed_campaign_bound(branches, free, reference_options, home_deg, metric: 
         degree_base = 0.5 * float(np.sum(four[:, 0] + four[:, 1]))
     r_lo = max(1, -(-p // int(every))) if p else 0
     lagrange_at = None  # lagrange_at[R' - 1]: the Lagrangian bound for R' runs
-    if 3 <= q <= LAGRANGE_MAX_POSES:
-        pair = pair_time_matrix(pts, metric)
+    if pair is not None:
         target = np.asarray(run_lengths).size if run_lengths is not None and every_s is None else r_lo
         steps = LAGRANGE_STEPS if lagrange_steps is None else int(lagrange_steps)
         pi = lagrangian_penalties(pair, to_ref, min(max(int(target), 1), q), steps)

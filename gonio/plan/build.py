@@ -432,8 +432,7 @@ def _tour_seeds(kin, angles, seeds, metric: MoveMetric) -> list[tuple[np.ndarray
     the sets are ranked by how close together their poses lie (the sum of each pose's two nearest
     moves, twice the degree bound of a tour through them); sets lying exactly as close together count
     once, and sets more than :data:`TOUR_SEED_MARGIN` less close together than the closest are dropped.
-    The
-    ranking is a good guide, not a sure one: the swept-path check may re-choose branches after
+    The ranking is a good guide, not a sure one: the swept-path check may re-choose branches after
     ordering, so :func:`build_plan` orders the first :data:`TOUR_SEED_TRIALS` of them and keeps the
     quickest plan.
     """

@@ -157,14 +157,18 @@ def test_lagrangian_is_below_the_best_walk_at_any_penalties(metric, lengths, rng
             assert float(lagrangian_motion(pair, to_ref, pi, [r])[0]) <= best + 1e-9
 
 
-def test_pair_time_matrix_matches_every_pair(rng):
-    from gonio.motion.relaxed import pair_time_matrix, pair_times
+def test_pair_time_matrix_matches_every_pair_and_its_prim_the_branch_mst(rng):
+    from gonio.motion.relaxed import _prim, branch_mst_edge_times, pair_time_matrix, pair_times
 
     branches = rng.uniform(-180, 180, (230, 5, 4))  # several row blocks
     for metric in (UNIFORM, MIXED):
         want = pair_times(branches, branches, metric)
         np.fill_diagonal(want, np.inf)
-        np.testing.assert_allclose(pair_time_matrix(branches, metric), want, rtol=1e-12, atol=0)
+        table = pair_time_matrix(branches, metric)
+        np.testing.assert_allclose(table, want, rtol=1e-12, atol=0)
+        # The bound takes its MST from the table's Prim where it has the table: the same tree weight.
+        assert table[_prim(table)].sum() == pytest.approx(branch_mst_edge_times(branches, metric).sum(),
+                                                          rel=1e-12)
 
 
 def test_lagrangian_raises_the_sample_stage_bound_where_the_degree_bound_is_loose():
