@@ -53,15 +53,14 @@ def cmd_plan(args) -> int:
     return 0
 
 
-def _check_fly_gantry(args, cfg) -> None:
-    """gonio run with order=fly: the config's sweeping axes must be Dynamixel servos and its detector
-    read on request (:func:`gonio.fly.hardware.check_fly_gantry`); one line naming what cannot."""
-    from gonio.fly.hardware import check_fly_gantry
-    from gonio.plan import build_plan
-    from gonio.plan.fly import fly_plan
+def _checked_fly_plans(args, cfg):
+    """gonio run with order=fly: the plans, once the config's sweeping axes are found to be Dynamixel
+    servos and its detector to read on request (:func:`gonio.fly.hardware.checked_fly_plans`); one
+    line naming what cannot."""
+    from gonio.fly.hardware import checked_fly_plans
 
     try:
-        check_fly_gantry(cfg, fly_plan(build_plan(args.grid, cfg), cfg))
+        return checked_fly_plans(args.grid, cfg)
     except ValueError as err:
         raise UsageError(f"--config: {err}") from None
 
@@ -235,10 +234,11 @@ def cmd_simulate(args) -> int:
 
 
 def _campaign_command(args, cfg, *, material, sample: str | None, model_check: bool, exports=(),
-                      relocate_buses: bool = False, fly: bool = False) -> int:
+                      relocate_buses: bool = False, fly_plans=None) -> int:
     """Create or resume the campaign in ``args.out`` and run it on the gantry ``cfg`` wires (``gonio
     simulate`` and ``gonio run``): progress, signals, latched faults, ``--clear-fault``, brdf.h5.
-    ``fly``: an order=fly campaign (:func:`gonio.fly.create_fly_campaign`), one sweep per unit.
+    ``fly_plans``: an order=fly campaign's plans (:func:`gonio.fly.create_fly_campaign`), one sweep
+    per unit.
 
     ``relocate_buses``: a resumed campaign's devices are reached where ``cfg``'s buses say now (a
     re-plugged adapter, a restarted emulator); every other setting must match the campaign's."""
@@ -269,8 +269,12 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
             return 0
         out(f"resuming the campaign in {folder} at step {c.journal.next_step()}")
     else:
-        if fly:
-            from gonio.fly import create_fly_campaign as create_campaign
+        if fly_plans is not None:
+            from functools import partial
+
+            from gonio.fly import create_fly_campaign
+
+            create_campaign = partial(create_fly_campaign, plans=fly_plans)
         c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
                      sample=sample)
     meta = c.meta
@@ -433,10 +437,9 @@ def cmd_run(args) -> int:
     if cfg.detector.driver == "sim" and material is None:
         raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
                          "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
-    if fly:
-        _check_fly_gantry(args, cfg)
+    plans = _checked_fly_plans(args, cfg) if fly else None
     return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
-                             relocate_buses=True, fly=fly)
+                             relocate_buses=True, fly_plans=plans)
 
 
 def add_parsers(sub, fmt) -> None:

@@ -138,8 +138,7 @@ def validate_request(cfg: GonioConfig, req: dict):
 def _fly_plans(cfg: GonioConfig, grid: str):
     """A request with ``order=fly``: (plan, fly plan) for a gantry that can fly it (its sweeping axes
     Dynamixel servos, its detector read on request: :func:`gonio.fly.hardware.check_fly_gantry`)."""
-    from gonio.fly.campaign import fly_plans
-    from gonio.fly.hardware import check_fly_gantry
+    from gonio.fly.hardware import checked_fly_plans
     from gonio.plan.fly import fly_step_table
 
     if cfg.drivers() == {"sim"}:
@@ -147,8 +146,7 @@ def _fly_plans(cfg: GonioConfig, grid: str):
                          "configured gantries (Dynamixel sweeping axes); simulate a fly campaign with "
                          "'gonio simulate MATERIAL --grid GRID,order=fly --out DIR'")
     try:
-        plan, fp = fly_plans(grid, cfg)
-        check_fly_gantry(cfg, fp)
+        plan, fp = checked_fly_plans(grid, cfg)
     except ValueError as err:
         raise FieldError("grid", str(err)) from None
     _check_steps(cfg, plan, len(fly_step_table(fp)[0]))

@@ -61,7 +61,7 @@ from gonio.plan.schedule import STEP_POSE
 from gonio.runner import Runner, Unit
 from gonio.store import Measurement
 
-__all__ = ["FlySweeper", "fly_units", "check_fly_gantry", "READ_S", "SUBREADS"]
+__all__ = ["FlySweeper", "fly_units", "check_fly_gantry", "checked_fly_plans", "READ_S", "SUBREADS"]
 
 #: Seconds between timestamped axis reads while waiting for a reading's start.
 READ_S = 0.005
@@ -97,6 +97,17 @@ def check_fly_gantry(cfg, fp: FlyPlan) -> None:
     if det.driver == "sim" and det.sim.kind == "camera":
         raise ValueError("detector.sim.kind: 'camera' cannot read while the axes sweep (a frame per "
                          "reading); order=fly needs a photodiode, power meter or spectrometer")
+
+
+def checked_fly_plans(grid: str, cfg):
+    """The plans of ``grid`` (``order=fly``; :func:`gonio.fly.campaign.fly_plans`) for the gantry
+    ``cfg``, once :func:`check_fly_gantry` found that it can fly them; a ValueError naming what cannot
+    (``gonio run`` and the daemon refuse with it before anything is written)."""
+    from gonio.fly.campaign import fly_plans
+
+    plans = fly_plans(grid, cfg)
+    check_fly_gantry(cfg, plans[1])
+    return plans
 
 
 def fly_units(runner: Runner, c) -> list[Unit]:
