@@ -1,15 +1,21 @@
 """Fly campaigns through the daemon: on a configured gantry (the emulated Dynamixel twin, the emulators'
 synced virtual clock) a request with ``order=fly`` is journaled as a fly campaign and flown sweep by
-sweep through the runner, as ``gonio run`` does; where it cannot fly, the request is refused naming the
-grid, and nothing is queued."""
+sweep through the runner, as ``gonio run`` does, with the operator's pause, halt and resume acting
+between (or, a halt, within) sweeps; where it cannot fly, the request is refused naming the grid, and
+nothing is queued."""
 
 from __future__ import annotations
 
-import numpy as np
-from daemon_helpers import wait_state
+import time
 
+import numpy as np
+from daemon_helpers import wait_for, wait_state
+
+from gonio.campaign import open_campaign
 from gonio.config import load_config, parse_config
 from gonio.dataset import read_brdf
+from gonio.fly import fly_plan_of
+from gonio.plan.fly import fly_steps
 from gonio.sim.emulators.gantry import EmulatedGantry
 from gonio.sim.emulators.link import SyncedVirtualClock
 from gonio.store import JOURNAL_NAME, Journal
@@ -58,3 +64,75 @@ def test_a_fly_request_the_gantry_cannot_fly_is_refused_naming_the_grid(serve, t
     for daemon in (d, d2):
         assert daemon.client.get("/campaigns").json()["campaigns"] == []
     assert not list((tmp_path / "modbus" / "campaigns").glob("c*"))
+
+
+class _PacedSyncedClock(SyncedVirtualClock):
+    """The emulators' synced virtual clock, paced (as the daemon paces its simulated gantry): each
+    virtual second takes ``pace`` real seconds, so that an operator's request lands mid-campaign."""
+
+    def __init__(self, pace: float):
+        super().__init__()
+        self.pace = pace
+
+    def sleep(self, seconds: float) -> None:
+        super().sleep(seconds)
+        time.sleep(max(seconds, 0.0) * self.pace)
+
+
+def _units(folder):
+    """Each sweep's and checkpoint's steps (first, count) of the fly campaign in ``folder``, and the
+    steps the journal holds."""
+    c = open_campaign(folder, readonly=True)
+    try:
+        fp, done, total = fly_plan_of(c), set(c.journal.done_steps().tolist()), c.journal.step_count()
+    finally:
+        c.close()
+    units = [(first, 2 if kind == "checkpoint" else fp.lines[k].n) for kind, k, first in fly_steps(fp)]
+    assert sum(n for _, n in units) == total
+    return units, done
+
+
+def test_pause_halt_and_resume_of_a_fly_campaign_through_the_daemon_keep_whole_sweeps(serve, tmp_path):
+    """Pause after the first sweep, resume, halt mid-campaign, resume: the journal only ever holds whole
+    sweeps and checkpoints (a halted sweep is dropped, then read again), and the campaign ends with one
+    reading per step, every pose read on the fly."""
+    clock = _PacedSyncedClock(pace=0.05)
+    twin = load_config("emulated-two-arm-dynamixel")
+    with EmulatedGantry(twin, MATERIAL, clock=clock, any_port=True) as emu:
+        d = serve(cfg=emu.config(), clock=clock)
+        r = d.client.post("/campaigns", json={"grid": "iso:step=30,order=fly", "sample": "gold"})
+        cid = r.json()["id"]
+        folder = tmp_path / "data" / "campaigns" / cid
+
+        def whole():
+            units, done = _units(folder)
+            for first, n in units:
+                got = {s for s in range(first, first + n) if s in done}
+                assert len(got) in (0, n), (first, n, sorted(got))
+            return done
+
+        wait_for(lambda: d.client.get(f"/campaigns/{cid}").json()["steps_done"] >= 1, "a committed sweep")
+        assert d.client.post(f"/campaigns/{cid}/pause").status_code == 200
+        paused = wait_state(d.client, cid, "paused")
+        assert 0 < paused["steps_done"] < paused["steps"]
+        assert len(whole()) == paused["steps_done"]
+        assert d.client.post(f"/campaigns/{cid}/resume").status_code == 200
+        wait_for(lambda: d.client.get(f"/campaigns/{cid}").json()["steps_done"] > paused["steps_done"],
+                 "a sweep after the resume")
+        assert d.client.post("/gantry/halt").status_code == 200
+        halted = wait_state(d.client, cid, "halted")   # 20 steps were left: the halt lands before the end
+        assert paused["steps_done"] < halted["steps_done"] < halted["steps"]
+        whole()
+        assert d.client.post(f"/campaigns/{cid}/resume").status_code == 200
+        wait_state(d.client, cid, "done")
+        assert sorted(whole()) == list(range(paused["steps"]))
+        j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+        try:
+            meta, rows, events = j.meta(), j.measurements(), j.events()
+        finally:
+            j.close()
+    assert len(rows) == paused["steps"]   # one reading per step, none twice
+    assert sum(m.frames > 1 for m in rows) == meta["poses"]
+    kinds = [e["kind"] for e in events]
+    assert "pause" in kinds and "park" in kinds
+    assert "halt" in kinds
