@@ -104,28 +104,24 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out, check_mov
         rows = r_starts[active] + step - lo
         cand = sols[rows]
         is_free = free[lo + rows]
-        if is_free.any():
-            # A free pose's candidates depend on the branch before it: column s is reached from column s.
-            f = np.flatnonzero(is_free)
-            here = prev[active[f]].reshape(-1, n_axes)
-            # An invalid branch before has no successor that matters (its cost is inf): any start will do.
-            here = np.where(np.isnan(here).any(axis=1, keepdims=True), ref, here)
-            again = kin.inverse(*(np.repeat(a[lo + rows[f]], width) for a in poses), current_deg=here)
-            elsewhere = kin.free_component(np.nan_to_num(again)) != home_part
-            again[elsewhere] = np.nan
-            cand[f] = again.reshape(f.size, width, n_axes)
-        chosen[rows] = cand
         # times[r, s_prev, s] of every pair of branches of consecutive poses.
         times = _pair_times(prev[active], cand, metric)
-        if is_free.any():
-            # From branch s of the pose before, a free pose can only be where it goes from there.
-            diag = np.full((width, width), np.inf)
-            np.fill_diagonal(diag, 0.0)
-            times[is_free] += diag
         if step == 0:
             times = times[:, :1, :]  # every run starts from the one reference position
         if check_moves:
-            _price_collisions(kin, times, prev[active][:, :times.shape[1]], cand)
+            fixed = np.flatnonzero(~is_free)
+            priced = times[fixed]
+            _price_collisions(kin, priced, prev[active[fixed]][:, :times.shape[1]], cand[fixed])
+            times[fixed] = priced
+        if is_free.any():
+            # A free pose's positions depend on the branch before it: solved again from each one.
+            f = np.flatnonzero(is_free)
+            w_prev = times.shape[1]
+            before = cost[active[f]][:, :w_prev] if step else np.zeros((f.size, 1))
+            cand[f], times[f] = _free_candidates(
+                kin, metric, tuple(a[lo + rows[f]] for a in poses), prev[active[f]][:, :w_prev], before,
+                width, home_part, ref, check_moves)
+        chosen[rows] = cand
         if step == 0:
             total = times[:, 0, :]
             back[rows] = 0
@@ -155,6 +151,48 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out, check_mov
         rows = r_starts[active] + step - lo
         out[lo + rows] = chosen[rows, state[active]]
         state[active] = back[rows, state[active]]
+
+
+def _free_candidates(kin, metric, poses, prev, before, width, home_part, ref, check_moves):
+    """Candidates (F, W, n) and move times (F, W', W) of F poses whose azimuth is free.
+
+    Where a free arm goes depends on where it comes from, so every branch is solved again from each
+    branch ``prev`` (F, W', n) of the pose before; each branch keeps the predecessor that reaches it
+    at the least cost (``before`` (F, W') plus the move), and the ``width`` cheapest branches are
+    kept, with a finite time only from that predecessor. Solving only the quickest branch from each
+    predecessor (as :meth:`Kinematics.inverse` would) loses the branches a later pose needs: a light
+    circling a detector at the zenith must flip over its own zenith to keep from pushing the
+    detector's carriage round the ring into its limit.
+    """
+    n_free, w_prev, n_axes = prev.shape
+    here = np.where(np.isnan(prev).any(axis=2, keepdims=True), ref, prev).reshape(-1, n_axes)
+    sols = np.asarray(kin.solutions(*(np.repeat(a, w_prev) for a in poses), current_deg=here),
+                      dtype=np.float64)
+    n_b = sols.shape[1]
+    sols = sols.reshape(n_free, w_prev, n_b, n_axes)
+    elsewhere = kin.free_component(np.nan_to_num(sols).reshape(-1, n_axes)).reshape(sols.shape[:3])
+    sols[elsewhere != home_part] = np.nan
+    times = metric.time(prev[:, :, None, :], sols)
+    times = np.where(np.isnan(times), np.inf, times)
+    if check_moves:
+        b, i, j = np.nonzero(np.isfinite(times))
+        clear, _ = kin.sweep_clearance(prev[b, i], sols[b, i, j])
+        times[b[~clear], i[~clear], j[~clear]] += COLLISION_PENALTY_S
+    through = before[:, :, None] + times
+    via = np.argmin(through, axis=1)                                   # (F, n_b)
+    best = np.take_along_axis(through, via[:, None, :], axis=1)[:, 0]  # (F, n_b)
+    keep = np.argsort(best, axis=1, kind="stable")[:, :width]          # (F, W)
+    src = np.take_along_axis(via, keep, axis=1)
+    rows = np.arange(n_free)[:, None]
+    cand = sols[rows, src, keep]
+    out = np.full((n_free, w_prev, keep.shape[1]), np.inf)
+    out[rows, src, np.arange(keep.shape[1])[None, :]] = times[rows, src, keep]
+    cand[~np.isfinite(np.take_along_axis(best, keep, axis=1))] = np.nan
+    if keep.shape[1] < width:
+        pad = width - keep.shape[1]
+        cand = np.concatenate([cand, np.full((n_free, pad, n_axes), np.nan)], axis=1)
+        out = np.concatenate([out, np.full((n_free, w_prev, pad), np.inf)], axis=2)
+    return cand, out
 
 
 def _price_collisions(kin, times, prev, cand) -> None:
