@@ -17,6 +17,8 @@ from gonio.sim.emulators.tcp_link import TcpLink
 
 WATTS = 1.25e-6
 DARK_W = 2e-9
+#: Reply deadline: long enough for a loaded machine, short enough for the faults that wait it out.
+TIMEOUT_S = 0.4
 #: How a driver reaches an emulator: (link for the emulator, the port string the driver is given).
 TRANSPORTS = {
     "pty": (lambda: None, lambda emu: emu.port),
@@ -67,8 +69,8 @@ def running(emu, dev):
 
 
 def _meter(port, clock, **kw):
-    return SerialPowerMeter("pm", port, "thorlabs-pm100", wavelength_nm=633.0, timeout_s=0.2, clock=clock,
-                            **kw)
+    return SerialPowerMeter("pm", port, "thorlabs-pm100", wavelength_nm=633.0, timeout_s=TIMEOUT_S,
+                            clock=clock, **kw)
 
 
 @pytest.fixture(params=sorted(TRANSPORTS))
@@ -88,7 +90,8 @@ def pm100(clock, transport):
 def source(clock, transport):
     link, port = TRANSPORTS[transport]
     emu = CurrentSourceEmulator(clock=clock, link=link())
-    dev = SerialLightSource("lamp", port(emu), "scpi-current-source", level=1.5, timeout_s=0.2, clock=clock)
+    dev = SerialLightSource("lamp", port(emu), "scpi-current-source", level=1.5, timeout_s=TIMEOUT_S,
+                            clock=clock)
     with running(emu, dev) as both:
         yield both
 
@@ -118,13 +121,14 @@ def test_pm100_lines_on_the_wire_and_a_reading(pm100):
 
 
 def test_silent_setters_are_never_waited_for(clock):
-    """Only queries are read: 16 lines sent, 9 of them queries, 9 reads (a setter waited for would
-    also have timed out: the instrument never answers one)."""
+    """Only queries are read: 16 lines sent, 9 of them queries, 9 reads (a setter waited for would also
+    have timed out: the instrument never answers one)."""
     emu = Pm100Emulator(lambda exposure_s: WATTS, clock=clock)
     rec = Recorder()
     with running(emu, _meter(emu.port, clock, transport_factory=rec)) as (_, dev):
         dev.measure(0.1, frames=2)
-    assert len(rec.writes) == len(emu.commands) == 16
+    assert b"".join(rec.writes).decode().splitlines() == emu.commands and len(emu.commands) == 16
+    assert len(rec.writes) == 9  # setters go out with the query after them, in one write
     assert rec.reads == sum(c.endswith("?") for c in emu.commands) == 9
 
 
@@ -167,12 +171,13 @@ def test_an_empty_reply_line_is_not_a_number(clock):
             dev.measure(0.1)
 
 
+@pytest.mark.parametrize("transport", ["pty", "visa-socket"])  # faults: the two ends of the matrix
 @pytest.mark.parametrize("kind", ["drop", "corrupt", "truncate", "delay"])
 def test_a_bad_reply_is_transient_and_the_next_reading_is_its_own(pm100, kind):
     """Dropped, corrupt, truncated or late (after the time-out) FETC? replies: a transient fault; the
     next reading is the meter's new one, never the late one (the driver re-synchronises on *IDN?)."""
     emu, dev = pm100
-    emu.faults.add(kind, match="FETC?", delay_s=0.6)  # twice the time-out and exposure
+    emu.faults.add(kind, match="FETC?", delay_s=3 * TIMEOUT_S)  # well after the time-out and exposure
     with pytest.raises(InstrumentCommError) as err:
         dev.measure(0.1)
     assert err.value.transient and emu.faults.applied == [(kind, "FETC?")]
@@ -205,6 +210,7 @@ def test_lines_that_come_after_the_flush_are_discarded_until_the_identity(clock)
         assert dev.late_replies == 2
 
 
+@pytest.mark.parametrize("transport", ["pty", "visa-socket"])  # faults: the two ends of the matrix
 @pytest.mark.parametrize("kind, says", [("drop", "-230"), ("corrupt", "-102")])
 def test_a_setter_lost_or_garbled_on_the_wire_is_caught_by_the_error_queue(pm100, kind, says):
     """A lost INIT leaves nothing to fetch (-230, data stale); a garbled one is a syntax error (-102).
@@ -265,6 +271,7 @@ def test_a_current_beyond_the_source_is_its_error(source):
     assert not err.value.transient and emu.current_a == 1.5
 
 
+@pytest.mark.parametrize("transport", ["pty", "visa-socket"])  # faults: the two ends of the matrix
 @pytest.mark.parametrize("kind", ["drop", "corrupt"])
 def test_a_switch_lost_on_the_wire_is_caught_by_the_read_back(source, kind):
     """A silent setter that never arrives gives no error at all: only reading the output back shows it
