@@ -349,7 +349,8 @@ class DetectorConfig(_Strict):
     #: Instrument profile (serial detectors): a shipped profile's name (acknowledging, thorlabs-pm100)
     #: or a path to a TOML profile.
     profile: str = "acknowledging"
-    #: The wavelength (nm) a power meter takes its sensor's responsivity at (profiles that set it).
+    #: The wavelength (nm) a power meter takes its sensor's responsivity at (profiles that set it); None
+    #: leaves the meter's own setting (which a power cycle resets).
     wavelength_nm: float | None = Field(None, ge=100.0, le=20000.0)
     sim: DetectorSimConfig = DetectorSimConfig()
 
@@ -361,11 +362,7 @@ class DetectorConfig(_Strict):
                        {"kind", "profile", "wavelength_nm"})
         if self.driver == "serial":
             profile, meter = _instrument_profile(self.profile, self.kind)
-            uses = "wavelength_nm" in meter.fields
-            if uses and self.wavelength_nm is None:
-                raise ValueError(f"wavelength_nm: profile {profile.source} sets the wavelength the sensor's "
-                                 "responsivity is taken at: give it (nm)")
-            if not uses and self.wavelength_nm is not None:
+            if "wavelength_nm" not in meter.fields and self.wavelength_nm is not None:
                 raise ValueError(f"wavelength_nm: profile {profile.source} sets no wavelength")
         if self.driver == "serial" and self.kind == "power_meter" and len(self.channels) != 1:
             raise ValueError(f"channels: a power meter reads one value, so exactly one channel name, got "

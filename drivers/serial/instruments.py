@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.drivers.serial.line import InstrumentCommError, LineInstrument
+from gonio.drivers.serial.profile import command_fields
 from gonio.protocols import Reading
 
 __all__ = ["SerialLightSource", "SerialPowerMeter", "SerialSpectrometer"]
@@ -107,7 +108,8 @@ class SerialPowerMeter(LineInstrument):
     """A photodiode / power meter as a :class:`gonio.protocols.Detector` with one channel.
 
     Each reading sends the profile's ``configure`` setters (exposure, averaging ``count`` = exposure_s /
-    sample_s, ``wavelength_nm``: a meter power-cycled since the last reading is set up again), then per
+    sample_s, ``wavelength_nm`` where it is given: a meter power-cycled since the last reading is set up
+    again), then per
     frame its ``measure`` commands; the last is the query whose reply is the value. Replies that wait for
     the measurement (``*OPC?`` after ``INIT``, a ``MEAS?``) get the exposure on top of the time-out.
     """
@@ -118,10 +120,7 @@ class SerialPowerMeter(LineInstrument):
     def __init__(self, name: str, port: str, profile=None, *, wavelength_nm: float | None = None, **kwargs):
         super().__init__(name, port, profile, **kwargs)
         self.commands = self.profile.section(self.kind)
-        needs = "wavelength_nm" in self.commands.fields
-        if needs and wavelength_nm is None:
-            raise ValueError(f"detector '{name}': profile {self.profile.source} sets the wavelength: give "
-                             "wavelength_nm")
+        #: None: the configure setters that take it are left out (the meter keeps its own setting).
         self.wavelength_nm = wavelength_nm
 
     def _check(self, exposure_s: float, frames: int) -> None:
@@ -136,7 +135,8 @@ class SerialPowerMeter(LineInstrument):
         count = max(1, round(exposure_s / c.sample_s)) if c.sample_s else 1
         values = {"exposure_s": exposure_s, "count": count, "wavelength_nm": self.wavelength_nm}
         takes = count * c.sample_s if c.sample_s else exposure_s
-        return [cmd.format(**values) for cmd in c.configure], takes
+        given = [cmd for cmd in c.configure if all(values[f] is not None for f in command_fields(cmd))]
+        return [cmd.format(**values) for cmd in given], takes
 
     def _read(self, line: str, wait_s: float) -> np.ndarray:
         return np.array([self.query_number(line, wait_s=wait_s)])

@@ -311,7 +311,7 @@ class LineInstrument:
         p = self.profile
         if p.complete is not None:
             reply = self.query(p.complete, wait_s=wait_s, drain=False)
-            if reply != "1":
+            if parse_number(reply) != 1:
                 raise InstrumentCommError(self.name, f"{p.complete!r} after {'; '.join(commands)!r}: "
                                           f"expected '1', got {reply!r}")
         self._check_errors(commands)

@@ -45,7 +45,8 @@ from importlib import resources
 from pathlib import Path
 
 __all__ = ["InstrumentProfile", "LightCommands", "MeterCommands", "load_profile", "parse_profile", "PROFILES",
-           "DEFAULT_PROFILE", "DEVICE_KINDS", "parse_number", "parse_numbers", "parse_bool", "is_query"]
+           "DEFAULT_PROFILE", "DEVICE_KINDS", "parse_number", "parse_numbers", "parse_bool", "is_query",
+           "command_fields"]
 
 #: Shipped profiles, by name.
 PROFILES = ("acknowledging", "thorlabs-pm100", "scpi-current-source")
@@ -105,7 +106,7 @@ class LightCommands:
     @property
     def level_field(self) -> str | None:
         """``percent`` or ``current_a``: what the level command takes (None: no level command)."""
-        return None if self.level is None else _fields(self.level)[0]
+        return None if self.level is None else command_fields(self.level)[0]
 
 
 @dataclass(frozen=True)
@@ -121,7 +122,7 @@ class MeterCommands:
     @property
     def fields(self) -> set[str]:
         """The placeholders ``configure`` uses (the settings a reading needs)."""
-        return {f for c in self.configure for f in _fields(c)}
+        return {f for c in self.configure for f in command_fields(c)}
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,8 @@ class InstrumentProfile:
         return got
 
 
-def _fields(command: str) -> list[str]:
+def command_fields(command: str) -> list[str]:
+    """The ``{placeholders}`` of a command template."""
     return [f for _, f, _, _ in string.Formatter().parse(command) if f is not None]
 
 
@@ -168,7 +170,7 @@ def _command(where: str, key: str, value, allowed: tuple[str, ...] = (), query: 
     if any(c in value for c in "\r\n"):
         raise _fail(where, key, "must be one line (the terminator is added)")
     try:
-        names = _fields(value)
+        names = command_fields(value)
         value.format(**dict.fromkeys(names, 1))
     except (ValueError, IndexError, KeyError) as err:
         raise _fail(where, key, f"{value!r} is not a valid command template ({err})") from None
@@ -205,7 +207,7 @@ def _light(where: str, data: dict) -> LightCommands:
     level = None
     if "level" in t:
         level = _command(where, "light.level", t["level"], allowed=_LEVEL_FIELDS, query=False)
-        if len(_fields(level)) != 1:
+        if len(command_fields(level)) != 1:
             raise _fail(where, "light.level",
                         f"{level!r} must take exactly one of {{percent}}, {{current_a}}")
     return LightCommands(
@@ -233,7 +235,7 @@ def _meter(where: str, data: dict, kind: str) -> MeterCommands:
     if sample_s is not None and (isinstance(sample_s, bool) or not isinstance(sample_s, int | float)
                                  or not 0 < sample_s <= 60):
         raise _fail(where, f"{kind}.sample_s", f"{sample_s!r} is outside (0, 60] s")
-    uses = {f for c in configure for f in _fields(c)}
+    uses = {f for c in configure for f in command_fields(c)}
     if "count" in uses and sample_s is None:
         raise _fail(where, f"{kind}.sample_s",
                     "missing: {count} (readings averaged) is exposure_s / sample_s")

@@ -120,6 +120,15 @@ def test_pm100_lines_on_the_wire_and_a_reading(pm100):
     assert dev.describe()["identity"] == Pm100Emulator.idn and dev.describe()["profile"] == "thorlabs-pm100"
 
 
+def test_without_a_wavelength_the_meter_keeps_its_own(clock):
+    emu = Pm100Emulator(lambda exposure_s: WATTS, clock=clock)
+    dev = SerialPowerMeter("pm", emu.port, "thorlabs-pm100", timeout_s=TIMEOUT_S, clock=clock)
+    with running(emu, dev):
+        dev.measure(0.03)
+    assert emu.commands[5:] == ["SENS:AVER:COUN 10", "CONF:POW", "INIT", "*OPC?", "SYST:ERR?", "FETC?"]
+    assert emu.measurements == [(635.0, 10, WATTS)]  # the meter's own (reset) wavelength
+
+
 def test_silent_setters_are_never_waited_for(clock):
     """Only queries are read: 16 lines sent, 9 of them queries, 9 reads (a setter waited for would also
     have timed out: the instrument never answers one)."""
