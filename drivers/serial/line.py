@@ -182,7 +182,7 @@ class LineInstrument:
                 self.clock.sleep(delay)
                 delay *= 2
 
-    def _io(self, line: str, fn: Callable[[], str | None]):
+    def _io(self, line: str, fn: Callable[[], str]) -> str:
         """``fn()`` on the open port; a port lost earlier or now is reopened (back-off) and ``fn`` retried
         once."""
         if self._t is None:
@@ -296,14 +296,14 @@ class LineInstrument:
                 if reply != p.ok_reply:
                     raise InstrumentCommError(self.name, f"{c!r}: expected {p.ok_reply!r}, got {reply!r}")
             return
-        self._io(commands[0], lambda: self._send(commands))
+        self._send(commands)
         try:
             self._settle(commands, wait_s)
         except InstrumentError:
             if not idempotent or len(commands) < 2:
                 raise
             for c in commands:  # find the culprit: one at a time, each checked
-                self._io(c, lambda c=c: self._send([c]))
+                self._send([c])
                 self._settle([c], wait_s)
             raise
 
