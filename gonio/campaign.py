@@ -27,12 +27,13 @@ from gonio.calibrate import calibrate
 from gonio.config import GonioConfig, parse_config
 from gonio.dataset import BRDF_NAME, campaign_dataset, write_brdf
 from gonio.plan import STEP_POSE, STEP_REFERENCE, Plan, build_plan, parse_grid
-from gonio.protocols import Gantry
+from gonio.protocols import Describes, Gantry
 from gonio.runner import Runner, State
 from gonio.store import JOURNAL_NAME, Journal, JournalError
 
 __all__ = ["Campaign", "CampaignLock", "create_campaign", "open_campaign", "run_campaign",
-           "software_version", "config_hash", "config_snapshot", "compare_campaign", "LOCK_NAME"]
+           "software_version", "config_hash", "config_snapshot", "compare_campaign", "LOCK_NAME",
+           "journal_instruments"]
 
 LOCK_NAME = "campaign.lock"
 
@@ -257,6 +258,18 @@ def gantry_state(c: Campaign) -> tuple[np.ndarray, float] | None:
     return c.journal.last_known_axes()
 
 
+def journal_instruments(journal, gantry: Gantry) -> None:
+    """What the light and the detector say they are (:class:`gonio.protocols.Describes`: profile, its
+    SHA-256, the identity read at connect), journaled at each run: the meta key ``instruments`` holds
+    the latest, an ``instruments`` event each run's (a meter swapped between two runs shows there)."""
+    described = {d.name: d.describe() for d in (gantry.light, gantry.detector) if isinstance(d, Describes)}
+    if not described:
+        return
+    journal.set_meta("instruments", described)
+    journal.log_event("instruments", message="; ".join(
+        f"{name}: {d.get('profile')} {d.get('identity')!r}" for name, d in described.items()))
+
+
 def run_campaign(c: Campaign, gantry: Gantry,
                  on_step: Callable[[Runner, int], None] | None = None,
                  on_runner: Callable[[Runner], None] | None = None,
@@ -278,6 +291,7 @@ def run_campaign(c: Campaign, gantry: Gantry,
         on_runner(runner)
     gantry.connect()
     try:
+        journal_instruments(c.journal, gantry)
         if clear_fault and runner.state == State.FAULTED:
             runner.clear_fault()
         state = runner.run(units)

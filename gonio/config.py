@@ -78,11 +78,22 @@ class ModbusBusConfig(_Strict):
 
 class SerialBusConfig(_Strict):
     driver: Literal["serial"]
+    #: A serial port or pyserial URL (``/dev/ttyUSB0``, ``socket://host:5025``), or a VISA resource string
+    #: (``ASRL/dev/ttyUSB0::INSTR``, ``TCPIP0::host::5025::SOCKET``), opened through PyVISA.
     port: str = Field(min_length=1)
     baudrate: int = Field(115200, ge=300, le=4_000_000)
     #: Deadline of one reply (s).
     timeout_s: float = Field(1.0, gt=0.0, le=60.0)
-    terminator: str = Field("\n", min_length=1)
+    #: Line terminator; None: the instrument profile's.
+    terminator: str | None = Field(None, min_length=1)
+
+    @model_validator(mode="after")
+    def _check_port(self):
+        from gonio.drivers.serial.transport import check_visa_resource, is_visa_resource
+
+        if is_visa_resource(self.port):
+            check_visa_resource(self.port)
+        return self
 
 
 BusConfig = Annotated[DynamixelBusConfig | ModbusBusConfig | SerialBusConfig, Field(discriminator="driver")]
@@ -181,22 +192,59 @@ class LightSimConfig(_Strict):
     wander_period_s: float = Field(1800.0, gt=0.0, le=86400.0)
 
 
+def _instrument_profile(name: str, kind: str):
+    """The instrument profile ``name`` (shipped name or path), which must describe a ``kind``."""
+    from gonio.drivers.serial.profile import load_profile
+
+    try:
+        profile = load_profile(name)
+        section = profile.section(kind)
+    except ValueError as err:
+        raise ValueError(f"profile: {err}") from None
+    return profile, section
+
+
 class LightConfig(_Strict):
     """The lamp. ``sim``: what a simulated lamp (or the emulator of a real one) emits."""
 
     driver: Literal["sim", "serial"] = "sim"
     bus: str | None = None
-    #: Output level (%) set at connect (serial lamps); None leaves the lamp's own setting.
+    #: Instrument profile (serial lamps): a shipped profile's name (acknowledging, scpi-current-source)
+    #: or a path to a TOML profile (gonio.drivers.serial.profile).
+    profile: str = "acknowledging"
+    #: Output level (%) set at connect and at each switch-on (profiles whose level takes a percentage);
+    #: None leaves the lamp's own setting.
     level_percent: float | None = Field(None, ge=0.0, le=100.0)
+    #: The lamp's current (A), for profiles whose level is a current (a SCPI current source).
+    current_a: float | None = Field(None, gt=0.0, le=100.0)
     #: Longest wait (s) for the lamp's ready flag after it is switched on (serial lamps; 0: no wait).
     warmup_timeout_s: float = Field(0.0, ge=0.0, le=3600.0)
+    #: Wait (s) after each switch for the lamp to reach its level or go dark (serial lamps).
+    settle_s: float = Field(0.0, ge=0.0, le=600.0)
     sim: LightSimConfig = LightSimConfig()
 
     @model_validator(mode="after")
     def _check(self):
         _check_bus_use("light", self.driver, self.bus, _changed(self),
-                       {"level_percent", "warmup_timeout_s"})
+                       {"profile", "level_percent", "current_a", "warmup_timeout_s", "settle_s"})
+        if self.driver != "serial":
+            return self
+        profile, light = _instrument_profile(self.profile, "light")
+        unit = light.level_field
+        for key, takes in (("level_percent", "percent"), ("current_a", "current_a")):
+            if getattr(self, key) is not None and unit != takes:
+                what = {"percent": "a percentage (level_percent)", "current_a": "a current (current_a)",
+                        None: "nothing (no level command)"}[unit]
+                raise ValueError(f"{key}: profile {profile.source} sets the lamp's level as {what}")
+        if self.warmup_timeout_s > 0 and light.ready is None:
+            raise ValueError(f"warmup_timeout_s: profile {profile.source} has no ready query to wait for "
+                             "(leave it 0; settle_s waits a fixed time)")
         return self
+
+    @property
+    def level(self) -> float | None:
+        """The level a serial lamp is set to, in its profile's unit (% or A), or None."""
+        return self.level_percent if self.level_percent is not None else self.current_a
 
 
 # -- detector -----------------------------------------------------------------------------------------
@@ -298,13 +346,24 @@ class DetectorConfig(_Strict):
     bus: str | None = None
     #: What a serial detector is: one value per frame, or one per wavelength band.
     kind: Literal["power_meter", "spectrometer"] = "power_meter"
+    #: Instrument profile (serial detectors): a shipped profile's name (acknowledging, thorlabs-pm100)
+    #: or a path to a TOML profile.
+    profile: str = "acknowledging"
+    #: The wavelength (nm) a power meter takes its sensor's responsivity at (profiles that set it); None
+    #: leaves the meter's own setting (which a power cycle resets).
+    wavelength_nm: float | None = Field(None, ge=100.0, le=20000.0)
     sim: DetectorSimConfig = DetectorSimConfig()
 
     @model_validator(mode="after")
     def _check(self):
         if not self.channels or len(set(self.channels)) != len(self.channels):
             raise ValueError(f"channels: must be distinct names, at least one, got {list(self.channels)}")
-        _check_bus_use("detector", self.driver, self.bus, _changed(self), {"kind"})
+        _check_bus_use("detector", self.driver, self.bus, _changed(self),
+                       {"kind", "profile", "wavelength_nm"})
+        if self.driver == "serial":
+            profile, meter = _instrument_profile(self.profile, self.kind)
+            if "wavelength_nm" not in meter.fields and self.wavelength_nm is not None:
+                raise ValueError(f"wavelength_nm: profile {profile.source} sets no wavelength")
         if self.driver == "serial" and self.kind == "power_meter" and len(self.channels) != 1:
             raise ValueError(f"channels: a power meter reads one value, so exactly one channel name, got "
                              f"{list(self.channels)}")

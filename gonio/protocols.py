@@ -88,6 +88,14 @@ class Detector(Protocol):
 
 
 @runtime_checkable
+class Describes(Protocol):
+    """A device that says what it is (an instrument: its profile and the identity it reported at
+    connect), for the campaign's journal."""
+
+    def describe(self) -> dict: ...
+
+
+@runtime_checkable
 class Gantry(Protocol):
     """Kinematics + axes + light + detector + clock, wired from a config."""
 

@@ -376,6 +376,7 @@ class Runner:
                     g.set_target("sample")
             else:
                 reading = g.detector.measure(det.exposure_s, det.frames, key=key)
+            self._check_lit(step)
         actual = self._positions()
         ti, pi_, to, po = self._kin.forward(actual[None, :])
         angles = np.degrees([ti[0], pi_[0], to[0], po[0]])
@@ -384,6 +385,16 @@ class Runner:
             actual_deg=actual, angles_deg=angles, clock_s=g.clock.now(), campaign_s=self.campaign_s(),
             exposure_s=reading.exposure_s, frames=reading.frames, signal=reading.signal,
             stderr=reading.stderr, attempts=attempt, extra=reading.extra)
+
+    def _check_lit(self, step: int) -> None:
+        """A lit reading counts only if the lamp is still on after it: one switched off or power-cycled
+        during the step (a source comes back with its output off) gave a dark reading. The lamp is
+        switched on again and the step measured again (a transient fault: a retry in the journal)."""
+        light = self.gantry.light
+        if not light.is_on():
+            light.set_on(True)
+            raise DeviceFault(light.name, f"output found off after the reading of step {step} (switched off "
+                              "or power-cycled); switched on again", transient=True)
 
     # -- motion ----------------------------------------------------------------------------------
     def _positions(self) -> np.ndarray:

@@ -96,6 +96,10 @@ class _LampView:
         return self._radiance if self._lamp.is_on() else 0.0
 
 
+def _serial_kwargs(bus, clock: Clock) -> dict:
+    return dict(baudrate=bus.baudrate, terminator=bus.terminator, timeout_s=bus.timeout_s, clock=clock)
+
+
 def _light(cfg: GonioConfig, buses: dict, clock: Clock):
     lc = cfg.light
     if lc.driver == "sim":
@@ -105,22 +109,9 @@ def _light(cfg: GonioConfig, buses: dict, clock: Clock):
     from gonio.drivers.serial import SerialLightSource
 
     bus = buses[lc.bus]
-
-    class _Lamp(SerialLightSource):
-        """The configured lamp: output level set at connect, warm-up waited for after switching on."""
-
-        def connect(self) -> None:
-            super().connect()
-            if lc.level_percent is not None:
-                self.set_level(lc.level_percent)
-
-        def set_on(self, on: bool) -> None:
-            super().set_on(on)
-            if on and lc.warmup_timeout_s > 0:
-                self.wait_ready(lc.warmup_timeout_s, poll_s=min(0.5, lc.warmup_timeout_s))
-
-    return _Lamp("light", bus.port, baudrate=bus.baudrate, terminator=bus.terminator, timeout_s=bus.timeout_s,
-                 clock=clock)
+    return SerialLightSource("light", bus.port, lc.profile, level=lc.level,
+                             warmup_timeout_s=lc.warmup_timeout_s, settle_s=lc.settle_s,
+                             **_serial_kwargs(bus, clock))
 
 
 def _serial_detector(cfg: GonioConfig, buses: dict, clock: Clock):
@@ -128,9 +119,9 @@ def _serial_detector(cfg: GonioConfig, buses: dict, clock: Clock):
 
     dc = cfg.detector
     bus = buses[dc.bus]
-    kwargs = dict(baudrate=bus.baudrate, terminator=bus.terminator, timeout_s=bus.timeout_s, clock=clock)
+    kwargs = dict(wavelength_nm=dc.wavelength_nm, **_serial_kwargs(bus, clock))
     if dc.kind == "power_meter":
-        det = SerialPowerMeter("detector", bus.port, **kwargs)
+        det = SerialPowerMeter("detector", bus.port, dc.profile, **kwargs)
         det.channels = tuple(dc.channels)
         return det
 
@@ -147,7 +138,7 @@ def _serial_detector(cfg: GonioConfig, buses: dict, clock: Clock):
                                   "configure the instrument to report one band per channel")
             self.channels = tuple(dc.channels)
 
-    det = _Spectrometer("detector", bus.port, **kwargs)
+    det = _Spectrometer("detector", bus.port, dc.profile, **kwargs)
     det.channels = tuple(dc.channels)
     return det
 

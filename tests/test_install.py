@@ -61,6 +61,8 @@ def test_wheel_installs_gonio_with_its_configs_outside_the_source_tree(installed
     assert "sample-stage" in _run([gonio, "config", "list"], cwd=cwd, env=env).stdout
     assert "lower bound" in _run([gonio, "plan", "--grid", "iso:step=30"], cwd=cwd, env=env).stdout
     _run([gonio, "plan", "--grid", "full:step=60", "--config", "sample-stage"], cwd=cwd, env=env)
+    # a config naming the SCPI instrument profiles: they ship as package data too
+    _run([gonio, "plan", "--grid", "iso:step=60", "--config", "emulated-two-arm-scpi"], cwd=cwd, env=env)
     r = _run([gonio, "simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", "run", "--quiet"],
              cwd=cwd, env=env)
     assert (cwd / "run" / "brdf.h5").is_file() and "median relative error" in r.stderr

@@ -1,4 +1,4 @@
-"""Serial light source and detectors on :class:`LineInstrument`: a lamp (on/off, level, warm-up), a
+"""Line instruments as gonio devices, each speaking its profile: a lamp (on/off, level, warm-up), a
 photodiode/power meter (one value per frame) and a spectrometer (one value per wavelength bin)."""
 
 from __future__ import annotations
@@ -6,31 +6,94 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.drivers.serial.line import InstrumentCommError, LineInstrument
+from gonio.drivers.serial.profile import command_fields
 from gonio.protocols import Reading
 
 __all__ = ["SerialLightSource", "SerialPowerMeter", "SerialSpectrometer"]
 
+#: What a lamp's level command takes: its range and unit.
+_LEVEL_RANGE = {"percent": (0.0, 100.0, "%"), "current_a": (0.0, 100.0, " A")}
+
 
 class SerialLightSource(LineInstrument):
-    """A lamp as a :class:`gonio.protocols.LightSource`; :meth:`wait_ready` polls its warm-up flag."""
+    """A lamp as a :class:`gonio.protocols.LightSource`.
+
+    ``level`` (in the unit the profile's level command takes: % of full output, or A) is set at connect
+    and again each time the output is switched on (a source that was power-cycled comes back at its
+    default). Every switch is read back (``state``): a setter that was lost on the way, or an output
+    that did not follow, is a transient fault, never a dark reading taken as a lit one. Switched on, the
+    lamp waits for its warm-up flag (``warmup_timeout_s``, profiles with a ``ready`` query) and then
+    ``settle_s`` (clock time) for its output to settle; switched off, ``settle_s`` for it to go dark.
+    """
+
+    def __init__(self, name: str, port: str, profile=None, *, level: float | None = None,
+                 warmup_timeout_s: float = 0.0, settle_s: float = 0.0, **kwargs):
+        super().__init__(name, port, profile, **kwargs)
+        self.commands = self.profile.section("light")
+        if level is not None:
+            self._check_level(level)
+        if warmup_timeout_s > 0 and self.commands.ready is None:
+            raise ValueError(f"light '{name}': profile {self.profile.source} has no ready query to wait for "
+                             "a warm-up")
+        if not 0 <= settle_s <= 600:
+            raise ValueError(f"light '{name}': settle_s {settle_s} is outside [0, 600] s")
+        self.level_setting = level
+        self.warmup_timeout_s = float(warmup_timeout_s)
+        self.settle_s = float(settle_s)
+
+    def _check_level(self, value: float) -> str:
+        unit = self.commands.level_field
+        if unit is None:
+            raise ValueError(f"light '{self.name}': profile {self.profile.source} has no level command")
+        lo, hi, u = _LEVEL_RANGE[unit]
+        if not lo <= value <= hi:
+            raise ValueError(f"light '{self.name}': level {value:g}{u} is outside [{lo:g}{u}, {hi:g}{u}]")
+        return unit
+
+    def connect(self) -> None:
+        super().connect()
+        if self.level_setting is not None:
+            self.set_level(self.level_setting)
 
     def set_on(self, on: bool) -> None:
-        self.command(self.commands.output_on if on else self.commands.output_off)
+        c = self.commands
+        if on and self.level_setting is not None:
+            self.set_level(self.level_setting)
+        cmd = c.on if on else c.off
+        self.setters([cmd])
+        state = self.is_on()
+        if state != on:
+            raise InstrumentCommError(self.name, f"{cmd!r}: the output reads {'on' if state else 'off'} "
+                                      f"after it ({c.state!r})")
+        if on and self.warmup_timeout_s > 0:
+            self.wait_ready(self.warmup_timeout_s, poll_s=min(0.5, self.warmup_timeout_s))
+        if self.settle_s > 0:
+            self.clock.sleep(self.settle_s)
 
     def is_on(self) -> bool:
-        return self.query(self.commands.output_query) == "1"
+        return self.query_bool(self.commands.state)
 
-    def set_level(self, percent: float) -> None:
-        """Output level in % of full power, 0..100."""
-        if not 0.0 <= percent <= 100.0:
-            raise ValueError(f"light '{self.name}': level {percent}% is outside [0%, 100%]")
-        self.command(self.commands.level_set.format(percent))
+    def set_level(self, value: float) -> None:
+        """The output level in the profile's unit (% of full output, or A); read back where the profile
+        has a level query (within 0.5 % or 0.001 of the unit: an instrument rounds to its resolution)."""
+        unit = self._check_level(value)
+        self.setters([self.commands.level.format(**{unit: value})])
+        if self.commands.level_query is not None:
+            got = self.level()
+            if abs(got - value) > max(0.005 * abs(value), 1e-3):
+                u = _LEVEL_RANGE[unit][2]
+                raise InstrumentCommError(self.name, f"level set to {value:g}{u} reads back {got:g}{u} "
+                                          f"({self.commands.level_query!r})")
 
     def level(self) -> float:
-        return self.query_float(self.commands.level_query)
+        if self.commands.level_query is None:
+            raise ValueError(f"light '{self.name}': profile {self.profile.source} has no level query")
+        return self.query_number(self.commands.level_query)
 
     def is_ready(self) -> bool:
-        return self.query(self.commands.ready_query) == "1"
+        if self.commands.ready is None:
+            return True
+        return self.query_bool(self.commands.ready)
 
     def wait_ready(self, timeout_s: float, poll_s: float = 0.5) -> None:
         """Poll the ready flag until it rises; InstrumentCommError after ``timeout_s`` (clock time)."""
@@ -42,24 +105,54 @@ class SerialLightSource(LineInstrument):
 
 
 class SerialPowerMeter(LineInstrument):
-    """A photodiode / power meter as a :class:`gonio.protocols.Detector` with one channel."""
+    """A photodiode / power meter as a :class:`gonio.protocols.Detector` with one channel.
 
+    Each reading sends the profile's ``configure`` setters (exposure, averaging ``count`` = exposure_s /
+    sample_s, ``wavelength_nm`` where it is given: a meter power-cycled since the last reading is set up
+    again), then per
+    frame its ``measure`` commands; the last is the query whose reply is the value. Replies that wait for
+    the measurement (``*OPC?`` after ``INIT``, a ``MEAS?``) get the exposure on top of the time-out.
+    """
+
+    kind = "power_meter"
     channels = ("power_w",)
 
-    def _exposure(self, exposure_s: float, frames: int) -> None:
+    def __init__(self, name: str, port: str, profile=None, *, wavelength_nm: float | None = None, **kwargs):
+        super().__init__(name, port, profile, **kwargs)
+        self.commands = self.profile.section(self.kind)
+        #: None: the configure setters that take it are left out (the meter keeps its own setting).
+        self.wavelength_nm = wavelength_nm
+
+    def _check(self, exposure_s: float, frames: int) -> None:
         if not 0 < exposure_s <= 60:
             raise ValueError(f"detector '{self.name}': exposure_s {exposure_s} is outside (0, 60] s")
         if not isinstance(frames, int) or frames < 1:
             raise ValueError(f"detector '{self.name}': frames {frames!r} must be an integer >= 1")
-        self.command(self.commands.exposure_set.format(exposure_s))
 
-    def _frame(self) -> np.ndarray:
-        return np.array([self.query_float(self.commands.measure)])
+    def _configure(self, exposure_s: float) -> tuple[list[str], float]:
+        """The configure setters for ``exposure_s``, and the time one measurement takes."""
+        c = self.commands
+        count = max(1, round(exposure_s / c.sample_s)) if c.sample_s else 1
+        values = {"exposure_s": exposure_s, "count": count, "wavelength_nm": self.wavelength_nm}
+        takes = count * c.sample_s if c.sample_s else exposure_s
+        given = [cmd for cmd in c.configure if all(values[f] is not None for f in command_fields(cmd))]
+        return [cmd.format(**values) for cmd in given], takes
+
+    def _read(self, line: str, wait_s: float) -> np.ndarray:
+        return np.array([self.query_number(line, wait_s=wait_s)])
 
     def measure(self, exposure_s: float, frames: int = 1, *, key=None) -> Reading:
         """Mean and standard error over ``frames`` readings of ``exposure_s`` s each."""
-        self._exposure(exposure_s, frames)
-        data = np.stack([self._frame() for _ in range(frames)])
+        self._check(exposure_s, frames)
+        configure, takes = self._configure(exposure_s)
+        *start, read = self.commands.measure
+        data = []
+        for i in range(frames):
+            group = (configure if i == 0 else []) + start
+            if group:
+                self.setters(group, wait_s=takes)
+            data.append(self._read(read, takes))
+        data = np.stack(data)
         stderr = data.std(axis=0, ddof=1) / np.sqrt(frames) if frames > 1 else np.zeros(data.shape[1])
         extra = {} if key is None else {"key": tuple(key)}
         return Reading(signal=data.mean(axis=0), stderr=stderr, exposure_s=float(exposure_s), frames=frames,
@@ -69,18 +162,20 @@ class SerialPowerMeter(LineInstrument):
 class SerialSpectrometer(SerialPowerMeter):
     """A spectrometer: one channel per wavelength bin, read at :meth:`connect`."""
 
-    def __init__(self, name: str, port: str, **kwargs):
-        super().__init__(name, port, **kwargs)
+    kind = "spectrometer"
+
+    def __init__(self, name: str, port: str, profile=None, **kwargs):
+        super().__init__(name, port, profile, **kwargs)
         self.wavelengths_nm: np.ndarray = np.zeros(0)
         self.channels: tuple[str, ...] = ()
 
     def connect(self) -> None:
         super().connect()
-        self.wavelengths_nm = np.array(self.query_floats(self.commands.wavelengths_query))
+        self.wavelengths_nm = np.array(self.query_numbers(self.commands.wavelengths))
         self.channels = tuple(f"{w:g}nm" for w in self.wavelengths_nm)
 
-    def _frame(self) -> np.ndarray:
-        values = np.array(self.query_floats(self.commands.measure_spectrum))
+    def _read(self, line: str, wait_s: float) -> np.ndarray:
+        values = np.array(self.query_numbers(line, wait_s=wait_s))
         if values.shape != self.wavelengths_nm.shape:
             raise InstrumentCommError(self.name, f"spectrum has {values.size} bins, expected "
                                       f"{self.wavelengths_nm.size}")

@@ -7,10 +7,15 @@ material at the positions the emulated axes stand.
   from the axis's ``family``), each powered up at the axis's home position;
 - ``modbus``: a :class:`ModbusMotorEmulator` following the axis's profile (one controller per bus: TCP
   on the url's loopback port, or RTU over a pty);
-- ``serial``: the lamp's or the detector's emulator. The emulated detector (a power meter, or a
+- ``serial``: the lamp's or the detector's emulator, chosen by the device's instrument profile
+  (:data:`LAMP_EMULATORS`, :data:`METER_EMULATORS`: ``acknowledging``, ``scpi-current-source``,
+  ``thorlabs-pm100``), over a pty, or over loopback TCP where the bus's port is a socket
+  (``socket://127.0.0.1:5025``, ``TCPIP0::127.0.0.1::5025::SOCKET``; a port written as a VISA resource
+  string stays one, so the driver opens it through PyVISA). The emulated detector (a power meter, or a
   spectrometer reporting one band per channel) renders the material through the Dr.Jit simulation
   (:class:`gonio.sim.detector.SimDetector`) at the poses the emulated axes' shafts are at, lit while the
-  emulated lamp is on, and sees the white standard when the target axis stands at ``reference_deg``.
+  emulated lamp is lit (output on; for a current source, a current above zero; off, a power meter reads
+  the rendered dark level), and sees the white standard when the target axis stands at ``reference_deg``.
   While axes move (a fly sweep) a reading integrates over their motion: stratified times through the
   exposure, each axis where its trajectory (the servo's profile as commanded when the reading starts)
   has it then, rendered and averaged (``SimDetector.measure(motion=...)``); a still gantry's reading is
@@ -26,6 +31,7 @@ out for another process.
 from __future__ import annotations
 
 import json
+import re
 import threading
 from urllib.parse import urlparse
 
@@ -36,11 +42,33 @@ from gonio.config import GonioConfig
 from gonio.sim.emulators.dynamixel import DynamixelBusEmulator, EmulatedServo
 from gonio.sim.emulators.instruments import LightSourceEmulator, PowerMeterEmulator, SpectrometerEmulator
 from gonio.sim.emulators.modbus import ModbusMotorEmulator
+from gonio.sim.emulators.scpi import CurrentSourceEmulator, Pm100Emulator
+from gonio.sim.emulators.tcp_link import TcpLink
 
-__all__ = ["EmulatedGantry", "SPECTROMETER_BANDS_NM", "to_toml"]
+__all__ = ["EmulatedGantry", "SPECTROMETER_BANDS_NM", "to_toml", "LAMP_EMULATORS", "METER_EMULATORS",
+           "WATTS_PER_UNIT"]
 
 #: Band centres (nm) the emulated spectrometer reports for the R, G, B of the rendered material.
 SPECTROMETER_BANDS_NM = (610.0, 550.0, 465.0)
+#: The emulated power meter's watts per unit of rendered signal per second of exposure (a PM100 reads W).
+WATTS_PER_UNIT = 1e-6
+#: Instrument profile name -> the emulator of a lamp that speaks it.
+LAMP_EMULATORS = {"acknowledging": LightSourceEmulator, "scpi-current-source": CurrentSourceEmulator}
+#: Instrument profile name -> the emulator of a power meter that speaks it.
+METER_EMULATORS = {"acknowledging": PowerMeterEmulator, "thorlabs-pm100": Pm100Emulator}
+SPECTROMETER_EMULATORS = {"acknowledging": SpectrometerEmulator}
+_LOOPBACK = ("127.0.0.1", "localhost")
+_VISA_SOCKET = re.compile(r"^TCPIP(\d*)::([^:]+)::(\d+)::SOCKET$", re.IGNORECASE)
+_VISA_ASRL = re.compile(r"^ASRL(.+)::INSTR$", re.IGNORECASE)
+
+
+def _socket_address(port: str) -> tuple[str, int, str] | None:
+    """(host, port, form) of a bus port that is a TCP socket (form: "url" or "visa"), else None."""
+    if port.startswith("socket://"):
+        u = urlparse(port)
+        return u.hostname or "", u.port or 0, "url"
+    m = _VISA_SOCKET.match(port)
+    return (m.group(2), int(m.group(3)), "visa") if m else None
 _MODELS = {"XM430": "XM430-W350", "XL430": "XL430-W250"}
 _TICKS_PER_REV = 4096
 
@@ -125,18 +153,41 @@ class EmulatedGantry:
                 self.motors[axes[0]] = emu
                 self.emulators[bus_name] = emu
             elif cfg.light.driver == "serial" and cfg.light.bus == bus_name:
-                self.lamp = LightSourceEmulator(clock=self.clock)
+                make = self._emulator_for("light", cfg.light.profile, LAMP_EMULATORS)
+                self.lamp = make(clock=self.clock, link=self._link(bus_name))
                 self.emulators[bus_name] = self.lamp
             elif cfg.detector.driver == "serial" and cfg.detector.bus == bus_name:
                 if cfg.detector.kind == "power_meter":
-                    self.meter = PowerMeterEmulator(self._power, clock=self.clock)
+                    make = self._emulator_for("detector", cfg.detector.profile, METER_EMULATORS)
+                    signal = self._watts if make is Pm100Emulator else self._power
+                    self.meter = make(signal, clock=self.clock, link=self._link(bus_name))
                 else:
+                    self._emulator_for("detector", cfg.detector.profile, SPECTROMETER_EMULATORS)
                     if len(cfg.detector.channels) != len(SPECTROMETER_BANDS_NM):
                         raise ValueError(f"emulate: the emulated spectrometer reports the rendered R, G, B "
                                          f"as {len(SPECTROMETER_BANDS_NM)} bands; detector.channels names "
                                          f"{len(cfg.detector.channels)}")
-                    self.meter = SpectrometerEmulator(SPECTROMETER_BANDS_NM, self._spectrum, clock=self.clock)
+                    self.meter = SpectrometerEmulator(SPECTROMETER_BANDS_NM, self._spectrum, clock=self.clock,
+                                                      link=self._link(bus_name))
                 self.emulators[bus_name] = self.meter
+
+    @staticmethod
+    def _emulator_for(device: str, profile: str, table: dict):
+        from gonio.drivers.serial.profile import load_profile
+
+        name = load_profile(profile).name
+        if name not in table:
+            raise ValueError(f"emulate: {device}.profile {profile!r} (profile '{name}') has no emulator; "
+                             f"emulated profiles: {', '.join(table)}")
+        return table[name]
+
+    def _link(self, bus_name: str):
+        """A loopback TCP server where the bus's port is a socket, else None (the emulator's own pty)."""
+        where = _socket_address(self.cfg.buses[bus_name].port)
+        if where is None:
+            return None
+        host, port, _ = where
+        return TcpLink(port=0 if self.any_port or host not in _LOOPBACK else port)
 
     def _position_fn(self, name: str):
         a = self.cfg.axes[name]
@@ -206,6 +257,10 @@ class EmulatedGantry:
     def _power(self, exposure_s: float) -> float:
         return float(self._render(exposure_s).mean())
 
+    def _watts(self, exposure_s: float) -> float:
+        """A power meter's reading: power (W), not a count, whatever the averaging time."""
+        return self._power(exposure_s) / exposure_s * WATTS_PER_UNIT
+
     def _spectrum(self, exposure_s: float):
         return list(self._render(exposure_s))
 
@@ -226,13 +281,28 @@ class EmulatedGantry:
                         self._locations[name] = f"rtu://{emu.start_rtu(int(baud))}?baudrate={baud}"
                 else:
                     emu.start()
-                    self._locations[name] = emu.port
+                    self._locations[name] = self._location(name, emu)
                     if hasattr(emu, "drain") and hasattr(self.clock, "attach"):
                         self.clock.attach(emu.drain)  # a SyncedVirtualClock: no time passes mid-packet
         except BaseException:
             self.stop()
             raise
         return self
+
+    def _location(self, bus_name: str, emu) -> str:
+        """Where the driver reaches ``emu``, written as the config wrote the bus's port: a pty path (or
+        ``ASRL<pty>::INSTR``), or the socket in its url or VISA form."""
+        port = self.cfg.buses[bus_name].port
+        where = _socket_address(port)
+        if where is not None:
+            host, _, form = where
+            tcp = emu.link.tcp_port
+            if form == "url":
+                return f"socket://127.0.0.1:{tcp}"
+            return f"TCPIP{_VISA_SOCKET.match(port).group(1)}::127.0.0.1::{tcp}::SOCKET"
+        if _VISA_ASRL.match(port):
+            return f"ASRL{emu.port}::INSTR"
+        return emu.port
 
     def stop(self) -> None:
         """Stop every emulator that was started (each, even if another fails to stop)."""

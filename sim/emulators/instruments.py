@@ -4,7 +4,11 @@ command and per reply. The detector's value comes from a callable (later the Dr.
 
 Faults (:attr:`LineInstrumentEmulator.faults`, matched by the command's header, e.g. ``"MEAS?"``): drop,
 corrupt, truncate (the reply loses its terminator), delay, disconnect; an unknown command or a bad
-argument is answered ``ERR <code>,"<text>"``.
+argument is answered ``ERR <code>,"<text>"``. :meth:`LineInstrumentEmulator.power_off` and
+:meth:`~LineInstrumentEmulator.power_on` cycle the instrument's power: off, it hears nothing (and, with
+``unplug``, its USB port is gone); on again, it is in its power-on state.
+
+The SCPI instruments (silent setters, an error queue) are in :mod:`gonio.sim.emulators.scpi`.
 """
 
 from __future__ import annotations
@@ -23,9 +27,9 @@ class LineInstrumentEmulator(EmulatorThread):
 
     idn = "gonio,emulator,0,1.0"
 
-    def __init__(self, name: str, terminator: bytes = b"\n", clock=None):
+    def __init__(self, name: str, terminator: bytes = b"\n", clock=None, link=None):
         super().__init__(name)
-        self.link = PtyLink(f"tty{name}")
+        self.link = link or PtyLink(f"tty{name}")
         self.terminator = terminator
         self.clock = clock or WallClock()
         self.faults = FaultPlan()
@@ -34,6 +38,8 @@ class LineInstrumentEmulator(EmulatorThread):
         self.lock = threading.Lock()
         self._done = threading.Condition()
         self._buf = b""
+        #: False between :meth:`power_off` and :meth:`power_on`: every byte received is lost.
+        self.powered = True
 
     @property
     def port(self) -> str:
@@ -41,6 +47,28 @@ class LineInstrumentEmulator(EmulatorThread):
 
     def replug(self) -> None:
         self.link.replug()
+
+    def power_off(self, unplug: bool = True) -> None:
+        """Switch the instrument off: it hears nothing until :meth:`power_on`; with ``unplug`` its port
+        goes too (a USB instrument's adapter is powered by it), else the port stays open and silent (an
+        RS-232 cable to an adapter of its own)."""
+        with self.lock:
+            self.powered = False
+            self._buf = b""
+            if unplug:
+                self.link.unplug()
+
+    def power_on(self) -> None:
+        """Switch it on again: its power-on state (:meth:`reset`), the port back if it was gone."""
+        with self.lock:
+            self.reset()
+            self._buf = b""
+            self.powered = True
+            if not self.link.plugged:
+                self.link.replug()
+
+    def reset(self) -> None:
+        """The instrument's power-on state (subclasses)."""
 
     def stop(self, timeout_s: float = 5.0) -> None:
         super().stop(timeout_s)
@@ -50,34 +78,46 @@ class LineInstrumentEmulator(EmulatorThread):
         if not self.link.plugged:
             self._stop.wait(self.poll_s)
             return
-        self._buf += self.link.read(self.poll_s)
+        data = self.link.read(self.poll_s)
+        if not self.powered:
+            return
+        self._buf += data
         while self.terminator in self._buf:
             line, self._buf = self._buf.split(self.terminator, 1)
             text = line.decode("ascii", "replace").strip()
             if not text:
                 continue
-            with self.lock:
-                self.commands.append(text)
-                reply = self.handle(text)
-            if reply is None:
-                continue
-            fault = self.faults.take(text.split()[0].upper())
-            if fault is not None and fault.kind == "disconnect":
-                self.link.unplug()
-                self._buf = b""
+            if not self._serve(text):
                 return
-            data = reply.encode("ascii") + self.terminator
-            if fault is not None and fault.kind == "truncate":
-                data = data[:-len(self.terminator)]  # the reply without its terminator
-            elif fault is not None and fault.kind == "corrupt":
-                data = b"\x8f#" + data[2:]  # line noise: not a number any more
-            elif fault is not None:
-                data = mangle(data, fault)  # drop (None) or delay
-            if data is not None:
-                self.link.write(data)
-            with self._done:
-                self.answered += 1
-                self._done.notify_all()
+
+    def _reply(self, text: str, reply: str, fault) -> bool:
+        """Write ``reply`` with ``fault`` applied; False when the fault unplugged the link."""
+        if fault is not None and fault.kind == "disconnect":
+            self.link.unplug()
+            self._buf = b""
+            return False
+        data = reply.encode("ascii") + self.terminator
+        if fault is not None and fault.kind == "truncate":
+            data = data[:-len(self.terminator)]  # the reply without its terminator
+        elif fault is not None and fault.kind == "corrupt":
+            data = b"\x8f#" + data[2:]  # line noise: not a number any more
+        elif fault is not None:
+            data = mangle(data, fault)  # drop (None) or delay
+        if data is not None:
+            self.link.write(data)
+        with self._done:
+            self.answered += 1
+            self._done.notify_all()
+        return True
+
+    def _serve(self, text: str) -> bool:
+        """Handle one command line; False when the link went (stop reading)."""
+        with self.lock:
+            self.commands.append(text)
+            reply = self.handle(text)
+        if reply is None:
+            return True
+        return self._reply(text, reply, self.faults.take(text.split()[0].upper()))
 
     def wait_answered(self, count: int, timeout_s: float = 2.0) -> bool:
         """Wait until ``count`` commands in all have been answered (delays served, replies written)."""
@@ -97,11 +137,14 @@ class LightSourceEmulator(LineInstrumentEmulator):
 
     idn = "gonio,lamp-emulator,0,1.0"
 
-    def __init__(self, warmup_s: float = 0.0, clock=None):
-        super().__init__("LAMP", clock=clock)
+    def __init__(self, warmup_s: float = 0.0, clock=None, link=None):
+        super().__init__("LAMP", clock=clock, link=link)
+        self.warmup_s = warmup_s
+        self.reset()
+
+    def reset(self) -> None:
         self.on = False
         self.level = 100.0
-        self.warmup_s = warmup_s
         self._on_since = 0.0
 
     def handle(self, line):
@@ -136,9 +179,12 @@ class PowerMeterEmulator(LineInstrumentEmulator):
 
     idn = "gonio,powermeter-emulator,0,1.0"
 
-    def __init__(self, signal: Callable[[float], float], clock=None):
-        super().__init__("PM", clock=clock)
+    def __init__(self, signal: Callable[[float], float], clock=None, link=None):
+        super().__init__("PM", clock=clock, link=link)
         self.signal = signal
+        self.reset()
+
+    def reset(self) -> None:
         self.exposure_s = 0.1
 
     def handle(self, line):
@@ -165,8 +211,8 @@ class SpectrometerEmulator(PowerMeterEmulator):
     idn = "gonio,spectrometer-emulator,0,1.0"
 
     def __init__(self, wavelengths_nm: Sequence[float], signal: Callable[[float], Sequence[float]],
-                 clock=None):
-        super().__init__(signal, clock=clock)
+                 clock=None, link=None):
+        super().__init__(signal, clock=clock, link=link)
         self.wavelengths_nm = [float(w) for w in wavelengths_nm]
 
     def handle(self, line):

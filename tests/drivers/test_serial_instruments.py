@@ -1,5 +1,6 @@
-"""Serial instrument drivers through pyserial against emulated instruments on a pty: commands on the wire,
-readings from the injected signal, and each injected fault."""
+"""Serial instrument drivers in the acknowledging dialect (the default profile: setters answer OK, a
+refusal is an ERR reply) through pyserial against emulated instruments on a pty: commands on the wire,
+readings from the injected signal, and each injected fault. The SCPI profiles: test_scpi_instruments.py."""
 
 from __future__ import annotations
 
@@ -50,10 +51,13 @@ def test_protocols_and_no_io_in_constructor():
 
 def test_lamp_on_level_and_warmup(lamp, clock):
     emu, dev = lamp
+    assert dev.identity == LightSourceEmulator.idn  # read at connect
     dev.set_on(True)
     dev.set_level(42.5)
     assert dev.is_on() and dev.level() == 42.5
-    assert emu.commands[:3] == ["OUTP ON", "SOUR:POW:LEV 42.500", "OUTP?"]
+    # every switch and every level is read back
+    assert emu.commands == ["*IDN?", "OUTP ON", "OUTP?", "SOUR:POW:LEV 42.500", "SOUR:POW:LEV?", "OUTP?",
+                            "SOUR:POW:LEV?"]
     assert not dev.is_ready()
     dev.wait_ready(timeout_s=5.0, poll_s=0.5)
     assert clock.now() == pytest.approx(2.0)
@@ -72,14 +76,17 @@ def test_power_meter_reading(meter):
     r = dev.measure(0.1, frames=3, key=(7, 0))
     assert r.signal.shape == (1,) and r.signal[0] == pytest.approx(2.5e-7)
     assert r.stderr[0] == 0.0 and r.frames == 3 and r.extra == {"key": (7, 0)}
-    assert emu.commands == ["CONF:EXP 0.1", "MEAS?", "MEAS?", "MEAS?"]
+    assert emu.commands == ["*IDN?", "CONF:EXP 0.1", "MEAS?", "MEAS?", "MEAS?"]
 
 
 def test_error_reply_is_a_typed_fault(meter):
     emu, dev = meter
-    with pytest.raises(InstrumentError) as err:
+    with pytest.raises(InstrumentError, match=r"'BOGUS\?' refused: ERR -113") as err:
         dev.query("BOGUS?")
-    assert err.value.code == -113 and not err.value.transient
+    assert err.value.code == -113 and err.value.transient  # a command error: may be line noise
+    with pytest.raises(InstrumentError, match=r"'CONF:EXP 99' refused: ERR -222") as err:
+        dev.setters(["CONF:EXP 99"])
+    assert err.value.code == -222 and not err.value.transient  # refused for good: out of range
 
 
 @pytest.mark.parametrize("kind, message", [("drop", "no reply"), ("truncate", "without its terminator"),
@@ -97,9 +104,20 @@ def test_late_reply_is_flushed(meter):
     emu, dev = meter
     emu.faults.add("delay", match="MEAS?", delay_s=0.3)
     with pytest.raises(InstrumentCommError):
-        dev.query_float("MEAS?")
+        dev.query_number("MEAS?")
     assert emu.wait_answered(len(emu.commands))  # the late reply now sits in the input buffer
     assert dev.identify() == PowerMeterEmulator.idn
+
+
+def test_a_reply_later_than_the_flush_is_discarded_not_taken_for_the_next_answer(meter):
+    """The late reply arrives after the next query's flush (the emulator still holds it back when the
+    driver asks again): the driver re-synchronises on the identity and discards it, counted."""
+    emu, dev = meter
+    emu.faults.add("delay", match="MEAS?", delay_s=0.35)
+    with pytest.raises(InstrumentCommError, match="no reply"):
+        dev.measure(0.1)  # 2.5e-7, late
+    assert dev.measure(0.4).signal[0] == pytest.approx(1e-6)  # its own answer, not the late 2.5e-7
+    assert dev.late_replies == 1
 
 
 def test_disconnect_reconnects_with_backoff(meter):
@@ -116,7 +134,7 @@ def test_spectrometer_bins(clock):
     wl = [400.0, 500.0, 600.0, 700.0]
     emu = SpectrometerEmulator(wl, lambda exposure_s: [exposure_s * k for k in range(1, 5)], clock=clock)
     emu.start()
-    dev = SerialSpectrometer("spec", emu.port, timeout_s=0.2)
+    dev = SerialSpectrometer("spec", emu.port, timeout_s=0.2, clock=clock)
     try:
         dev.connect()
         assert dev.channels == ("400nm", "500nm", "600nm", "700nm")
