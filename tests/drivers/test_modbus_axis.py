@@ -61,7 +61,8 @@ def test_profiles_load_and_validate():
         p = load_profile(name)
         assert set(p.secondary) <= set(p.registers) | {"status bits", "stop", "alarm_reset", "move",
                                                         "word_order", "steps_per_rev", "velocity_unit",
-                                                        "accel_unit", "span_read", "write_read"}
+                                                        "accel_unit", "span_read", "write_read",
+                                                        "origin", "absolute"}
     typo = tomllib.loads(resources.files("gonio.drivers.modbus").joinpath(
         "profiles/leadshine_pr.toml").read_text())
     typo["secondary"] = ["staus"]
@@ -113,6 +114,7 @@ def test_move_waits_for_moving_bit_and_reaches_target(motor, clock):
 ])
 def test_move_request_bytes_per_profile(clock, profile, request_hex):
     emu = ModbusMotorEmulator(profile, clock=clock)
+    emu.assume_referenced()  # the Leadshine drive is incremental: an axis on it moves once referenced
     url = f"rtu://{emu.start_rtu()}?baudrate=115200"
     axis = ModbusAxis("s", make_client(url, timeout_s=0.2, retries=0), profile, limits_deg=(-180.0, 180.0),
                       velocity_deg_s=90.0, accel_deg_s2=180.0, clock=clock)
