@@ -34,7 +34,7 @@ from gonio.protocols import DeviceFault, Referencing
 
 __all__ = ["unreferenced", "refusal", "reference_axes", "references", "journal_references", "STALL_S"]
 
-#: Seconds over which an approach that has not moved counts as stalled against its stop.
+#: Seconds an approach that slowed down must then stand still to count as stalled against its stop.
 STALL_S = 0.3
 
 
@@ -99,7 +99,7 @@ def reference_axes(gantry, cfg, names: list[str] | None = None, *,
         A method failed (no stall within the time the travel needs, a stall away from the stop, a
         controller that does not report the origin set); the axis stays unreferenced.
     """
-    axes = dict(gantry.all_axes)
+    axes = dict(getattr(gantry, "all_axes", gantry.axes))
     todo = _referencing(axes)
     names = list(todo) if names is None else names
     found = {}
@@ -138,24 +138,33 @@ def _hard_stop(gantry, cfg, name: str, out) -> float:
         f"{speed:g}°/s, at most {a.reference_current_a:g} A)"
         + (f", {', '.join(p.name for p in partners)} along" if partners else ""))
     axis.seek_start(toward, speed, accel, a.reference_current_a, travel)
+    partners_stopped = False
     try:
         for p in partners:
             p.follow_start(toward, speed, accel, travel)
         limit = travel / speed + 2.0 * speed / accel + 5.0
         start = clock.now()
-        history: list[tuple[float, float]] = []
+        slowed: tuple[float, float] | None = None  # (clock, position) when the approach slowed down
         while True:
             clock.sleep(rc.poll_s)
             now = clock.now()
             state = axis.seek_state()
             for p in partners:
                 p.seek_state()  # also feeds its watchdog
-            history.append((now, state.position_deg))
-            history = [(t, x) for t, x in history if now - t <= STALL_S + 1e-9]
-            settled = now - start >= speed / accel + STALL_S
-            if settled and history[0][0] <= now - STALL_S + 1e-9 and \
-                    abs(history[-1][1] - history[0][1]) <= 0.05 * speed * STALL_S:
-                break
+            if slowed is None and now - start >= speed / accel and abs(state.velocity_deg_s) < 0.25 * speed:
+                # At the first sign of the stop the followers stop: the carriages' distance changes
+                # by no more than one poll of travel.
+                for p in partners:
+                    p.follow_stop()
+                partners_stopped = True
+                slowed = (now, state.position_deg)
+            if slowed is not None:
+                if abs(state.position_deg - slowed[1]) > max(0.5, 0.25 * speed * STALL_S):
+                    raise DeviceFault(name, f"the approach slowed at {slowed[1]:.2f}° (unreferenced) and "
+                                      "then moved on: no stop there (a tight spot?); nothing is referenced: "
+                                      "check the mechanics and run it again")
+                if now - slowed[0] >= STALL_S:
+                    break
             if now - start > limit:
                 raise DeviceFault(name, f"found no stop within {limit:.0f} s ({travel:.0f}° at "
                                   f"{speed:g}°/s): is reference_deg/reference_direction right?")
@@ -164,8 +173,9 @@ def _hard_stop(gantry, cfg, name: str, out) -> float:
             _quietly(p.follow_stop)
         _quietly(axis.seek_abort)
         raise
-    for p in partners:
-        p.follow_stop()
+    if not partners_stopped:
+        for p in partners:
+            p.follow_stop()
     try:
         return axis.seek_end(a.reference_at_deg)
     except BaseException:

@@ -52,7 +52,8 @@ def _emulated_run(folder, emu, clock, grid: str = GRID, **run):
 def _assert_no_retry_or_fault(folder):
     j = Journal.open(folder / JOURNAL_NAME, readonly=True)
     try:
-        assert not [e for e in j.events() if e["kind"] in ("retry", "fault")]
+        bad = [e for e in j.events() if e["kind"] in ("retry", "fault")]
+        assert not bad, bad
     finally:
         j.close()
 

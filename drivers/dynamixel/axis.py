@@ -72,6 +72,11 @@ _WATCHDOG_UNIT_S = 0.02
 BLOCK_START, BLOCK_LEN = 98, 38
 #: Reads of a position that are tried before one is called implausible (the first and fresh ones).
 READS = 3
+# Realtime Tick(120): the servo's millisecond clock, in every block read; wraps at 32768.
+_TICK, _TICK_WRAP = 120 - BLOCK_START, 32768
+#: A tick is compared with the last accepted one only within this long (s): past half the wrap an
+#: advance and a step back look alike.
+_TICK_TRUST_S = 10.0
 #: While a hardware warning keeps the alert bit up, Hardware Error Status is read again at most this
 #: often (s): a new bit (one Shutdown acts on) is seen within it, without a read per transaction.
 _ALERT_RECHECK_S = 1.0
@@ -197,6 +202,8 @@ class DynamixelAxis:
         # The profile registers hold a sweep's velocity and acceleration, not the campaign's.
         self._profile_dirty = False
         self.model_name: str | None = None
+        self._tick: tuple[int, float] | None = None  # (Realtime Tick, clock) of the last accepted read
+        self._rejection: str | None = None  # why the last read was not trusted
         self.guard = PlausibilityGuard(
             name, self.velocity_deg_s_of(self.profile_velocity),
             self.accel_deg_s2_of(self.profile_acceleration), self.clock,
@@ -335,6 +342,8 @@ class DynamixelAxis:
         self._adopt((correction, int(time.time())))
 
     def _adopt(self, marker: tuple[int, int] | None) -> None:
+        self.guard.reset()
+        self._tick = None
         if not self.needs_reference:
             self._referenced, self.correction_ticks = True, 0
             self.reference_stamp = None if marker is None else marker[1]
@@ -342,7 +351,6 @@ class DynamixelAxis:
         self._referenced = marker is not None
         self.correction_ticks = 0 if marker is None else marker[0]
         self.reference_stamp = None if marker is None else marker[1]
-        self.guard.reset()
 
     def _apply_ram(self) -> None:
         t, b, i = self.table, self.bus, self.dxl_id
@@ -396,23 +404,31 @@ class DynamixelAxis:
             raise self._not_referenced()
 
     def _check_power(self) -> None:
-        """After the servo failed a transaction: a power cycle in between reset its RAM (torque off, no
-        marker). An axis that needs a reference has lost it (a fault, not retried); any other is set
-        up again and the caller's step retried."""
-        if not self.bus.take_troubled(self.dxl_id) or not self._marker_ok or self._readonly:
-            return
-        if self._read_marker() is not None:
-            return
+        """After the servo failed a transaction, before it is given a goal: see :meth:`_power_cycled`."""
+        if self.bus.take_troubled(self.dxl_id):
+            err = self._power_cycled()
+            if err is not None:
+                raise err
+
+    def _power_cycled(self) -> DynamixelError | None:
+        """Whether the servo's RAM was reset since gonio wrote its marker (a power cycle, a reboot: torque
+        off, the count restarted): the fault to raise, else None. An axis that needs a reference has lost
+        it (not transient); any other is set up again (torque, profile, marker) and the caller's step
+        may be retried (transient)."""
+        if not self._marker_ok or self._readonly or self._read_marker() is not None:
+            return None
+        self.guard.reset()
+        self._tick = None
         if self.needs_reference:
             self._referenced = False
-            raise NotReferencedError(
+            return NotReferencedError(
                 self.name, f"servo {self.dxl_id} lost its reference: its RAM was reset (a power cycle or a "
                 "reboot) and its turn count restarted; run `gonio gantry reference`", self.dxl_id)
         self._latch(self._read("hardware_error_status"))
         self._apply_ram()
         self._write_marker(0)
-        raise DynamixelCommError(self.name, f"servo {self.dxl_id} was power-cycled (its RAM was reset: "
-                                 "torque was off); its settings are written again", self.dxl_id)
+        return DynamixelCommError(self.name, f"servo {self.dxl_id} was power-cycled (its RAM was reset: "
+                                  "torque was off); its settings are written again", self.dxl_id)
 
     def reference_index(self, reference_deg: float) -> float:
         """Reference at an index: the axis stands at ``reference_deg`` within half a servo turn (a mark,
@@ -590,6 +606,12 @@ class DynamixelAxis:
         """The latched hardware fault, or None."""
         return self._fault
 
+    def link_stats(self) -> dict:
+        """What the bus threw away and what failed, and the positions found implausible (see the module
+        docstring): ``link`` (the bus), ``discarded``, ``failed`` (by kind), ``implausible``."""
+        return {"link": self.bus.name, "discarded": self.bus.discarded, "failed": dict(self.bus.counts),
+                "implausible": self.guard.rejected}
+
     def warnings(self) -> list[str]:
         """Hardware warnings seen since the last call (the servo went on: see the module docstring)."""
         out, self._warnings = self._warnings, []
@@ -725,42 +747,44 @@ class DynamixelAxis:
             self._profile_dirty = False
 
     def position_deg(self) -> float:
-        """The present position (°), checked against the last good one (see the module docstring)."""
-        first = None
-        for _ in range(READS):
-            t0 = self.clock.now()
-            deg = self._deg(self._read("present_position"))
-            self._check_alert()
-            at = self.clock.now()
-            if self.guard.plausible(deg, at):
-                self.guard.accept(deg, t0)
-                return deg
-            self.guard.rejected += 1
-            first = first or (deg, at)
-        raise self.implausible(*first)
+        """The present position (°) from a block read (Realtime Tick and Present Velocity with it),
+        checked (see :meth:`checked_state`); a fired watchdog raises as :meth:`is_moving` does."""
+        return self.read_state()[0]
 
     def implausible(self, deg: float, at: float) -> DynamixelError:
-        """The fault for a position that stayed implausible over fresh reads: the reference was lost
-        (the servo's RAM was reset), or a transient one (a stale or foreign reply)."""
-        if self.needs_reference and self._marker_ok and self._read_marker() is None:
-            self._referenced = False
-            return NotReferencedError(
-                self.name, f"servo {self.dxl_id} lost its reference: its RAM was reset (a power cycle or a "
-                f"reboot) and the position jumped ({self.guard.describe(deg, at)}); run "
-                "`gonio gantry reference`", self.dxl_id)
-        return DynamixelCommError(self.name, f"servo {self.dxl_id}: implausible position, not used: "
-                                  f"{self.guard.describe(deg, at)}", self.dxl_id)
+        """The fault for a position that could not be trusted over fresh reads: the servo's RAM was
+        reset (see :meth:`_power_cycled`), or a transient one (a stale or foreign reply)."""
+        why = self._rejection or "implausible"
+        err = self._power_cycled()
+        if err is not None:
+            return err
+        return DynamixelCommError(self.name, f"servo {self.dxl_id}: position not used: {why}", self.dxl_id)
 
     def checked_state(self, block: bytes, span: tuple[float, float]) -> AxisState | None:
-        """The state in a block read during ``span`` = (start, end) on the clock if its position is
-        plausible (then accepted), else None. The servo sampled it somewhere in the span: it is checked
-        at the end and kept as of the start, so a reply stamped late (a busy host) cannot make a true
-        position look too far from the last one."""
+        """The state in a block read during ``span`` = (start, end) on the clock if it can be trusted
+        (then accepted), else None:
+
+        - the servo's Realtime Tick(120) in the block must not be behind the last accepted one's: a reply
+          carrying an earlier sample of the same request (late, of the same length) is older than the
+          last good read, however plausible its position (the axis could have come back there);
+        - its position must be within reach of the last good one (:mod:`gonio.drivers.readback`). The
+          servo sampled it somewhere in the span: it is checked at the end and kept as of the start, so a
+          reply stamped late (a busy host) cannot make a true position look too far from the last one."""
         state = self._state(block)
+        tick = int.from_bytes(block[_TICK:_TICK + 2], "little")
+        if self._tick is not None and span[1] - self._tick[1] < _TICK_TRUST_S:
+            behind = (self._tick[0] - tick) % _TICK_WRAP
+            if 0 < behind <= 1000 * _TICK_TRUST_S:
+                self.guard.rejected += 1
+                self._rejection = (f"read {state.position_deg:.3f}° sampled {behind} ms before the last good "
+                                   "read (Realtime Tick): an earlier reply")
+                return None
         if not self.guard.plausible(state.position_deg, span[1]):
             self.guard.rejected += 1
+            self._rejection = self.guard.describe(state.position_deg, span[1])
             return None
         self.guard.accept(state.position_deg, span[0], state.velocity_deg_s)
+        self._tick = (tick, span[0])
         return state
 
     def is_moving(self) -> bool:
@@ -852,6 +876,11 @@ class DynamixelAxis:
         err = self.implausible(*first)
         raise DynamixelCommError(self.name, f"stop: no goal written ({err}); the servo goes on to the goal "
                                  "it had, which was checked before it was given", self.dxl_id)
+
+    def hold(self, goal_ticks: int) -> None:
+        """Write a stop's goal (from :meth:`stop_goal`)."""
+        self._writable("stop")
+        self.bus.write(self.dxl_id, self.table["goal_position"], goal_ticks)
 
     def stop(self) -> None:
         """Hold where the shaft is now: the goal becomes the present position, read fresh and checked

@@ -280,6 +280,11 @@ class ModbusAxis:
     def fault(self) -> str | None:
         return self._fault
 
+    def link_stats(self) -> dict:
+        """Replies discarded (see the module docstring) and positions found implausible."""
+        return {"link": f"{self.name} ({self._where()})", "discarded": self.discarded, "failed": {},
+                "implausible": self.guard.rejected}
+
     def clear_fault(self) -> None:
         """Send the profile's alarm reset; raises ModbusAlarmError if the alarm persists."""
         self._command(self.profile.alarm_reset)
@@ -400,6 +405,18 @@ class ModbusAxis:
 
     def position_deg(self) -> float:
         return self._checked(lambda: (self._deg(self._read_value("actual_position")), None))[0]
+
+    def deg_of_steps(self, steps: int) -> float:
+        """The axis angle (°) of a controller position of ``steps``."""
+        return self._deg(steps)
+
+    def goal_steps(self) -> int:
+        """The controller's target position register (steps)."""
+        return self._read_value("target_position")
+
+    def present_steps(self) -> int:
+        """The controller's actual position (steps, unchecked: for reports)."""
+        return self._read_value("actual_position")
 
     def is_moving(self) -> bool:
         return bool(self._check_status(self._read("status")[0]) >> self.profile.moving_bit & 1)

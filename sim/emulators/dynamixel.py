@@ -64,6 +64,7 @@ class DynamixelBusEmulator(EmulatorThread):
         self.link = link or PtyLink("ttyDXL")
         self.faults = FaultPlan()
         self.deferred = Deferred()
+        self._last: dict[tuple, bytes] = {}  # the last reply to each request, for "stale"
         self.received: list[bytes] = []
         self.handled = 0
         self.lock = threading.RLock()
@@ -100,7 +101,7 @@ class DynamixelBusEmulator(EmulatorThread):
             for packet in self._reader.feed(data):
                 self.received.append(packet.raw)
                 for dxl_id, reply in self._handle(packet):
-                    self._send(dxl_id, packet.inst, reply)
+                    self._send(dxl_id, packet.inst, reply, (dxl_id, packet.inst, packet.params))
                 self.handled += 1
                 self._heard.notify_all()
 
@@ -123,12 +124,15 @@ class DynamixelBusEmulator(EmulatorThread):
                 self._heard.wait(min(left, 0.01))
         return True
 
-    def _send(self, dxl_id: int, inst: int, reply: bytes) -> None:
+    def _send(self, dxl_id: int, inst: int, reply: bytes, key: tuple) -> None:
         fault = self.faults.take(dxl_id, (dxl_id, inst))
         if fault is not None and fault.kind == "disconnect":
             self.link.unplug()
             self._reader = PacketReader()
             return
+        earlier, self._last[key] = self._last.get(key, reply), reply
+        if fault is not None and fault.kind == "stale":
+            reply, fault = earlier, None
         if self.deferred.hold(reply, fault):
             return
         out = mangle(reply, fault)

@@ -26,8 +26,10 @@ __all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "ma
 #: byte, ``truncate`` it to half, ``delay`` it (the emulator waits ``delay_s`` before it goes on),
 #: ``disconnect`` the link, ``duplicate`` it (sent twice), ``late`` (held back and sent just before the
 #: next reply: after its requester timed out, while the next request waits), ``reorder`` (sent right
-#: after the next reply). See :class:`Deferred`.
-FAULT_KINDS = ("drop", "corrupt", "truncate", "delay", "disconnect", "duplicate", "late", "reorder")
+#: after the next reply; see :class:`Deferred`), ``stale`` (instead of the reply, the one sent to the
+#: last identical request: what a late reply of the same length carries, which no pairing by ID,
+#: instruction and length can tell apart).
+FAULT_KINDS = ("drop", "corrupt", "truncate", "delay", "disconnect", "duplicate", "late", "reorder", "stale")
 
 
 class PtyLink:
@@ -189,8 +191,9 @@ def mangle(reply: bytes, fault: Fault | None) -> bytes | None:
     ``late`` and ``reorder`` are scheduled by the emulator (:class:`Deferred`), not here."""
     if fault is None:
         return reply
-    if fault.kind in ("late", "reorder"):
-        raise ValueError(f"fault '{fault.kind}' is scheduled by the emulator (Deferred), not mangled")
+    if fault.kind in ("late", "reorder", "stale"):
+        raise ValueError(f"fault '{fault.kind}' is applied by the emulator (Deferred, its own replies), "
+                         "not mangled")
     if fault.kind == "duplicate":
         return reply + reply
     if fault.kind == "drop":

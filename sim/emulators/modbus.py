@@ -6,7 +6,8 @@ reads see the actual position and the status word (ready, moving, alarm, referen
 instant. The profile's origin operation runs the motor to its home sensor (:attr:`home_steps` of the
 shaft) and sets the position 0 there, and the referenced bit. Faults: :attr:`ModbusMotorEmulator.faults`
 mangles replies (drop, corrupt, truncate, delay, disconnect, duplicate; late: held back and sent just
-before the next reply; reorder: sent right after it; match by function code), :meth:`fail_next` answers
+before the next reply; reorder: sent right after it; stale: the reply to the last identical request
+instead; match by function code), :meth:`fail_next` answers
 the next request with an exception code, :meth:`raise_alarm` trips an alarm (the motor stops, the alarm
 bit and code are set until the profile's alarm reset), :meth:`go_silent` stops answering (a controller
 that hangs), :meth:`power_cycle` cuts and restores its power (an incremental drive loses its position and
@@ -53,6 +54,8 @@ class ModbusMotorEmulator:
         self.device_id = device_id
         self.faults = FaultPlan()
         self.deferred = Deferred()
+        self._last: dict[bytes, bytes] = {}  # the last reply to each request (its PDU), for "stale"
+        self._asked = b""
         self.requests: list[bytes] = []  # raw request frames, for byte-exact tests
         #: Where the home sensor is (steps of the shaft, the frame of :meth:`set_position`).
         self.home_steps = 0.0
@@ -219,6 +222,8 @@ class ModbusMotorEmulator:
     def _trace(self, sending: bool, data: bytes) -> bytes:
         if not sending:
             self.requests.append(bytes(data))
+            # The request's PDU (no TCP transaction header, no RTU CRC): what "stale" replies are kept by.
+            self._asked = bytes(data[7:]) if self.address is not None else bytes(data[1:-2])
             return data
         if self._silent:
             return b""
@@ -227,6 +232,9 @@ class ModbusMotorEmulator:
         if fault is not None and fault.kind == "disconnect":
             self._disconnect()
             return b""
+        earlier, self._last[self._asked] = self._last.get(self._asked, bytes(data)), bytes(data)
+        if fault is not None and fault.kind == "stale":
+            data, fault = earlier, None  # on TCP it keeps its old transaction id
         if self.deferred.hold(bytes(data), fault):
             return b""
         out = mangle(data, fault)
