@@ -72,11 +72,13 @@ _WATCHDOG_UNIT_S = 0.02
 BLOCK_START, BLOCK_LEN = 98, 38
 #: Reads of a position that are tried before one is called implausible (the first and fresh ones).
 READS = 3
-# Realtime Tick(120): the servo's millisecond clock, in every block read; wraps at 32768.
+# Realtime Tick(120): the servo's millisecond clock (from power-up), in every block read; wraps at 32768.
 _TICK, _TICK_WRAP = 120 - BLOCK_START, 32768
 #: A tick is compared with the last accepted one only within this long (s): past half the wrap an
 #: advance and a step back look alike.
 _TICK_TRUST_S = 10.0
+#: How far the servo's clock may disagree with the host's: its 1 ms steps, and crystal drift.
+_TICK_SLACK_MS, _TICK_DRIFT = 3.0, 0.01
 #: While a hardware warning keeps the alert bit up, Hardware Error Status is read again at most this
 #: often (s): a new bit (one Shutdown acts on) is seen within it, without a read per transaction.
 _ALERT_RECHECK_S = 1.0
@@ -202,7 +204,10 @@ class DynamixelAxis:
         # The profile registers hold a sweep's velocity and acceleration, not the campaign's.
         self._profile_dirty = False
         self.model_name: str | None = None
-        self._tick: tuple[int, float] | None = None  # (Realtime Tick, clock) of the last accepted read
+        # (Realtime Tick, start, end on the clock) of the last accepted read; whether the tick runs (a
+        # servo whose tick never moves is held to its positions only).
+        self._tick: tuple[int, float, float] | None = None
+        self._tick_live = False
         self._rejection: str | None = None  # why the last read was not trusted
         self.guard = PlausibilityGuard(
             name, self.velocity_deg_s_of(self.profile_velocity),
@@ -748,13 +753,15 @@ class DynamixelAxis:
 
     def position_deg(self) -> float:
         """The present position (°) from a block read (Realtime Tick and Present Velocity with it),
-        checked (see :meth:`checked_state`); a fired watchdog raises as :meth:`is_moving` does."""
-        return self.read_state()[0]
+        checked (see :meth:`checked_state`)."""
+        return self._trusted_state()[0].position_deg
 
     def implausible(self, deg: float, at: float) -> DynamixelError:
         """The fault for a position that could not be trusted over fresh reads: the servo's RAM was
-        reset (see :meth:`_power_cycled`), or a transient one (a stale or foreign reply)."""
+        reset (see :meth:`_power_cycled`), or a transient one (a stale or foreign reply). The servo's
+        clock is taken afresh at the next read whose position is plausible."""
         why = self._rejection or "implausible"
+        self._tick = None
         err = self._power_cycled()
         if err is not None:
             return err
@@ -773,18 +780,28 @@ class DynamixelAxis:
         state = self._state(block)
         tick = int.from_bytes(block[_TICK:_TICK + 2], "little")
         if self._tick is not None and span[1] - self._tick[1] < _TICK_TRUST_S:
-            behind = (self._tick[0] - tick) % _TICK_WRAP
-            if 0 < behind <= 1000 * _TICK_TRUST_S:
-                self.guard.rejected += 1
-                self._rejection = (f"read {state.position_deg:.3f}° sampled {behind} ms before the last good "
-                                   "read (Realtime Tick): an earlier reply")
-                return None
+            # The servo's clock must have run as long as the host's between the two samples (each taken
+            # somewhere within its read): a reply carrying an earlier sample, or a servo that restarted
+            # (its clock starts at 0 at power-up), is out of step.
+            last, last_t0, last_t1 = self._tick
+            forward = (tick - last) % _TICK_WRAP
+            lo = 1000.0 * (span[0] - last_t1) * (1.0 - _TICK_DRIFT) - _TICK_SLACK_MS
+            hi = 1000.0 * (span[1] - last_t0) * (1.0 + _TICK_DRIFT) + _TICK_SLACK_MS
+            if not lo <= forward <= hi:
+                if self._tick_live:
+                    self.guard.rejected += 1
+                    self._rejection = (f"read {state.position_deg:.3f}° with the servo's Realtime Tick "
+                                       f"{forward} ms on from the last good read, {lo:.0f}..{hi:.0f} ms "
+                                       "by the host: an earlier reply, or the servo restarted")
+                    return None
+            elif forward > 0:
+                self._tick_live = True  # this servo's clock runs: from now on it is held to it
         if not self.guard.plausible(state.position_deg, span[1]):
             self.guard.rejected += 1
             self._rejection = self.guard.describe(state.position_deg, span[1])
             return None
         self.guard.accept(state.position_deg, span[0], state.velocity_deg_s)
-        self._tick = (tick, span[0])
+        self._tick = (tick, span[0], span[1])
         return state
 
     def is_moving(self) -> bool:
@@ -801,7 +818,18 @@ class DynamixelAxis:
         return self.read_state()[1]
 
     def read_state(self) -> tuple[float, bool]:
-        """(position °, moving) from one block read, the position checked (read again if implausible)."""
+        """(position °, moving) from one block read, the position checked (read again if it cannot be
+        trusted); a fired bus watchdog raises (see :meth:`is_moving`)."""
+        state, fired = self._trusted_state()
+        if fired:
+            raise self.watchdog_fired(state)
+        if not state.moving and self._armed:
+            self._disarm()
+        return state.position_deg, state.moving
+
+    def _trusted_state(self) -> tuple[AxisState, bool]:
+        """(state, whether the bus watchdog fired) from a block read whose position can be trusted
+        (:meth:`checked_state`), read again while it cannot; a latched hardware error raises."""
         first = None
         for _ in range(READS):
             t0 = self.clock.now()
@@ -813,11 +841,7 @@ class DynamixelAxis:
             if state is None:
                 first = first or (self._state(block).position_deg, at)
                 continue
-            if block[0] == 0xFF:
-                raise self.watchdog_fired(state)
-            if not state.moving and self._armed:
-                self._disarm()
-            return state.position_deg, state.moving
+            return state, block[0] == 0xFF
         raise self.implausible(*first)
 
     def watchdog_fired(self, state: AxisState) -> DynamixelCommError:

@@ -141,6 +141,7 @@ class EmulatedServo:
         self.temperature_c = 36
         self.voltage_dv = 120
         self._count = 0.0  # Present Position - Homing Offset - true shaft ticks
+        self._booted = self.clock.now()  # Realtime Tick counts from power-up
         self._hold(position_ticks)
         self._power_on_defaults(eeprom=True)
         if operating_mode not in self._spec.modes:
@@ -246,7 +247,7 @@ class EmulatedServo:
         self._watchdog_due(now)
         self._overload_due(now)
         offset = self._get(20, 4, True)
-        self._put(120, 2, int(now * 1000) % 32768)
+        self._put(120, 2, int(round((now - self._booted) * 1000)) % 32768)
         moving = self._moving()
         pushing = self._get(64, 1) and self._pushing(now)
         self._put(122, 1, int(moving))
@@ -321,6 +322,7 @@ class EmulatedServo:
         """Power comes back: RAM at its initial values (hardware errors, watchdog, Indirect Data cleared),
         EEPROM kept, Present Position within one turn of where the shaft is."""
         self.power_cycles += 1
+        self._booted = self.clock.now()
         self._pending = None
         self._stalled_since = None
         self._power_on_defaults(eeprom=False)
@@ -417,6 +419,7 @@ class EmulatedServo:
         """Restart: hardware error cleared, torque off, RAM back to defaults, the count within one turn
         (the shaft where it is)."""
         self.reboots += 1
+        self._booted = self.clock.now()
         self._hold(self._true_f())
         self._pending = None
         self._power_on_defaults(eeprom=False)

@@ -113,6 +113,12 @@ class ModbusMotorEmulator:
                 self._count = -self._shaft()
                 self.referenced = False
 
+    def halt(self) -> None:
+        """Stop the motor where it is, as its stop input or another client would."""
+        with self._lock:
+            self._hold()
+            self._homing = False
+
     def go_silent(self, silent: bool = True) -> None:
         """Stop answering every request (a controller that hangs), or answer again."""
         self._silent = silent
