@@ -164,6 +164,7 @@ class AssembledGantry:
         #: watchdog; None without one.
         self.feed_s: float | None = None
         self._last_read = 0.0
+        self._warners: list | None = None  # the axes that report hardware warnings
 
     @property
     def all_axes(self) -> dict[str, Axis]:
@@ -242,10 +243,11 @@ class AssembledGantry:
     def drain_warnings(self) -> list[tuple[str, str]]:
         """(axis, message) of the hardware warnings the axes saw since the last call: conditions their
         controllers report but do not act on (the axis went on)."""
+        if self._warners is None:  # asked once: a runtime protocol check costs ~15 µs an axis
+            self._warners = [(n, a) for n, a in self.all_axes.items() if isinstance(a, _Warns)]
         out = []
-        for name, axis in self.all_axes.items():
-            if isinstance(axis, _Warns):
-                out += [(name, w) for w in axis.warnings()]
+        for name, axis in self._warners:
+            out += [(name, w) for w in axis.warnings()]
         return out
 
     def link_report(self) -> str | None:

@@ -192,10 +192,24 @@ def _reference(emu, cfg):
         manual.close_axes(axes)
 
 
-def _power_cycle(emu):
-    servo = emu.servos["detector_azimuth"]
+def _power_cycle(emu, name="detector_azimuth"):
+    servo = emu.servos[name]
     servo.power_off()
     servo.power_on()
+
+
+def test_dxl_a_power_cycle_of_a_position_mode_servo_sets_it_up_again_and_retries_the_step(tmp_path):
+    """A tilt servo (position mode: its one turn covers the axis, nothing to reference) comes back with
+    torque off: its lost marker shows the power cycle; its settings are written again and the step
+    retried."""
+    emu, clock = _dxl()
+    with emu:
+        first, _, events, _ = _campaign(tmp_path, emu, clock,
+                                        mid_move=lambda e: _power_cycle(e, "light_tilt"))
+        assert first == State.DONE and not _kinds(events, "fault")
+        (retry,) = _kinds(events, "retry")
+        assert "light_tilt: servo 2 was power-cycled" in retry, retry
+        assert emu.servos["light_tilt"].value(64) == 1
 
 
 def test_dxl_a_power_cycle_mid_campaign_faults_naming_the_lost_reference_and_resumes_once_referenced(
@@ -214,13 +228,22 @@ def test_dxl_a_power_cycle_mid_campaign_faults_naming_the_lost_reference_and_res
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 @pytest.mark.parametrize("kind", ["late", "duplicate", "reorder", "stale", "drop", "truncate"])
 def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp_path, transport, kind):
+    """Two bad replies in a row (pymodbus asks once more by itself, retries = 1): late, out of order,
+    dropped or cut short they make that read fail (the step retried, journaled); duplicated or stale
+    (an earlier answer to the same read, at most a time-out old) they are skipped by transaction id (TCP),
+    or discarded when they are not the request's (RTU), or read as what they are: the axis at rest."""
     emu, clock = _modbus(rtu="tilt" if transport == "rtu" else None)
     with emu:
         motor = emu.motors["sample_tilt"]
         first, _, events, _ = _campaign(tmp_path, emu, clock,
-                                        inject=lambda e: motor.faults.add(kind, match=3))
+                                        inject=lambda e: motor.faults.add(kind, match=3, times=2))
         assert first == State.DONE and not _kinds(events, "fault")
-        assert [k for k, _ in motor.faults.applied] == [kind]
+        assert [k for k, _ in motor.faults.applied] == [kind, kind]
+        retries = _kinds(events, "retry")
+        if kind in ("late", "reorder", "drop", "truncate"):
+            assert len(retries) == 1 and retries[0].startswith(f"step {AT_STEP + 1}, attempt 1: sample_tilt: ")
+        else:
+            assert not retries
 
 
 def test_modbus_a_corrupt_rtu_reply_is_retried(tmp_path):
@@ -230,6 +253,7 @@ def test_modbus_a_corrupt_rtu_reply_is_retried(tmp_path):
         first, _, events, _ = _campaign(tmp_path, emu, clock,
                                         inject=lambda e: motor.faults.add("corrupt", times=2))
         assert first == State.DONE and not _kinds(events, "fault")
+        assert len(_kinds(events, "retry")) == 1
 
 
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])

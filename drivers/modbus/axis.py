@@ -204,8 +204,10 @@ class ModbusAxis:
 
     def _call(self, what: str, fn, expect: tuple[int, int | None] | None = None):
         """``fn()`` (one pymodbus request), with one reconnection; ``expect`` = (function code, register
-        count or None): a reply that is not that (a late or stray frame) is discarded and fails."""
-        last = None
+        count or None): a reply that is not that (a late or stray frame, which pymodbus takes on RTU) is
+        discarded and counted, and the request sent once more (its own reply, come meanwhile, is read
+        and counted first); a second one fails (transient)."""
+        last, stray = None, None
         for attempt in range(2):
             t0 = time.perf_counter()
             self._drain()
@@ -221,28 +223,38 @@ class ModbusAxis:
                 raise ModbusCommError(self.name, f"{what}: {exc}") from exc
             dt = time.perf_counter() - t0
             self.round_trip_s = dt if self.round_trip_s is None else min(self.round_trip_s, dt)
+            stray = self._stray(what, response, expect)
+            if stray is not None:
+                self.discarded += 1
+                continue
             if response.isError():
                 code = int(getattr(response, "exception_code", 4))
-                if expect is not None and response.function_code & 0x7F != expect[0]:
-                    self._stray(what, response, expect)
                 raise ModbusExceptionError(self.name, f"{what}: exception response, code {code}", code)
-            if expect is not None:
-                fc, count = expect
-                regs = getattr(response, "registers", None)
-                wrong_count = count is not None and (regs is None or len(regs) != count)
-                if response.function_code != fc or wrong_count:
-                    self._stray(what, response, expect)
             return response
+        if stray is not None:
+            raise stray
         raise ModbusCommError(self.name, f"{what}: connection lost ({last})")
 
-    def _stray(self, what: str, response, expect) -> None:
-        self.discarded += 1
+    @staticmethod
+    def _stray_of(response, expect) -> bool:
+        if expect is None:
+            return False
+        fc, count = expect
+        if response.isError():
+            return response.function_code & 0x7F != fc
         regs = getattr(response, "registers", None)
-        raise ModbusCommError(self.name, f"{what}: the reply is not this request's (function "
-                              f"{response.function_code}, {'no' if regs is None else len(regs)} registers; "
-                              f"expected function {expect[0]}"
-                              + (f", {expect[1]} registers" if expect[1] is not None else "")
-                              + "): a late or stray frame, discarded")
+        return response.function_code != fc or (count is not None and (regs is None or len(regs) != count))
+
+    def _stray(self, what: str, response, expect) -> ModbusCommError | None:
+        """The fault for a reply that is not this request's (see :meth:`_call`), else None."""
+        if not self._stray_of(response, expect):
+            return None
+        regs = getattr(response, "registers", None)
+        return ModbusCommError(self.name, f"{what}: the reply is not this request's (function "
+                               f"{response.function_code}, {'no' if regs is None else len(regs)} registers; "
+                               f"expected function {expect[0]}"
+                               + (f", {expect[1]} registers" if expect[1] is not None else "")
+                               + "): a late or stray frame, discarded")
 
     def _read(self, name: str) -> list[int]:
         reg = self.profile[name]
