@@ -241,7 +241,8 @@ def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp
         assert [k for k, _ in motor.faults.applied] == [kind, kind]
         retries = _kinds(events, "retry")
         if kind in ("late", "reorder", "drop", "truncate"):
-            assert len(retries) == 1 and retries[0].startswith(f"step {AT_STEP + 1}, attempt 1: sample_tilt: ")
+            assert len(retries) == 1
+            assert retries[0].startswith(f"step {AT_STEP + 1}, attempt 1: sample_tilt: ")
         else:
             assert not retries
 
