@@ -58,9 +58,12 @@ def unreferenced(axes: Mapping) -> list[str]:
 
 def refusal(names: list[str]) -> str:
     """The one line that refuses to move while ``names`` are unreferenced."""
-    what = f"axis '{names[0]}' is" if len(names) == 1 else f"axes {', '.join(repr(n) for n in names)} are"
-    return (f"{what} not referenced (its absolute position is unknown since the controller powered up): "
-            "run `gonio gantry reference --config FILE` first")
+    if len(names) == 1:
+        what, whose = f"axis '{names[0]}' is", "its"
+    else:
+        what, whose = f"axes {', '.join(repr(n) for n in names)} are", "their"
+    return (f"{what} not referenced ({whose} absolute position is unknown since the controller powered "
+            "up): run `gonio gantry reference --config FILE` first")
 
 
 def references(axes: Mapping) -> list[dict]:
@@ -145,19 +148,30 @@ def _hard_stop(gantry, cfg, name: str, out) -> float:
         limit = travel / speed + 2.0 * speed / accel + 5.0
         start = clock.now()
         slowed: tuple[float, float] | None = None  # (clock, position) when the approach slowed down
+        last: tuple[float, float] | None = None
+        v_seen = False
         while True:
             clock.sleep(rc.poll_s)
             now = clock.now()
             state = axis.seek_state()
             for p in partners:
                 p.seek_state()  # also feeds its watchdog
-            if slowed is None and now - start >= speed / accel and abs(state.velocity_deg_s) < 0.25 * speed:
+            # Slowed, once past the acceleration: less than a quarter of the approach's travel since the
+            # last look, or (where the servo reports its velocity: it was seen at speed) its velocity
+            # under a quarter of the approach's, which shows the stop a look earlier.
+            v_seen = v_seen or abs(state.velocity_deg_s) >= 0.5 * speed
+            moved = None if last is None else abs(state.position_deg - last[1])
+            crept = (moved is not None and last[0] - start >= speed / accel
+                     and moved < 0.25 * speed * (now - last[0]))
+            braked = v_seen and now - start >= speed / accel and abs(state.velocity_deg_s) < 0.25 * speed
+            if slowed is None and (crept or braked):
                 # At the first sign of the stop the followers stop: the carriages' distance changes
-                # by no more than one poll of travel.
+                # by no more than one look of travel.
                 for p in partners:
                     p.follow_stop()
                 partners_stopped = True
                 slowed = (now, state.position_deg)
+            last = (now, state.position_deg)
             if slowed is not None:
                 if abs(state.position_deg - slowed[1]) > max(0.5, 0.25 * speed * STALL_S):
                     raise DeviceFault(name, f"the approach slowed at {slowed[1]:.2f}° (unreferenced) and "

@@ -328,8 +328,11 @@ class DynamixelAxis:
         reference a servo that refuses it only loses power-cycle detection."""
         b, i = self.bus, self.dxl_id
         try:
-            pointers = b.read_block(i, INDIRECT_ADDRESS, 2 * MARKER_LEN,
-                                    what="read Indirect Address 17..28")
+            try:
+                pointers = b.read_block(i, INDIRECT_ADDRESS, 2 * MARKER_LEN,
+                                        what="read Indirect Address 17..28")
+            except DynamixelStatusError:
+                pointers = indirect_defaults()  # a servo without readable pointers: plain storage
             if pointers != indirect_defaults():
                 raise DynamixelError(
                     self.name, f"servo {i}: Indirect Address 17..28 do not hold their power-up defaults "
@@ -800,7 +803,9 @@ class DynamixelAxis:
             self.guard.rejected += 1
             self._rejection = self.guard.describe(state.position_deg, span[1])
             return None
-        self.guard.accept(state.position_deg, span[0], state.velocity_deg_s)
+        # Kept without its Present Velocity: the bound must not hang on an item a servo (or an
+        # emulator) may not fill in, and the top speed bounds any travel anyway.
+        self.guard.accept(state.position_deg, span[0])
         self._tick = (tick, span[0], span[1])
         return state
 
