@@ -326,17 +326,20 @@ def test_modbus_a_power_cycle_mid_campaign_stops_the_axis_short_and_resumes_when
         assert all(m.referenced for m in emu.motors.values())
 
 
-def test_dxl_a_halt_at_the_moment_of_a_stale_reply_writes_goals_where_the_servos_truly_are(tmp_path):
-    """The issue's accident: mid-move, the halt's Sync Read brings a stale reply (an earlier sample of the
-    same length) for the detector carriage. Every goal the halt writes is within 5° of where its servo
+@pytest.mark.parametrize("kind", ["stale", "late", "duplicate", "reorder", "truncate"])
+def test_dxl_a_halt_at_the_moment_of_a_bad_reply_writes_goals_where_the_servos_truly_are(tmp_path, kind):
+    """The issue's accident: mid-move, the halt's Sync Read brings a bad reply for a carriage: stale (an
+    earlier sample of the same length), late (the last servo's, after the read gave up: read again),
+    duplicated, out of order, or cut short. Every goal the halt writes is within 5° of where its servo
     truly is (here: within a tick), the carriages stay apart, and the campaign resumes after it."""
     emu, clock = _dxl()
     cfg = emu.cfg
     gear = {n: cfg.axes[n].gear_ratio for n in emu.servos}
     seen = {}
+    servo_id = 4 if kind == "late" else 3
 
     def halt(runner):
-        emu.emulators["arm"].faults.add("stale", match=(3, Inst.SYNC_READ))
+        emu.emulators["arm"].faults.add(kind, match=(servo_id, Inst.SYNC_READ))
         runner.request_halt("test: halt")
         for name, servo in emu.servos.items():
             goal, present = servo.value(116), servo.value(132)
@@ -358,7 +361,7 @@ def test_dxl_a_halt_at_the_moment_of_a_stale_reply_writes_goals_where_the_servos
         try:
             state, _ = run_campaign(c, build_gantry(cfg, clock=clock), on_step=on_step)
             assert state == State.HALTED
-            assert ("stale", 3) in emu.emulators["arm"].faults.applied
+            assert (kind, servo_id) in emu.emulators["arm"].faults.applied
             state, runner = run_campaign(c, build_gantry(cfg, clock=clock))
             assert state == State.DONE, runner.fault
             assert sorted(m.step for m in c.journal.measurements()) == list(range(c.journal.step_count()))

@@ -292,3 +292,18 @@ def test_the_emulated_sample_stage_needs_its_changer_referenced_and_gonio_gantry
             assert np.isclose(axes["changer"].position_deg(), emu.axes_deg()["changer"])
         finally:
             manual.close_axes(axes)
+
+
+def test_gonio_gantry_reference_axis_names_one_axis_and_refuses_others(tmp_path, capsys):
+    with EmulatedGantry(load_config("emulated-sample-stage-modbus"), clock=WallClock(), any_port=True) as emu:
+        path = tmp_path / "gantry.toml"
+        path.write_text(emu.config_toml())
+        assert main(["gantry", "reference", "--config", str(path), "--axis", "nowhere"]) == 2
+        assert "--axis: 'nowhere' is not one of" in capsys.readouterr().err
+        assert main(["gantry", "reference", "--config", str(path), "--axis", "sample_tilt"]) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert "'sample_tilt' needs no reference" in line and "changer" in line
+        assert not emu.motors["changer"].referenced
+        assert main(["gantry", "reference", "--config", str(path), "--axis", "changer"]) == 0
+        assert "changer: referenced (origin)" in capsys.readouterr().out
+        assert emu.motors["changer"].referenced

@@ -44,6 +44,11 @@ def cmd_emulate(args) -> int:
             tmp.replace(target)
             print(f"config: {target}", flush=True)
         print(f"emulating '{cfg.name}' (material {material.spec}); SIGINT or SIGTERM stops", flush=True)
+        fresh = [n for n, a in cfg.axes.items()
+                 if a.driver != "sim" and (a.reference or a.reference_method) != "none"]
+        if fresh:  # powered up as hardware is: the positions of these are unknown until referenced
+            print(f"powered up unreferenced: {', '.join(fresh)}; run `gonio gantry reference --config "
+                  f"{target or 'FILE'}` before moving them", flush=True)
         while not stop.wait(0.5):
             pass
     finally:
@@ -81,7 +86,10 @@ def cmd_gantry(args) -> int:
     if args.action == "jog" and (args.axis not in kin.axis_names or args.by is None):
         raise UsageError(f"gonio gantry jog: give --axis (one of {', '.join(kin.axis_names)}) and --by DEG")
     if args.action == "reference" and args.axis is not None:
-        methods = {n: a.reference_method for n, a in cfg.axes.items()}
+        from gonio.protocols import Referencing
+
+        methods = {n: a.reference_method if isinstance(a, Referencing) else "none"
+                   for n, a in getattr(gantry, "all_axes", gantry.axes).items()}
         if args.axis not in methods:
             raise UsageError(f"--axis: {args.axis!r} is not one of {', '.join(methods)}")
         if methods[args.axis] == "none":
@@ -164,7 +172,8 @@ def cmd_gantry(args) -> int:
 def add_parsers(sub, fmt) -> None:
     """This module's subcommands."""
     se = sub.add_parser("emulate", formatter_class=fmt,
-                        help="run the emulated devices of a config until SIGINT/SIGTERM")
+                        help="run the emulated devices of a config until SIGINT/SIGTERM (they power up as "
+                             "hardware does: `gonio gantry reference` first)")
     se.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
     se.add_argument("--material", default="lambert:albedo=0.5", help="MATERIAL the emulated detector sees")
     se.add_argument("--seed", type=_seed, default=0, help="seed of the emulated detector's readings")
