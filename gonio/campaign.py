@@ -270,6 +270,21 @@ def journal_instruments(journal, gantry: Gantry) -> None:
         f"{name}: {d.get('profile')} {d.get('identity')!r}" for name, d in described.items()))
 
 
+def _check_references(c: Campaign, gantry: Gantry) -> None:
+    """Journal each axis's reference; refuse (a fault event, not latched: nothing moved) to run while an
+    axis is not referenced (:mod:`gonio.reference`)."""
+    from gonio.protocols import NotReferencedFault
+    from gonio.reference import journal_references, refusal, unreferenced
+
+    axes = getattr(gantry, "all_axes", gantry.axes)
+    campaign_s = c.journal.campaign_clock()[0]
+    journal_references(c.journal, axes, campaign_s)
+    missing = unreferenced(axes)
+    if missing:
+        c.journal.log_event("fault", message=f"not started: {refusal(missing)}", campaign_s=campaign_s)
+        raise NotReferencedFault(missing[0], refusal(missing))
+
+
 def run_campaign(c: Campaign, gantry: Gantry,
                  on_step: Callable[[Runner, int], None] | None = None,
                  on_runner: Callable[[Runner], None] | None = None,
@@ -292,6 +307,7 @@ def run_campaign(c: Campaign, gantry: Gantry,
     gantry.connect()
     try:
         journal_instruments(c.journal, gantry)
+        _check_references(c, gantry)
         if clear_fault and runner.state == State.FAULTED:
             runner.clear_fault()
         state = runner.run(units)

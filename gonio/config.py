@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 __all__ = ["ConfigError", "GonioConfig", "load_config", "DEFAULT_CONFIG", "DESIGN_AXES", "CONFIG_DIR",
            "packaged_configs", "resolve_config", "relocate",
-           "BUS_LOCATION_FIELDS"]
+           "BUS_LOCATION_FIELDS", "REFERENCE_METHODS"]
 
 #: The configs shipped inside the installed package (``config/`` in the source tree).
 CONFIG_DIR = Path(str(files("gonio.configs")))
@@ -116,9 +116,13 @@ def _changed(model: BaseModel) -> set[str]:
 _AXIS_FIELDS = {
     "sim": frozenset(),
     "dynamixel": frozenset({"bus", "id", "family", "operating_mode", "gear_ratio", "direction",
-                            "homing_offset_ticks", "watchdog_s"}),
-    "modbus": frozenset({"bus", "device_id", "profile", "gear_ratio", "direction", "zero_steps"}),
+                            "homing_offset_ticks", "watchdog_s", "reference", "reference_deg",
+                            "reference_direction", "reference_velocity_deg_s", "reference_current_a"}),
+    "modbus": frozenset({"bus", "device_id", "profile", "gear_ratio", "direction", "zero_steps",
+                         "reference"}),
 }
+#: Reference methods (``[axes.NAME] reference``; see :mod:`gonio.reference`).
+REFERENCE_METHODS = ("none", "hard_stop", "index", "origin")
 
 
 class AxisConfig(_Strict):
@@ -150,6 +154,22 @@ class AxisConfig(_Strict):
     profile: str = "generic"
     #: Modbus controller position (steps) at axis 0°.
     zero_steps: int = 0
+    #: How the axis finds its absolute position after power-up (``gonio gantry reference``): "none" (it
+    #: never loses it), "hard_stop" (a Dynamixel XM430 approaches a mechanical stop at reference_deg in
+    #: current-based position mode), "index" (it stands at reference_deg, within half a servo turn, when
+    #: referenced: a mark, a pin), "origin" (a Modbus controller's return-to-origin operation). Unset:
+    #: the driver's own (Dynamixel: "none" in position mode, "index" in extended mode; Modbus: "origin"
+    #: where the profile's drive loses its position at power-off, else "none").
+    reference: Literal["none", "hard_stop", "index", "origin"] | None = None
+    #: Where the stop or index is (°, within the limits); unset: home_deg.
+    reference_deg: float | None = None
+    #: Hard stop: the direction (+1 / -1, axis degrees) of the approach; unset: toward the limit
+    #: nearer reference_deg.
+    reference_direction: Literal[1, -1] | None = None
+    #: Hard stop: the approach speed (°/s); unset: a tenth of max_velocity_deg_s.
+    reference_velocity_deg_s: float | None = Field(None, gt=0.0)
+    #: Hard stop: Goal Current while approaching (A): the servo pushes against the stop no harder.
+    reference_current_a: float = Field(0.3, gt=0.0, le=5.0)
     sim: AxisSimConfig = AxisSimConfig()
 
     @model_validator(mode="after")
@@ -169,7 +189,54 @@ class AxisConfig(_Strict):
             raise ValueError("id: a dynamixel axis names its servo ID (0..252)")
         if self.driver == "modbus" and self.device_id is None:
             raise ValueError("device_id: a modbus axis names its unit id (1..247)")
+        self._check_reference()
         return self
+
+    def _check_reference(self) -> None:
+        method = self.reference_method
+        if self.reference_deg is not None and not self.min_deg <= self.reference_deg <= self.max_deg:
+            raise ValueError(f"reference_deg: {self.reference_deg:g} is outside the axis limit "
+                             f"[{self.min_deg:g}, {self.max_deg:g}]")
+        allowed = {"sim": ("none",), "modbus": ("none", "origin"),
+                   "dynamixel": ("hard_stop", "index") if self.operating_mode == "extended" else ("none",)}
+        if method not in allowed[self.driver]:
+            what = (f"a '{self.driver}' axis" if self.driver != "dynamixel"
+                    else f"a dynamixel axis in {self.operating_mode} mode")
+            raise ValueError(f"reference: '{method}' is not a method of {what} (allowed: "
+                             f"{', '.join(allowed[self.driver])})")
+        if method == "hard_stop" and self.family != "XM430":
+            raise ValueError(f"reference: 'hard_stop' needs current-based position mode, which the "
+                             f"{self.family} lacks (allowed: index)")
+        v = self.reference_velocity_deg_s
+        if v is not None and v > self.max_velocity_deg_s:
+            raise ValueError(f"reference_velocity_deg_s: {v:g} is above max_velocity_deg_s "
+                             f"({self.max_velocity_deg_s:g})")
+
+    @property
+    def reference_method(self) -> str:
+        """The reference method in force (``reference``, or the driver's default: see the field)."""
+        if self.reference is not None:
+            return self.reference
+        if self.driver == "dynamixel":
+            return "index" if self.operating_mode == "extended" else "none"
+        return "none"
+
+    @property
+    def reference_at_deg(self) -> float:
+        """Where the stop or index is (°): ``reference_deg``, else ``home_deg``."""
+        return self.home_deg if self.reference_deg is None else self.reference_deg
+
+    @property
+    def reference_toward(self) -> int:
+        """The hard stop's approach direction: ``reference_direction``, else toward the nearer limit."""
+        if self.reference_direction is not None:
+            return self.reference_direction
+        at = self.reference_at_deg
+        return -1 if at - self.min_deg <= self.max_deg - at else 1
+
+    @property
+    def reference_speed_deg_s(self) -> float:
+        return self.reference_velocity_deg_s or self.max_velocity_deg_s / 10.0
 
 
 _DRIVER_ONLY = frozenset().union(*_AXIS_FIELDS.values())

@@ -21,12 +21,32 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from gonio.protocols import Axis, Clock, Detector, DeviceFault, LightSource
+from gonio.protocols import Axis, Clock, Detector, DeviceFault, LightSource, Referencing
 
 __all__ = ["AssembledGantry", "TargetChanger", "TARGETS"]
+
+
+@runtime_checkable
+class _Counts(Protocol):
+    def link_stats(self) -> dict: ...
+
+
+@runtime_checkable
+class _Warns(Protocol):
+    def warnings(self) -> list[str]: ...
+
+
+@runtime_checkable
+class _HoldsAtGoal(Protocol):
+    """An axis stopped by a goal at its present position (a servo): the goal is read first, so the
+    gantry can check it before it is written."""
+
+    def stop_goal(self): ...
+    def hold(self, goal) -> None: ...
 
 #: What can be under the beam.
 TARGETS = ("sample", "reference")
@@ -144,6 +164,7 @@ class AssembledGantry:
         #: watchdog; None without one.
         self.feed_s: float | None = None
         self._last_read = 0.0
+        self._warners: list | None = None  # the axes that report hardware warnings
 
     @property
     def all_axes(self) -> dict[str, Axis]:
@@ -217,6 +238,36 @@ class AssembledGantry:
         if hasattr(self.detector, "set_target"):
             self.detector.set_target(target)
         self.target = target
+
+    # -- what the devices saw (the runner journals it) ---------------------------------------------------
+    def drain_warnings(self) -> list[tuple[str, str]]:
+        """(axis, message) of the hardware warnings the axes saw since the last call: conditions their
+        controllers report but do not act on (the axis went on)."""
+        if self._warners is None:  # asked once: a runtime protocol check costs ~15 µs an axis
+            self._warners = [(n, a) for n, a in self.all_axes.items() if isinstance(a, _Warns)]
+        out = []
+        for name, axis in self._warners:
+            out += [(name, w) for w in axis.warnings()]
+        return out
+
+    def link_report(self) -> str | None:
+        """One line on what the drivers could not trust (replies thrown away: late, duplicated, of another
+        request; positions read again because implausible) and the transactions that failed, or None
+        when there was nothing."""
+        parts, links = [], {}
+        for name, axis in self.all_axes.items():
+            if not isinstance(axis, _Counts):
+                continue
+            stats = axis.link_stats()
+            if stats.get("implausible"):
+                parts.append(f"{name}: {stats['implausible']} implausible position(s) read again")
+            links[stats["link"]] = stats
+        for link, stats in links.items():
+            failed = ", ".join(f"{k} {v}" for k, v in sorted(stats.get("failed", {}).items()) if v)
+            if stats.get("discarded") or failed:
+                parts.append(f"{link}: {stats.get('discarded', 0)} reply(ies) discarded"
+                             + (f"; failed: {failed}" if failed else ""))
+        return "; ".join(parts) or None
 
     # -- batched motion (the runner uses these when a gantry has them) ---------------------------------
     def move_axes(self, targets: Mapping[str, float]) -> None:
@@ -392,12 +443,82 @@ class AssembledGantry:
 
     def stop(self) -> None:
         """Stop every axis on every bus (the changer's too), each even if another fails; safe from any
-        thread. Re-raises the first failure once all were asked."""
+        thread. Re-raises the first failure once all were asked.
+
+        Axes stopped by a command (Modbus controllers, simulated axes) get it first. Servos are stopped by
+        a goal at their present position, read fresh (one Sync Read per bus) and plausible, never from a
+        reply that cannot be trusted (:meth:`DynamixelAxis.stop_goal`); before the goals are written, the
+        configuration they hold and each servo's braking overshoot beyond it (v²/2a at the kinematics'
+        acceleration) are checked with the swept-path check: goals it rejects are not written (those
+        servos go on to the goals they had, which were checked before they were given) and the stop
+        raises saying so."""
         first: Exception | None = None
-        for axis in self.all_axes.values():
+        planned: dict[str, tuple] = {}  # name -> (goal ticks, state, group or None)
+        grouped: set[str] = set()
+        for group, _ in self._groups:
+            grouped |= set(group.axes)
             try:
-                axis.stop()
+                for n, (ticks, state) in group.stop_goals().items():
+                    planned[n] = (ticks, state, group)
             except Exception as err:
                 first = first or err
+        for name, axis in self.all_axes.items():
+            if name in grouped:
+                continue
+            try:
+                if isinstance(axis, _HoldsAtGoal):
+                    found = axis.stop_goal()
+                    if found is not None:
+                        planned[name] = (found[0], found[1], None)
+                else:
+                    axis.stop()
+            except Exception as err:
+                first = first or err
+        refused = self._stop_refused(planned)
+        if refused is not None:
+            first = first or refused
+            planned = {n: p for n, p in planned.items() if n not in self.axes}
+        for group, _ in self._groups:
+            mine = {n: p[0] for n, p in planned.items() if p[2] is group}
+            try:
+                group.write_goals(mine)
+            except Exception as err:
+                first = first or err
+        for name, (ticks, _state, group) in planned.items():
+            if group is None:
+                try:
+                    self.all_axes[name].hold(ticks)
+                except Exception as err:
+                    first = first or err
         if first is not None:
             raise first
+
+    def _stop_refused(self, planned: Mapping[str, tuple]) -> DeviceFault | None:
+        """The swept-path check of a stop's goals (see :meth:`stop`): None when clear, or cannot be
+        made (no kinematics axis gets a goal; an axis not referenced reads in a frame of its own)."""
+        kin = self.kinematics
+        names = kin.axis_names
+        if not any(n in planned for n in names):
+            return None
+        if any(isinstance(a, Referencing) and not a.referenced() for a in self.axes.values()):
+            return None
+        here, brake = np.empty(len(names)), np.empty(len(names))
+        for i, n in enumerate(names):
+            if n in planned:
+                state = planned[n][1]
+                v, a = state.velocity_deg_s, float(kin.accel_deg_s2[i])
+                here[i], brake[i] = state.position_deg, state.position_deg + v * abs(v) / (2.0 * a)
+            else:
+                try:
+                    here[i] = brake[i] = self.axes[n].position_deg()
+                except Exception:
+                    return None  # no position to check with: the goals hold the servos where they are
+        lo, hi = kin.limits_deg[:, 0], kin.limits_deg[:, 1]
+        brake = np.clip(brake, lo, hi)
+        _clear, margin = kin.sweep_clearance(np.vstack([here, brake]), np.vstack([brake, here]))
+        if float(margin.min()) >= -1e-9:
+            return None
+        fmt = ", ".join(f"{n}={x:.2f}°" for n, x in zip(names, here, strict=True))
+        return DeviceFault("gantry", f"stop: goals at the present positions ({fmt}) are not clear "
+                           f"({kin.collision_rule}): not written; the servos go on to the goals they had, "
+                           "which were checked before they were given")

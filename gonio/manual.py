@@ -1,4 +1,8 @@
-"""Manual control of a configured gantry (``gonio gantry status|home|move|jog|stop|reboot``).
+"""Manual control of a configured gantry (``gonio gantry status|home|move|jog|stop|reboot|reference``).
+
+``status`` connects the axes read-only (:func:`connect_axes` with ``readonly``): it sends no write of any
+kind, so asking a rig for its state never energises it. A move, home or jog first looks read-only
+whether every axis is referenced (:mod:`gonio.reference`) and is refused, nothing written, when one is not.
 
 Every move is checked before anything moves: the target within every axis's limits
 (:func:`gonio.motion.safe.check_targets`), a pose the gantry can reach (the kinematics' feasibility),
@@ -19,17 +23,18 @@ from gonio.protocols import DeviceFault
 __all__ = ["axis_report", "pose_targets", "plan_move", "arrived", "drive", "connect_axes", "close_axes"]
 
 
-def connect_axes(gantry, keep_faulted: bool = False) -> dict:
+def connect_axes(gantry, keep_faulted: bool = False, readonly: bool = False) -> dict:
     """Connect the gantry's axes only (and the changer's): manual moves need no lamp or detector.
 
     ``keep_faulted``: an axis whose connect reports its latched fault (a Modbus alarm) stays in the
-    result, so that it can be looked at, stopped and rebooted."""
+    result, so that it can be looked at, stopped and rebooted. ``readonly``: the axes only read (no
+    torque, no goal, no watchdog, not even when they are closed)."""
     axes = dict(getattr(gantry, "all_axes", gantry.axes))
     done = []
     try:
         for axis in axes.values():
             try:
-                axis.connect()
+                axis.connect(readonly=readonly)
             except DeviceFault:
                 if not (keep_faulted and axis.fault() is not None):
                     raise
@@ -49,20 +54,29 @@ def close_axes(axes) -> None:
 
 
 def axis_report(axis) -> dict:
-    """One axis's target and read-back position, in degrees and in device units where it has them."""
+    """One axis's target and read-back position, in degrees and in device units where it has them, and
+    whether it is referenced (None: it never needs to be). Reads only."""
+    from gonio.protocols import DeviceFault, Referencing
+
+    moving, note = None, None
+    try:
+        moving = axis.is_moving()
+    except DeviceFault as err:  # e.g. a bus watchdog that fired: the state is what is asked for
+        note = str(err)
     out = {"axis": axis.name, "driver": type(axis).__name__, "position_deg": axis.position_deg(),
            "target_deg": None, "position_units": None, "target_units": None, "units": None,
-           "moving": axis.is_moving(), "fault": axis.fault(), "limits_deg": list(axis.limits_deg)}
-    table = getattr(axis, "table", None)
-    if table is not None:  # a Dynamixel servo: ticks
-        goal = axis.bus.read(axis.dxl_id, table["goal_position"])
-        present = axis.bus.read(axis.dxl_id, table["present_position"])
-        out.update(units="ticks", target_units=goal, position_units=present, target_deg=axis._deg(goal))
-    elif hasattr(axis, "steps_per_deg"):  # a Modbus controller: steps
-        goal = axis._read_value("target_position")
-        present = axis._read_value("actual_position")
+           "moving": moving, "fault": axis.fault() or note, "limits_deg": list(axis.limits_deg),
+           "referenced": None}
+    if isinstance(axis, Referencing) and axis.reference_method != "none":
+        out["referenced"] = axis.referenced()
+    if hasattr(axis, "goal_ticks"):  # a Dynamixel servo: ticks
+        goal, present = axis.goal_ticks(), axis.present_ticks()
+        out.update(units="ticks", target_units=goal, position_units=present,
+                   target_deg=axis.deg_of_ticks(goal))
+    elif hasattr(axis, "goal_steps"):  # a Modbus controller: steps
+        goal, present = axis.goal_steps(), axis.present_steps()
         out.update(units="steps", target_units=goal, position_units=present,
-                   target_deg=axis.direction * (goal - axis.zero_steps) / axis.steps_per_deg)
+                   target_deg=axis.deg_of_steps(goal))
     return out
 
 

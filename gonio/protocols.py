@@ -23,6 +23,14 @@ class DeviceFault(Exception):
         self.transient = transient
 
 
+class NotReferencedFault(DeviceFault):
+    """The axis's absolute position is unknown (its controller powered up since it was referenced):
+    nothing moves it until ``gonio gantry reference`` has run. Not transient."""
+
+    def __init__(self, device: str, message: str, transient: bool = False):
+        super().__init__(device, message, transient=False)
+
+
 @runtime_checkable
 class Clock(Protocol):
     """Time source. The simulated gantry runs on a virtual clock; hardware on the wall clock."""
@@ -50,6 +58,20 @@ class Axis(Protocol):
         """The latched hardware fault (an error bit, an alarm), or None. A latched axis refuses moves."""
     def clear_fault(self) -> None:
         """Clear a latched fault (a reboot or alarm reset): only ever on an operator's explicit request."""
+
+
+@runtime_checkable
+class Referencing(Protocol):
+    """An axis whose absolute position a power cycle can lose (a multi-turn servo behind a gear, an
+    incremental stepper): moves are refused until it is referenced (``gonio gantry reference``)."""
+
+    #: "none", "hard_stop", "index" or "origin" (see :mod:`gonio.reference`).
+    reference_method: str
+
+    def referenced(self) -> bool:
+        """Whether its angle can be trusted now."""
+    def reference_info(self) -> dict:
+        """What is known of its reference, for the journal: ``referenced``, and when it was found."""
 
 
 @runtime_checkable

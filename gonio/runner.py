@@ -308,8 +308,17 @@ class Runner:
         if self._state in (State.RUNNING, State.PAUSING):
             self._to(State.FAULTED, reason)
 
+    def _journal_warnings(self, step: int | None = None) -> None:
+        """Hardware warnings the devices reported (they went on: a warning, not a fault)."""
+        drain = getattr(self.gantry, "drain_warnings", None)
+        if drain is not None:
+            for device, message in drain():
+                self.journal.log_event("warning", step=step, message=f"{device}: {message}",
+                                       campaign_s=self.campaign_s())
+
     def _finish(self, park: bool) -> None:
-        """Light off; park along a safe path after done, pause and abort; record where the axes stand."""
+        """Light off; park along a safe path after done, pause and abort; record where the axes stand,
+        the hardware warnings and what the drivers could not trust on the way."""
         try:
             self.gantry.light.set_on(False)
         except Exception as err:
@@ -322,6 +331,11 @@ class Runner:
                                    axes_deg=self._positions())
         except Exception as err:
             self.journal.log_event("fault", message=f"park failed: {err}", campaign_s=self.campaign_s())
+        self._journal_warnings()
+        report = getattr(self.gantry, "link_report", None)
+        line = report() if report is not None else None
+        if line:
+            self.journal.log_event("link", message=line, campaign_s=self.campaign_s())
 
     def _run_unit(self, unit: Unit) -> None:
         """Measure and commit one unit (a step, or a sweep in one transaction), retrying transient
@@ -348,6 +362,7 @@ class Runner:
                 self._rest = (ms[0].actual_deg, self.gantry.clock.now())
             else:  # a sweep: the axes stand at its run-down's end, not where its readings were
                 self.journal.commit_measurements(ms)
+            self._journal_warnings(step)
             return
         raise AssertionError("unreachable")  # pragma: no cover
 

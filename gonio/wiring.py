@@ -62,13 +62,15 @@ def build_axis(name: str, cfg: GonioConfig, buses: dict, clock: Clock, start_deg
         return DynamixelAxis(name, buses[a.bus], a.id, limits_deg=limits, family=a.family,
                              operating_mode=a.operating_mode, gear_ratio=a.gear_ratio, direction=a.direction,
                              homing_offset_ticks=a.homing_offset_ticks, velocity_deg_s=a.max_velocity_deg_s,
-                             accel_deg_s2=a.max_accel_deg_s2, watchdog_s=a.watchdog_s)
+                             accel_deg_s2=a.max_accel_deg_s2, watchdog_s=a.watchdog_s, clock=clock,
+                             reference_method=a.reference)
     if a.driver == "modbus":
         from gonio.drivers.modbus import ModbusAxis
 
         return ModbusAxis(name, buses[a.bus], a.profile, device_id=a.device_id, limits_deg=limits,
                           gear_ratio=a.gear_ratio, direction=a.direction, zero_steps=a.zero_steps,
-                          velocity_deg_s=a.max_velocity_deg_s, accel_deg_s2=a.max_accel_deg_s2, clock=clock)
+                          velocity_deg_s=a.max_velocity_deg_s, accel_deg_s2=a.max_accel_deg_s2, clock=clock,
+                          reference_method=a.reference)
     from gonio.sim.axis import SimAxis
 
     return SimAxis(name, a, clock, start_deg)

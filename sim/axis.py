@@ -146,8 +146,9 @@ class SimAxis:
         self._motion: _Move | _Brake = _Brake(clock.now(), rest, 0.0, cfg.max_accel_deg_s2, rest)
 
     # -- connection -------------------------------------------------------------------------------
-    def connect(self) -> None:
-        """Open the (simulated) link; clears a latched hardware fault, as a power cycle would."""
+    def connect(self, readonly: bool = False) -> None:
+        """Open the (simulated) link; clears a latched hardware fault, as a power cycle would. A simulated
+        axis writes nothing to anything: ``readonly`` changes nothing."""
         self._connected = True
         self._fault = None
 

@@ -61,7 +61,7 @@ def _matches(measured, simulated):
 @pytest.fixture
 def emulated():
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         yield emu, clock
 
 
@@ -189,6 +189,8 @@ def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path):
     for name, axis in data["axes"].items():  # within each servo's velocity limit, its gear included
         axis["max_velocity_deg_s"] = {"light_azimuth": 66.0, "detector_azimuth": 66.0}.get(name, 180.0)
         axis["max_accel_deg_s2"] = 2000.0
+        if axis.get("reference") == "hard_stop":
+            axis["reference_velocity_deg_s"] = 60.0
     data["light"]["settle_s"] = 0.0
     src = tmp_path / "scpi.toml"
     from gonio.sim.emulators.gantry import to_toml
@@ -203,6 +205,10 @@ def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path):
         while not written.exists() and time.monotonic() < deadline and emulate.poll() is None:
             time.sleep(0.05)  # waiting for another process to write its file; bounded by the deadline
         assert written.exists(), emulate.communicate(timeout=10)
+        # The emulated servos power up as real ones do: the carriages are referenced first.
+        r = subprocess.run([*GONIO, "gantry", "reference", "--config", str(written)], capture_output=True,
+                           text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
         out = tmp_path / "run"
         argv = [*GONIO, "run", "--config", str(written), "--grid", "iso:step=30", "--out", str(out),
                 "--sample", "gold", "--quiet"]

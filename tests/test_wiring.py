@@ -62,7 +62,7 @@ def emulated(tmp_path):
     for axis in data["axes"].values():
         axis.update(gear_ratio=1.0, max_velocity_deg_s=250.0, max_accel_deg_s2=5000.0)
     data["runner"].update(poll_s=0.005)
-    with EmulatedGantry(parse_config(data), clock=WallClock(), any_port=True) as emu:
+    with EmulatedGantry(parse_config(data), clock=WallClock(), any_port=True, referenced=True) as emu:
         path = tmp_path / "gantry.toml"
         path.write_text(emu.config_toml())
         yield emu, str(path)

@@ -57,7 +57,8 @@ def bench_dynamixel(n_servos, n):
     emu = DynamixelBusEmulator([EmulatedServo(i, clock=clock) for i in range(1, n_servos + 1)])
     emu.start()
     bus = DynamixelBus(emu.port)
-    axes = [DynamixelAxis(f"a{i}", bus, i, limits_deg=(-90.0, 90.0), homing_offset_ticks=2048, watchdog_s=0)
+    axes = [DynamixelAxis(f"a{i}", bus, i, limits_deg=(-90.0, 90.0), homing_offset_ticks=2048, watchdog_s=0,
+                          clock=clock)
             for i in range(1, n_servos + 1)]
     try:
         for a in axes:
@@ -115,7 +116,7 @@ def bench_modbus_looks(n, latencies_ms=(0.0, 1.0, 3.0)):
 
     clock = SyncedVirtualClock()
     with EmulatedGantry(load_config("emulated-sample-stage-modbus"), "lambert:albedo=0.5", clock=clock,
-                        any_port=True) as emu:
+                        any_port=True, referenced=True) as emu:
         gantry = build_gantry(emu.config(), clock=clock)
         gantry.connect()
         try:
@@ -264,7 +265,7 @@ def _campaign(twin, grid, per_axis, watchdog, modbus):
                 axis["watchdog_s"] = 0.0
             cfg = GonioConfig.model_validate(data)
         with EmulatedGantry(cfg, "cook-torrance:d=beckmann,m=0.3,metal=gold", clock=clock,
-                            any_port=True) as emu, tempfile.TemporaryDirectory() as d:
+                            any_port=True, referenced=True) as emu, tempfile.TemporaryDirectory() as d:
             cfg = emu.config()
             c = create_campaign(d, cfg, grid=grid, material=None, sample="bench")
             poses, steps = c.meta["poses"], c.journal.step_count()

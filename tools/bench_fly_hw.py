@@ -40,7 +40,7 @@ TWIN = "emulated-two-arm-dynamixel"
 
 def _campaign(folder: Path, grid: str, fly: bool) -> dict:
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         cfg = emu.config()
         create = create_fly_campaign if fly else create_campaign
         c = create(folder, cfg, grid=grid, material=None, sample="gold")

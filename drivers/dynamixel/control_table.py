@@ -2,12 +2,18 @@
 
 Addresses, sizes and units are from the ROBOTIS e-Manual control tables of the XM430-W350 and the
 XL430-W250 (Protocol 2.0). The two differ where it matters to gonio: the XL430 has no current sensing
-(address 126 is Present Load, in 0.1 % of the maximum torque) and no Goal Current.
+(address 126 is Present Load, in 0.1 % of the maximum torque), no Goal Current and no current-based
+position mode (5).
+
+Indirect Address 1..28 (168..223, RAM, 2 bytes each) point by default at Indirect Data 1..28 (224..251,
+RAM, 1 byte each, 0 at power-up): left at their defaults, the Indirect Data bytes are plain RAM that a
+power cycle or a reboot zeroes. gonio keeps its reference marker there (:mod:`.reference`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 __all__ = ["Field", "ControlTable", "XM430", "XL430", "TABLES", "table_for_model"]
 
@@ -82,7 +88,14 @@ _COMMON = (
     Field("position_trajectory", 140, 4, signed=True),
     Field("present_input_voltage", 144, 2),
     Field("present_temperature", 146, 1),
+    # Indirect Address 17..28 and Indirect Data 17..28: the reference marker's home (see .reference).
+    Field("indirect_address_17", 200, 2),
+    Field("indirect_data_17", 240, 1),
 )
+#: Indirect Data 1..28 (224..251): RAM bytes, readable and writable, 0 at power-up.
+_INDIRECT_DATA = range(224, 252)
+#: Indirect Address 1..28 (168..223).
+_INDIRECT_ADDRESS = range(168, 224)
 
 
 @dataclass(frozen=True)
@@ -122,6 +135,27 @@ class ControlTable:
     extended_mode_range: tuple[int, int] = (-1_048_575, 1_048_575)
     operating_modes: dict[str, int] = field(default_factory=lambda: {"position": 3, "extended": 4})
 
+    @cached_property
+    def defined(self) -> frozenset[int]:
+        """Every address an item of this table covers (what a read may touch without an access error
+        on a servo that refuses undefined addresses)."""
+        out = set(_INDIRECT_DATA) | set(_INDIRECT_ADDRESS)
+        for f in self.fields.values():
+            out.update(range(f.address, f.address + f.size))
+        return frozenset(out)
+
+    def room(self, address: int, length: int, most: int = 3) -> tuple[int, int]:
+        """(before, after): how many defined addresses (at most ``most``) lie right before ``address``
+        and right after ``address + length``: how far a read of that span may be widened."""
+        defined = self.defined
+        before = 0
+        while before < most and address - before - 1 >= 0 and address - before - 1 in defined:
+            before += 1
+        after = 0
+        while after < most and address + length + after in defined:
+            after += 1
+        return before, after
+
     def __getitem__(self, name: str) -> Field:
         try:
             return self.fields[name]
@@ -135,6 +169,7 @@ XM430 = ControlTable(
     fields=_fields(*_COMMON, Field("current_limit", 38, 2, eeprom=True),
                    Field("goal_current", 102, 2, signed=True),
                    Field("present_current", 126, 2, signed=True)),
+    operating_modes={"position": 3, "extended": 4, "current_position": 5},
 )
 
 XL430 = ControlTable(

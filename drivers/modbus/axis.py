@@ -5,6 +5,19 @@ Errors: an exception response becomes :class:`ModbusExceptionError` carrying the
 (pymodbus raises after ``timeout_s × (retries + 1)``) becomes :class:`ModbusCommError` (transient) after
 one reconnection attempt; a status word with the alarm bit becomes :class:`ModbusAlarmError` with the
 controller's alarm code, latched until :meth:`ModbusAxis.clear_fault`.
+
+Replies paired with their request: on TCP pymodbus skips a frame whose transaction id is not the
+request's; on RTU there is none, and it takes the first frame from the unit. So every reply is checked
+here too: its function code and its register count must be the request's, or it is discarded (counted
+in :attr:`ModbusAxis.discarded`) and the call fails as transient; on an RTU line bytes waiting before a
+request are read and counted first (a late frame that would otherwise answer it). A stale frame of the
+same function and count cannot be told apart on the wire: every position is then held against what the
+axis can have travelled since its last good read (:mod:`gonio.drivers.readback`), read again, never used.
+
+Referencing: an axis whose profile's drive is not ``absolute`` (an incremental stepper), or whose config
+says ``reference = "origin"``, is unreferenced while the controller's ``referenced_bit`` is clear (at
+power-up, for an incremental drive): moves are refused; :meth:`ModbusAxis.reference_origin` runs the
+profile's return-to-origin operation.
 """
 
 from __future__ import annotations
@@ -18,7 +31,8 @@ from pymodbus.exceptions import ConnectionException, ModbusException
 
 from gonio.clock import WallClock
 from gonio.drivers.modbus.profile import Command, MotorProfile, load_profile
-from gonio.protocols import DeviceFault
+from gonio.drivers.readback import PlausibilityGuard
+from gonio.protocols import DeviceFault, NotReferencedFault
 
 __all__ = ["ModbusAxis", "ModbusCommError", "ModbusExceptionError", "ModbusAlarmError", "make_client"]
 
@@ -82,13 +96,16 @@ class ModbusAxis:
     start_timeout_s : float
         How long :meth:`move_to` waits for the moving bit to rise (or the target to be reached).
     clock : Clock
-        Time source for that wait.
+        Time source for that wait, and the stamps of read-backs (the gantry's).
+    reference_method : str, optional
+        ``"origin"`` (the profile's return-to-origin operation before the axis moves) or ``"none"``;
+        default: ``"origin"`` where the profile's drive is not absolute.
     """
 
     def __init__(self, name: str, client, profile: MotorProfile | str, *, device_id: int = 1,
                  limits_deg: tuple[float, float], gear_ratio: float = 1.0, direction: int = 1,
                  zero_steps: int = 0, velocity_deg_s: float = 20.0, accel_deg_s2: float = 40.0,
-                 start_timeout_s: float = 0.5, clock=None):
+                 start_timeout_s: float = 0.5, clock=None, reference_method: str | None = None):
         self.name = name
         self.client = client
         self.profile = profile if isinstance(profile, MotorProfile) else load_profile(profile)
@@ -120,6 +137,25 @@ class ModbusAxis:
                 raise ValueError(f"axis '{name}': {key} gives register {reg} = {value}, below 1")
         self.start_timeout_s = float(start_timeout_s)
         self.clock = clock or WallClock()
+        p = self.profile
+        if reference_method is None:
+            reference_method = "origin" if p.origin is not None and not p.absolute else "none"
+        if reference_method not in ("none", "origin"):
+            raise ValueError(f"axis '{name}': reference_method {reference_method!r} is not one of "
+                             "none, origin")
+        if reference_method == "origin" and p.origin is None:
+            raise ValueError(f"axis '{name}': reference_method 'origin', but profile '{p.name}' has no "
+                             "[origin] operation")
+        self.reference_method = reference_method
+        self.needs_reference = reference_method != "none"
+        self._status: int | None = None
+        #: Replies thrown away: not this request's (another function code or register count), or
+        #: waiting on an RTU line before a request.
+        self.discarded = 0
+        self.guard = PlausibilityGuard(
+            name, p.velocity_rev_s(self.velocity_value) * 360.0 / self.gear_ratio,
+            p.accel_rev_s2(self.accel_value) * 360.0 / self.gear_ratio, self.clock,
+            slack_deg=max(0.01, 2.0 / self.steps_per_deg))
         self._fault: str | None = None
         self._alarm = 0
         #: Set when the controller refused a read spanning status and position (exception 2): from then
@@ -133,9 +169,10 @@ class ModbusAxis:
         self.round_trip_s: float | None = None
 
     # -- transport --------------------------------------------------------------------------------------
-    def connect(self) -> None:
+    def connect(self, readonly: bool = False) -> None:
         """Connect; an alarm already standing is latched (:meth:`fault` says so, moves are refused) but
-        does not fail the connection, so that an operator can look at it and reset it."""
+        does not fail the connection, so that an operator can look at it and reset it. Connecting only
+        reads (``readonly`` changes nothing: it is there for the :class:`Axis` callers that ask)."""
         if not self.client.connect():
             raise ModbusCommError(self.name, f"cannot connect to the controller ({self._where()})")
         try:
@@ -150,10 +187,30 @@ class ModbusAxis:
         p = self.client.comm_params
         return f"{p.host}:{p.port}" if p.host else str(p.port)
 
-    def _call(self, what: str, fn):
-        last = None
+    def _drain(self) -> None:
+        """RTU: bytes waiting on the line before a request (a frame that came after its time-out) are
+        read and counted, so that the request's own reply is the first one (pymodbus would flush them
+        too, uncounted)."""
+        port = getattr(self.client, "socket", None) if isinstance(self.client, ModbusSerialClient) else None
+        if port is None:
+            return
+        try:
+            waiting = port.in_waiting
+            if waiting:
+                port.read(waiting)
+                self.discarded += 1
+        except (OSError, ValueError):
+            pass  # a lost port: the request itself reports it
+
+    def _call(self, what: str, fn, expect: tuple[int, int | None] | None = None):
+        """``fn()`` (one pymodbus request), with one reconnection; ``expect`` = (function code, register
+        count or None): a reply that is not that (a late or stray frame, which pymodbus takes on RTU) is
+        discarded and counted, and the request sent once more (its own reply, come meanwhile, is read
+        and counted first); a second one fails (transient)."""
+        last, stray = None, None
         for attempt in range(2):
             t0 = time.perf_counter()
+            self._drain()
             try:
                 response = fn()
             except ConnectionException as exc:
@@ -166,16 +223,43 @@ class ModbusAxis:
                 raise ModbusCommError(self.name, f"{what}: {exc}") from exc
             dt = time.perf_counter() - t0
             self.round_trip_s = dt if self.round_trip_s is None else min(self.round_trip_s, dt)
+            stray = self._stray(what, response, expect)
+            if stray is not None:
+                self.discarded += 1
+                continue
             if response.isError():
                 code = int(getattr(response, "exception_code", 4))
                 raise ModbusExceptionError(self.name, f"{what}: exception response, code {code}", code)
             return response
+        if stray is not None:
+            raise stray
         raise ModbusCommError(self.name, f"{what}: connection lost ({last})")
+
+    @staticmethod
+    def _stray_of(response, expect) -> bool:
+        if expect is None:
+            return False
+        fc, count = expect
+        if response.isError():
+            return response.function_code & 0x7F != fc
+        regs = getattr(response, "registers", None)
+        return response.function_code != fc or (count is not None and (regs is None or len(regs) != count))
+
+    def _stray(self, what: str, response, expect) -> ModbusCommError | None:
+        """The fault for a reply that is not this request's (see :meth:`_call`), else None."""
+        if not self._stray_of(response, expect):
+            return None
+        regs = getattr(response, "registers", None)
+        return ModbusCommError(self.name, f"{what}: the reply is not this request's (function "
+                               f"{response.function_code}, {'no' if regs is None else len(regs)} registers; "
+                               f"expected function {expect[0]}"
+                               + (f", {expect[1]} registers" if expect[1] is not None else "")
+                               + "): a late or stray frame, discarded")
 
     def _read(self, name: str) -> list[int]:
         reg = self.profile[name]
         r = self._call(f"read {name} at {reg.address:#06x}", lambda: self.client.read_holding_registers(
-            reg.address, count=reg.count, device_id=self.device_id))
+            reg.address, count=reg.count, device_id=self.device_id), (3, reg.count))
         return list(r.registers)
 
     def _read_value(self, name: str) -> int:
@@ -185,11 +269,11 @@ class ModbusAxis:
         reg = self.profile[name]
         words = reg.encode(value, self.profile.word_order)
         if len(words) == 1:
-            self._call(f"write {name}", lambda: self.client.write_register(reg.address, words[0],
-                                                                          device_id=self.device_id))
+            self._call(f"write {name}", lambda: self.client.write_register(
+                reg.address, words[0], device_id=self.device_id), (6, None))
         else:
-            self._call(f"write {name}", lambda: self.client.write_registers(reg.address, words,
-                                                                           device_id=self.device_id))
+            self._call(f"write {name}", lambda: self.client.write_registers(
+                reg.address, words, device_id=self.device_id), (16, None))
 
     def _command(self, cmd: Command) -> None:
         self._write(cmd.register, cmd.value)
@@ -198,6 +282,7 @@ class ModbusAxis:
 
     # -- status and faults ------------------------------------------------------------------------------
     def _check_status(self, status: int) -> int:
+        self._status = status
         if status >> self.profile.alarm_bit & 1 and self._fault is None:
             self._alarm = self._read_value("alarm_code")
             self._fault = f"controller alarm {self._alarm:#06x}"
@@ -207,11 +292,49 @@ class ModbusAxis:
     def fault(self) -> str | None:
         return self._fault
 
+    def link_stats(self) -> dict:
+        """Replies discarded (see the module docstring) and positions found implausible."""
+        return {"link": f"{self.name} ({self._where()})", "discarded": self.discarded, "failed": {},
+                "implausible": self.guard.rejected}
+
     def clear_fault(self) -> None:
         """Send the profile's alarm reset; raises ModbusAlarmError if the alarm persists."""
         self._command(self.profile.alarm_reset)
         self._fault = None
         self._check_status(self._read("status")[0])
+
+    # -- referencing ---------------------------------------------------------------------------------
+    def referenced(self) -> bool:
+        """Whether the axis's position can be trusted: it needs no reference, or the controller's status
+        (as last read) says its origin is set."""
+        if not self.needs_reference:
+            return True
+        bit = self.profile.referenced_bit
+        return self._status is not None and bool(self._status >> bit & 1)
+
+    def reference_info(self) -> dict:
+        return {"needed": self.needs_reference, "referenced": self.referenced(), "stamp": None}
+
+    def reference_origin(self, timeout_s: float, poll_s: float) -> None:
+        """Run the profile's return-to-origin operation and wait (at most ``timeout_s`` on the clock,
+        looking every ``poll_s``) until the controller is still with its origin set."""
+        p = self.profile
+        if p.origin is None:
+            raise DeviceFault(self.name, f"profile '{p.name}' has no [origin] operation")
+        if self._fault is not None:
+            raise ModbusAlarmError(self.name, f"{self._fault} (latched; clear_fault() resets)", self._alarm)
+        self._command(p.origin)
+        self.guard.reset()
+        waited = 0.0
+        while True:
+            self.clock.sleep(poll_s)
+            waited += poll_s
+            status = self._check_status(self._read("status")[0])
+            if not status >> p.moving_bit & 1 and status >> p.referenced_bit & 1:
+                return
+            if waited >= timeout_s:
+                raise DeviceFault(self.name, f"the return to origin did not end with the origin set within "
+                                  f"{timeout_s:g} s (status {status:#06x})", transient=True)
 
     # -- the Axis protocol ------------------------------------------------------------------------------
     def steps_for(self, target_deg: float) -> int:
@@ -229,6 +352,10 @@ class ModbusAxis:
         if self._fault is not None:
             raise ModbusAlarmError(self.name, f"{self._fault} (latched; clear_fault() resets)",
                                    self._alarm)
+        if not self.referenced():
+            raise NotReferencedFault(
+                self.name, f"controller {self.device_id} has no origin set (its position is lost at "
+                "power-off, or it was never referenced): run `gonio gantry reference`")
         p = self.profile
         values = dict(p.move_constants, target_position=steps, velocity=self.velocity_value,
                       acceleration=self.accel_value, deceleration=self.accel_value)
@@ -245,7 +372,7 @@ class ModbusAxis:
                 r = self._call(f"{what} and read {count} at {lo:#06x} (function 23)",
                                lambda: self.client.readwrite_registers(
                                    read_address=lo, read_count=count, write_address=p.block_start,
-                                   values=words, device_id=self.device_id))
+                                   values=words, device_id=self.device_id), (23, count))
             except ModbusExceptionError as err:
                 if err.code != 1:
                     raise
@@ -256,7 +383,7 @@ class ModbusAxis:
             status, at = self._state_of(r.registers, lo)
         else:
             self._call(what, lambda: self.client.write_registers(p.block_start, words,
-                                                                 device_id=self.device_id))
+                                                                 device_id=self.device_id), (16, None))
             status, at = self._look()
         deadline = self.clock.now() + self.start_timeout_s
         while True:
@@ -273,8 +400,35 @@ class ModbusAxis:
     def _deg(self, steps: int) -> float:
         return self.direction * (steps - self.zero_steps) / self.steps_per_deg
 
+    def _checked(self, read) -> float:
+        """``read() -> (position °, extra)`` until the position is plausible (fresh reads); see the module
+        docstring. Returns (position, extra)."""
+        first = None
+        for _ in range(3):
+            t0 = self.clock.now()
+            deg, extra = read()
+            at = self.clock.now()
+            if self.guard.plausible(deg, at):  # checked at the end of the read, kept as of its start
+                self.guard.accept(deg, t0)
+                return deg, extra
+            self.guard.rejected += 1
+            first = first or (deg, at)
+        raise ModbusCommError(self.name, f"implausible position, not used: {self.guard.describe(*first)}")
+
     def position_deg(self) -> float:
-        return self._deg(self._read_value("actual_position"))
+        return self._checked(lambda: (self._deg(self._read_value("actual_position")), None))[0]
+
+    def deg_of_steps(self, steps: int) -> float:
+        """The axis angle (°) of a controller position of ``steps``."""
+        return self._deg(steps)
+
+    def goal_steps(self) -> int:
+        """The controller's target position register (steps)."""
+        return self._read_value("target_position")
+
+    def present_steps(self) -> int:
+        """The controller's actual position (steps, unchecked: for reports)."""
+        return self._read_value("actual_position")
 
     def is_moving(self) -> bool:
         return bool(self._check_status(self._read("status")[0]) >> self.profile.moving_bit & 1)
@@ -325,7 +479,8 @@ class ModbusAxis:
             try:
                 r = self._call(f"read status and actual_position at {lo:#06x} ({count} registers)",
                                lambda: self.client.read_holding_registers(lo, count=count,
-                                                                          device_id=self.device_id))
+                                                                          device_id=self.device_id),
+                               (3, count))
                 return self._state_of(r.registers, lo)
             except ModbusExceptionError as err:
                 if err.code != 2 or self.profile.state_adjacent:
@@ -335,11 +490,15 @@ class ModbusAxis:
 
     def read_state(self) -> tuple[float, bool]:
         """Position (°) and moving flag: one Read Holding Registers where :attr:`state_block` allows
-        it, else two (the status first: an alarm raises before the position is asked)."""
-        status, steps = self._look()
-        if steps is None:
-            steps = self._read_value("actual_position")
-        return self._deg(steps), bool(status >> self.profile.moving_bit & 1)
+        it, else two (the status first: an alarm raises before the position is asked); the position
+        checked for plausibility (both read again when it is not)."""
+        def read():
+            status, steps = self._look()
+            if steps is None:
+                steps = self._read_value("actual_position")
+            return self._deg(steps), bool(status >> self.profile.moving_bit & 1)
+
+        return self._checked(read)
 
     def stop(self) -> None:
         self._command(self.profile.stop)

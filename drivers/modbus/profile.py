@@ -15,6 +15,11 @@ Schema (all addresses are 0-based protocol addresses)::
     [status] moving_bit, alarm_bit, ready_bit (optional)
     [stop] register, value, release (value written after, optional)
     [alarm_reset] register, value, release (optional)
+    [origin] register, value, release (optional): the controller's return-to-origin operation; with it
+      [status] referenced_bit: set while the controller knows its origin (e.g. Oriental's HOME-END)
+    absolute = true | false (default true): whether the drive keeps its position and origin across a
+      power cycle; false (an incremental stepper): an axis on it is referenced by its origin operation
+      before it moves, and again after every power cycle
     span_read = true | false (default false): the controller answers one Read Holding Registers from
       the lower of status/actual_position to the end of the higher across the registers between
       them (at most 125 words); adjacent registers are always read together
@@ -37,7 +42,7 @@ _REQUIRED = ("target_position", "velocity", "acceleration", "deceleration", "act
              "alarm_code")
 #: What ``secondary`` may name besides registers: the scalar settings and the command/status tables.
 _SECONDARY_KEYS = ("word_order", "steps_per_rev", "velocity_unit", "accel_unit", "move", "status bits",
-                   "stop", "alarm_reset", "span_read", "write_read")
+                   "stop", "alarm_reset", "span_read", "write_read", "origin", "absolute")
 #: The most registers one Read Holding Registers may ask for (Modbus application protocol, 6.3).
 MAX_READ_WORDS = 125
 #: Shipped profiles, by name.
@@ -108,6 +113,9 @@ class MotorProfile:
     secondary: tuple[str, ...] = field(default=())
     span_read: bool = False
     write_read: bool = False
+    origin: Command | None = None
+    referenced_bit: int | None = None
+    absolute: bool = True
 
     def __getitem__(self, name: str) -> Register:
         try:
@@ -215,8 +223,8 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
         if not 0 <= int(status.get(key, -1)) <= 15:
             raise _fail(where, f"status.{key} {status.get(key)!r} is outside [0, 15]")
     flags = {}
-    for key in ("span_read", "write_read"):
-        flags[key] = data.get(key, False)
+    for key in ("span_read", "write_read", "absolute"):
+        flags[key] = data.get(key, key == "absolute")
         if not isinstance(flags[key], bool):
             raise _fail(where, f"{key} {flags[key]!r} is not one of true, false")
     pos, st = registers["actual_position"], registers["status"]
@@ -224,6 +232,15 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
     if flags["span_read"] and span > MAX_READ_WORDS:
         raise _fail(where, f"span_read: status ({st.address:#06x}) and actual_position ({pos.address:#06x}) "
                     f"span {span} registers, more than one read may ask for ({MAX_READ_WORDS})")
+    origin = None if "origin" not in data else _command(f"{where} [origin]", data["origin"], registers)
+    referenced_bit = status.get("referenced_bit")
+    if (origin is None) != (referenced_bit is None):
+        raise _fail(where, "[origin] and status.referenced_bit go together: the operation, and the bit that "
+                    "says it is done")
+    if referenced_bit is not None and not 0 <= int(referenced_bit) <= 15:
+        raise _fail(where, f"status.referenced_bit {referenced_bit!r} is outside [0, 15]")
+    if not flags["absolute"] and origin is None:
+        raise _fail(where, "absolute = false needs an [origin] operation to reference the axis with")
     secondary = tuple(data.get("secondary", ()))
     known = set(registers) | set(_SECONDARY_KEYS)
     unknown = [n for n in secondary if n not in known]
@@ -238,7 +255,8 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
         ready_bit=None if status.get("ready_bit") is None else int(status["ready_bit"]),
         stop=_command(f"{where} [stop]", data.get("stop", {}), registers),
         alarm_reset=_command(f"{where} [alarm_reset]", data.get("alarm_reset", {}), registers),
-        secondary=secondary, **flags,
+        secondary=secondary, origin=origin,
+        referenced_bit=None if referenced_bit is None else int(referenced_bit), **flags,
     )
 
 

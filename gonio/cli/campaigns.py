@@ -438,8 +438,31 @@ def cmd_run(args) -> int:
         raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
                          "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
     plans = _checked_fly_plans(args, cfg) if fly else None
+    _check_referenced(cfg, material)
     return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
                              relocate_buses=True, fly_plans=plans)
+
+
+def _check_referenced(cfg, material) -> None:
+    """Refuse (one line, exit 2, nothing written) while an axis is not referenced: the axes looked at
+    read-only before the campaign folder is touched. A gantry that cannot be reached now is left to the
+    run itself to report."""
+    if cfg.drivers() == {"sim"}:
+        return
+    from gonio import manual
+    from gonio.protocols import DeviceFault
+    from gonio.reference import refusal, unreferenced
+    from gonio.wiring import build_gantry
+
+    gantry = build_gantry(cfg, material)
+    try:
+        axes = manual.connect_axes(gantry, keep_faulted=True, readonly=True)
+    except DeviceFault:
+        return
+    missing = unreferenced(axes)
+    manual.close_axes(axes)
+    if missing:
+        raise UsageError(refusal(missing))
 
 
 def add_parsers(sub, fmt) -> None:

@@ -44,6 +44,11 @@ def cmd_emulate(args) -> int:
             tmp.replace(target)
             print(f"config: {target}", flush=True)
         print(f"emulating '{cfg.name}' (material {material.spec}); SIGINT or SIGTERM stops", flush=True)
+        fresh = [n for n, a in cfg.axes.items()
+                 if a.driver != "sim" and (a.reference or a.reference_method) != "none"]
+        if fresh:  # powered up as hardware is: the positions of these are unknown until referenced
+            print(f"powered up unreferenced: {', '.join(fresh)}; run `gonio gantry reference --config "
+                  f"{target or 'FILE'}` before moving them", flush=True)
         while not stop.wait(0.5):
             pass
     finally:
@@ -56,6 +61,7 @@ def cmd_emulate(args) -> int:
 def cmd_gantry(args) -> int:
     from gonio import manual
     from gonio.protocols import DeviceFault
+    from gonio.reference import refusal, unreferenced
     from gonio.wiring import build_gantry
 
     cfg = load_config(args.config)
@@ -79,12 +85,39 @@ def cmd_gantry(args) -> int:
                              "or --axes")
     if args.action == "jog" and (args.axis not in kin.axis_names or args.by is None):
         raise UsageError(f"gonio gantry jog: give --axis (one of {', '.join(kin.axis_names)}) and --by DEG")
+    if args.action == "reference" and args.axis is not None:
+        from gonio.protocols import Referencing
+
+        methods = {n: a.reference_method if isinstance(a, Referencing) else "none"
+                   for n, a in getattr(gantry, "all_axes", gantry.axes).items()}
+        if args.axis not in methods:
+            raise UsageError(f"--axis: {args.axis!r} is not one of {', '.join(methods)}")
+        if methods[args.axis] == "none":
+            have = ", ".join(n for n, m in methods.items() if m != "none")
+            raise UsageError(f"--axis: {args.axis!r} needs no reference (axes.{args.axis}.reference is "
+                             f"'none'); axes that have one: {have}")
     try:
-        axes = manual.connect_axes(gantry, keep_faulted=args.action in ("status", "reboot", "stop"))
+        if args.action in ("home", "move", "jog"):  # refused, nothing written, while one is unreferenced
+            axes = manual.connect_axes(gantry, readonly=True)
+            missing = unreferenced(axes)
+            manual.close_axes(axes)
+            if missing:
+                raise UsageError(refusal(missing))
+        axes = manual.connect_axes(gantry, keep_faulted=args.action in ("status", "reboot", "stop"),
+                                   readonly=args.action == "status")
     except DeviceFault as err:
         print(f"gonio gantry {args.action}: {err}", file=sys.stderr)
         return 1
     try:
+        if args.action == "reference":
+            from gonio.reference import reference_axes
+
+            reference_axes(gantry, cfg, None if args.axis is None else [args.axis])
+            for r in (manual.axis_report(a) for a in axes.values()):
+                print(f"{r['axis']:<18} {r['position_deg']:9.3f}°"
+                      + ("" if r["referenced"] is None else "  referenced" if r["referenced"]
+                         else "  NOT referenced"))
+            return 0
         if args.action == "status":
             reports = [manual.axis_report(a) for a in axes.values()]
             if args.json:
@@ -95,8 +128,10 @@ def cmd_gantry(args) -> int:
                              if r["units"] else "")
                     target = f"{r['target_deg']:.3f}°" if r["target_deg"] is not None else "-"
                     fault = f"  FAULT: {r['fault']}" if r["fault"] else ""
+                    ref = ("  NOT referenced (run `gonio gantry reference`)" if r["referenced"] is False
+                           else "")
                     print(f"{r['axis']:<18} {r['position_deg']:9.3f}°  target {target}{units}"
-                          f"{'  moving' if r['moving'] else ''}{fault}")
+                          f"{'  moving' if r['moving'] else ''}{ref}{fault}")
             return 0
         if args.action == "stop":
             gantry.stop()
@@ -137,7 +172,8 @@ def cmd_gantry(args) -> int:
 def add_parsers(sub, fmt) -> None:
     """This module's subcommands."""
     se = sub.add_parser("emulate", formatter_class=fmt,
-                        help="run the emulated devices of a config until SIGINT/SIGTERM")
+                        help="run the emulated devices of a config until SIGINT/SIGTERM (they power up as "
+                             "hardware does: `gonio gantry reference` first)")
     se.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
     se.add_argument("--material", default="lambert:albedo=0.5", help="MATERIAL the emulated detector sees")
     se.add_argument("--seed", type=_seed, default=0, help="seed of the emulated detector's readings")
@@ -147,14 +183,16 @@ def add_parsers(sub, fmt) -> None:
                     help="serve Modbus TCP on free loopback ports, not the ports the config names")
     se.set_defaults(func=cmd_emulate)
     sg = sub.add_parser("gantry", formatter_class=fmt, help="manual control of the configured gantry")
-    sg.add_argument("action", choices=["status", "home", "move", "jog", "stop", "reboot"])
+    sg.add_argument("action", choices=["status", "home", "move", "jog", "stop", "reboot", "reference"],
+                    help="status: read only, writes nothing; reference: find where the axes are after "
+                         "power-up (each axis's configured method); home/move/jog are refused until then")
     sg.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
     sg.add_argument("--theta-i", type=float, default=None, help="move: θi (°)")
     sg.add_argument("--phi-i", type=float, default=None, help="move: φi (°)")
     sg.add_argument("--theta-o", type=float, default=None, help="move: θo (°)")
     sg.add_argument("--phi-o", type=float, default=None, help="move: φo (°)")
     sg.add_argument("--axes", default=None, help="move: axis positions a,b,c,d (°) in the design's order")
-    sg.add_argument("--axis", default=None, help="jog: the axis; reboot: only this axis")
+    sg.add_argument("--axis", default=None, help="jog: the axis; reboot, reference: only this axis")
     sg.add_argument("--by", type=float, default=None, help="jog: degrees to move by (signed)")
     sg.add_argument("--json", action="store_true", help="status: one JSON object")
     sg.set_defaults(func=cmd_gantry)

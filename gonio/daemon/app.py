@@ -156,6 +156,15 @@ def create_app(d: Daemon) -> FastAPI:
     # -- campaigns --------------------------------------------------------------------------------
     @app.post("/campaigns", status_code=201, response_model=CampaignStatus, dependencies=[Depends(write)])
     def submit(body: CampaignRequest):
+        if d.queue.current is None:  # an idle gantry: refused now, nothing written, while not referenced
+            from gonio.reference import refusal
+
+            try:
+                missing = d.gantry.unreferenced()
+            except DeviceFault:
+                missing = []  # not reachable now: the run reports it when its turn comes
+            if missing:
+                raise Conflict(refusal(missing))
         rec = d.queue.submit(body.model_dump(exclude_none=True))
         return d.queue.status(rec)
 

@@ -2,7 +2,11 @@
 
 The daemon owns one gantry. While a campaign runs, its runner drives it and manual moves are refused;
 otherwise the daemon keeps an idle gantry (wired from the daemon's config, connected on first use and
-closed before a campaign connects its own, so a real bus is never opened twice).
+closed before a campaign connects its own, so a real bus is never opened twice). A status request
+connects its axes read-only (no torque, no goal, no watchdog: asking never energises the rig; the lamp
+and detector are not connected, the light's state is then unknown, ``null``); a manual move reconnects
+them to drive, and is refused (409, one line naming the axis and ``gonio gantry reference``) while an
+axis is not referenced.
 
 Every manual move is checked before anything moves: the pose is one the gantry can reach (the
 kinematics' feasibility), every target is within its axis's limits (:func:`gonio.motion.safe.check_targets`)
@@ -21,8 +25,9 @@ import numpy as np
 from gonio.config import GonioConfig
 from gonio.daemon.pacing import PacedClock
 from gonio.daemon.records import Conflict, FieldError
-from gonio.manual import arrived, plan_move, pose_targets
-from gonio.protocols import DeviceFault
+from gonio.manual import arrived, close_axes, connect_axes, plan_move, pose_targets
+from gonio.protocols import DeviceFault, Referencing
+from gonio.reference import refusal, unreferenced
 
 __all__ = ["GantryOwner", "ANGLES"]
 
@@ -32,8 +37,9 @@ log = logging.getLogger(__name__)
 ANGLES = ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")
 
 
-def snapshot(gantry, owner: str | None) -> dict:
-    """Axes (position, moving, fault, limits), the arm angles they make, light and detector."""
+def snapshot(gantry, owner: str | None, light: bool = True) -> dict:
+    """Axes (position, moving, fault, limits), the arm angles they make, light and detector (``light``
+    False: the lamp is not connected and is not asked)."""
     kin = gantry.kinematics
     axes, pos = [], []
     for name in kin.axis_names:
@@ -43,11 +49,14 @@ def snapshot(gantry, owner: str | None) -> dict:
         axes.append({"name": name, "position_deg": p, "moving": bool(a.is_moving()), "fault": a.fault(),
                      "limits_deg": [float(x) for x in a.limits_deg]})
     ti, pi_, to, po = (float(np.degrees(x[0])) for x in kin.forward(np.asarray(pos)[None, :]))
-    light = gantry.light
+    lamp = gantry.light
+    unreferenced = [n for n in kin.axis_names if isinstance(gantry.axes[n], Referencing)
+                    and gantry.axes[n].reference_method != "none" and not gantry.axes[n].referenced()]
     return {"gantry": gantry.name, "owner": owner, "axes": axes,
             "angles": {"theta_i_deg": ti, "phi_i_deg": pi_, "theta_o_deg": to, "phi_o_deg": po},
             "moving": any(a["moving"] for a in axes), "faults": [a["name"] for a in axes if a["fault"]],
-            "light": {"name": light.name, "on": bool(light.is_on())},
+            "unreferenced": unreferenced,
+            "light": {"name": lamp.name, "on": bool(lamp.is_on()) if light else None},
             "detector": {"name": gantry.detector.name, "channels": list(gantry.detector.channels)}}
 
 
@@ -69,16 +78,21 @@ class GantryOwner:
         self.pace = pace
         self.clock = clock
         self._gantry = None
+        self._readonly = False               # the idle gantry's axes are connected read-only
         self._lock = threading.Lock()        # held while the idle gantry moves or is closed
         self._build = threading.Lock()       # held while it is wired and connected
         self._halt = threading.Event()
 
-    def _idle(self):
-        """The idle gantry, wired and connected on first use."""
+    def _idle(self, readonly: bool = False):
+        """The idle gantry, wired and connected on first use: its axes only and read-only for
+        ``readonly`` (a status), whole for a move (a read-only one is closed and connected again)."""
         with self._build:
-            return self._idle_locked()
+            return self._idle_locked(readonly)
 
-    def _idle_locked(self):
+    def _idle_locked(self, readonly: bool):
+        if self._gantry is not None and self._readonly and not readonly:
+            close_axes(getattr(self._gantry, "all_axes", self._gantry.axes))
+            self._gantry = None
         if self._gantry is None:
             from gonio.wiring import build_gantry
 
@@ -86,8 +100,12 @@ class GantryOwner:
             material = f"lambert:albedo={self.cfg.reference.albedo!r}" if self.cfg.detector.driver == "sim" \
                 else None
             g = build_gantry(self.cfg, material, clock=PacedClock(0.0, self.pace) if sim else self.clock)
-            g.connect()
-            self._gantry = g
+            if readonly and not sim:
+                connect_axes(g, keep_faulted=True, readonly=True)
+            else:
+                g.connect()
+                readonly = False
+            self._gantry, self._readonly = g, readonly
         return self._gantry
 
     def release(self) -> None:
@@ -95,13 +113,23 @@ class GantryOwner:
         with self._lock, self._build:
             if self._gantry is not None:
                 try:
-                    self._gantry.close()
+                    if self._readonly:
+                        close_axes(getattr(self._gantry, "all_axes", self._gantry.axes))
+                    else:
+                        self._gantry.close()
                 finally:
                     self._gantry = None
 
     def status(self) -> dict:
-        """The idle gantry's status; answers during a manual move too (reads only)."""
-        return snapshot(self._idle(), None)
+        """The idle gantry's status; answers during a manual move too (reads only; see the module
+        docstring)."""
+        g = self._idle(readonly=True)
+        return snapshot(g, None, light=not self._readonly)
+
+    def unreferenced(self) -> list[str]:
+        """The axes not referenced, looked at read-only (a submitted campaign is refused while any)."""
+        g = self._idle(readonly=True)
+        return unreferenced(getattr(g, "all_axes", g.axes))
 
     def halt(self) -> None:
         """Stop every axis of the idle gantry now, mid-move too (never waits for a lock)."""
@@ -118,6 +146,9 @@ class GantryOwner:
         if not self._lock.acquire(blocking=False):
             raise Conflict("the gantry is busy (another manual move, or a campaign is starting)")
         try:
+            missing = self.unreferenced()
+            if missing:
+                raise Conflict(refusal(missing))
             g = self._idle()
             kin = g.kinematics
             axes = [g.axes[n] for n in kin.axis_names]

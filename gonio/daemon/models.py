@@ -80,6 +80,8 @@ class GantryStatus(BaseModel):
     angles: dict[str, float]
     moving: bool
     faults: list[str]
+    #: Axes whose position is unknown until `gonio gantry reference` (moves are refused meanwhile).
+    unreferenced: list[str] = []
     light: dict
     detector: dict
 

@@ -319,6 +319,12 @@ class Kinematics:
         """
         return np.zeros(np.asarray(axes_deg).reshape(-1, len(self.axis_names)).shape[0], dtype=np.int64)
 
+    def coupled_axes(self, name: str) -> tuple[str, ...]:
+        """The axes that must move along with ``name`` (same direction, same speed, so that their
+        differences stay as they are) when it moves without a planned path, as when it seeks its
+        reference stop while its position is unknown (none by default)."""
+        return ()
+
     def detours(self) -> list[tuple[int, float]]:
         """(axis, value) pairs worth trying as a via position for one axis when a move is blocked: a
         value where that axis keeps the parts clear whatever the others do (none by default)."""

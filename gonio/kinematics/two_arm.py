@@ -166,6 +166,12 @@ class TwoArm(Kinematics):
         return (f"the light and detector carriages share one ring and may not come within "
                 f"kinematics.arm_collision_deg = {self.arm_collision_deg:g}° of each other, nor pass")
 
+    def coupled_axes(self, name: str) -> tuple[str, ...]:
+        """The carriages share one ring: one that seeks its stop with its position unknown takes the
+        other along, so their azimuth difference, and so their clearance, stays as it was."""
+        pair = ("light_azimuth", "detector_azimuth")
+        return tuple(n for n in pair if n != name) if name in pair else ()
+
     def free_component(self, axes_deg):
         """Strip k of the carriage difference d = a_light − a_detector: d in (360k, 360(k + 1))."""
         axes = np.asarray(axes_deg, dtype=np.float64).reshape(-1, 4)

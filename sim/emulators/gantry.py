@@ -4,7 +4,9 @@ material at the positions the emulated axes stand.
 :class:`EmulatedGantry` reads a config's buses and devices and starts, for each bus:
 
 - ``dynamixel``: a :class:`DynamixelBusEmulator` with one :class:`EmulatedServo` per axis on it (model
-  from the axis's ``family``), each powered up at the axis's home position;
+  from the axis's ``family``), each powered up at the axis's home position, an extended-mode axis with
+  mechanical stops at its limits (the ends of its travel: a hard-stop reference finds them) and, as a
+  real one, reporting its position within one turn: it must be referenced before it moves;
 - ``modbus``: a :class:`ModbusMotorEmulator` following the axis's profile (one controller per bus: TCP
   on the url's loopback port, or RTU over a pty);
 - ``serial``: the lamp's or the detector's emulator, chosen by the device's instrument profile
@@ -99,13 +101,19 @@ class EmulatedGantry:
         Seed of the rendered readings.
     any_port : bool
         Serve Modbus TCP on free loopback ports instead of the ports the urls name.
+    referenced : bool
+        Power up as if a previous session had referenced every axis and nothing was power-cycled since
+        (the servos count from where the config puts them and hold gonio's reference marker; the
+        controllers report their origin set). False (the default, and ``gonio emulate``): as real
+        hardware fresh from power-up, so ``gonio gantry reference`` comes first.
     """
 
     def __init__(self, cfg: GonioConfig, material="lambert:albedo=0.5", *, clock=None, seed: int = 0,
-                 any_port: bool = False):
+                 any_port: bool = False, referenced: bool = False):
         self.cfg = cfg
         self.clock = clock or WallClock()
         self.any_port = any_port
+        self.referenced = referenced
         self.emulators: dict[str, object] = {}
         self.servos: dict[str, EmulatedServo] = {}
         self.motors: dict[str, ModbusMotorEmulator] = {}
@@ -136,9 +144,18 @@ class EmulatedGantry:
                 servos = []
                 for n in axes:
                     a = cfg.axes[n]
-                    ticks = a.homing_offset_ticks + round(a.direction * a.home_deg * _TICKS_PER_REV
-                                                          * a.gear_ratio / 360.0)
-                    servo = EmulatedServo(a.id, _MODELS[a.family], self.clock, position_ticks=ticks)
+
+                    def ticks(deg, a=a):
+                        per_deg = _TICKS_PER_REV * a.gear_ratio / 360.0
+                        return a.homing_offset_ticks + a.direction * deg * per_deg
+
+                    stops = ((None, None) if a.operating_mode != "extended"
+                             else tuple(sorted((ticks(a.min_deg), ticks(a.max_deg)))))
+                    servo = EmulatedServo(a.id, _MODELS[a.family], self.clock,
+                                          position_ticks=round(ticks(a.home_deg)), stops_ticks=stops,
+                                          operating_mode=4 if a.operating_mode == "extended" else 3)
+                    if self.referenced:
+                        servo.assume_referenced()
                     self.servos[n] = servo
                     servos.append(servo)
                 self.emulators[bus_name] = DynamixelBusEmulator(servos)
@@ -150,6 +167,8 @@ class EmulatedGantry:
                 emu = ModbusMotorEmulator(a.profile, clock=self.clock, device_id=a.device_id)
                 steps_per_deg = emu.profile.steps_per_rev * a.gear_ratio / 360.0
                 emu.set_position(a.zero_steps + round(a.direction * a.home_deg * steps_per_deg))
+                if self.referenced:
+                    emu.assume_referenced()
                 self.motors[axes[0]] = emu
                 self.emulators[bus_name] = emu
             elif cfg.light.driver == "serial" and cfg.light.bus == bus_name:
@@ -196,7 +215,7 @@ class EmulatedGantry:
 
             def dxl(t=None) -> float:
                 s = self.servos[name]
-                ticks = s._present_raw_f(t) + s._get(20, 4, True)
+                ticks = s.shaft_ticks(t)
                 return a.direction * (ticks - a.homing_offset_ticks) / per_deg
             return dxl
 

@@ -19,10 +19,17 @@ from dataclasses import dataclass
 
 from gonio.clock import VirtualClock
 
-__all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "mangle", "SyncedVirtualClock"]
+__all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "mangle", "SyncedVirtualClock",
+           "Deferred"]
 
-#: Kinds of fault an emulator applies to its next matching reply.
-FAULT_KINDS = ("drop", "corrupt", "truncate", "delay", "disconnect")
+#: Kinds of fault an emulator applies to its next matching reply: ``drop`` it, ``corrupt`` its last
+#: byte, ``truncate`` it to half, ``delay`` it (the emulator waits ``delay_s`` before it goes on),
+#: ``disconnect`` the link, ``duplicate`` it (sent twice), ``late`` (held back and sent just before the
+#: next reply: after its requester timed out, while the next request waits), ``reorder`` (sent right
+#: after the next reply; see :class:`Deferred`), ``stale`` (instead of the reply, the one sent to the
+#: last identical request: what a late reply of the same length carries, which no pairing by ID,
+#: instruction and length can tell apart).
+FAULT_KINDS = ("drop", "corrupt", "truncate", "delay", "disconnect", "duplicate", "late", "reorder", "stale")
 
 
 class PtyLink:
@@ -180,9 +187,15 @@ class FaultPlan:
 
 
 def mangle(reply: bytes, fault: Fault | None) -> bytes | None:
-    """Apply a byte-level fault to a reply: None to drop it, else the bytes to send (after any delay)."""
+    """Apply a byte-level fault to a reply: None to drop it, else the bytes to send (after any delay).
+    ``late`` and ``reorder`` are scheduled by the emulator (:class:`Deferred`), not here."""
     if fault is None:
         return reply
+    if fault.kind in ("late", "reorder", "stale"):
+        raise ValueError(f"fault '{fault.kind}' is applied by the emulator (Deferred, its own replies), "
+                         "not mangled")
+    if fault.kind == "duplicate":
+        return reply + reply
     if fault.kind == "drop":
         return None
     if fault.kind == "corrupt":
@@ -193,6 +206,45 @@ def mangle(reply: bytes, fault: Fault | None) -> bytes | None:
     if fault.kind == "delay":
         time.sleep(fault.delay_s)  # the emulator's own thread: holding the reply back is the point
     return reply
+
+
+class Deferred:
+    """Replies an emulator holds back, released by the replies that follow (never by a timer, so
+    tests stay deterministic): a ``late`` reply goes out just before the next reply, i.e. after its
+    requester gave up waiting and while the next request waits for its own answer; a ``reorder`` reply
+    goes out right after the next reply. The emulator calls :meth:`hold` for each reply with its fault,
+    :meth:`before` before it writes a reply and :meth:`after` once it wrote one."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._late: list[bytes] = []
+        self._held: list[bytes] = []
+
+    def hold(self, reply: bytes, fault: Fault | None) -> bool:
+        """Take ``reply`` if ``fault`` defers it (True), else leave it to the caller (False)."""
+        if fault is None or fault.kind not in ("late", "reorder"):
+            return False
+        with self._lock:
+            (self._late if fault.kind == "late" else self._held).append(reply)
+        return True
+
+    def before(self, write) -> None:
+        """Before a reply goes out: the late replies go first."""
+        with self._lock:
+            late, self._late = self._late, []
+        for reply in late:
+            write(reply)
+
+    def after(self, write) -> None:
+        """After a reply went out: the replies held for reordering follow it."""
+        with self._lock:
+            held, self._held = self._held, []
+        for reply in held:
+            write(reply)
+
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._late) + len(self._held)
 
 
 class EmulatorThread:

@@ -2,12 +2,18 @@
 registers follow a :class:`gonio.drivers.modbus.profile.MotorProfile` and whose position moves over time.
 
 Writing the profile's move block with its trigger value starts a trapezoidal move on the injected clock;
-reads see the actual position and the status word (ready, moving, alarm bits) of that instant. Faults:
-:attr:`ModbusMotorEmulator.faults` mangles replies (drop, corrupt, truncate, delay, disconnect; match by
-function code), :meth:`fail_next` answers the next request with an exception code, :meth:`raise_alarm`
-trips an alarm (the motor stops, the alarm bit and code are set until the profile's alarm reset);
-:attr:`ModbusMotorEmulator.refuse_gaps` answers a read that touches a register the profile does not
-name with exception 2, as some units do. Function 23 (Read/Write Multiple Registers) writes, then reads.
+reads see the actual position and the status word (ready, moving, alarm, referenced bits) of that
+instant. The profile's origin operation runs the motor to its home sensor (:attr:`home_steps` of the
+shaft) and sets the position 0 there, and the referenced bit. Faults: :attr:`ModbusMotorEmulator.faults`
+mangles replies (drop, corrupt, truncate, delay, disconnect, duplicate; late: held back and sent just
+before the next reply; reorder: sent right after it; stale: the reply to the last identical request
+instead; match by function code), :meth:`fail_next` answers
+the next request with an exception code, :meth:`raise_alarm` trips an alarm (the motor stops, the alarm
+bit and code are set until the profile's alarm reset), :meth:`go_silent` stops answering (a controller
+that hangs), :meth:`power_cycle` cuts and restores its power (an incremental drive loses its position and
+origin: it counts from 0 where the shaft stands); :attr:`ModbusMotorEmulator.refuse_gaps` answers a read
+that touches a register the profile does not name with exception 2, as some units do. Function 23
+(Read/Write Multiple Registers) writes, then reads.
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from gonio.clock import WallClock
 from gonio.drivers.modbus.profile import MotorProfile, load_profile
 from gonio.motion.trapezoid import move_time, position_at
-from gonio.sim.emulators.link import FaultPlan, PtyLink, mangle
+from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, mangle
 
 __all__ = ["ModbusMotorEmulator"]
 
@@ -47,7 +53,18 @@ class ModbusMotorEmulator:
         self.clock = clock or WallClock()
         self.device_id = device_id
         self.faults = FaultPlan()
+        self.deferred = Deferred()
+        self._last: dict[bytes, bytes] = {}  # the last reply to each request (its PDU), for "stale"
+        self._asked = b""
         self.requests: list[bytes] = []  # raw request frames, for byte-exact tests
+        #: Where the home sensor is (steps of the shaft, the frame of :meth:`set_position`).
+        self.home_steps = 0.0
+        #: Whether the controller knows its origin (the profile's referenced bit).
+        self.referenced = False
+        self._count = 0.0  # the controller's position less the shaft's
+        self._homing = False
+        self._silent = False
+        self.power_cycles = 0
         #: Refuse (exception 2) a read touching an address that no register of the profile covers.
         self.refuse_gaps = False
         self._named = {r.address + i for r in self.profile.registers.values() for i in range(r.count)}
@@ -69,30 +86,64 @@ class ModbusMotorEmulator:
 
     # -- the motor ------------------------------------------------------------------------------------
     def position_steps(self) -> int:
-        t0, start, goal, v, a = self._move
-        if start == goal:
-            return int(round(goal))
-        return int(round(position_at(self.clock.now() - t0, start, goal, v, a)))
+        """The controller's position (steps) now: the shaft's, in the frame it counts from."""
+        return int(round(self._shaft() + self._count))
 
-    def moving(self) -> bool:
-        t0, start, goal, v, a = self._move
-        return start != goal and self.clock.now() - t0 < float(move_time(goal - start, v, a))
-
-    def set_position(self, steps: int) -> None:
-        """Put the motor at rest at ``steps`` (where it stood at power-up)."""
-        with self._lock:
-            self._move = (self.clock.now(), float(steps), float(steps), 1.0, 1.0)
-
-    def position_steps_f(self, t: float | None = None) -> float:
-        """The shaft position (steps, unrounded) now, or at clock time ``t`` on the move under way:
-        what an optical model of the gantry sees."""
+    def _shaft(self, t: float | None = None) -> float:
         t0, start, goal, v, a = self._move
         if start == goal:
             return goal
         return float(position_at((self.clock.now() if t is None else t) - t0, start, goal, v, a))
 
+    def assume_referenced(self) -> None:
+        """As if the origin had been set in an earlier session and kept since: the referenced bit on,
+        the controller counting in the shaft's frame."""
+        with self._lock:
+            self.referenced, self._count = True, 0.0
+
+    def power_cycle(self) -> None:
+        """Power off and on: alarms and the move end; an incremental drive (the profile not
+        ``absolute``) loses its position and origin: it counts from 0 where the shaft stands."""
+        with self._lock:
+            self.power_cycles += 1
+            self._hold()
+            self.alarm_code = 0
+            self._homing = False
+            if not self.profile.absolute:
+                self._count = -self._shaft()
+                self.referenced = False
+
+    def halt(self) -> None:
+        """Stop the motor where it is, as its stop input or another client would."""
+        with self._lock:
+            self._hold()
+            self._homing = False
+
+    def go_silent(self, silent: bool = True) -> None:
+        """Stop answering every request (a controller that hangs), or answer again."""
+        self._silent = silent
+
+    def moving(self) -> bool:
+        t0, start, goal, v, a = self._move
+        moving = start != goal and self.clock.now() - t0 < float(move_time(goal - start, v, a))
+        if self._homing and not moving:  # at the home sensor: the origin is here
+            self._homing, self.referenced = False, True
+            self._count = -self.home_steps
+        return moving
+
+    def set_position(self, steps: int) -> None:
+        """Put the motor at rest at ``steps`` (where it stood at power-up; the controller counts there)."""
+        with self._lock:
+            self._move = (self.clock.now(), float(steps) - self._count, float(steps) - self._count, 1.0, 1.0)
+
+    def position_steps_f(self, t: float | None = None) -> float:
+        """The shaft position (steps, unrounded, the frame of :meth:`set_position` when the controller
+        counts from its origin) now, or at clock time ``t`` on the move under way: what an optical model
+        of the gantry sees."""
+        return self._shaft(t)
+
     def _hold(self) -> None:
-        p = float(self.position_steps())
+        p = float(round(self._shaft()))
         self._move = (self.clock.now(), p, p, 1.0, 1.0)
 
     def raise_alarm(self, code: int) -> None:
@@ -119,10 +170,13 @@ class ModbusMotorEmulator:
 
     def _refresh(self) -> None:
         p = self.profile
+        moving = self.moving()
         self._set("actual_position", self.position_steps())
-        status = (int(self.moving()) << p.moving_bit) | (int(bool(self.alarm_code)) << p.alarm_bit)
+        status = (int(moving) << p.moving_bit) | (int(bool(self.alarm_code)) << p.alarm_bit)
         if p.ready_bit is not None and not self.alarm_code:
             status |= 1 << p.ready_bit
+        if p.referenced_bit is not None and self.referenced:
+            status |= 1 << p.referenced_bit
         self._set("status", status)
         self._set("alarm_code", self.alarm_code)
 
@@ -132,14 +186,21 @@ class ModbusMotorEmulator:
         touched = {n for n, r in p.registers.items()
                    if r.address < address + count and address < r.address + r.count}
         last = p.move_block[-1]
+        v = p.velocity_rev_s(self._get("velocity")) * p.steps_per_rev
+        a = p.accel_rev_s2(self._get("acceleration")) * p.steps_per_rev
+        v = v if v > 0 else p.steps_per_rev  # the origin operation before any move: a turn a second
+        a = a if a > 0 else 4.0 * p.steps_per_rev
         if last in touched and self._get(last) == p.move_constants.get(last) and not self.alarm_code:
-            start = float(self.position_steps())
-            v = p.velocity_rev_s(self._get("velocity")) * p.steps_per_rev
-            a = p.accel_rev_s2(self._get("acceleration")) * p.steps_per_rev
-            self._move = (self.clock.now(), start, float(self._get("target_position")), max(v, 1e-9),
-                          max(a, 1e-9))
+            goal = float(self._get("target_position")) - self._count
+            self._move = (self.clock.now(), self._shaft(), goal, max(v, 1e-9), max(a, 1e-9))
+            self._homing = False
+        if (p.origin is not None and p.origin.register in touched and self._get(p.origin.register)
+                == p.origin.value and not self.alarm_code):
+            self._move = (self.clock.now(), self._shaft(), float(self.home_steps), v, a)
+            self._homing, self.referenced = True, False
         if p.stop.register in touched and self._get(p.stop.register) == p.stop.value:
             self._hold()
+            self._homing = False
         if p.alarm_reset.register in touched and self._get(p.alarm_reset.register) == p.alarm_reset.value:
             self.alarm_code = 0
 
@@ -167,14 +228,29 @@ class ModbusMotorEmulator:
     def _trace(self, sending: bool, data: bytes) -> bytes:
         if not sending:
             self.requests.append(bytes(data))
+            # The request's PDU (no TCP transaction header, no RTU CRC): what "stale" replies are kept by.
+            self._asked = bytes(data[7:]) if self.address is not None else bytes(data[1:-2])
             return data
+        if self._silent:
+            return b""
         fc = data[7] if self.address is not None else data[1]
         fault = self.faults.take(fc & 0x7F)
         if fault is not None and fault.kind == "disconnect":
             self._disconnect()
             return b""
+        earlier, self._last[self._asked] = self._last.get(self._asked, bytes(data)), bytes(data)
+        if fault is not None and fault.kind == "stale":
+            data, fault = earlier, None  # on TCP it keeps its old transaction id
+        if self.deferred.hold(bytes(data), fault):
+            return b""
         out = mangle(data, fault)
-        return b"" if out is None else out
+        if out is None:
+            return b""
+        frames: list[bytes] = []
+        self.deferred.before(frames.append)
+        frames.append(out)
+        self.deferred.after(frames.append)
+        return b"".join(frames)
 
     def _disconnect(self) -> None:
         if self.address is not None and self._server is not None:

@@ -26,7 +26,7 @@ MATERIAL = "cook-torrance:d=beckmann,m=0.3,metal=gold"
 def test_the_daemon_flies_a_campaign_on_the_dynamixel_twin(serve, tmp_path):
     clock = SyncedVirtualClock()
     twin = load_config("emulated-two-arm-dynamixel")
-    with EmulatedGantry(twin, MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(twin, MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         d = serve(cfg=emu.config(), clock=clock)
         r = d.client.post("/campaigns", json={"grid": "iso:step=30,order=fly", "sample": "gold"})
         assert r.status_code == 201, r.text
@@ -98,7 +98,7 @@ def test_pause_halt_and_resume_of_a_fly_campaign_through_the_daemon_keep_whole_s
     reading per step, every pose read on the fly."""
     clock = _PacedSyncedClock(pace=0.05)
     twin = load_config("emulated-two-arm-dynamixel")
-    with EmulatedGantry(twin, MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(twin, MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         d = serve(cfg=emu.config(), clock=clock)
         r = d.client.post("/campaigns", json={"grid": "iso:step=30,order=fly", "sample": "gold"})
         cid = r.json()["id"]

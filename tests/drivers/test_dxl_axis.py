@@ -24,12 +24,12 @@ from gonio.sim.emulators.dxl_packet import Inst
 
 
 @pytest.fixture
-def rig(dxl_emu):
+def rig(dxl_emu, clock):
     """A bus with axes 'a' (ID 1) and 'b' (ID 2) centred on tick 2048, connected; closed at the end."""
     bus = DynamixelBus(dxl_emu.port, name="dxl0")
     a = DynamixelAxis("a", bus, 1, limits_deg=(-90.0, 90.0), homing_offset_ticks=2048,
-                      velocity_deg_s=90.0, accel_deg_s2=180.0, watchdog_s=0.2)
-    b = DynamixelAxis("b", bus, 2, limits_deg=(-90.0, 90.0), homing_offset_ticks=2048)
+                      velocity_deg_s=90.0, accel_deg_s2=180.0, watchdog_s=0.2, clock=clock)
+    b = DynamixelAxis("b", bus, 2, limits_deg=(-90.0, 90.0), homing_offset_ticks=2048, clock=clock)
     a.connect()
     b.connect()
     try:
@@ -112,9 +112,16 @@ def test_move_follows_the_trapezoid(rig, clock, dxl_emu):
 def test_extended_mode_reads_signed_positions(dxl_emu, clock):
     bus = DynamixelBus(dxl_emu.port)
     axis = DynamixelAxis("spin", bus, 2, limits_deg=(-720.0, 720.0), operating_mode="extended",
-                         velocity_deg_s=270.0, accel_deg_s2=2000.0)
+                         velocity_deg_s=270.0, accel_deg_s2=2000.0, clock=clock)
     axis.connect()
     try:
+        assert not axis.referenced()
+        with pytest.raises(DeviceFault, match="not referenced.*gonio gantry reference"):
+            axis.move_to(10.0)
+        # The shaft reads 180° within its turn; an index at 530° says which turn: 540°, 10° past the mark.
+        assert axis.reference_index(530.0) == pytest.approx(10.0, abs=360 / 4096)
+        assert axis.referenced() and axis.position_deg() == pytest.approx(540.0)
+        assert axis.reference_info()["correction_ticks"] == 4096
         assert dxl_emu.servos[2].value(11) == 4
         axis.move_to(-700.0)
         settle(clock, axis, step_s=0.05)
@@ -205,7 +212,7 @@ def test_hardware_error_latches_and_only_clear_fault_reboots(rig, dxl_emu, clock
         a.is_moving()
     assert not err.value.transient
     assert err.value.flags == HardwareError.OVERLOAD | HardwareError.OVERHEATING
-    assert a.fault() == "servo 1 hardware error: overheating + overload"
+    assert a.fault() == "servo 1 hardware error: overheating + overload (Shutdown acts on it: torque is off)"
     with pytest.raises(DynamixelHardwareError, match="latched"):
         a.move_to(0.0)
     assert dxl_emu.servos[1].reboots == 0
@@ -219,10 +226,37 @@ def test_hardware_error_latches_and_only_clear_fault_reboots(rig, dxl_emu, clock
 
 def test_hardware_error_seen_by_group_read(rig, dxl_emu):
     _bus, a, b = rig
-    dxl_emu.servos[2].inject_hardware_error(int(HardwareError.INPUT_VOLTAGE))
-    with pytest.raises(DynamixelHardwareError, match="input voltage"):
+    dxl_emu.servos[2].inject_hardware_error(int(HardwareError.OVERLOAD))
+    with pytest.raises(DynamixelHardwareError, match="overload") as err:
         DynamixelGroup([a, b]).read()
+    assert not err.value.transient and "torque is off" in str(err.value)
     assert b.fault() is not None and a.fault() is None
+
+
+def test_a_hardware_error_the_shutdown_setting_ignores_is_a_warning_and_the_servo_goes_on(rig, dxl_emu,
+                                                                                          clock):
+    """Input voltage is not in the default Shutdown (0x34): the servo keeps its torque and its move; the
+    driver reports a warning once, moves on, and says what the servo did."""
+    _bus, a, b = rig
+    servo = dxl_emu.servos[2]
+    assert servo.value(63) == 0x34
+    group = DynamixelGroup([a, b])
+    group.move_to({"b": 20.0})
+    servo.inject_hardware_error(int(HardwareError.INPUT_VOLTAGE))
+    assert servo.value(64) == 1  # torque stays on: the servo did not act on it
+    group.read()
+    assert b.fault() is None
+    (warning,) = b.warnings()
+    assert "input voltage" in warning and "keeps its torque" in warning and "torque off" not in warning
+    for _ in range(100):
+        clock.sleep(0.05)
+        if not group.read()["b"].moving:
+            break
+    assert b.position_deg() == pytest.approx(20.0, abs=0.05) and b.warnings() == []
+    servo.inject_hardware_error(int(HardwareError.OVERHEATING))  # in Shutdown: torque goes off
+    clock.sleep(1.0)  # the alert bit stays up: Hardware Error Status is read again after 1 s
+    with pytest.raises(DynamixelHardwareError, match="overheating.*torque is off"):
+        group.read()
 
 
 def test_bus_watchdog_stops_servo_when_gonio_goes_quiet(rig, dxl_emu, clock):
@@ -296,7 +330,7 @@ def test_telemetry(rig, dxl_emu):
     assert a.temperature_c() == 51.0
     assert a.voltage_v() == pytest.approx(11.8)
     assert a.current_a() == pytest.approx(3 * 0.00269)
-    xl = DynamixelAxis("xl", a.bus, 3, limits_deg=(0.0, 90.0), family="XL430")
+    xl = DynamixelAxis("xl", a.bus, 3, limits_deg=(0.0, 90.0), family="XL430", clock=a.clock)
     with pytest.raises(DeviceFault, match="report load, not current"):
         xl.current_a()
 

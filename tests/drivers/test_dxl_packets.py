@@ -112,7 +112,7 @@ def test_transmit_side_is_stuffed(dxl_emu):
     txPacket drops its stuffing), so the servo reads the value back intact."""
     bus = DynamixelBus(dxl_emu.port)
     axis = DynamixelAxis("spin", bus, 1, limits_deg=(-20000.0, 20000.0), operating_mode="extended",
-                         homing_offset_ticks=0)
+                         homing_offset_ticks=0, clock=dxl_emu.servos[1].clock)
     axis.connect()
     try:
         n = len(dxl_emu.received)

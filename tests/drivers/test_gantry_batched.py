@@ -39,7 +39,8 @@ def _packets(raw: list[bytes]):
 
 def test_every_poll_of_a_step_is_one_sync_read_per_bus_and_no_servo_is_read_alone(tmp_path):
     clock = SyncedVirtualClock()
-    with EmulatedGantry(parse_config(_two_buses()), MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(parse_config(_two_buses()), MATERIAL, clock=clock, any_port=True,
+                        referenced=True) as emu:
         cfg = emu.config()
         gantry = build_gantry(cfg, clock=clock)
         buses = {"arm": (1, 2, 5), "arm2": (3, 4)}  # servo IDs on each bus (5: the changer)
@@ -78,15 +79,16 @@ def test_every_poll_of_a_step_is_one_sync_read_per_bus_and_no_servo_is_read_alon
             syncs = [p for p in packets if p.inst == Inst.SYNC_READ]
             assert len(syncs) == n_polls, (step, bus, len(syncs), n_polls)
             ids = tuple(i for i in buses[bus] if i != 5)
-            for p in syncs:  # address 98, 38 bytes, then the IDs: every kinematics servo on the bus
-                assert p.params[:4] == bytes([98, 0, 38, 0]) and tuple(p.params[4:]) == ids
+            for p in syncs:  # address 98, 38 bytes (widened by 0..3: replies paired), then the IDs
+                assert p.params[:2] == bytes([98, 0]) and p.params[3] == 0 and 38 <= p.params[2] <= 41
+                assert tuple(p.params[4:]) == ids
     assert checked >= 5
 
 
 def test_the_watchdog_is_fed_during_a_move_and_stops_the_servos_when_nobody_talks():
     clock = SyncedVirtualClock()
     with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
-                        any_port=True) as emu:
+                        any_port=True, referenced=True) as emu:
         cfg = emu.config()
         assert cfg.axes["light_tilt"].watchdog_s == 0.5  # armed in the shipped config
         gantry = build_gantry(cfg, clock=clock)
@@ -160,7 +162,7 @@ def test_a_manual_move_longer_than_the_watchdog_arrives():
 
     clock = SyncedVirtualClock()
     with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
-                        any_port=True) as emu:
+                        any_port=True, referenced=True) as emu:
         cfg = emu.config()
         gantry = build_gantry(cfg, clock=clock)
         axes = manual.connect_axes(gantry)

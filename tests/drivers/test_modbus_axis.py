@@ -61,7 +61,8 @@ def test_profiles_load_and_validate():
         p = load_profile(name)
         assert set(p.secondary) <= set(p.registers) | {"status bits", "stop", "alarm_reset", "move",
                                                         "word_order", "steps_per_rev", "velocity_unit",
-                                                        "accel_unit", "span_read", "write_read"}
+                                                        "accel_unit", "span_read", "write_read",
+                                                        "origin", "absolute"}
     typo = tomllib.loads(resources.files("gonio.drivers.modbus").joinpath(
         "profiles/leadshine_pr.toml").read_text())
     typo["secondary"] = ["staus"]
@@ -113,6 +114,7 @@ def test_move_waits_for_moving_bit_and_reaches_target(motor, clock):
 ])
 def test_move_request_bytes_per_profile(clock, profile, request_hex):
     emu = ModbusMotorEmulator(profile, clock=clock)
+    emu.assume_referenced()  # the Leadshine drive is incremental: an axis on it moves once referenced
     url = f"rtu://{emu.start_rtu()}?baudrate=115200"
     axis = ModbusAxis("s", make_client(url, timeout_s=0.2, retries=0), profile, limits_deg=(-180.0, 180.0),
                       velocity_deg_s=90.0, accel_deg_s2=180.0, clock=clock)
@@ -308,3 +310,35 @@ def test_a_unit_without_function_23_gets_the_block_by_function_16(az, clock):
     with pytest.raises(ModbusExceptionError, match=r"tilt: write move block at 0x0058 and read 79 at 0x007f "
                                                    r"\(function 23\): exception response, code 3"):
         axis.move_to(5.0)
+
+
+def test_a_late_reply_is_never_taken_for_another_request(motor, transport):
+    """A status read's reply comes after its time-out, just before the reply to the next request (a stop).
+    TCP: pymodbus skips it by its transaction id. RTU: pymodbus takes it (the first frame from the unit);
+    the driver sees it is a read's reply, not the write's, discards it, and asks again."""
+    emu, axis = motor
+    emu.faults.add("late", match=3)
+    with pytest.raises(ModbusCommError, match="No response"):
+        axis.is_moving()
+    axis.stop()
+    assert ("late", 3) in emu.faults.applied and emu.deferred.pending() == 0
+    assert axis.discarded == (1 if transport == "rtu" else 0)  # the stray frame
+    assert axis.position_deg() == 0.0 and not axis.is_moving()
+
+
+def test_a_stale_rtu_position_is_not_used(motor, clock):
+    """On RTU nothing tells an earlier reply to the same read from this one: mid-move, the position read
+    returns the sample of 0.4 s before (some 30° back), older than the last good read (the state, read
+    since) and farther from it than the axis can have travelled: read again, the true position returned."""
+    emu, axis = motor
+    if emu.address is not None:
+        pytest.skip("on TCP an earlier reply carries an earlier transaction id: pymodbus skips it")
+    axis.move_to(170.0)
+    clock.sleep(0.2)
+    axis.position_deg()  # the earlier sample, kept by the emulator for this read
+    clock.sleep(0.4)
+    axis.read_state()  # the last good read: another request
+    emu.faults.add("stale", match=3)
+    got = axis.position_deg()
+    assert got == pytest.approx(axis.deg_of_steps(emu.position_steps()), abs=0.05)
+    assert axis.guard.rejected == 1

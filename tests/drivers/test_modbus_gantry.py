@@ -29,7 +29,7 @@ def stage():
     each controller standing at its ``WHERE`` position; all stopped at the end."""
     clock = SyncedVirtualClock()
     with EmulatedGantry(load_config("emulated-sample-stage-modbus"), MATERIAL, clock=clock,
-                        any_port=True) as emu:
+                        any_port=True, referenced=True) as emu:
         gantry = build_gantry(emu.config(), clock=clock)
         gantry.connect()
         try:

@@ -70,7 +70,7 @@ def flown(tmp_path_factory):
     """An uninterrupted fly campaign on the emulated Dynamixel gantry."""
     folder = tmp_path_factory.mktemp("fly")
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         state, runner, meta = _fly(folder, emu, clock)
         assert state == State.DONE, runner.fault
         servos = {n: (s.watchdog_fired_at, s.value(98), s.value(112), s.value(108))
@@ -135,7 +135,7 @@ def test_a_dry_run_fly_campaign_renders_along_the_servos_read_backs(tmp_path, st
     from gonio.sim.detector import SimDetector
 
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         data = emu.config().model_dump(mode="python", exclude_unset=True)
         data["detector"] = {"driver": "sim", "channels": ["R", "G", "B"], "exposure_s": 0.1, "frames": 1,
                             "sim": {"half_angle_deg": 1.0, "aperture_samples": 256,
@@ -180,7 +180,7 @@ def test_the_stored_directions_follow_the_axis_reads_not_the_plan(tmp_path):
     clock = SyncedVirtualClock()
     truth: list[tuple[float, np.ndarray]] = []
     starts: list[float] = []
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         for s in emu.servos.values():
             s._velocity_ticks_s = (lambda f: lambda: 1.06 * f())(s._velocity_ticks_s)
 
@@ -260,7 +260,7 @@ def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_done_again(t
     clock = SyncedVirtualClock()
     runners = []
     folder = tmp_path / "fly"
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         hook = _after_subreads(30, lambda g: runners[0].request_halt("operator: emergency stop"))
         state, runner, _ = _fly(folder, emu, clock, on_runner=runners.append, detector_hook=hook)
         assert state == State.HALTED
@@ -294,7 +294,7 @@ def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_done_again(t
 def test_a_servo_hardware_error_mid_sweep_faults_naming_the_axis(tmp_path):
     clock = SyncedVirtualClock()
     folder = tmp_path / "fly"
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True) as emu:
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         def overload(g):
             moving = [n for n, s in emu.servos.items() if s._moving() and n != "changer"]
             assert len(moving) == 1  # one axis sweeps
@@ -366,7 +366,7 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
     data["detector"]["exposure_s"] = 0.02
     cfg = parse_config(data)
     out = tmp_path / "run"
-    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True) as emu:
+    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True, referenced=True) as emu:
         path = tmp_path / "gantry.toml"
         path.write_text(emu.config_toml())
         argv = [sys.executable, "-m", "gonio.cli", "run", "--config", str(path), "--grid",
