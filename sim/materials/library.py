@@ -73,14 +73,18 @@ class MaterialsFolder:
             return Merl(f"merl:{rest}", rest, parse_merl(data, rest))
         return MeasuredTensor.from_fields(f"bsdf:{rest}", rest, parse_tensor(data, rest))
 
-    def read(self, model: str, name: str) -> bytes:
-        """The bytes of ``name`` for ``model`` (see the module docstring for what is refused)."""
+    def check_name(self, model: str, name: str) -> None:
+        """ValueError unless this folder could serve ``name`` by its spelling alone (no file is looked at)."""
         if self.root is None:
             raise ValueError(f"{model}:NAME names a measured material; this daemon serves none (start it "
                              "with --materials DIR)")
         if not _NAME.match(name):
             raise ValueError(f"{model}: expected the name of a file in the daemon's materials folder "
                              f"(letters, digits, '.', '_', '-'), never a path; got {name[:200]!r}")
+
+    def read(self, model: str, name: str) -> bytes:
+        """The bytes of ``name`` for ``model`` (see the module docstring for what is refused)."""
+        self.check_name(model, name)
         cap = FILE_MODELS[model]
         what = "a MERL table of exactly" if model == "merl" else "a regular file of at most"
         missing = ValueError(f"{model}:{name}: no such material in the daemon's materials folder ({what} "

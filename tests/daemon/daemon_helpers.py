@@ -10,7 +10,7 @@ import pytest
 
 #: Upper bound for every wait in these tests (a campaign of a few dozen steps takes well under it).
 WAIT_S = 60.0
-TOKEN = "s3cret-token"
+TOKEN = "s3cret-token-of-the-lab"
 
 
 def wait_for(predicate, what: str, timeout_s: float = WAIT_S, poll_s: float = 0.01):
