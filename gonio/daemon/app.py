@@ -148,9 +148,9 @@ def create_app(d: Daemon) -> FastAPI:
             raise HTTPException(401, "this daemon needs its token for every write: send 'Authorization: "
                                 "Bearer <token>' (GONIO_TOKEN)", headers={"WWW-Authenticate": "Bearer"})
 
-    async def halt_auth(request: Request, cred: Bearer) -> None:
+    async def halt_auth(request: Request) -> None:   # its security is said in halt_security
         if d.halt_needs_token or not (request.client and is_loopback(request.client.host)):
-            await write(request, cred)
+            await write(request, None)
 
     auth = [Depends(write)] if d.token else []
     auth_codes = (401, 429) if d.token else ()
@@ -246,10 +246,10 @@ def create_app(d: Daemon) -> FastAPI:
         _idle_only()
         return d.gantry.move(body.model_dump())
 
-    halt_extra = {"security": [{"HTTPBearer": []}, {}]} if d.token and not d.halt_needs_token else None
+    halt_security = [{"HTTPBearer": []}] + ([{}] if not d.halt_needs_token else [])
 
     @app.post("/gantry/halt", response_model=Accepted, dependencies=[Depends(halt_auth)] if d.token else [],
-              responses=_docs(*writes), openapi_extra=halt_extra,
+              responses=_docs(*writes), openapi_extra={"security": halt_security} if d.token else None,
               description="Emergency stop: every axis stops now, mid-move too; the running campaign is "
               "held. Served on threads of its own. " + ("A loopback client needs no token." if d.token
                                                         and not d.halt_needs_token else ""))

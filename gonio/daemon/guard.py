@@ -12,8 +12,9 @@ sends nonsense must cost the daemon nothing. In order, for every request:
    the daemon's names when present. Tools (the CLI, curl, httpx) send neither and pass.
 3. A write's **body** is JSON (``Content-Type: application/json``), else 415: a cross-site form can send
    only form encodings and text/plain. Every body is bounded (:data:`MAX_BODY_BYTES`, 413) and must
-   arrive within ``body_timeout_s`` (408 and the connection closed); JSON holding NaN or ±Infinity, which
-   Python reads but JSON does not have, or nested past any sense, is 422 before a route parses it.
+   arrive within ``body_timeout_s`` (408 and the connection closed). A write's body that is not UTF-8
+   JSON, holds NaN or ±Infinity (which Python reads but JSON does not have) or nests past any sense is
+   422 before a route parses it.
 
 Every refusal is one JSON line ``{"detail": ...}``. The time a request's head may take is bounded by
 the server (:mod:`gonio.daemon.server`).
@@ -189,16 +190,19 @@ def _no_constant(name: str):
 
 
 def _json_problem(body: bytes) -> str | None:
-    """Why a JSON body is refused before parsing (NaN, ±Infinity, nesting), or None; malformed JSON is
-    left to the route (FastAPI names where it breaks)."""
+    """Why a JSON body is refused before a route parses it (not UTF-8, not JSON, NaN or ±Infinity,
+    nested past sense), or None."""
     try:
-        json.loads(body, parse_constant=_no_constant)
+        json.loads(body.decode("utf-8"), parse_constant=_no_constant)
+    except UnicodeDecodeError:
+        return "body: not UTF-8 text"
     except RecursionError:
         return "body: JSON nested too deeply"
+    except json.JSONDecodeError as err:
+        return f"body: not JSON ({err})"
     except ValueError as err:
-        if str(err) in ("NaN", "Infinity", "-Infinity"):
-            return (f"body: {err} is not a JSON number (RFC 8259 has no NaN or Infinity); every number must "
-                    "be finite")
+        return (f"body: {err} is not a JSON number (RFC 8259 has no NaN or Infinity); every number must be "
+                "finite")
     return None
 
 

@@ -41,7 +41,7 @@ def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_p
     submit(r.client, grid="iso:step=10", material="ggx:alpha=0.2,metal=gold")
     page.goto(r.url + "/")
     page.wait_for_selector("#queue tbody tr[data-id='c00001']")
-    assert page.is_disabled("#pause") and page.is_disabled("#halt")    # no token typed yet
+    assert page.is_disabled("#pause") and not page.is_disabled("#halt")    # no token typed yet: HALT is live
     page.fill("#token", TOKEN)
     page.wait_for_function("document.querySelector('#conn').textContent === 'live'")
     # The slice fills in as measurements arrive, and the sketch shows the pose.
