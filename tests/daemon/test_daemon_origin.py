@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 
-import pytest
 from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
 from test_daemon_web import CHROMIUM, FLAGS, pytestmark  # noqa: F401  (the skip when chromium is absent)
 
@@ -62,7 +61,7 @@ def test_cross_site_forms_and_no_cors_fetches_are_refused_while_a_campaign_runs(
         try:
             # Another site (attacker.test), and the same site on another port (127.0.0.1:1).
             for origin in ("http://attacker.test/", f"http://127.0.0.1:{int(port) % 60000 + 1}/"):
-                page, seen = _page_at(browser, origin, '<html><body><iframe name="sink"></iframe></body></html>')
+                page, seen = _page_at(browser, origin, '<html><body><iframe name="sink"></iframe></body>')
                 for path in ATTACKS:
                     for enctype in ("text/plain", "application/x-www-form-urlencoded"):
                         with page.expect_response(f"{daemon}{path}") as resp:
@@ -70,7 +69,8 @@ def test_cross_site_forms_and_no_cors_fetches_are_refused_while_a_campaign_runs(
                                 const f = document.createElement('form');
                                 f.method = 'POST'; f.action = url; f.enctype = enctype; f.target = 'sink';
                                 const i = document.createElement('input');
-                                i.name = '{"grid": "iso:step=30", "material": "lambert:albedo=0.5", "x'; i.value = '"}';
+                                i.name = '{"grid": "iso:step=30", "material": "lambert:albedo=0.5", "x';
+                                i.value = '"}';
                                 f.appendChild(i); document.body.appendChild(f); f.submit(); }""",
                                           [f"{daemon}{path}", enctype])
                         assert resp.value.status == 403, (origin, path, enctype)
@@ -114,9 +114,11 @@ def test_a_rebinding_page_can_neither_read_nor_write(serve):
                     const r = await fetch(path); out['GET ' + path] = [r.status, await r.text()];
                 }
                 for (const path of ['/gantry/halt', '/campaigns/c00001/pause', '/campaigns/c00001/abort']) {
-                    const r = await fetch(path, {method: 'POST'}); out['POST ' + path] = [r.status, await r.text()];
+                    const r = await fetch(path, {method: 'POST'});
+                    out['POST ' + path] = [r.status, await r.text()];
                 }
-                const r = await fetch('/campaigns', {method: 'POST', headers: {'Content-Type': 'application/json'},
+                const r = await fetch('/campaigns', {method: 'POST',
+                    headers: {'Content-Type': 'application/json'},
                     body: JSON.stringify({grid: 'iso:step=30', material: 'lambert:albedo=0.5'})});
                 out['POST /campaigns'] = [r.status, await r.text()];
                 return out; }""")
