@@ -78,20 +78,15 @@ class HostNames:
                 allowed.add(name)
             elif self.port is not None:
                 allowed.add(f"{name}:{self.port}")
-                if self.port == 80:
-                    allowed.add(name)
         self._allowed = frozenset(allowed)
 
     def accepts(self, host: str | None, default_port: int = 80) -> bool:
-        """True when ``host`` (a Host header, or an origin's host with its scheme's default port) names
-        this daemon."""
-        if not host:
+        """True when ``host`` (a Host header, or an origin's host; without a port, its scheme's default)
+        names this daemon."""
+        m = _HOST.match((host or "").strip().lower())
+        if m is None:
             return False
-        host = host.strip().lower()
-        if host in self._allowed:
-            return True
-        m = _HOST.match(host)
-        return m is not None and m.group(2) is None and f"{host}:{default_port}" in self._allowed
+        return f"{m.group(1)}:{m.group(2) or default_port}" in self._allowed
 
 
 def _origin_host(origin: str) -> tuple[str, int] | None:
