@@ -125,6 +125,7 @@ class Planner:
         self._proc = None
         self._conn = None
         self.busy = False          # a request is being planned now
+        self.planned = 0           # requests the worker was given
         self.killed = 0            # workers killed (time limit, a client gone)
 
     # -- life --------------------------------------------------------------------------------------
@@ -211,6 +212,7 @@ class Planner:
     def _plan(self, job: _Job):
         conn = self._worker()
         conn.send((job.req, str(job.folder)))
+        self.planned += 1
         deadline = time.monotonic() + self.timeout_s
         while not conn.poll(_POLL_S):
             if job.cancelled.is_set() or time.monotonic() > deadline or not self._proc.is_alive():

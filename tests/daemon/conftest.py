@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import httpx
 import pytest
-from daemon_helpers import WAIT_S
+from daemon_helpers import STARTED, WAIT_S
 
 from gonio.config import load_config
 from gonio.daemon.server import build_daemon, start_in_thread
@@ -32,3 +32,16 @@ def serve(tmp_path):
     for r in running:
         r.client.close()
         r.stop()
+
+
+@pytest.fixture(autouse=True)
+def _no_daemon_left_behind():
+    """Every ``gonio serve`` process a test starts (daemon_helpers.Serve) is stopped, also when the test
+    fails half-way."""
+    yield
+    while STARTED:
+        s = STARTED.pop()
+        if s.p.poll() is None:
+            s.p.kill()
+            s.p.wait(WAIT_S)
+        s._f.close()
