@@ -280,6 +280,8 @@ def create_app(d: Daemon) -> FastAPI:
 
         try:
             await d.planner.prepare(req, staging, request.is_disconnected)
+            if await request.is_disconnected():      # nobody would learn the campaign's id
+                raise ClientGone("the client went away")
         except BaseException:
             await run_in_threadpool(shutil.rmtree, staging, True)
             raise

@@ -63,6 +63,12 @@ class _Job:
     cancelled: threading.Event = field(default_factory=threading.Event)
 
 
+def _consume(future) -> None:
+    """Read the outcome of a job nobody waits for any more (else asyncio logs it as never retrieved)."""
+    if not future.cancelled():
+        future.exception()
+
+
 def _context():
     ctx = multiprocessing.get_context("forkserver")
     # The server imports the planning modules once; every worker forks from it with them loaded. (A fork
@@ -122,6 +128,7 @@ class Planner:
         self._waiting = 0
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
         self._proc = None
         self._conn = None
         self.busy = False          # a request is being planned now
@@ -134,6 +141,8 @@ class Planner:
         self._thread.start()
 
     def stop(self) -> None:
+        """Stop the worker: the request being planned and every waiting one fail (PlannerFailed)."""
+        self._stopping.set()
         self._jobs.put(None)
         if self._thread is not None:
             self._thread.join(START_TIMEOUT_S)
@@ -185,9 +194,11 @@ class Planner:
                     return done.result()
                 if is_disconnected is not None and await is_disconnected():
                     job.cancelled.set()
+                    done.add_done_callback(_consume)
                     raise ClientGone("the client went away")
         except asyncio.CancelledError:
             job.cancelled.set()
+            done.add_done_callback(_consume)
             raise
         finally:
             with self._lock:
@@ -200,6 +211,9 @@ class Planner:
                 return
             if job.cancelled.is_set():
                 job.done.set_exception(ClientGone("the client went away"))
+                continue
+            if self._stopping.is_set():
+                job.done.set_exception(PlannerFailed("the daemon is stopping"))
                 continue
             self.busy = True
             try:
@@ -215,6 +229,9 @@ class Planner:
         self.planned += 1
         deadline = time.monotonic() + self.timeout_s
         while not conn.poll(_POLL_S):
+            if self._stopping.is_set():
+                self._kill()
+                raise PlannerFailed("the daemon is stopping")
             if job.cancelled.is_set() or time.monotonic() > deadline or not self._proc.is_alive():
                 alive = self._proc.is_alive()
                 self._kill()

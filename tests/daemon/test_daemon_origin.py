@@ -50,8 +50,8 @@ def _page_at(browser, url: str, html: str):
 def test_cross_site_forms_and_no_cors_fetches_are_refused_while_a_campaign_runs(serve):
     from playwright.sync_api import sync_playwright
 
-    r = serve(pace=0.02)
-    submit(r.client, grid="iso:step=5")   # outlasts the test: it is aborted at the end
+    r = serve(pace=0.5)
+    submit(r.client, grid="iso:step=15")   # half a real second per gantry second: it outlasts the test
     wait_state(r.client, "c00001", "running")
     before = _events(r)
     port = r.url.rsplit(":", 1)[1]
@@ -98,8 +98,8 @@ def test_a_rebinding_page_can_neither_read_nor_write(serve):
     with itself, so the browser lets it read what it fetches; the daemon refuses any Host not its own."""
     from playwright.sync_api import sync_playwright
 
-    r = serve(token=TOKEN, pace=0.02)
-    submit(r.client, grid="iso:step=5")   # outlasts the test: it is aborted at the end
+    r = serve(token=TOKEN, pace=0.5)
+    submit(r.client, grid="iso:step=15")   # half a real second per gantry second: it outlasts the test
     wait_state(r.client, "c00001", "running")
     port = r.url.rsplit(":", 1)[1]
     origin = f"http://rebind.test:{port}"
