@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import errno
 import logging
 import multiprocessing
 import os
@@ -250,5 +251,5 @@ class Planner:
         if kind == "field":
             raise FieldError(rest[0], rest[1])
         if kind == "disk-full":
-            raise DiskFull(rest[0])
+            raise DiskFull(errno.ENOSPC, rest[0])
         raise PlannerFailed(rest[0])

@@ -121,6 +121,7 @@ class CampaignQueue:
         runs a crash cut short), then start the worker."""
         self.root.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(self.root / INCOMING, ignore_errors=True)
+        (self.root / INCOMING).mkdir()
         for folder in sorted(self.root.iterdir()):
             if not (re.match(ID_PATTERN, folder.name) and folder.is_dir()):
                 continue

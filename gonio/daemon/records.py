@@ -53,7 +53,8 @@ def is_disk_full(err: BaseException | None) -> bool:
     seen = set()
     while err is not None and id(err) not in seen:
         seen.add(id(err))
-        if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+        if isinstance(err, DiskFull) or (isinstance(err, OSError) and err.errno in (errno.ENOSPC,
+                                                                                    errno.EDQUOT)):
             return True
         if isinstance(err, sqlite3.Error) and getattr(err, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
             return True

@@ -75,6 +75,7 @@ def test_orphan_folders_are_set_aside_and_their_ids_never_reused(serve, tmp_path
     (root / ".incoming" / "0ddba11").mkdir(parents=True)             # a planning cut short
     r = serve(data=data)
     names = sorted(p.name for p in root.iterdir())
+    assert names.pop(0) == ".incoming" and not any((root / ".incoming").iterdir())
     assert names[0] == "c00001" and [n.split("-")[0] for n in names[1:]] == ["c00002.orphan", "c00003.orphan",
                                                                              "c00004.orphan"]
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]
