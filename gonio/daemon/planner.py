@@ -41,6 +41,8 @@ MAX_WAITING = 32
 #: Seconds a fresh worker may take to start.
 START_TIMEOUT_S = 60.0
 _POLL_S = 0.05
+#: Seconds between checks that a waiting request's client is still there.
+_CLIENT_POLL_S = 0.5
 _PRELOAD = ("gonio.daemon.records", "gonio.plan", "gonio.campaign", "gonio.fly.campaign")
 
 
@@ -81,10 +83,10 @@ def _context():
 
 def _worker_main(conn, cfg, materials_root) -> None:
     """The worker: one request at a time from ``conn``, each answered with one tuple."""
-    try:
-        os.nice(10)
-    except OSError:
-        pass
+    try:   # the runner and the event loop first: planning takes only the CPU time they leave idle
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        os.nice(19)
     materials = MaterialsFolder(materials_root)
     conn.send(("ready",))
     while True:
@@ -190,7 +192,7 @@ class Planner:
         done = asyncio.wrap_future(job.done)
         try:
             while True:
-                finished, _ = await asyncio.wait({done}, timeout=_POLL_S)
+                finished, _ = await asyncio.wait({done}, timeout=_CLIENT_POLL_S)
                 if finished:
                     return done.result()
                 if is_disconnected is not None and await is_disconnected():
