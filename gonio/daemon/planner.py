@@ -3,10 +3,10 @@
 Planning a fine grid takes seconds to minutes of CPU. In the daemon's own process it competed with the
 runner for the interpreter (a burst of 20 small submits slowed a running campaign by 86 %) and nothing
 could stop it once started. Here one worker process (forked from a server that has imported the planner
-once, so a fresh worker is ready at once; niced, so the runner comes first) takes one request at a time:
-it loads the material, checks the request against the gantry, plans it and creates its journal in a
-staging folder (:func:`gonio.daemon.records.prepare_campaign`). The daemon then gives that folder its id
-(:meth:`gonio.daemon.queue.CampaignQueue.admit`).
+once, so a fresh worker is ready at once; at idle priority, so the runner comes first) takes one request
+at a time: it loads the material, checks the request against the gantry, plans it and creates its
+journal in a staging folder (:func:`gonio.daemon.records.prepare_campaign`). The daemon then gives that
+folder its id (:meth:`gonio.daemon.queue.CampaignQueue.admit`).
 
 A request that outlasts ``timeout_s``, or whose client went away, has its worker killed (a fresh one takes
 its place) and its staging folder removed: 422 naming ``grid`` for the time limit. At most ``max_waiting``

@@ -8,11 +8,10 @@ import json
 import os
 
 import httpx
-import numpy as np
 import pytest
+from brdf_samples import tiny_tensor_file
 from daemon_helpers import WAIT_S, submit, wait_for, wait_state
 
-from gonio.formats.tensor import write_tensor
 from gonio.store import JOURNAL_NAME
 
 BIG = ["full:step=0.01", "merl:stride=1", "iso:step=0.1", "full:step=2,theta_max=90"]
@@ -85,18 +84,10 @@ def test_orphan_folders_are_set_aside_and_their_ids_never_reused(serve, tmp_path
     assert not any((root / "c00006").iterdir())       # untouched
 
 
-def _tensor(path):
-    rgb = np.linspace(0.1, 0.9, 2 * 3 * 16, dtype=np.float32).reshape(1, 2, 3, 4, 4)
-    write_tensor(path, {"theta_i": np.array([0.0, 0.5], np.float32), "phi_i": np.zeros(1, np.float32),
-                        "ndf": np.ones((4, 4), np.float32), "sigma": np.ones((4, 4), np.float32),
-                        "vndf": np.ones((1, 2, 4, 4), np.float32), "jacobian": np.ones(1, np.uint8),
-                        "rgb": rgb})
-
-
 def test_measured_materials_are_names_in_the_materials_folder(serve, tmp_path):
     folder = tmp_path / "materials"
     folder.mkdir()
-    _tensor(folder / "paint.bsdf")
+    tiny_tensor_file(folder / "paint.bsdf")
     os.mkfifo(folder / "pipe")
     (folder / "zero").symlink_to("/dev/zero")
     (folder / "passwd").symlink_to("/etc/passwd")

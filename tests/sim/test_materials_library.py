@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from gonio.formats.merl import MERL_FILE_BYTES
-from gonio.formats.tensor import write_tensor
 from gonio.geometry import MERL_SHAPE
 from gonio.sim.materials import library as library_module
 from gonio.sim.materials import load
@@ -21,21 +20,11 @@ WO = np.array([[0.6, 0.0, 0.8], [-0.5, 0.2, 0.84]])
 WI, WO = WI / np.linalg.norm(WI, axis=1)[:, None], WO / np.linalg.norm(WO, axis=1)[:, None]
 
 
-def _tensor(path):
-    """A small valid measured-BSDF tensor file (two θi slices, 4 × 4 tables)."""
-    rgb = np.linspace(0.1, 0.9, 2 * 3 * 16, dtype=np.float32).reshape(1, 2, 3, 4, 4)
-    write_tensor(path, {"theta_i": np.array([0.0, 0.5], np.float32), "phi_i": np.zeros(1, np.float32),
-                        "ndf": np.ones((4, 4), np.float32), "sigma": np.ones((4, 4), np.float32),
-                        "vndf": np.ones((1, 2, 4, 4), np.float32), "jacobian": np.ones(1, np.uint8),
-                        "rgb": rgb})
-    return path
-
-
 @pytest.fixture
 def folder(tmp_path):
     d = tmp_path / "materials"
     d.mkdir()
-    _tensor(d / "paint.bsdf")
+    tiny_tensor_file(d / "paint.bsdf")
     with open(d / "gold.binary", "wb") as fh:
         np.asarray(MERL_SHAPE, "<i4").tofile(fh)
         np.full(3 * int(np.prod(MERL_SHAPE)), 750.0, "<f8").tofile(fh)
