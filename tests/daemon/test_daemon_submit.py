@@ -44,6 +44,7 @@ def test_planning_past_the_time_limit_is_stopped_and_leaves_nothing(serve):
     assert resp.status_code == 422, resp.text
     assert "planning took longer than 0.5 s, the daemon's limit" in resp.json()["detail"][0]["msg"]
     assert r.daemon.planner.killed == 1 and _campaign_folders(r) == [] and _incoming(r) == []
+    r.daemon.planner.timeout_s = WAIT_S
     assert submit(r.client)["id"] == "c00001"              # a fresh worker plans the next one
 
 

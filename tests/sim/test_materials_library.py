@@ -8,6 +8,7 @@ import stat
 
 import numpy as np
 import pytest
+from brdf_samples import tiny_tensor_file
 
 from gonio.formats.merl import MERL_FILE_BYTES
 from gonio.geometry import MERL_SHAPE
