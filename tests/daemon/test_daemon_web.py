@@ -1,6 +1,6 @@
 """The live web view in a real headless browser (Debian's chromium, driven by Playwright): the queue,
 the running campaign's progress, the pose sketch and a BRDF slice filling in; pause and resume buttons
-with a token. Skipped where chromium is not installed (tools/setup.sh installs it)."""
+with a token, and HALT without one. Skipped where chromium is not installed (tools/setup.sh installs it)."""
 
 from __future__ import annotations
 
@@ -62,4 +62,9 @@ def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_p
     page.wait_for_function("document.querySelector('#message').textContent.startsWith('pausing')")
     page.click("#resume")
     wait_state(r.client, "c00001", ("running", "finishing", "done"))
+    page.fill("#token", "")                  # the operator at the rig, without the token: HALT still works
+    page.click("#halt")
+    st = wait_state(r.client, "c00001", ("halted", "done"))
+    if st["state"] == "halted":
+        page.wait_for_function("document.querySelector('#message').textContent.startsWith('halt')")
     r.client.post("/campaigns/c00001/abort")
