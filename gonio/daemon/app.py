@@ -215,10 +215,10 @@ def create_app(d: Daemon) -> FastAPI:
         return Response((web / name).read_text(), media_type=STATIC[name])
 
     # -- health and the gantry --------------------------------------------------------------------
-    # Status reads are cheap (no journal read on most calls: see CampaignQueue.status), so they run on
-    # the event loop, without a hop through the thread pool.
+    # Every route that takes the queue's lock is a plain function (run on FastAPI's request threads): the
+    # event loop never waits for a lock, so it always takes the next request, the halt among them.
     @app.get("/health", response_model=Health, responses=_docs(*reads))
-    async def health():
+    def health():
         current = d.queue.current
         return {"status": "ok", "version": d.version, "gantry": d.cfg.name,
                 "running": current.id if current else None, "queued": d.queue.queued(), "auth": bool(d.token)}
@@ -294,7 +294,7 @@ def create_app(d: Daemon) -> FastAPI:
                 "campaigns": [q.status(r) for r in q.records() if (r.folder / "campaign.sqlite").is_file()]}
 
     @app.get("/campaigns/{cid}", response_model=CampaignStatus, responses=_docs(*reads, 404, 409, 422))
-    async def campaign(cid: CampaignId):
+    def campaign(cid: CampaignId):
         return d.queue.status(d.queue.get(cid))
 
     @app.post("/campaigns/{cid}/pause", response_model=Accepted, dependencies=auth,

@@ -208,6 +208,10 @@ class Planner:
                 self._waiting -= 1
 
     def _serve(self) -> None:
+        try:
+            self._worker()          # ready before the first request comes
+        except PlannerFailed as err:
+            log.error("%s", err)
         while True:
             job = self._jobs.get()
             if job is None:

@@ -473,21 +473,41 @@ class CampaignQueue:
             c.close()
 
     def halt(self, reason: str = "halt requested through the API") -> str | None:
-        """Emergency stop of the running campaign (if any): its id, or None."""
-        with self._cond:
-            rec, runner = self.current, self.runner
-            if rec is not None:
-                rec.intent, rec.halt_pending = "hold", True
-            if runner is not None:
-                try:   # the axes stop first; only the journal's line of it can fail (a full disk)
-                    runner.request_halt(reason)
-                except Exception as err:
-                    log.error("halt: the runner stopped the axes but could not journal it (%s)", err)
-            if rec is not None:
-                self._save(rec)
+        """Emergency stop of the running campaign (if any): its id, or None.
+
+        Nothing here waits for the queue's lock (whoever holds it, for however long): the runner is told
+        at once and its axes stop; the campaign is held (in memory at once, in ``daemon.json`` as soon as
+        the lock is free). A runner that has just finished only fails to journal the halt."""
+        runner, rec = self.runner, self.current
+        if runner is not None:
+            self._stop_runner(runner, reason)
+        if rec is not None:
+            rec.intent, rec.halt_pending = "hold", True
+
+        def record() -> None:
+            with self._cond:
+                if self.runner is not None and self.runner is not runner:   # one that started meanwhile
+                    self._stop_runner(self.runner, reason)
+                if rec is not None:
+                    self._save(rec)
+
+        if self._cond.acquire(timeout=0.2):
+            try:
+                record()
+            finally:
+                self._cond.release()
+        else:
+            threading.Thread(target=record, name="gonio-halt-record", daemon=True).start()
         if rec is not None:
             log.warning("campaign %s: halt", rec.id)
         return rec.id if rec is not None else None
+
+    @staticmethod
+    def _stop_runner(runner: Runner, reason: str) -> None:
+        try:   # the axes stop first; only the journal's line of it can fail (a full disk, a closed journal)
+            runner.request_halt(reason)
+        except Exception as err:
+            log.error("halt: the axes were told to stop; the journal could not record it (%s)", err)
 
     # -- the worker ------------------------------------------------------------------------------
     def _head(self) -> Record | None:

@@ -190,6 +190,9 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
     announce(f"gonio serve: listening on {url} (data {data}, gantry '{cfg.name}', "
              f"{'token required for writes' if d.token else 'no token: loopback only'}, "
              f"{'materials from ' + str(materials) if materials else 'no measured materials'})")
+    if host in ("0.0.0.0", "::") and not allow_hosts:
+        log.warning("listening on every interface, but only loopback names are answered: give the names "
+                    "clients use (--allow-host gantry-pc.lab) or any other Host is refused")
     if threading.current_thread() is threading.main_thread():
         # uvicorn re-raises the signal that stopped it once it has shut down: by then the daemon has
         # stopped cleanly, so the signal is only acknowledged (exit status 0).

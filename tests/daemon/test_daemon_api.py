@@ -142,7 +142,7 @@ def test_ids_cannot_name_paths(serve):
 
 
 def test_a_second_campaign_waits_in_the_queue_while_the_first_runs(serve):
-    r = serve(pace=0.002)
+    r = serve(pace=0.01)   # the first still runs when the second, planned meanwhile, comes
     submit(r.client, grid="iso:step=15")
     wait_state(r.client, "c00001", "running")
     second = submit(r.client, grid="iso:step=30")
@@ -161,7 +161,7 @@ def test_a_second_campaign_waits_in_the_queue_while_the_first_runs(serve):
 
 
 def test_pause_resume_abort_through_the_api(serve):
-    r = serve(pace=0.002)
+    r = serve(pace=0.01)   # the first still runs when the second, planned meanwhile, comes
     submit(r.client, grid="iso:step=15")
     submit(r.client, grid="iso:step=30")
     wait_for(_one_step_measured(r), "a committed step")
@@ -204,7 +204,7 @@ def test_halt_stops_the_running_campaign_and_resume_finishes_it(serve):
 
 
 def test_an_aborted_queued_campaign_never_runs_and_a_paused_one_can_be_aborted(serve):
-    r = serve(pace=0.002)
+    r = serve(pace=0.01)   # the first still runs when the second, planned meanwhile, comes
     submit(r.client, grid="iso:step=15")
     submit(r.client, grid="iso:step=30")
     assert r.client.post("/campaigns/c00002/abort").json()["state"] == "aborted"
