@@ -8,8 +8,10 @@ at a time: it loads the material, checks the request against the gantry, plans i
 journal in a staging folder (:func:`gonio.daemon.records.prepare_campaign`). The daemon then gives that
 folder its id (:meth:`gonio.daemon.queue.CampaignQueue.admit`).
 
-A request that outlasts ``timeout_s``, or whose client went away, has its worker killed (a fresh one takes
-its place) and its staging folder removed: 422 naming ``grid`` for the time limit. At most ``max_waiting``
+A request whose planning uses more than ``timeout_s`` of CPU time (so that a machine busy with other work
+does not turn a sound request into a refusal; at most :data:`WALL_FACTOR` times that of wall time), or
+whose client went away, has its worker killed (a fresh one takes its place) and its staging folder
+removed: 422 naming ``grid`` for the time limit. At most ``max_waiting``
 requests wait for the worker; more are refused (503, :class:`PlannerBusy`).
 """
 
@@ -34,7 +36,8 @@ __all__ = ["Planner", "PlannerBusy", "ClientGone", "PLAN_TIMEOUT_S", "MAX_WAITIN
 
 log = logging.getLogger(__name__)
 
-#: Seconds one request may plan (the finest grids the daemon accepts plan in under 20 s on 2 cores).
+#: CPU seconds one request may plan (the finest grids the daemon accepts plan in under 20 s); where the
+#: worker's CPU time cannot be read, wall seconds.
 PLAN_TIMEOUT_S = 120.0
 #: Requests that may wait for the worker at once.
 MAX_WAITING = 32
@@ -43,6 +46,10 @@ START_TIMEOUT_S = 60.0
 _POLL_S = 0.05
 #: Seconds between checks that a waiting request's client is still there.
 _CLIENT_POLL_S = 0.5
+_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+#: A request's planning is stopped after this many times its time limit of wall time, however little CPU
+#: time the machine's other work left it (it runs at idle priority).
+WALL_FACTOR = 5
 _PRELOAD = ("gonio.daemon.records", "gonio.plan", "gonio.campaign", "gonio.fly.campaign")
 
 
@@ -64,6 +71,16 @@ class _Job:
     folder: Path
     done: concurrent.futures.Future = field(default_factory=concurrent.futures.Future)
     cancelled: threading.Event = field(default_factory=threading.Event)
+
+
+def _cpu_s(pid: int) -> float | None:
+    """CPU seconds process ``pid`` has used (Linux: /proc), or None where that cannot be read."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / _TICKS
 
 
 def _consume(future) -> None:
@@ -234,12 +251,14 @@ class Planner:
         conn = self._worker()
         conn.send((job.req, str(job.folder)))
         self.planned += 1
-        deadline = time.monotonic() + self.timeout_s
+        cpu0, wall_end = _cpu_s(self._proc.pid), time.monotonic() + WALL_FACTOR * self.timeout_s
         while not conn.poll(_POLL_S):
             if self._stopping.is_set():
                 self._kill()
                 raise PlannerFailed("the daemon is stopping")
-            if job.cancelled.is_set() or time.monotonic() > deadline or not self._proc.is_alive():
+            cpu = _cpu_s(self._proc.pid)
+            late = time.monotonic() > wall_end or (cpu is not None and cpu - cpu0 > self.timeout_s)
+            if job.cancelled.is_set() or late or not self._proc.is_alive():
                 alive = self._proc.is_alive()
                 self._kill()
                 self.killed += 1
