@@ -37,7 +37,7 @@ from gonio.config import GonioConfig
 from gonio.daemon import events
 from gonio.daemon.auth import FailedTokens, is_loopback, token_ok
 from gonio.daemon.gantry import GantryOwner, snapshot
-from gonio.daemon.guard import Guard, HostNames
+from gonio.daemon.guard import BODY_TIMEOUT_S, Guard, HostNames
 from gonio.daemon.models import (
     Accepted,
     CampaignList,
@@ -78,7 +78,7 @@ class Daemon:
     halt_needs_token: bool = False
     streams: events.StreamLimit = field(default_factory=lambda: events.StreamLimit(16))
     failures: FailedTokens = field(default_factory=FailedTokens)
-    body_timeout_s: float = 10.0
+    body_timeout_s: float = BODY_TIMEOUT_S
     version: str = "0"
     #: The halt's own threads: a saturated request pool cannot hold it up.
     halt_pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(
