@@ -241,6 +241,7 @@ class Runner:
             self.fault = latched["reason"]
             self._state = State.FAULTED
             return self._state
+        self.journal.note_unclean_stop()   # the last run was killed mid-way: the journal says so first
         self._pause.clear()
         self._rest = None
         self._arrived = None

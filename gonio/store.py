@@ -476,6 +476,23 @@ class Journal:
                         "VALUES (?, ?, ?, ?, ?, ?, ?)",
                         (campaign_s, time.time(), kind, state, step, message, axes))
 
+    def note_unclean_stop(self, reason: str | None = None) -> bool:
+        """Journal an ``unclean-stop`` event when the last run ended without a stop of its own: its last
+        state is still ``running`` (the process was killed, crashed or lost power, or met a fault it
+        could not journal, such as a full disk) and no unclean-stop was journaled since. ``reason``: why,
+        when the caller knows. True when one was written; a campaign resumed after a crash says so."""
+        with self._lock:
+            last = self._query("SELECT id, state FROM events WHERE kind = 'state' ORDER BY id DESC LIMIT 1")
+            if not last or last[0][1] != "running":
+                return False
+            if self._query("SELECT 1 FROM events WHERE kind = 'unclean-stop' AND id > ?", (last[0][0],)):
+                return False
+            why = reason or ("the last run ended without a stop of its own (the process was killed or "
+                             "crashed, or the power failed)")
+            self.log_event("unclean-stop", step=self.next_step(), campaign_s=self.campaign_clock()[0],
+                           message=f"{why}; {self.done_count()} steps were committed")
+            return True
+
     def set_meta(self, key: str, value) -> None:
         with self._transaction():
             self._write("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, json.dumps(value)))

@@ -41,10 +41,11 @@ def cmd_serve(args) -> int:
         raise ValueError(f"--port: must be within [0, 65535], got {args.port}")
     if not 1 <= args.max_streams <= 1024:
         raise ValueError(f"--max-streams: must be within [1, 1024], got {args.max_streams}")
-    token = args.token or os.environ.get("GONIO_TOKEN") or None
+    token = args.token if args.token is not None else os.environ.get("GONIO_TOKEN")
     setup_logging(json_lines=args.log_json)
     return serve(cfg, data=Path(args.data), host=args.host, port=args.port, token=token, pace=pace,
-                 hold=args.hold, max_streams=args.max_streams,
+                 hold=args.hold, max_streams=args.max_streams, materials=args.materials,
+                 allow_hosts=args.allow_host, halt_needs_token=args.halt_needs_token,
                  announce=lambda line: print(line, file=sys.stderr, flush=True))
 
 
@@ -200,8 +201,19 @@ def add_parsers(sub, fmt, seed_type) -> None:
     sv.add_argument("--data", default=os.environ.get("GONIO_DATA", "gonio-data"),
                     help="data folder: campaigns/<id>/ holds each campaign's journal and brdf.h5 "
                     "(GONIO_DATA)")
-    sv.add_argument("--token", default=None, help="bearer token every write must carry (prefer GONIO_TOKEN: "
-                    "a command line is visible to other users)")
+    sv.add_argument("--token", default=None, help="bearer token every write must carry, at least 16 "
+                    "characters without whitespace (prefer GONIO_TOKEN: a command line is visible to other "
+                    "users)")
+    sv.add_argument("--materials", default=None, metavar="DIR",
+                    help="folder whose files submitted campaigns may name as bsdf:NAME or merl:NAME "
+                    "(without it, measured materials are refused; a request never names a path)")
+    sv.add_argument("--allow-host", action="append", default=[], metavar="NAME[:PORT]",
+                    help="another name the daemon answers to (its Host header), e.g. the gantry PC's name "
+                    "on the network or a reverse proxy's; repeatable. Loopback names and the --host address "
+                    "are always allowed; any other Host is refused (DNS rebinding); none by default")
+    sv.add_argument("--halt-needs-token", action="store_true",
+                    help="the emergency halt needs the token from loopback clients too (by default an "
+                    "operator at the rig halts without one; behind a reverse proxy every client is loopback)")
     sv.add_argument("--pace", type=float, default=0.02,
                     help="simulated gantry: real seconds per gantry second (0: as fast as it computes)")
     sv.add_argument("--hold", action="store_true",

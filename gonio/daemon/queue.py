@@ -13,6 +13,16 @@ someone who stopped the gantry. A campaign the daemon was running when it died (
 SIGTERM, which pauses it) keeps intent ``run`` and resumes when the daemon starts again; ``hold=True``
 holds such campaigns paused instead.
 
+A campaign appears whole or not at all: it is planned and journaled in a staging folder
+(``campaigns/.incoming/``, by :mod:`gonio.daemon.planner`), then :meth:`CampaignQueue.admit` reserves the
+next id (a folder of that name made exclusively: an id is never reused, nor one whose folder someone
+left behind), writes ``daemon.json`` into the staging folder and renames it into place. At start, staging
+leftovers are removed and a folder that is not a whole campaign is moved aside (``cNNNNN.orphan-T``).
+
+A fault the runner cannot journal (a full disk) is kept in ``daemon.json`` (the daemon frees a 1 MiB
+reserve file, ``DATA/.reserve``, to write it) and journaled as ``unclean-stop`` at the next start, as is
+every run a crash cut short (:meth:`gonio.store.Journal.note_unclean_stop`).
+
 Pause, abort and halt are requests to the runner from request handlers' threads
 (:meth:`gonio.runner.Runner.request_pause` and friends); the runner acts at its next step boundary
 (halt: within one ``poll_s`` slice, mid-move too).
@@ -21,28 +31,33 @@ Pause, abort and halt are requests to the runner from request handlers' threads
 from __future__ import annotations
 
 import logging
+import os
 import re
+import shutil
 import threading
 import time
+import uuid
 from pathlib import Path
 
-from gonio.campaign import create_campaign, gantry_state, open_campaign, run_campaign
+from gonio.campaign import LockHeld, gantry_state, open_campaign, run_campaign
 from gonio.config import GonioConfig
 from gonio.daemon.pacing import PacedClock
 from gonio.daemon.records import (
     ID_PATTERN,
     RECORD_NAME,
     Conflict,
+    DiskFull,
     FieldError,
     NotFound,
     Record,
-    validate_request,
+    is_disk_full,
 )
 from gonio.dataset import BRDF_NAME
 from gonio.runner import Runner, State
+from gonio.sim.materials.library import MaterialsFolder
 from gonio.store import JOURNAL_NAME, Journal, JournalError
 
-__all__ = ["CampaignQueue", "FieldError", "Conflict", "NotFound"]
+__all__ = ["CampaignQueue", "FieldError", "Conflict", "NotFound", "DiskFull", "INCOMING"]
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +65,11 @@ log = logging.getLogger(__name__)
 STATUS_TTL_S = 0.25
 #: Seconds an abort waits for a starting or stopping campaign to settle, so its reply tells the outcome.
 ABORT_WAIT_S = 10.0
+#: Folder (under campaigns/) where requests are planned and journaled before they get an id.
+INCOMING = ".incoming"
+#: Bytes kept in DATA/.reserve, freed to record a fault when the disk is full.
+RESERVE_BYTES = 1 << 20
+_ANY_ID = re.compile(r"^c([0-9]{5})")
 #: What a stopped runner's campaign is called while it parks and leaves the worker.
 _SETTLING = {State.DONE: "finishing", State.PAUSED: "pausing", State.ABORTED: "aborting"}
 
@@ -71,11 +91,14 @@ class CampaignQueue:
         Called by the worker before it connects a campaign's gantry (the daemon releases its idle one).
     clock : Clock, optional
         Time source of a gantry with real devices (default: the wall clock; tests pass the emulators').
+    materials : MaterialsFolder, optional
+        Where ``bsdf:NAME`` and ``merl:NAME`` materials are read (default: none, refused).
     """
 
     def __init__(self, data: Path, cfg: GonioConfig, *, pace: float = 0.0, hold: bool = False,
-                 before_run=None, clock=None):
+                 before_run=None, clock=None, materials: MaterialsFolder | None = None):
         self.data = Path(data)
+        self.materials = materials or MaterialsFolder(None)
         self.clock = clock
         self.root = self.data / "campaigns"
         self.cfg = cfg
@@ -94,28 +117,102 @@ class CampaignQueue:
 
     # -- start and stop --------------------------------------------------------------------------
     def start(self) -> None:
-        """Rebuild the queue from the folders (recreating journals whose creation was cut short), then
-        start the worker."""
+        """Rebuild the queue from the folders (setting aside what is not a whole campaign, journaling
+        runs a crash cut short), then start the worker."""
         self.root.mkdir(parents=True, exist_ok=True)
+        shutil.rmtree(self.root / INCOMING, ignore_errors=True)
+        (self.root / INCOMING).mkdir()
         for folder in sorted(self.root.iterdir()):
-            if not (re.match(ID_PATTERN, folder.name) and (folder / RECORD_NAME).is_file()):
+            if not (re.match(ID_PATTERN, folder.name) and folder.is_dir()):
                 continue
-            rec = Record.load(folder)
+            rec = self._load(folder)
+            if rec is None:
+                continue
             self._records[rec.id] = rec
-            if not (folder / JOURNAL_NAME).is_file():
-                try:
-                    self._create_journal(rec)
-                except Exception as err:
-                    rec.intent, rec.error = "hold", f"could not create the journal: {err}"
-                    rec.save()
-                    continue
+            if self._journal_state(rec) == "running":
+                self._note_unclean(rec)
             if self.hold and rec.intent == "run" and self._journal_state(rec) in ("running", "pausing",
                                                                                    "paused"):
                 rec.intent = "hold"
-                rec.save()
+                self._save(rec)
                 log.info("campaign %s: held paused at start (--hold)", rec.id)
+        self._make_reserve()
         self._thread = threading.Thread(target=self._work, name="gonio-runner", daemon=True)
         self._thread.start()
+
+    def _load(self, folder: Path) -> Record | None:
+        """The campaign in ``folder``, or None after moving aside a folder that is not a whole one (a
+        creation an older daemon left half-done, something put there by hand)."""
+        try:
+            rec = Record.load(folder)
+            whole = rec.id == folder.name and (folder / JOURNAL_NAME).is_file()
+        except (OSError, ValueError, KeyError, TypeError):
+            rec, whole = None, False
+        if whole:
+            return rec
+        aside = folder.with_name(f"{folder.name}.orphan-{time.time_ns()}")
+        try:
+            folder.rename(aside)
+            log.warning("%s is not a whole campaign (no %s or no journal): moved aside to %s; its id is not "
+                        "reused", folder, RECORD_NAME, aside.name)
+        except OSError as err:
+            log.error("%s is not a whole campaign and could not be moved aside (%s); its id is not reused",
+                      folder, err)
+        return None
+
+    def _note_unclean(self, rec: Record) -> None:
+        """Journal that the campaign's last run was cut short (with the reason the daemon kept, if any)."""
+        try:
+            c = open_campaign(rec.folder)
+        except (JournalError, LockHeld, OSError) as err:
+            log.error("campaign %s: could not journal its unclean stop (%s)", rec.id, err)
+            return
+        try:
+            if c.journal.note_unclean_stop(rec.unclean):
+                log.warning("campaign %s: its last run stopped uncleanly%s", rec.id,
+                            f" ({rec.unclean})" if rec.unclean else "")
+            if rec.unclean is not None:
+                rec.unclean = None
+                self._save(rec)
+        except Exception as err:
+            log.error("campaign %s: could not journal its unclean stop (%s)", rec.id, err)
+        finally:
+            c.close()
+
+    def _save(self, rec: Record) -> bool:
+        """Write ``daemon.json``; on a full disk free the reserve and try once more. False (logged) when
+        it could not be written: what it holds stays in effect in memory."""
+        for attempt in (0, 1):
+            try:
+                rec.save()
+                return True
+            except OSError as err:
+                if attempt == 0 and is_disk_full(err) and self._release_reserve():
+                    continue
+                log.error("campaign %s: could not write %s (%s)", rec.id, RECORD_NAME, err)
+                return False
+        return False
+
+    def _make_reserve(self) -> None:
+        path = self.data / ".reserve"
+        if path.is_file() and path.stat().st_size == RESERVE_BYTES:
+            return
+        try:
+            with open(path, "wb") as fh:
+                fh.write(b"\0" * RESERVE_BYTES)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as err:
+            path.unlink(missing_ok=True)
+            log.warning("no room for the disk-full reserve %s (%s)", path, err)
+
+    def _release_reserve(self) -> bool:
+        try:
+            (self.data / ".reserve").unlink()
+        except OSError:
+            return False
+        log.warning("the data folder's disk is full: freed the reserve %s", self.data / ".reserve")
+        return True
 
     def stop(self, reason: str = "daemon stopping", timeout_s: float = 300.0) -> None:
         """Pause the running campaign (it finishes the step in flight and parks) and end the worker.
@@ -134,41 +231,47 @@ class CampaignQueue:
         return self._stopping.is_set()
 
     # -- submitting ------------------------------------------------------------------------------
-    def submit(self, req: dict) -> Record:
-        """Validate, plan and journal a new campaign at the end of the queue."""
-        spec, cfg, plan = validate_request(self.cfg, req)
+    def staging(self) -> Path:
+        """A fresh staging folder's path (not created) for the planner to journal a request in."""
+        return self.root / INCOMING / uuid.uuid4().hex
+
+    def _next_seq(self) -> int:
+        taken = [r.seq for r in self._records.values()]
+        taken += [int(m.group(1)) for m in map(_ANY_ID.match, os.listdir(self.root)) if m]
+        return max(taken, default=0) + 1
+
+    def admit(self, staging: Path, req: dict) -> Record:
+        """Give the campaign journaled in ``staging`` the next free id and put it at the end of the queue:
+        ``daemon.json`` is written into ``staging``, which is then renamed into place. Raises DiskFull
+        (nothing left behind) when the disk is full."""
         with self._cond:
-            seq = max((r.seq for r in self._records.values()), default=0) + 1
-            rec = Record(id=f"c{seq:05d}", seq=seq, folder=self.root / f"c{seq:05d}", request=dict(req),
-                         submitted_unix=time.time(), intent="hold")   # not runnable until journaled
-            rec.folder.mkdir(parents=True)
-            rec.save()
+            seq = self._next_seq()
+            while True:
+                folder = self.root / f"c{seq:05d}"
+                try:
+                    folder.mkdir()       # the id, reserved: exclusive creation
+                    break
+                except FileExistsError:
+                    seq += 1
+            rec = Record(id=folder.name, seq=seq, folder=folder, request=dict(req),
+                         submitted_unix=time.time())
+            try:
+                rec.save(staging)
+                os.rename(staging, folder)   # replaces the empty reservation: whole, or not at all
+            except OSError as err:
+                try:
+                    folder.rmdir()
+                except OSError:
+                    pass
+                if is_disk_full(err):
+                    raise DiskFull(err.errno, f"the data folder's disk is full ({err.strerror or err})") \
+                        from None
+                raise
             self._records[rec.id] = rec
-        try:
-            self._create_journal(rec, spec=spec, cfg=cfg, plan=plan)
-        except BaseException as err:
-            rec.error = f"could not create the journal: {err}"
-            rec.save()
-            raise
-        with self._cond:
-            rec.intent = "run"
-            rec.save()
             self._cond.notify_all()
-        log.info("campaign %s submitted: %s, grid %s", rec.id, spec or req.get("sample"), req["grid"])
+        log.info("campaign %s submitted: %s, grid %s", rec.id, req.get("material") or req.get("sample"),
+                 req["grid"])
         return rec
-
-    def _create_journal(self, rec: Record, *, spec=None, cfg=None, plan=None) -> None:
-        if cfg is None:
-            spec, cfg, plan = validate_request(self.cfg, rec.request)
-        args = dict(grid=rec.request["grid"], material=spec, seed=int(rec.request.get("seed", 0)),
-                    sample=rec.request.get("sample"))
-        if isinstance(plan, tuple):   # order=fly: one unit per sweep (gonio.fly.hardware)
-            from gonio.fly.campaign import create_fly_campaign
-
-            c = create_fly_campaign(rec.folder, cfg, plans=plan, **args)
-        else:
-            c = create_campaign(rec.folder, cfg, plan=plan, **args)
-        c.close()
 
     # -- reading ---------------------------------------------------------------------------------
     def get(self, cid: str) -> Record:
@@ -304,7 +407,7 @@ class CampaignQueue:
             if self.state(rec) in ("done", "aborted"):
                 raise Conflict(f"campaign '{cid}' is {self.state(rec)}; there is nothing to pause")
             rec.intent = "hold"
-            rec.save()
+            self._save(rec)
             if self.current is rec and self.runner is not None:
                 self.runner.request_pause("pause requested through the API")
         log.info("campaign %s: pause requested", cid)
@@ -327,7 +430,7 @@ class CampaignQueue:
             if self.current is rec and state in ("running", "starting"):
                 return
             rec.intent, rec.clear_fault, rec.halt_pending, rec.error = "run", clear_fault, False, None
-            rec.save()
+            self._save(rec)
             self._cond.notify_all()
         log.info("campaign %s: resume requested%s", cid, " (clearing the fault)" if clear_fault else "")
 
@@ -339,7 +442,7 @@ class CampaignQueue:
                 raise Conflict(f"campaign '{cid}' is {state}; there is nothing to abort")
             if self.current is rec:
                 rec.intent, rec.abort_pending = "hold", True
-                rec.save()
+                self._save(rec)
                 if self.runner is None:
                     # Starting (the first step boundary acts on it) or finishing (the worker records
                     # it as the campaign leaves): wait for either, so the reply tells the outcome.
@@ -370,17 +473,41 @@ class CampaignQueue:
             c.close()
 
     def halt(self, reason: str = "halt requested through the API") -> str | None:
-        """Emergency stop of the running campaign (if any): its id, or None."""
-        with self._cond:
-            rec = self.current
-            if rec is not None:
-                rec.intent, rec.halt_pending = "hold", True
-                rec.save()
-            if self.runner is not None:
-                self.runner.request_halt(reason)
+        """Emergency stop of the running campaign (if any): its id, or None.
+
+        Nothing here waits for the queue's lock (whoever holds it, for however long): the runner is told
+        at once and its axes stop; the campaign is held (in memory at once, in ``daemon.json`` as soon as
+        the lock is free). A runner that has just finished only fails to journal the halt."""
+        runner, rec = self.runner, self.current
+        if runner is not None:
+            self._stop_runner(runner, reason)
+        if rec is not None:
+            rec.intent, rec.halt_pending = "hold", True
+
+        def record() -> None:
+            with self._cond:
+                if self.runner is not None and self.runner is not runner:   # one that started meanwhile
+                    self._stop_runner(self.runner, reason)
+                if rec is not None:
+                    self._save(rec)
+
+        if self._cond.acquire(timeout=0.2):
+            try:
+                record()
+            finally:
+                self._cond.release()
+        else:
+            threading.Thread(target=record, name="gonio-halt-record", daemon=True).start()
         if rec is not None:
             log.warning("campaign %s: halt", rec.id)
         return rec.id if rec is not None else None
+
+    @staticmethod
+    def _stop_runner(runner: Runner, reason: str) -> None:
+        try:   # the axes stop first; only the journal's line of it can fail (a full disk, a closed journal)
+            runner.request_halt(reason)
+        except Exception as err:
+            log.error("halt: the axes were told to stop; the journal could not record it (%s)", err)
 
     # -- the worker ------------------------------------------------------------------------------
     def _head(self) -> Record | None:
@@ -404,8 +531,12 @@ class CampaignQueue:
                 self._run(rec)
             except Exception as err:  # the worker stays up; the campaign waits for the operator
                 log.exception("campaign %s: %s", rec.id, err)
-                rec.intent, rec.error = "hold", f"{type(err).__name__}: {err}"
-                rec.save()
+                reason = f"{type(err).__name__}: {err}"
+                if is_disk_full(err):   # the journal could not say so: daemon.json keeps it until it can
+                    reason = f"the data folder's disk is full ({reason})"
+                    rec.unclean = reason
+                rec.intent, rec.error = "hold", reason
+                self._save(rec)
             finally:
                 with self._cond:
                     # An abort that came after the runner had stopped (paused, halted, faulted) and
@@ -416,7 +547,7 @@ class CampaignQueue:
                         except Exception as err:
                             log.exception("campaign %s: recording the abort: %s", rec.id, err)
                         rec.abort_pending = False
-                        rec.save()
+                        self._save(rec)
                     self.current, self.runner, self.gantry, self.run_started = None, None, None, None
                     self.finishing = False
                     rec.cache = rec.live = None
@@ -433,7 +564,11 @@ class CampaignQueue:
             state = gantry_state(c)
             clock = (PacedClock(state[1] if state else 0.0, self.pace) if c.cfg.drivers() == {"sim"}
                      else self.clock)
-            gantry = build_gantry(c.cfg, meta.get("material"), seed=meta["seed"], state=state, clock=clock)
+            material = self.materials.load(meta["material"]) if meta.get("material") else None
+            gantry = build_gantry(c.cfg, material, seed=meta["seed"], state=state, clock=clock)
+            if c.journal.note_unclean_stop(rec.unclean) or rec.unclean:
+                rec.unclean = None
+                self._save(rec)
             with self._cond:
                 self.gantry = gantry
                 self.run_started = (time.time(), c.journal.done_count())
@@ -468,5 +603,5 @@ class CampaignQueue:
             rec.abort_pending = False
         if result in (State.HALTED, State.FAULTED):
             rec.intent = "hold"
-            rec.save()
+            self._save(rec)
         log.info("campaign %s: %s%s", rec.id, result, f" ({runner.fault})" if runner.fault else "")

@@ -6,6 +6,10 @@ it resumes when the daemon starts again. SIGKILL loses at most the step in fligh
 committed before the next move); the next start resumes from the journal.
 
 One daemon per data folder: ``DATA/daemon.lock`` (``flock``) refuses a second.
+
+Slow clients are bounded: a connection must send a whole request head within ``head_timeout_s`` of
+opening (or of its previous reply), heads are at most 16 KiB (h11), bodies arrive within the guard's
+time (:mod:`gonio.daemon.guard`), and an idle keep-alive connection closes after 5 s.
 """
 
 from __future__ import annotations
@@ -22,17 +26,26 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from gonio.config import GonioConfig
 from gonio.daemon.app import Daemon, asgi
-from gonio.daemon.auth import check_bind
+from gonio.daemon.auth import check_bind, check_token
 from gonio.daemon.events import StreamLimit
 from gonio.daemon.gantry import GantryOwner
+from gonio.daemon.guard import BODY_TIMEOUT_S, MAX_BODY_BYTES, HostNames
+from gonio.daemon.planner import PLAN_TIMEOUT_S, Planner
 from gonio.daemon.queue import CampaignQueue
+from gonio.sim.materials.library import MaterialsFolder
 
 __all__ = ["serve", "build_daemon", "Running", "start_in_thread", "setup_logging"]
 
 log = logging.getLogger("gonio.daemon")
+
+#: Seconds a connection may take to send a whole request head.
+HEAD_TIMEOUT_S = 10.0
+#: Seconds an idle keep-alive connection is kept.
+KEEP_ALIVE_S = 5
 
 
 class _JsonFormatter(logging.Formatter):
@@ -66,15 +79,57 @@ def _lock_data(data: Path) -> int:
 
 
 def build_daemon(cfg: GonioConfig, data: Path, *, token: str | None = None, pace: float = 0.0,
-                 hold: bool = False, max_streams: int = 16, clock=None) -> Daemon:
-    """The daemon's parts (queue not started yet). ``clock``: the time source of a gantry with real
-    devices (default the wall clock; tests of emulated devices pass the emulators' clock)."""
+                 hold: bool = False, max_streams: int = 16, clock=None, materials: str | Path | None = None,
+                 allow_hosts=(), halt_needs_token: bool = False, plan_timeout_s: float = PLAN_TIMEOUT_S,
+                 body_timeout_s: float = BODY_TIMEOUT_S) -> Daemon:
+    """The daemon's parts (queue and planner not started yet). ``clock``: the time source of a gantry
+    with real devices (default the wall clock; tests of emulated devices pass the emulators' clock).
+    ValueError (naming the option) for a token too weak, a materials folder that is not one, or a
+    malformed ``allow_hosts`` entry."""
     from gonio.campaign import software_version
 
+    token = check_token(token)
+    library = MaterialsFolder(materials)
+    library.check()
+    hosts = HostNames(tuple(allow_hosts))
     owner = GantryOwner(cfg, pace, clock=clock)
-    queue = CampaignQueue(data, cfg, pace=pace, hold=hold, before_run=owner.release, clock=clock)
-    return Daemon(cfg=cfg, queue=queue, gantry=owner, token=token or None,
-                  streams=StreamLimit(max_streams), version=software_version())
+    queue = CampaignQueue(data, cfg, pace=pace, hold=hold, before_run=owner.release, clock=clock,
+                          materials=library)
+    planner = Planner(cfg, library, timeout_s=plan_timeout_s)
+    return Daemon(cfg=cfg, queue=queue, gantry=owner, planner=planner, token=token, hosts=hosts,
+                  materials=library, halt_needs_token=halt_needs_token, streams=StreamLimit(max_streams),
+                  body_timeout_s=body_timeout_s, version=software_version())
+
+
+class _TimedH11(H11Protocol):
+    """uvicorn's h11 protocol with a deadline on each request head: a connection that has not sent a
+    whole request line and headers within ``head_timeout_s`` of opening (or of its previous reply) is
+    closed, however slowly it trickles bytes (uvicorn's own keep-alive timer restarts with every byte)."""
+
+    head_timeout_s = HEAD_TIMEOUT_S
+    _head_timer = None
+
+    def connection_made(self, transport):
+        super().connection_made(transport)
+        self._arm_head_deadline()
+
+    def on_response_complete(self) -> None:
+        super().on_response_complete()
+        self._arm_head_deadline()
+
+    def connection_lost(self, exc):
+        if self._head_timer is not None:
+            self._head_timer.cancel()
+        super().connection_lost(exc)
+
+    def _arm_head_deadline(self) -> None:
+        if self._head_timer is not None:
+            self._head_timer.cancel()
+        self._head_timer = self.loop.call_later(self.head_timeout_s, self._head_late, self.scope)
+
+    def _head_late(self, scope) -> None:
+        if self.scope is scope and not self.transport.is_closing():   # no new request since the arming
+            self.transport.close()
 
 
 class _Server(uvicorn.Server):
@@ -101,16 +156,22 @@ def _listen(host: str, port: int) -> socket.socket:
     return sock
 
 
-def _config(d: Daemon, access_log: bool) -> uvicorn.Config:
+def _config(d: Daemon, access_log: bool, head_timeout_s: float = HEAD_TIMEOUT_S) -> uvicorn.Config:
+    protocol = type("TimedH11", (_TimedH11,), {"head_timeout_s": head_timeout_s})
     return uvicorn.Config(asgi(d), log_config=None, access_log=access_log, timeout_graceful_shutdown=2,
-                          lifespan="off", ws="none")
+                          lifespan="off", ws="none", http=protocol, timeout_keep_alive=KEEP_ALIVE_S,
+                          h11_max_incomplete_event_size=MAX_BODY_BYTES)
 
 
 def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 8765,
           token: str | None = None, pace: float = 0.02, hold: bool = False, access_log: bool = True,
-          max_streams: int = 16, announce=print) -> int:
-    """Run the daemon until SIGTERM/SIGINT. Refuses a non-loopback ``host`` without a token."""
-    check_bind(host, token)
+          max_streams: int = 16, materials: str | Path | None = None, allow_hosts=(),
+          halt_needs_token: bool = False, announce=print) -> int:
+    """Run the daemon until SIGTERM/SIGINT. Refuses a non-loopback ``host`` without a token, and a token
+    too weak, before anything is written."""
+    check_bind(host, check_token(token))
+    d = build_daemon(cfg, data, token=token, pace=pace, hold=hold, max_streams=max_streams,
+                     materials=materials, allow_hosts=allow_hosts, halt_needs_token=halt_needs_token)
     fd = _lock_data(data)
     # The runner's thread computes (Dr.Jit, numpy) between short waits: hand the GIL over more often than
     # every 5 ms so that a request thread is not kept waiting behind it.
@@ -120,13 +181,18 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
     except OSError as err:
         os.close(fd)
         raise ValueError(f"--port: cannot listen on {host}:{port} ({err.strerror or err})") from None
-    d = build_daemon(cfg, data, token=token, pace=pace, hold=hold, max_streams=max_streams)
-    d.queue.start()
-    server = _Server(_config(d, access_log), d)
     bound = sock.getsockname()[1]
+    d.hosts.listen(host, bound)
+    d.queue.start()
+    d.planner.start()
+    server = _Server(_config(d, access_log), d)
     url = f"http://{'[' + host + ']' if ':' in host else host}:{bound}"
     announce(f"gonio serve: listening on {url} (data {data}, gantry '{cfg.name}', "
-             f"{'token required for writes' if token else 'no token: loopback only'})")
+             f"{'token required for writes' if d.token else 'no token: loopback only'}, "
+             f"{'materials from ' + str(materials) if materials else 'no measured materials'})")
+    if host in ("0.0.0.0", "::") and not allow_hosts:
+        log.warning("listening on every interface, but only loopback names are answered: give the names "
+                    "clients use (--allow-host gantry-pc.lab) or any other Host is refused")
     if threading.current_thread() is threading.main_thread():
         # uvicorn re-raises the signal that stopped it once it has shut down: by then the daemon has
         # stopped cleanly, so the signal is only acknowledged (exit status 0).
@@ -136,6 +202,7 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
         server.run(sockets=[sock])
     finally:
         d.queue.stop("daemon stopping")
+        d.planner.stop()
         sock.close()
         os.close(fd)
     return 0
@@ -154,16 +221,19 @@ class Running:
         self.daemon.queue.stop("daemon stopping", timeout_s)
         self.server.should_exit = True
         self.thread.join(timeout_s)
+        self.daemon.planner.stop()
         self.daemon.gantry.release()
 
 
 def start_in_thread(d: Daemon, host: str = "127.0.0.1", port: int = 0, timeout_s: float = 30.0,
-                    access_log: bool = False) -> Running:
-    """Start the queue and serve ``d`` on ``host:port`` (0: any free port) from a thread; waits (bounded)
-    until it accepts connections."""
+                    access_log: bool = False, head_timeout_s: float = HEAD_TIMEOUT_S) -> Running:
+    """Start the queue and planner and serve ``d`` on ``host:port`` (0: any free port) from a thread;
+    waits (bounded) until it accepts connections."""
     sock = _listen(host, port)
+    d.hosts.listen(host, sock.getsockname()[1])
     d.queue.start()
-    server = uvicorn.Server(_config(d, access_log))
+    d.planner.start()
+    server = uvicorn.Server(_config(d, access_log, head_timeout_s))
     server.install_signal_handlers = lambda: None   # uvicorn < 0.29
     t = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, name="gonio-http", daemon=True)
     t.start()
@@ -171,6 +241,7 @@ def start_in_thread(d: Daemon, host: str = "127.0.0.1", port: int = 0, timeout_s
     while not server.started:
         if not t.is_alive() or time.monotonic() > deadline:
             d.queue.stop()
+            d.planner.stop()
             raise RuntimeError("the daemon's HTTP server did not start")
         time.sleep(0.005)
     return Running(d, server, t, f"http://{host}:{sock.getsockname()[1]}")

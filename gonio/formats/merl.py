@@ -19,7 +19,7 @@ from gonio.geometry import MERL_SHAPE
 
 from . import atomic_path
 
-__all__ = ["MERL_SCALE", "MERL_BINS", "MERL_FILE_BYTES", "read_merl", "write_merl"]
+__all__ = ["MERL_SCALE", "MERL_BINS", "MERL_FILE_BYTES", "read_merl", "parse_merl", "write_merl"]
 
 #: Multipliers from stored values to f_r in sr⁻¹, per channel (R, G, B).
 MERL_SCALE = (1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0)
@@ -31,7 +31,7 @@ MERL_FILE_BYTES = _HEADER_BYTES + 3 * MERL_BINS * 8
 
 
 def read_merl(path: str | Path) -> np.ndarray:
-    """The scaled table of a MERL file.
+    """The scaled table of a MERL file (:func:`parse_merl` of its bytes).
 
     Parameters
     ----------
@@ -55,13 +55,23 @@ def read_merl(path: str | Path) -> np.ndarray:
             raise ValueError(f"merl: file {path!r} has {size} bytes; a MERL table has {MERL_FILE_BYTES} "
                              f"(12-byte header, 3 × {MERL_BINS} float64)")
         with open(path, "rb") as fh:
-            header = np.frombuffer(fh.read(_HEADER_BYTES), dtype="<i4")
-            if tuple(int(v) for v in header) != MERL_SHAPE:
-                raise ValueError(f"merl: file {path!r} has header {tuple(int(v) for v in header)}, "
-                                 f"expected {MERL_SHAPE}")
-            planes = np.frombuffer(fh.read(), dtype="<f8").reshape(3, MERL_BINS)
+            data = fh.read(MERL_FILE_BYTES + 1)
     except OSError as exc:
         raise ValueError(f"merl: cannot read file {path!r}: {exc.strerror or exc}") from exc
+    return parse_merl(data, path)
+
+
+def parse_merl(data: bytes, name: str) -> np.ndarray:
+    """The scaled table of the MERL file whose bytes are ``data`` (``name`` is what errors call it); as
+    :func:`read_merl`."""
+    if len(data) != MERL_FILE_BYTES:
+        raise ValueError(f"merl: file {name!r} has {len(data)} bytes; a MERL table has {MERL_FILE_BYTES} "
+                         f"(12-byte header, 3 × {MERL_BINS} float64)")
+    header = np.frombuffer(data, dtype="<i4", count=3)
+    if tuple(int(v) for v in header) != MERL_SHAPE:
+        raise ValueError(f"merl: file {name!r} has header {tuple(int(v) for v in header)}, "
+                         f"expected {MERL_SHAPE}")
+    planes = np.frombuffer(data, dtype="<f8", offset=_HEADER_BYTES).reshape(3, MERL_BINS)
     return planes * np.asarray(MERL_SCALE)[:, None]
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from . import atomic_path
 
-__all__ = ["read_tensor", "write_tensor", "DTYPE_CODES"]
+__all__ = ["read_tensor", "parse_tensor", "write_tensor", "DTYPE_CODES"]
 
 MAGIC = b"tensor_file\0"
 VERSION = (1, 0)
@@ -83,7 +83,23 @@ def write_tensor(path: str | Path, fields: dict[str, np.ndarray]) -> Path:
 
 
 def read_tensor(path: str | Path) -> dict[str, np.ndarray]:
-    """Read every field of a tensor file.
+    """Read every field of a tensor file (:func:`parse_tensor` of its bytes).
+
+    Raises
+    ------
+    ValueError
+        Naming the file and what is wrong (unreadable, magic, version, dtype code, a field past the end).
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"tensor file {str(path)!r}: cannot read: {exc.strerror or exc}") from exc
+    return parse_tensor(data, str(path))
+
+
+def parse_tensor(data: bytes, name: str) -> dict[str, np.ndarray]:
+    """Every field of the tensor file whose bytes are ``data`` (``name`` is what errors call it).
 
     Returns
     -------
@@ -93,34 +109,33 @@ def read_tensor(path: str | Path) -> dict[str, np.ndarray]:
     Raises
     ------
     ValueError
-        Naming the file and what is wrong (magic, version, dtype code, a field past the end).
+        Naming the file and what is wrong (magic, version, dtype code, a truncated header, a field past
+        the end).
     """
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"tensor file {str(path)!r}: cannot read: {exc.strerror or exc}") from exc
     if data[:12] != MAGIC or len(data) < 18:
-        raise ValueError(f"tensor file {str(path)!r}: does not start with 'tensor_file\\0'")
+        raise ValueError(f"tensor file {name!r}: does not start with 'tensor_file\\0'")
     major, minor, count = struct.unpack_from("<BBI", data, 12)
     if (major, minor) != VERSION:
-        raise ValueError(f"tensor file {str(path)!r}: version {major}.{minor}; allowed: 1.0")
+        raise ValueError(f"tensor file {name!r}: version {major}.{minor}; allowed: 1.0")
     pos, out = 18, {}
-    for _ in range(count):
-        (length,) = struct.unpack_from("<H", data, pos)
-        name = data[pos + 2:pos + 2 + length].decode("utf-8")
-        pos += 2 + length
-        ndim, code, offset = struct.unpack_from("<HBQ", data, pos)
-        pos += 11
-        shape = struct.unpack_from(f"<{ndim}Q", data, pos)
-        pos += 8 * ndim
-        if code not in DTYPE_CODES:
-            raise ValueError(f"tensor file {str(path)!r}: field {name!r} has dtype code {code}; "
-                             "allowed: 1..11")
-        dtype = np.dtype(DTYPE_CODES[code])
-        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
-        if offset + nbytes > len(data):
-            raise ValueError(f"tensor file {str(path)!r}: field {name!r} runs past the end of the file")
-        out[name] = np.frombuffer(data, dtype=dtype, count=nbytes // dtype.itemsize,
-                                  offset=offset).reshape(shape).astype(dtype.newbyteorder("="))
+    try:
+        for _ in range(count):
+            (length,) = struct.unpack_from("<H", data, pos)
+            field = data[pos + 2:pos + 2 + length].decode("utf-8")
+            pos += 2 + length
+            ndim, code, offset = struct.unpack_from("<HBQ", data, pos)
+            pos += 11
+            shape = struct.unpack_from(f"<{ndim}Q", data, pos)
+            pos += 8 * ndim
+            if code not in DTYPE_CODES:
+                raise ValueError(f"tensor file {name!r}: field {field!r} has dtype code {code}; "
+                                 "allowed: 1..11")
+            dtype = np.dtype(DTYPE_CODES[code])
+            nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if offset + nbytes > len(data):
+                raise ValueError(f"tensor file {name!r}: field {field!r} runs past the end of the file")
+            out[field] = np.frombuffer(data, dtype=dtype, count=nbytes // dtype.itemsize,
+                                       offset=offset).reshape(shape).astype(dtype.newbyteorder("="))
+    except (struct.error, UnicodeDecodeError):
+        raise ValueError(f"tensor file {name!r}: its header is cut short or garbled") from None
     return out

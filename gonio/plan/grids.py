@@ -37,8 +37,8 @@ import numpy as np
 
 from gonio.geometry import MERL_SHAPE, from_half_diff, merl_bin_centres, vec_to_sph
 
-__all__ = ["GridSpec", "GridPoses", "parse_grid", "enumerate_grid", "class_members", "KINDS", "ORDERS",
-           "MAX_POSES"]
+__all__ = ["GridSpec", "GridPoses", "parse_grid", "enumerate_grid", "pose_bound", "check_pose_bound",
+           "KINDS", "ORDERS", "MAX_POSES"]
 
 KINDS = ("iso", "full", "merl")
 ORDERS = ("auto", "serpentine", "raster", "tour", "fly")
@@ -220,13 +220,38 @@ def enumerate_grid(spec: GridSpec, theta_max_deg: float) -> GridPoses:
     ValueError
         When the grid would hold more than :data:`MAX_POSES` poses.
     """
-    if not 0.0 < theta_max_deg <= 90.0:
-        raise ValueError(f"theta_max_deg: must be > 0 and <= 90 degrees, got {theta_max_deg}")
+    check_pose_bound(spec, theta_max_deg)
     if spec.kind == "iso":
         return _iso(spec, theta_max_deg)
     if spec.kind == "full":
         return _full(spec, theta_max_deg)
     return _merl(spec, theta_max_deg)
+
+
+def pose_bound(spec: GridSpec, theta_max_deg: float) -> int:
+    """The poses ``spec`` keeps up to ``theta_max_deg``, from its parameters alone (nothing is built, so
+    it answers at once even for ``full:step=0.01``): exact for iso and full grids; for merl grids the
+    lattice after reciprocity, an upper bound (the horizon and theta_max cut it further).
+
+    Examples
+    --------
+    >>> pose_bound(parse_grid("iso:step=30"), 90), enumerate_grid(parse_grid("iso:step=30"), 90).theta_i.size
+    (61, 61)
+    >>> f"{pose_bound(parse_grid('full:step=0.01'), 80):.3g}"
+    '4.15e+16'
+    """
+    if not 0.0 < theta_max_deg <= 90.0:
+        raise ValueError(f"theta_max_deg: must be > 0 and <= 90 degrees, got {theta_max_deg}")
+    if spec.kind == "merl":
+        k = spec.stride
+        nh, nd, nphi = MERL_SHAPE
+        return -(-nh // k) * -(-nd // k) * -(-nphi // k) * (1 if spec.reciprocity else 2)
+    n = _theta_count(spec.step_deg, theta_max_deg)
+    turns = round(360.0 / spec.step_deg)
+    if spec.kind == "iso":
+        return _iso_size(n, turns, spec.reciprocity, spec.mirror)
+    nd = 1 + (n - 1) * turns   # directions, the pole once
+    return nd * (nd + 1) // 2 if spec.reciprocity else nd * nd
 
 
 def class_members(spec: GridSpec, theta_i, phi_i, theta_o, phi_o) -> list[tuple[np.ndarray, ...]]:
@@ -266,7 +291,6 @@ def _iso(spec: GridSpec, theta_max_deg: float) -> GridPoses:
     step = spec.step_deg
     n = _theta_count(step, theta_max_deg)
     turns = round(360.0 / step)
-    _check_size(spec, _iso_size(n, turns, spec.reciprocity, spec.mirror))
     idx = [np.arange(k, dtype=np.int32) for k in (n, n, turns)]
     a, b, m = np.meshgrid(*idx, indexing="ij")
     a, b, m = a.ravel(), b.ravel(), m.ravel()
@@ -299,8 +323,6 @@ def _full(spec: GridSpec, theta_max_deg: float) -> GridPoses:
     counts = {"grid": (n * turns) ** 2, "pole_collapse": nd * nd}
     if spec.reciprocity:
         counts["reciprocity"] = nd * (nd + 1) // 2
-    _check_size(spec, list(counts.values())[-1])
-    if spec.reciprocity:
         i, j = np.triu_indices(nd)
     else:
         i, j = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
@@ -330,7 +352,6 @@ def _merl(spec: GridSpec, theta_max_deg: float) -> GridPoses:
     tmax = np.radians(theta_max_deg) + _ANGLE_TOL
     keep &= (theta_i <= tmax) & (theta_o <= tmax)
     counts["theta_max"] = int(keep.sum())
-    _check_size(spec, counts["theta_max"])
     loops = np.stack([ih, id_, ip + nphi * half], axis=1)[keep].astype(np.int64)
     return GridPoses(theta_i[keep], phi_i[keep], theta_o[keep], phi_o[keep], loops, counts)
 
@@ -348,10 +369,14 @@ def _theta_count(step: float, theta_max_deg: float) -> int:
     return int(np.floor(theta_max_deg / step + _DIV_TOL)) + 1
 
 
-def _check_size(spec: GridSpec, n: int) -> None:
-    if n > MAX_POSES:
+def check_pose_bound(spec: GridSpec, theta_max_deg: float, limit: int = MAX_POSES,
+                     holder: str = "a plan can hold") -> None:
+    """ValueError naming the option to change when :func:`pose_bound` exceeds ``limit``."""
+    n = pose_bound(spec, theta_max_deg)
+    if n > limit:
         opt = "stride" if spec.kind == "merl" else "step"
-        raise ValueError(f"grid '{spec.kind}': {n:,} poses exceed the {MAX_POSES:,} a plan can hold; use a "
+        at_most = "up to " if spec.kind == "merl" else ""
+        raise ValueError(f"grid '{spec.kind}': {at_most}{n:,} poses exceed the {limit:,} {holder}; use a "
                          f"larger '{opt}' or a smaller 'theta_max'")
 
 

@@ -14,6 +14,8 @@ decimal (``0.2``, ``2e-1``), finite. Colour parameters (marked RGB) take one num
 three separated by ``/`` in the order R/G/B (``albedo=0.8/0.6/0.4``); each channel is range-checked.
 Roughness ``m`` of the Blinn and Gaussian distributions is an angle in radians, as in the lecture notes
 (the other roughnesses are slopes, without unit). ``merl:PATH`` takes the rest of the string as a path.
+Through the daemon, ``merl:`` and ``bsdf:`` name a file of its materials folder, never a path
+(:class:`.library.MaterialsFolder`).
 
 The normalized ``spec`` lists every parameter the model used, defaults included, in the order below,
 numbers in their shortest round-trip form: ``load(m.spec).spec == m.spec``. Unknown models, unknown or

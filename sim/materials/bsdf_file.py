@@ -77,13 +77,17 @@ class MeasuredTensor(Material):
         path = text.strip()
         if not path:
             raise ValueError("bsdf: a file path is required, e.g. bsdf:path/to/file.bsdf")
-        fields = read_tensor(path)
+        return cls.from_fields(f"bsdf:{path}", path, read_tensor(path))
+
+    @classmethod
+    def from_fields(cls, spec: str, path: str, fields: dict) -> MeasuredTensor:
+        """Build from a tensor file's fields (``path``: what errors call the file)."""
         need = {"theta_i", "phi_i", "ndf", "sigma", "vndf", "jacobian"}
         missing = sorted(need - set(fields)) + ([] if {"rgb"} <= set(fields) or
                                                {"spectra", "wavelengths"} <= set(fields) else ["rgb"])
         if missing:
             raise ValueError(f"bsdf: file {path!r} lacks the measured-BSDF fields {', '.join(missing)}")
-        return cls(f"bsdf:{path}", path, fields)
+        return cls(spec, path, fields)
 
     def _parameters(self) -> dict:
         return dict(self._tables)

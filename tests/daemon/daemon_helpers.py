@@ -3,14 +3,23 @@ folder has a ``conftest``, so tests import these by this unique name)."""
 
 from __future__ import annotations
 
+import os
+import re
+import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import httpx
 import pytest
 
 #: Upper bound for every wait in these tests (a campaign of a few dozen steps takes well under it).
 WAIT_S = 60.0
-TOKEN = "s3cret-token"
+TOKEN = "s3cret-token-of-the-lab"
+GONIO = [sys.executable, "-m", "gonio.cli"]
+#: ``gonio serve`` processes started by Serve and not yet reaped (conftest stops them after each test).
+STARTED: list = []
 
 
 def wait_for(predicate, what: str, timeout_s: float = WAIT_S, poll_s: float = 0.01):
@@ -40,3 +49,30 @@ def submit(client: httpx.Client, grid: str = "iso:step=30", material: str = "lam
     r = client.post("/campaigns", json={"material": material, "grid": grid, **extra})
     assert r.status_code == 201, r.text
     return r.json()
+
+
+class Serve:
+    """A ``gonio serve`` subprocess on a free loopback port; its URL once it listens."""
+
+    def __init__(self, data: Path, *extra: str, env: dict | None = None, prefix: tuple = ()):
+        self.log = data.parent / f"serve-{time.monotonic_ns()}.log"
+        self._f = self.log.open("w")
+        self.p = subprocess.Popen([*prefix, *GONIO, "serve", "--data", str(data), "--port", "0", *extra],
+                                  stdout=self._f, stderr=subprocess.STDOUT,
+                                  env={**os.environ, "GONIO_TOKEN": "", **(env or {})})
+        STARTED.append(self)
+        m = wait_for(lambda: re.search(r"listening on (http://\S+)", self.log.read_text())
+                     or self.p.poll() is not None, "the daemon to listen")
+        if m is True or self.p.poll() is not None:
+            pytest.fail(f"gonio serve exited: {self.log.read_text()}")
+        self.url = m.group(1)
+        self.client = httpx.Client(base_url=self.url, timeout=WAIT_S)
+
+    def stop(self, sig=signal.SIGTERM) -> int:
+        self.client.close()
+        if self.p.poll() is None:
+            self.p.send_signal(sig)
+        try:
+            return self.p.wait(WAIT_S)
+        finally:
+            self._f.close()

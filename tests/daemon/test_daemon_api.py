@@ -8,7 +8,7 @@ import httpx
 import pytest
 from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
 
-from gonio.daemon.auth import check_bind, token_ok
+from gonio.daemon.auth import FAILURES_ALLOWED, check_bind, check_token, is_loopback, token_ok
 from gonio.store import JOURNAL_NAME, Journal
 
 WRITES = [("POST", "/campaigns", {"material": "lambert:albedo=0.5", "grid": "iso:step=30"}),
@@ -43,7 +43,8 @@ def test_a_campaign_runs_to_the_end_and_its_brdf_can_be_fetched(serve):
 
 @pytest.mark.parametrize(("body", "field", "text"), [
     ({"material": "lambert:albedo=5", "grid": "iso:step=30"}, "material", "albedo"),
-    ({"material": "merl:/etc/passwd", "grid": "iso:step=30"}, "material", "names a file"),
+    ({"material": "merl:/etc/passwd", "grid": "iso:step=30"}, "material", "serves none"),
+    ({"material": "bsdf:/dev/zero", "grid": "iso:step=30"}, "material", "serves none"),
     ({"grid": "iso:step=30"}, "material", "required"),
     ({"material": "lambert:albedo=0.5", "grid": "iso:step=-1"}, "grid", "step"),
     ({"material": "lambert:albedo=0.5", "grid": "nope"}, "grid", ""),
@@ -67,7 +68,7 @@ def test_writes_need_the_token_reads_do_not(serve):
     anon = httpx.Client(base_url=r.url, timeout=WAIT_S)
     wrong = httpx.Client(base_url=r.url, timeout=WAIT_S, headers={"Authorization": "Bearer nope"})
     try:
-        for method, path, body in WRITES:
+        for method, path, body in WRITES[:-1]:
             for c in (anon, wrong):
                 resp = c.request(method, path, json=body)
                 assert resp.status_code == 401, (path, resp.text)
@@ -75,19 +76,48 @@ def test_writes_need_the_token_reads_do_not(serve):
         assert r.daemon.queue.records() == []            # nothing was submitted
         assert anon.get("/health").json()["auth"] is True
         assert anon.get("/campaigns").status_code == 200 and anon.get("/gantry").status_code == 200
-        assert submit(r.client)["id"] == "c00001"        # the token opens writes
+        # The emergency stop from the rig (a loopback client) needs no token.
+        assert anon.post("/gantry/halt").json()["message"] == "halt: every axis stopped"
+        lower = httpx.Client(base_url=r.url, timeout=WAIT_S, headers={"Authorization": f"bearer  {TOKEN}"})
+        with lower:                                      # RFC 7235: the scheme in any case
+            assert submit(lower)["id"] == "c00001"       # the token opens writes
     finally:
         anon.close()
         wrong.close()
 
 
+def test_the_halt_needs_the_token_when_configured_so(serve):
+    r = serve(token=TOKEN, halt_needs_token=True)
+    with httpx.Client(base_url=r.url, timeout=WAIT_S) as anon:
+        assert anon.post("/gantry/halt").status_code == 401
+    assert r.client.post("/gantry/halt").status_code == 200
+
+
+def test_wrong_tokens_are_rate_limited_per_client(serve):
+    r = serve(token=TOKEN)
+    with httpx.Client(base_url=r.url, timeout=WAIT_S, headers={"Authorization": "Bearer x" * 4}) as wrong:
+        codes = [wrong.post("/campaigns/c00001/pause").status_code for _ in range(FAILURES_ALLOWED + 2)]
+    assert codes == [401] * FAILURES_ALLOWED + [429, 429]
+    blocked = r.client.post("/campaigns/c00001/pause")          # the right token too, from that client
+    assert blocked.status_code == 429 and 0 < int(blocked.headers["retry-after"]) <= 60
+    assert "too many wrong tokens" in blocked.json()["detail"]
+
+
 def test_token_comparison_and_the_loopback_rule():
     assert token_ok(None, None) and token_ok("", "whatever")
     assert token_ok("abc", "Bearer abc") and not token_ok("abc", "Bearer abd") and not token_ok("abc", "abc")
+    assert token_ok("abc", "BEARER abc") and token_ok("abc", "bearer abc")
+    assert not token_ok("abc", "Basic abc")
+    assert is_loopback("::ffff:127.0.0.1") and is_loopback("127.3.2.1") and not is_loopback("::ffff:10.0.0.1")
+    for weak in (" " * 20, "x", "short-token", "fifteen-chars-x", "has a space in it!!",
+                 "tab\tseparated-token1", "nön-ascii-token-abc"):
+        with pytest.raises(ValueError, match="at least 16 characters and no whitespace"):
+            check_token(weak)
+    assert check_token("") is None and check_token(TOKEN) == TOKEN
     check_bind("127.0.0.1", None)
     check_bind("::1", None)
     check_bind("localhost", None)
-    check_bind("0.0.0.0", "t")
+    check_bind("0.0.0.0", TOKEN)
     for host in ("0.0.0.0", "203.0.113.5", "::", "gantry.lab"):
         with pytest.raises(ValueError, match="--host: .* token"):
             check_bind(host, None)
@@ -112,7 +142,7 @@ def test_ids_cannot_name_paths(serve):
 
 
 def test_a_second_campaign_waits_in_the_queue_while_the_first_runs(serve):
-    r = serve(pace=0.002)
+    r = serve(pace=0.01)   # the first still runs when the second, planned meanwhile, comes
     submit(r.client, grid="iso:step=15")
     wait_state(r.client, "c00001", "running")
     second = submit(r.client, grid="iso:step=30")
@@ -131,7 +161,7 @@ def test_a_second_campaign_waits_in_the_queue_while_the_first_runs(serve):
 
 
 def test_pause_resume_abort_through_the_api(serve):
-    r = serve(pace=0.002)
+    r = serve(pace=0.01)   # the first still runs when the second, planned meanwhile, comes
     submit(r.client, grid="iso:step=15")
     submit(r.client, grid="iso:step=30")
     wait_for(_one_step_measured(r), "a committed step")
@@ -174,7 +204,7 @@ def test_halt_stops_the_running_campaign_and_resume_finishes_it(serve):
 
 
 def test_an_aborted_queued_campaign_never_runs_and_a_paused_one_can_be_aborted(serve):
-    r = serve(pace=0.002)
+    r = serve(pace=0.01)   # the first still runs when the second, planned meanwhile, comes
     submit(r.client, grid="iso:step=15")
     submit(r.client, grid="iso:step=30")
     assert r.client.post("/campaigns/c00002/abort").json()["state"] == "aborted"

@@ -71,7 +71,7 @@ def test_one_clear_line_when_there_is_no_daemon_or_it_refuses(serve, env, capsys
     assert err.startswith("gonio queue: no gonio daemon at http://127.0.0.1:9") and "\n" not in err
     r = serve(token=TOKEN)
     env(r.url)                       # no token
-    assert main(["halt"]) == 1
+    assert main(["pause", "c00001"]) == 1
     err = capsys.readouterr().err.strip()
     assert "needs its token" in err and "\n" not in err
     env(r.url, TOKEN)

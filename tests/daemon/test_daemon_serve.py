@@ -1,74 +1,28 @@
-"""``gonio serve`` as a process: the loopback rule, SIGTERM (pause, park, resume at the next start or
-hold with --hold), and SIGKILL at random moments of a simulated campaign: after each restart the daemon
-resumes it, and the end result equals an uninterrupted run bit for bit."""
+"""``gonio serve`` as a process: the loopback rule and the token's strength, SIGTERM (pause, park, resume
+at the next start or hold with --hold), and SIGKILL at random moments of a simulated campaign: after
+each restart the daemon resumes it, the journal says that each killed run stopped uncleanly, and the
+end result equals an uninterrupted run bit for bit."""
 
 from __future__ import annotations
 
 import os
 import random
-import re
 import signal
 import sqlite3
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import h5py
-import httpx
 import numpy as np
 import pytest
-from daemon_helpers import WAIT_S, wait_for
+from daemon_helpers import GONIO, WAIT_S, Serve, wait_for
 
 from gonio.campaign import create_campaign, run_campaign
 from gonio.config import load_config
 from gonio.sim.materials import load
 from gonio.store import JOURNAL_NAME, Journal
 from gonio.wiring import build_gantry
-
-GONIO = [sys.executable, "-m", "gonio.cli"]
-
-
-_STARTED: list[Serve] = []
-
-
-@pytest.fixture(autouse=True)
-def _no_daemon_left_behind():
-    """Every daemon a test starts is stopped, also when the test fails half-way."""
-    yield
-    while _STARTED:
-        s = _STARTED.pop()
-        if s.p.poll() is None:
-            s.p.kill()
-            s.p.wait(WAIT_S)
-        s._f.close()
-
-
-class Serve:
-    """A ``gonio serve`` subprocess on a free loopback port; its URL once it listens."""
-
-    def __init__(self, data: Path, *extra: str, env: dict | None = None):
-        self.log = data.parent / f"serve-{time.monotonic_ns()}.log"
-        self._f = self.log.open("w")
-        self.p = subprocess.Popen([*GONIO, "serve", "--data", str(data), "--port", "0", *extra],
-                                  stdout=self._f, stderr=subprocess.STDOUT,
-                                  env={**os.environ, "GONIO_TOKEN": "", **(env or {})})
-        _STARTED.append(self)
-        m = wait_for(lambda: re.search(r"listening on (http://\S+)", self.log.read_text())
-                     or self.p.poll() is not None, "the daemon to listen")
-        if m is True or self.p.poll() is not None:
-            pytest.fail(f"gonio serve exited: {self.log.read_text()}")
-        self.url = m.group(1)
-        self.client = httpx.Client(base_url=self.url, timeout=WAIT_S)
-
-    def stop(self, sig=signal.SIGTERM) -> int:
-        self.client.close()
-        if self.p.poll() is None:
-            self.p.send_signal(sig)
-        try:
-            return self.p.wait(WAIT_S)
-        finally:
-            self._f.close()
 
 
 def _done(folder: Path) -> int:
@@ -89,10 +43,26 @@ def test_serve_refuses_a_non_loopback_address_without_a_token(tmp_path):
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "d").exists()
 
 
+@pytest.mark.parametrize(("args", "token", "message"), [
+    (("--host", "0.0.0.0"), "     ", "GONIO_TOKEN / --token: a token needs at least 16 characters"),
+    (("--host", "0.0.0.0"), "x", "GONIO_TOKEN / --token: a token needs at least 16 characters"),
+    ((), "sixteen chars ok", "GONIO_TOKEN / --token: a token needs at least 16 characters"),
+    (("--token", "\t"), "", "GONIO_TOKEN / --token: a token needs at least 16 characters"),
+    (("--materials", "/nonexistent/m"), "", "--materials: /nonexistent/m is not a folder"),
+    (("--allow-host", "http://x"), "", "--allow-host: expected NAME or NAME:PORT"),
+])
+def test_serve_refuses_weak_tokens_and_bad_options_before_writing_anything(tmp_path, args, token, message):
+    r = subprocess.run([*GONIO, "serve", "--data", str(tmp_path / "d"), *args], capture_output=True,
+                       text=True, timeout=WAIT_S, env={**os.environ, "GONIO_TOKEN": token})
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().startswith(f"gonio serve: {message}"), r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "d").exists()
+
+
 def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path):
     data = tmp_path / "data"
     s = Serve(data, "--pace", "0.005")
-    body = {"material": "lambert:albedo=0.5", "grid": "iso:step=15"}
+    body = {"material": "lambert:albedo=0.5", "grid": "iso:step=10"}
     s.client.post("/campaigns", json=body).raise_for_status()
     folder = data / "campaigns" / "c00001"
     wait_for(lambda: _done(folder) >= 2, "two committed steps")
@@ -118,6 +88,30 @@ def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path)
     s = Serve(data, "--pace", "0")       # stopped by SIGTERM while running: it resumes by itself
     wait_for(lambda: s.client.get("/campaigns/c00001").json()["state"] == "done", "the campaign to finish")
     assert s.stop() == 0
+    runs, unclean = _runs(folder)
+    assert runs == 3 and unclean == 0    # SIGTERM stops are clean: paused, then resumed
+
+
+def _runs(folder: Path) -> tuple[int, int]:
+    """(runs, unclean stops) of a journal, checking that every run ends in a state of its own or, when a
+    crash cut it short, in exactly one ``unclean-stop`` journaled before the next run starts."""
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        events = [(e["kind"], e["state"]) for e in j.events() if e["kind"] in ("state", "unclean-stop")]
+    finally:
+        j.close()
+    running, runs, unclean = False, 0, 0
+    for kind, state in events:
+        if kind == "unclean-stop":
+            assert running, events            # only after a run the journal left open
+            running, unclean = False, unclean + 1
+        elif state == "running":
+            assert not running, events        # the previous run was closed, cleanly or not
+            running, runs = True, runs + 1
+        else:
+            running = False
+    assert not running, events
+    return runs, unclean
 
 
 def _reference(tmp_path: Path, material: str, grid: str, seed: int) -> Path:
@@ -167,6 +161,8 @@ def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_resul
         assert j.done_steps().tolist() == list(range(total))     # exactly one measurement per step
     finally:
         j.close()
+    runs, unclean = _runs(folder)
+    assert unclean == runs - 1 and unclean >= 4    # every run but the last was killed, and says so
     conn = sqlite3.connect(folder / JOURNAL_NAME)
     try:
         assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"

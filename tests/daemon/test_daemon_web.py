@@ -1,6 +1,6 @@
 """The live web view in a real headless browser (Debian's chromium, driven by Playwright): the queue,
 the running campaign's progress, the pose sketch and a BRDF slice filling in; pause and resume buttons
-with a token. Skipped where chromium is not installed (tools/setup.sh installs it)."""
+with a token, and HALT without one. Skipped where chromium is not installed (tools/setup.sh installs it)."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_p
     submit(r.client, grid="iso:step=10", material="ggx:alpha=0.2,metal=gold")
     page.goto(r.url + "/")
     page.wait_for_selector("#queue tbody tr[data-id='c00001']")
-    assert page.is_disabled("#pause") and page.is_disabled("#halt")    # no token typed yet
+    assert page.is_disabled("#pause") and not page.is_disabled("#halt")    # no token typed yet: HALT is live
     page.fill("#token", TOKEN)
     page.wait_for_function("document.querySelector('#conn').textContent === 'live'")
     # The slice fills in as measurements arrive, and the sketch shows the pose.
@@ -62,4 +62,9 @@ def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_p
     page.wait_for_function("document.querySelector('#message').textContent.startsWith('pausing')")
     page.click("#resume")
     wait_state(r.client, "c00001", ("running", "finishing", "done"))
+    page.fill("#token", "")                  # the operator at the rig, without the token: HALT still works
+    page.click("#halt")
+    st = wait_state(r.client, "c00001", ("halted", "done"))
+    if st["state"] == "halted":
+        page.wait_for_function("document.querySelector('#message').textContent.startsWith('halt')")
     r.client.post("/campaigns/c00001/abort")

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from gonio.geometry import from_half_diff, merl_bin_centres
-from gonio.plan.grids import MAX_POSES, class_members, enumerate_grid, parse_grid
+from gonio.plan.grids import MAX_POSES, class_members, enumerate_grid, parse_grid, pose_bound
 
 
 def brute_iso(step, theta_max, reciprocity, mirror):
@@ -200,6 +200,26 @@ def test_too_large_a_grid_is_refused_before_it_is_built():
         enumerate_grid(parse_grid("full:step=1"), 80)
     with pytest.raises(ValueError, match="exceed the"):
         enumerate_grid(parse_grid("iso:step=0.25"), 80)
+    # Refused from its parameters alone: 4e16 poses, no array of them (it took 70 s and 2.4 GB).
+    with pytest.raises(ValueError, match="41,472,000,432,000,001 poses exceed the"):
+        enumerate_grid(parse_grid("full:step=0.01"), 80)
+
+
+@pytest.mark.parametrize("grid", ["iso:step=15", "iso:step=10,mirror=true", "iso:step=30,reciprocity=false",
+                                  "iso:step=7.5,theta_max=50,reciprocity=false,mirror=true",
+                                  "full:step=30", "full:step=45,reciprocity=false",
+                                  "full:step=20,theta_max=60",
+                                  "merl:stride=15", "merl:stride=30,reciprocity=false", "merl:stride=7"])
+def test_the_pose_bound_is_exact_for_lattices_and_bounds_merl_grids(grid):
+    spec = parse_grid(grid)
+    for tmax in (80.0, 90.0, 45.0):
+        tmax = spec.theta_max_deg or tmax
+        g = enumerate_grid(spec, tmax)
+        n = g.theta_i.size
+        if spec.kind == "merl":
+            assert list(g.counts.values())[1 if spec.reciprocity else 0] == pose_bound(spec, tmax) >= n
+        else:
+            assert pose_bound(spec, tmax) == n
 
 
 def test_theta_max_bounds_the_lattice():

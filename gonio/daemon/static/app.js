@@ -58,7 +58,8 @@ function renderRunning(c) {
   const w = canWrite();
   $("pause").disabled = !c || !w || TERMINAL.has(c.state);
   $("resume").disabled = !c || !w || TERMINAL.has(c.state);
-  $("halt").disabled = !w;
+  // HALT is never disabled: from the rig (loopback) the daemon takes it without a token, and an
+  // emergency stop must not wait for the page to agree.
 }
 
 async function refresh() {

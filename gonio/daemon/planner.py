@@ -1,0 +1,280 @@
+"""Planning submitted campaigns in a worker process, within a time limit, cancelled when the client leaves.
+
+Planning a fine grid takes seconds to minutes of CPU. In the daemon's own process it competed with the
+runner for the interpreter (a burst of 20 small submits slowed a running campaign by 86 %) and nothing
+could stop it once started. Here one worker process (forked from a server that has imported the planner
+once, so a fresh worker is ready at once; at idle priority, so the runner comes first) takes one request
+at a time: it loads the material, checks the request against the gantry, plans it and creates its
+journal in a staging folder (:func:`gonio.daemon.records.prepare_campaign`). The daemon then gives that
+folder its id (:meth:`gonio.daemon.queue.CampaignQueue.admit`).
+
+A request whose planning uses more than ``timeout_s`` of CPU time (so that a machine busy with other work
+does not turn a sound request into a refusal; at most :data:`WALL_FACTOR` times that of wall time), or
+whose client went away, has its worker killed (a fresh one takes its place) and its staging folder
+removed: 422 naming ``grid`` for the time limit. At most ``max_waiting``
+requests wait for the worker; more are refused (503, :class:`PlannerBusy`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import errno
+import logging
+import multiprocessing
+import os
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from gonio.daemon.records import DiskFull, FieldError, is_disk_full, prepare_campaign
+from gonio.sim.materials.library import MaterialsFolder
+
+__all__ = ["Planner", "PlannerBusy", "ClientGone", "PLAN_TIMEOUT_S", "MAX_WAITING"]
+
+log = logging.getLogger(__name__)
+
+#: CPU seconds one request may plan (the finest grids the daemon accepts plan in under 20 s); where the
+#: worker's CPU time cannot be read, wall seconds.
+PLAN_TIMEOUT_S = 120.0
+#: Requests that may wait for the worker at once.
+MAX_WAITING = 32
+#: Seconds a fresh worker may take to start.
+START_TIMEOUT_S = 60.0
+_POLL_S = 0.05
+#: Seconds between checks that a waiting request's client is still there.
+_CLIENT_POLL_S = 0.5
+_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+#: A request's planning is stopped after this many times its time limit of wall time, however little CPU
+#: time the machine's other work left it (it runs at idle priority).
+WALL_FACTOR = 5
+_PRELOAD = ("gonio.daemon.records", "gonio.plan", "gonio.campaign", "gonio.fly.campaign")
+
+
+class PlannerBusy(RuntimeError):
+    """Too many requests wait for the planner (503)."""
+
+
+class ClientGone(RuntimeError):
+    """The request's client went away; its planning was cancelled."""
+
+
+class PlannerFailed(RuntimeError):
+    """The planner could not create the campaign for a reason that is not the request's (500, one line)."""
+
+
+@dataclass
+class _Job:
+    req: dict
+    folder: Path
+    done: concurrent.futures.Future = field(default_factory=concurrent.futures.Future)
+    cancelled: threading.Event = field(default_factory=threading.Event)
+
+
+def _cpu_s(pid: int) -> float | None:
+    """CPU seconds process ``pid`` has used (Linux: /proc), or None where that cannot be read."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / _TICKS
+
+
+def _consume(future) -> None:
+    """Read the outcome of a job nobody waits for any more (else asyncio logs it as never retrieved)."""
+    if not future.cancelled():
+        future.exception()
+
+
+def _context():
+    ctx = multiprocessing.get_context("forkserver")
+    # The server imports the planning modules once; every worker forks from it with them loaded. (A fork
+    # of the daemon itself would copy its threads' locks mid-use; Dr.Jit, which starts a thread pool, is
+    # imported by each worker after its fork.)
+    ctx.set_forkserver_preload(list(_PRELOAD))
+    return ctx
+
+
+def _worker_main(conn, cfg, materials_root) -> None:
+    """The worker: one request at a time from ``conn``, each answered with one tuple."""
+    try:   # the runner and the event loop first: planning takes only the CPU time they leave idle
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        os.nice(19)
+    materials = MaterialsFolder(materials_root)
+    conn.send(("ready",))
+    while True:
+        try:
+            req, folder = conn.recv()
+        except (EOFError, OSError):   # the daemon is gone
+            return
+        try:
+            reply = ("ok", prepare_campaign(cfg, req, materials, Path(folder)))
+        except FieldError as err:
+            reply = ("field", err.field, str(err))
+        except Exception as err:
+            reply = ("disk-full" if is_disk_full(err) else "error", f"{type(err).__name__}: {err}")
+        try:
+            conn.send(reply)
+        except (BrokenPipeError, OSError):
+            return
+
+
+class Planner:
+    """The planning worker (see the module docstring).
+
+    Parameters
+    ----------
+    cfg : GonioConfig
+        The daemon's gantry.
+    materials : MaterialsFolder
+        Where measured materials are named from.
+    timeout_s : float
+        Seconds one request may plan.
+    max_waiting : int
+        Requests that may wait at once.
+    """
+
+    def __init__(self, cfg, materials: MaterialsFolder, *, timeout_s: float = PLAN_TIMEOUT_S,
+                 max_waiting: int = MAX_WAITING):
+        self.cfg = cfg
+        self.materials = materials
+        self.timeout_s = timeout_s
+        self.max_waiting = max_waiting
+        self._jobs: queue.Queue = queue.Queue()
+        self._waiting = 0
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+        self._proc = None
+        self._conn = None
+        self.busy = False          # a request is being planned now
+        self.planned = 0           # requests the worker was given
+        self.killed = 0            # workers killed (time limit, a client gone)
+
+    # -- life --------------------------------------------------------------------------------------
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._serve, name="gonio-planner", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the worker: the request being planned and every waiting one fail (PlannerFailed)."""
+        self._stopping.set()
+        self._jobs.put(None)
+        if self._thread is not None:
+            self._thread.join(START_TIMEOUT_S)
+        self._kill()
+
+    def _worker(self):
+        """The worker's connection, started (and waited for) when there is none."""
+        if self._proc is not None and self._proc.is_alive():
+            return self._conn
+        self._kill()
+        ctx = _context()
+        parent, child = ctx.Pipe()
+        proc = ctx.Process(target=_worker_main, args=(child, self.cfg, self.materials.root), daemon=True,
+                           name="gonio-planner-worker")
+        proc.start()
+        child.close()
+        self._proc, self._conn = proc, parent
+        if not parent.poll(START_TIMEOUT_S) or parent.recv() != ("ready",):
+            self._kill()
+            raise PlannerFailed(f"the planner did not start within {START_TIMEOUT_S:g} s")
+        return parent
+
+    def _kill(self) -> None:
+        proc, conn = self._proc, self._conn
+        self._proc = self._conn = None
+        if proc is not None:
+            if proc.is_alive():
+                proc.kill()
+            proc.join(10)
+        if conn is not None:
+            conn.close()
+
+    # -- requests ----------------------------------------------------------------------------------
+    async def prepare(self, req: dict, folder: Path, is_disconnected=None) -> str | None:
+        """Plan ``req`` into ``folder`` in the worker; the material's spec. Raises FieldError (the
+        request's fault, or its planning outlasted the limit), DiskFull, PlannerBusy, ClientGone (when
+        ``is_disconnected()`` says the client left) or PlannerFailed."""
+        with self._lock:
+            if self._waiting >= self.max_waiting:
+                raise PlannerBusy(f"{self._waiting} campaigns are being planned; retry in a few seconds")
+            self._waiting += 1
+        job = _Job(req, folder)
+        self._jobs.put(job)
+        done = asyncio.wrap_future(job.done)
+        try:
+            while True:
+                finished, _ = await asyncio.wait({done}, timeout=_CLIENT_POLL_S)
+                if finished:
+                    return done.result()
+                if is_disconnected is not None and await is_disconnected():
+                    job.cancelled.set()
+                    done.add_done_callback(_consume)
+                    raise ClientGone("the client went away")
+        except asyncio.CancelledError:
+            job.cancelled.set()
+            done.add_done_callback(_consume)
+            raise
+        finally:
+            with self._lock:
+                self._waiting -= 1
+
+    def _serve(self) -> None:
+        try:
+            self._worker()          # ready before the first request comes
+        except PlannerFailed as err:
+            log.error("%s", err)
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            if job.cancelled.is_set():
+                job.done.set_exception(ClientGone("the client went away"))
+                continue
+            if self._stopping.is_set():
+                job.done.set_exception(PlannerFailed("the daemon is stopping"))
+                continue
+            self.busy = True
+            try:
+                job.done.set_result(self._plan(job))
+            except BaseException as err:
+                job.done.set_exception(err)
+            finally:
+                self.busy = False
+
+    def _plan(self, job: _Job):
+        conn = self._worker()
+        conn.send((job.req, str(job.folder)))
+        self.planned += 1
+        cpu0, wall_end = _cpu_s(self._proc.pid), time.monotonic() + WALL_FACTOR * self.timeout_s
+        while not conn.poll(_POLL_S):
+            if self._stopping.is_set():
+                self._kill()
+                raise PlannerFailed("the daemon is stopping")
+            cpu = _cpu_s(self._proc.pid)
+            late = time.monotonic() > wall_end or (cpu is not None and cpu - cpu0 > self.timeout_s)
+            if job.cancelled.is_set() or late or not self._proc.is_alive():
+                alive = self._proc.is_alive()
+                self._kill()
+                self.killed += 1
+                if job.cancelled.is_set():
+                    log.info("planning of %s cancelled: the client went away", job.req.get("grid"))
+                    raise ClientGone("the client went away")
+                if not alive:
+                    raise PlannerFailed("the planner stopped while planning; try again")
+                log.warning("planning of %s stopped after %.0f s", job.req.get("grid"), self.timeout_s)
+                raise FieldError("grid", f"planning took longer than {self.timeout_s:g} s, the daemon's "
+                                 "limit; choose a coarser grid (gonio plan --grid GRID times it)")
+        kind, *rest = conn.recv()
+        if kind == "ok":
+            return rest[0]
+        if kind == "field":
+            raise FieldError(rest[0], rest[1])
+        if kind == "disk-full":
+            raise DiskFull(errno.ENOSPC, rest[0])
+        raise PlannerFailed(rest[0])

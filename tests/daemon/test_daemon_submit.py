@@ -1,0 +1,120 @@
+"""Submitting: a grid too large is refused from its parameters before any planning, planning runs in a
+worker process with a time limit and stops when its client leaves, a campaign appears whole under an id
+that no folder ever had, and measured materials are names in --materials, never paths."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import httpx
+import pytest
+from brdf_samples import tiny_tensor_file
+from daemon_helpers import WAIT_S, submit, wait_for, wait_state
+
+from gonio.store import JOURNAL_NAME
+
+BIG = ["full:step=0.01", "merl:stride=1", "iso:step=0.1", "full:step=2,theta_max=90"]
+
+
+def _campaign_folders(r) -> list[str]:
+    root = r.daemon.queue.root
+    return sorted(p.name for p in root.iterdir() if not p.name.startswith("."))
+
+
+def _incoming(r) -> list:
+    return list((r.daemon.queue.root / ".incoming").glob("*"))
+
+
+@pytest.mark.parametrize("grid", BIG)
+def test_a_grid_too_large_is_refused_from_its_parameters_alone(serve, grid):
+    r = serve()
+    resp = r.client.post("/campaigns", json={"material": "lambert:albedo=0.5", "grid": grid})
+    assert resp.status_code == 422, resp.text
+    detail = resp.json()["detail"][0]
+    assert detail["loc"] == ["body", "grid"]
+    assert "poses exceed the 500,000 the daemon accepts" in detail["msg"]
+    assert r.daemon.planner.planned == 0                  # the planner never saw it
+    assert _campaign_folders(r) == [] and _incoming(r) == []
+
+
+def test_planning_past_the_time_limit_is_stopped_and_leaves_nothing(serve):
+    r = serve(plan_timeout_s=0.5)
+    resp = r.client.post("/campaigns", json={"material": "lambert:albedo=0.5", "grid": "iso:step=2"})
+    assert resp.status_code == 422, resp.text
+    assert "planning took longer than 0.5 s, the daemon's limit" in resp.json()["detail"][0]["msg"]
+    assert r.daemon.planner.killed == 1 and _campaign_folders(r) == [] and _incoming(r) == []
+    r.daemon.planner.timeout_s = WAIT_S
+    assert submit(r.client)["id"] == "c00001"              # a fresh worker plans the next one
+
+
+def test_a_client_that_goes_away_cancels_its_planning(serve):
+    r = serve()
+    with httpx.Client(base_url=r.url, timeout=httpx.Timeout(WAIT_S, read=0.5)) as impatient:
+        with pytest.raises(httpx.ReadTimeout):
+            impatient.post("/campaigns", json={"material": "lambert:albedo=0.5", "grid": "iso:step=2"})
+    wait_for(lambda: r.daemon.planner.killed == 1 and not r.daemon.planner.busy, "the planning to be stopped")
+    wait_for(lambda: _incoming(r) == [], "the staging folder to be removed")
+    assert _campaign_folders(r) == []
+    assert submit(r.client)["id"] == "c00001"
+
+
+def test_orphan_folders_are_set_aside_and_their_ids_never_reused(serve, tmp_path):
+    data = tmp_path / "data"
+    r = serve(data=data)
+    submit(r.client)
+    wait_state(r.client, "c00001", "done")
+    r.stop()
+    root = data / "campaigns"
+    (root / "c00002").mkdir()                                        # empty, as a crash could leave it
+    (root / "c00003").mkdir()
+    (root / "c00003" / "daemon.json").write_text(json.dumps({"id": "c00003", "seq": 3, "request": {},
+                                                             "submitted_unix": 0}))   # no journal
+    (root / "c00004").mkdir()
+    (root / "c00004" / JOURNAL_NAME).write_bytes(b"")                 # no daemon.json
+    (root / ".incoming" / "0ddba11").mkdir(parents=True)             # a planning cut short
+    r = serve(data=data)
+    names = sorted(p.name for p in root.iterdir())
+    assert names.pop(0) == ".incoming" and not any((root / ".incoming").iterdir())
+    assert names[0] == "c00001" and [n.split("-")[0] for n in names[1:]] == ["c00002.orphan", "c00003.orphan",
+                                                                             "c00004.orphan"]
+    assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]
+    assert submit(r.client)["id"] == "c00005"
+    (root / "c00006").mkdir()                         # one appears while the daemon runs
+    assert submit(r.client)["id"] == "c00007"
+    assert not any((root / "c00006").iterdir())       # untouched
+
+
+def test_measured_materials_are_names_in_the_materials_folder(serve, tmp_path):
+    folder = tmp_path / "materials"
+    folder.mkdir()
+    tiny_tensor_file(folder / "paint.bsdf")
+    os.mkfifo(folder / "pipe")
+    (folder / "zero").symlink_to("/dev/zero")
+    (folder / "passwd").symlink_to("/etc/passwd")
+    r = serve(materials=folder)
+    refused = {}
+    for material in ("bsdf:pipe", "bsdf:zero", "bsdf:passwd", "bsdf:missing", "merl:pipe", "merl:zero",
+                     "bsdf:/dev/zero", "merl:/etc/passwd", "bsdf:../materials/paint.bsdf", "merl:./pipe"):
+        resp = r.client.post("/campaigns", json={"material": material, "grid": "iso:step=30"})
+        assert resp.status_code == 422, (material, resp.text)
+        detail = resp.json()["detail"][0]
+        assert detail["loc"] == ["body", "material"]
+        refused[material] = detail["msg"].replace(material.split(":", 1)[1], "NAME")
+    # The same words whether the name is a FIFO, a link to a device or a file, or nothing at all.
+    assert len({refused[m] for m in ("bsdf:pipe", "bsdf:zero", "bsdf:passwd", "bsdf:missing")}) == 1
+    assert len({refused[m] for m in ("merl:pipe", "merl:zero")}) == 1
+    assert all("never a path" in refused[m] for m in ("bsdf:/dev/zero", "merl:/etc/passwd",
+                                                      "bsdf:../materials/paint.bsdf", "merl:./pipe"))
+    assert _campaign_folders(r) == []
+    st = submit(r.client, material="bsdf:paint.bsdf")
+    assert st["material"] == "bsdf:paint.bsdf"
+    done = wait_state(r.client, st["id"], ("done", "failed"))
+    assert done["state"] == "done" and done["steps_done"] == done["steps"], done
+
+
+def test_without_a_materials_folder_measured_materials_are_refused(serve):
+    r = serve()
+    resp = r.client.post("/campaigns", json={"material": "bsdf:paint.bsdf", "grid": "iso:step=30"})
+    assert resp.status_code == 422 and "serves none (start it with --materials DIR)" in resp.text
+    assert r.daemon.planner.planned == 0
