@@ -281,11 +281,11 @@ def create_app(d: Daemon) -> FastAPI:
     async def submit(request: Request, body: CampaignRequest):
         req = body.model_dump(exclude_none=True)
         precheck_request(d.cfg, req, d.materials)      # milliseconds: the grid's size, a material's name
-        await run_in_threadpool(refuse_unreferenced)
         staging = d.queue.staging()
 
         def admit():
             try:
+                refuse_unreferenced()   # reads the axes: on a request thread, not the event loop
                 return d.queue.status(d.queue.admit(staging, req))
             finally:
                 shutil.rmtree(staging, ignore_errors=True)   # gone when admitted
