@@ -11,6 +11,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from cli_helpers import one_clear_line as _one_clear_line
 
 from gonio.cli import main
 
@@ -106,14 +107,6 @@ def test_console_script_runs_as_a_process(tmp_path):
 
 # -- user mistakes: one line, exit 2, nothing written --------------------------------------------
 SIM = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet"]
-
-
-def _one_clear_line(capsys, *needles):
-    err = capsys.readouterr().err
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    for n in needles:
-        assert n in err, err
-    return err
 
 
 def test_out_that_is_a_file_is_refused(tmp_path, capsys):

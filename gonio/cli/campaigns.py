@@ -21,6 +21,7 @@ from gonio.cli.common import (
     _in_main_thread,
     _install_startup_handlers,
     _lock_holder,
+    _not_empty,
     _Out,
     _seed,
 )
@@ -78,8 +79,7 @@ def _fly_command(args, cfg, material, exports) -> int:
         raise UsageError("--grid: order=fly simulates the photodiode of a simulated gantry only "
                          "([detector] driver = 'sim', [detector.sim] kind = 'photodiode')")
     out = _Out(args.quiet)
-    folder = Path(args.out)
-    _check_out(folder)
+    folder = _check_out(args.out)
     if (folder / JOURNAL_NAME).exists():
         c = open_campaign(folder)
         diff = compare_campaign(c.meta, material=material.spec, grid=args.grid, seed=args.seed, cfg=cfg)
@@ -163,8 +163,10 @@ def _created(create, folder: Path, *args, **kw):
                          "folder") from None
 
 
-def _check_out(out: Path) -> None:
-    """--out must be a folder we can write, or a path where one can be made; checked before writing."""
+def _check_out(text: str) -> Path:
+    """--out must be a folder we can write, or a path where one can be made; checked before writing.
+    Empty is refused (it would be the current folder)."""
+    out = Path(_not_empty(text, "folder"))
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} is a file, not a folder; give a folder for the campaign")
     probe = out
@@ -174,6 +176,7 @@ def _check_out(out: Path) -> None:
         raise UsageError(f"--out: {probe} is a file, so {out} cannot be a folder")
     if not os.access(probe, os.W_OK | os.X_OK):
         raise UsageError(f"--out: {probe} is not writable (permission denied); choose another folder")
+    return out
 
 
 def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
@@ -251,9 +254,8 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
     from gonio.wiring import build_gantry
 
     out = _Out(args.quiet)
-    folder = Path(args.out)
+    folder = _check_out(args.out)
     spec = material.spec if material is not None else None
-    _check_out(folder)
     if (folder / JOURNAL_NAME).exists():
         c = open_campaign(folder)
         now = relocate(cfg, c.cfg) if relocate_buses else cfg

@@ -49,10 +49,17 @@ class _Out:
         self.console.print(message, style=style, markup=False)
 
 
-def _writable_out(text: str, *, folder: bool = False) -> Path:
-    """--out checked before any work: its folder exists and takes a file; a file (or, with ``folder``,
-    a folder) may be replaced, nothing else."""
-    out = Path(text)
+def _not_empty(text: str, what: str = "file") -> str:
+    """--out as typed; an empty one is refused (it would name the current folder)."""
+    if not text.strip():
+        raise UsageError(f"--out: empty; give a {what} name")
+    return text
+
+
+def _writable_out(text: str, *, folder: bool = False, force: bool = False) -> Path:
+    """--out checked before any work: not empty, its folder exists and takes a file; an existing file
+    (or, with ``folder``, a folder of files) is replaced only with ``force`` (``--force``)."""
+    out = Path(_not_empty(text, "folder" if folder else "file"))
     parent = out.parent if str(out.parent) else Path(".")
     if not parent.is_dir():
         raise UsageError(f"--out: folder {parent} does not exist; create it or choose another path")
@@ -60,6 +67,8 @@ def _writable_out(text: str, *, folder: bool = False) -> Path:
         raise UsageError(f"--out: {out} is a folder; give a file name")
     if out.exists() and folder and not out.is_dir():
         raise UsageError(f"--out: {out} is a file; this format writes a folder of files")
+    if out.exists() and not force:
+        raise UsageError(f"--out: {out} exists; choose another path, or add --force to replace it")
     probe = parent / f".{out.name}.{os.getpid()}.probe"
     try:
         probe.open("w").close()
@@ -68,6 +77,11 @@ def _writable_out(text: str, *, folder: bool = False) -> Path:
         raise UsageError(f"--out: {out} cannot be written ({err.strerror or err}); choose another path") \
             from None
     return out
+
+
+def add_force(parser) -> None:
+    """``--force``: the commands that write one --out file (or folder) replace an existing one only then."""
+    parser.add_argument("--force", action="store_true", help="replace --out if it exists")
 
 
 # -- the parser -----------------------------------------------------------------------------------
