@@ -24,6 +24,7 @@ from gonio.cli.common import (
     _not_empty,
     _Out,
     _seed,
+    refuse_emulated_placeholders,
 )
 from gonio.cli.results import _export_formats, _write_exports
 from gonio.config import load_config
@@ -237,14 +238,15 @@ def cmd_simulate(args) -> int:
 
 
 def _campaign_command(args, cfg, *, material, sample: str | None, model_check: bool, exports=(),
-                      relocate_buses: bool = False, fly_plans=None) -> int:
+                      relocate_buses: bool = False, fly_plans=None, gantry=None) -> int:
     """Create or resume the campaign in ``args.out`` and run it on the gantry ``cfg`` wires (``gonio
     simulate`` and ``gonio run``): progress, signals, latched faults, ``--clear-fault``, brdf.h5.
     ``fly_plans``: an order=fly campaign's plans (:func:`gonio.fly.create_fly_campaign`), one sweep
     per unit.
 
     ``relocate_buses``: a resumed campaign's devices are reached where ``cfg``'s buses say now (a
-    re-plugged adapter, a restarted emulator); every other setting must match the campaign's."""
+    re-plugged adapter, a restarted emulator); every other setting must match the campaign's.
+    ``gantry``: a new campaign's gantry, already connected (:func:`_connected_gantry`)."""
     from gonio.campaign import compare_campaign, create_campaign, gantry_state, open_campaign, run_campaign
     from gonio.config import relocate
     from gonio.dataset import BRDF_NAME
@@ -277,13 +279,19 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
             from gonio.fly import create_fly_campaign
 
             create_campaign = partial(create_fly_campaign, plans=fly_plans)
-        c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
-                     sample=sample)
+        try:
+            c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
+                         sample=sample)
+        except BaseException:
+            if gantry is not None:
+                gantry.close()
+            raise
     meta = c.meta
     n_steps = c.journal.step_count()
     try:
-        gantry = build_gantry(relocate(c.cfg, cfg) if relocate_buses else c.cfg, material, seed=meta["seed"],
-                              state=gantry_state(c))
+        if gantry is None:
+            gantry = build_gantry(relocate(c.cfg, cfg) if relocate_buses else c.cfg, material,
+                                  seed=meta["seed"], state=gantry_state(c))
     except BaseException:
         c.close()
         raise
@@ -427,21 +435,55 @@ def cmd_status(args) -> int:
 
 
 # -- gonio run, gonio emulate, gonio gantry (configured hardware) -----------------------------------
+def _connected_gantry(cfg, material, seed: int):
+    """A new campaign's gantry, connected before anything is planned or written: a port that cannot be
+    opened is one line (exit 1) and leaves no half-made campaign behind."""
+    from gonio.protocols import DeviceFault
+    from gonio.wiring import build_gantry
+
+    gantry = build_gantry(cfg, material, seed=seed)
+    try:
+        gantry.connect()
+    except DeviceFault as err:
+        raise GantryUnreachable(f"gantry: {err}; nothing was planned or written: connect it (or start its "
+                                "emulators), then run the same command") from None
+    return gantry
+
+
+class GantryUnreachable(RuntimeError):
+    """The devices of a new campaign could not be connected (exit code 1)."""
+
+
 def cmd_run(args) -> int:
     from gonio.plan import parse_grid
     from gonio.sim.materials import load as load_material
+    from gonio.store import JOURNAL_NAME
 
     material = load_material(args.material) if args.material else None
     fly = parse_grid(args.grid).order == "fly"
     cfg = load_config(args.config)
+    refuse_emulated_placeholders(cfg, args.config)
     if not args.sample.strip():
         raise UsageError("--sample: give the name of the sample measured (not empty)")
     if cfg.detector.driver == "sim" and material is None:
         raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
                          "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
-    plans = _checked_fly_plans(args, cfg) if fly else None
+    folder = _check_out(args.out)
+    gantry = None
+    if not (folder / JOURNAL_NAME).exists():
+        try:
+            gantry = _connected_gantry(cfg, material, args.seed)
+        except GantryUnreachable as err:
+            _Out()(str(err), style="red")
+            return 1
+    try:
+        plans = _checked_fly_plans(args, cfg) if fly else None
+    except BaseException:
+        if gantry is not None:
+            gantry.close()
+        raise
     return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
-                             relocate_buses=True, fly_plans=plans)
+                             relocate_buses=True, fly_plans=plans, gantry=gantry)
 
 
 def add_parsers(sub, fmt) -> None:

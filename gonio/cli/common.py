@@ -84,6 +84,23 @@ def add_force(parser) -> None:
     parser.add_argument("--force", action="store_true", help="replace --out if it exists")
 
 
+#: The port a shipped ``emulated-*`` config gives each serial bus: a placeholder that ``gonio emulate
+#: --write-config FILE`` replaces with the pty its emulator listens on.
+EMULATED_PORT = "emulated://"
+
+
+def refuse_emulated_placeholders(cfg, config: str | None) -> None:
+    """A config whose buses still name ``emulated://`` ports cannot be opened: one line saying what to run
+    (before anything is planned or written)."""
+    for name, bus in cfg.buses.items():
+        port = getattr(bus, "port", None) or ""
+        if port.startswith(EMULATED_PORT):
+            shown = config or cfg.name
+            raise UsageError(f"--config: {shown} reaches its devices through emulators (bus '{name}': port "
+                             f"{port}); start them in another shell with `gonio emulate --config {shown} "
+                             "--write-config emu.toml`, then pass --config emu.toml")
+
+
 # -- the parser -----------------------------------------------------------------------------------
 class _DefaultsFormatter(argparse.HelpFormatter):
     """Help that shows each option's default where it has a meaningful one (not for flags, required

@@ -31,11 +31,13 @@ def _fail(args, err) -> int:
 
 
 def cmd_serve(args) -> int:
+    from gonio.cli.common import refuse_emulated_placeholders
     from gonio.config import load_config
     from gonio.daemon.pacing import check_pace
     from gonio.daemon.server import serve, setup_logging
 
     cfg = load_config(args.config)
+    refuse_emulated_placeholders(cfg, args.config)
     pace = check_pace(args.pace)
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port: must be within [0, 65535], got {args.port}")
