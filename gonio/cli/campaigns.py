@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from gonio.cli.common import (
+    Eta,
     UsageError,
     _hms,
     _in_main_thread,
@@ -24,6 +26,7 @@ from gonio.cli.common import (
     _not_empty,
     _Out,
     _seed,
+    planning,
     refuse_emulated_placeholders,
 )
 from gonio.cli.results import _export_formats, _write_exports
@@ -38,16 +41,18 @@ def cmd_plan(args) -> int:
     from gonio.plan import build_plan, format_plan, plan_summary
 
     cfg = load_config(args.config)
-    plan = build_plan(args.grid, cfg)
-    fly = None
-    if not plan.grid.startswith("merl:"):  # lattices have lines to sweep: fly side by side
-        from gonio.plan import parse_grid
-        from gonio.plan.fly import fly_plan
+    show = sys.stdout.isatty() and not args.json    # a spinner only where a person watches the report
+    with planning(_Out(), args.grid, show):
+        plan = build_plan(args.grid, cfg)
+        fly = None
+        if not plan.grid.startswith("merl:"):  # lattices have lines to sweep: fly side by side
+            from gonio.plan import parse_grid
+            from gonio.plan.fly import fly_plan
 
-        # A fly campaign sweeps the serpentine's lines (order=fly), whatever order auto chose here.
-        lines = plan if plan.order == "serpentine" else build_plan(
-            parse_grid(args.grid).spelled(order="fly"), cfg)
-        fly = fly_plan(lines, cfg)
+            # A fly campaign sweeps the serpentine's lines (order=fly), whatever order auto chose here.
+            lines = plan if plan.order == "serpentine" else build_plan(
+                parse_grid(args.grid).spelled(order="fly"), cfg)
+            fly = fly_plan(lines, cfg)
     if args.json:
         print(json.dumps(plan_summary(plan, fly), indent=2))
     else:
@@ -90,7 +95,9 @@ def _fly_command(args, cfg, material, exports) -> int:
                              "command to resume it, or choose another --out")
         out(f"resuming the fly campaign in {folder} at step {c.journal.next_step()}")
     else:
-        c = _created(create_fly_campaign, folder, cfg, grid=args.grid, material=material.spec, seed=args.seed)
+        with planning(out, args.grid, not args.quiet):
+            c = _created(create_fly_campaign, folder, cfg, grid=args.grid, material=material.spec,
+                         seed=args.seed)
     meta = c.meta
     out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} in {meta['fly']['lines']} sweeps, "
         f"estimated {_hms(meta['estimated_s'])} of gantry time (bound {_hms(meta['lower_bound_s'])}; "
@@ -192,25 +199,25 @@ def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
                             TextColumn("gantry {task.fields[sim]}"), TextColumn("wall"), TimeElapsedColumn(),
                             TextColumn("ETA {task.fields[eta]}"), console=out.console, transient=False)
         task = progress.add_task("measuring", total=total, completed=done0, sim="0:00:00", eta="?")
+        eta = Eta(total)
 
         def on_step(runner, step):
             now = time.perf_counter() - t0
-            done = step + 1 - done0
-            eta = now / done * (total - step - 1) if done > 0 else 0.0
-            progress.update(task, completed=step + 1, sim=_hms(runner.campaign_s()), eta=_hms(eta))
+            progress.update(task, completed=step + 1, sim=_hms(runner.campaign_s()),
+                            eta=Eta.text(eta.update(step + 1, now)))
 
         return progress, on_step
     last = [-PLAIN_PROGRESS_EVERY_S]
+    eta = Eta(total)
 
     def on_step(runner, step):
         now = time.perf_counter() - t0
+        left = eta.update(step + 1, now)
         if now - last[0] < PLAIN_PROGRESS_EVERY_S and step + 1 < total:
             return
         last[0] = now
-        done = step + 1 - done0
-        eta = now / done * (total - step - 1) if done > 0 else 0.0
         out(f"measuring: {step + 1}/{total} steps ({100 * (step + 1) / total:.0f} %), gantry "
-            f"{_hms(runner.campaign_s())}, wall {now:.1f} s, ETA {_hms(eta)}")
+            f"{_hms(runner.campaign_s())}, wall {now:.1f} s, ETA {Eta.text(left)}")
 
     return None, on_step
 
@@ -280,8 +287,9 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
 
             create_campaign = partial(create_fly_campaign, plans=fly_plans)
         try:
-            c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
-                         sample=sample)
+            with planning(out, args.grid, not args.quiet):
+                c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
+                             sample=sample)
         except BaseException:
             if gantry is not None:
                 gantry.close()
@@ -424,8 +432,10 @@ def cmd_status(args) -> int:
         f"  {what} on {st['gantry']}, grid {st['grid']}, seed {st['seed']}",
         f"  progress: {st['steps_done']}/{st['steps']} steps ({pct:.1f} %), campaign time "
         f"{_hms(st['campaign_s'])}",
-        f"  ETA: about {_hms(st['estimated_remaining_s'])} of gantry time left (the plan's estimate)",
     ]
+    if st["steps_done"] < st["steps"] and not st["state"].startswith("aborted"):
+        lines.append(f"  ETA: about {_hms(st['estimated_remaining_s'])} of gantry time left (the plan's "
+                     "estimate)")
     if st["latched_fault"]:
         lines.append(f"  latched fault: {st['latched_fault']} (resume with --clear-fault once fixed)")
     elif st["last_fault"]:
@@ -477,7 +487,8 @@ def cmd_run(args) -> int:
             _Out()(str(err), style="red")
             return 1
     try:
-        plans = _checked_fly_plans(args, cfg) if fly else None
+        with planning(_Out(args.quiet), args.grid, fly and not args.quiet):
+            plans = _checked_fly_plans(args, cfg) if fly else None
     except BaseException:
         if gantry is not None:
             gantry.close()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import threading
@@ -24,6 +25,42 @@ class Interrupted(BaseException):
 def _hms(seconds: float) -> str:
     s = int(round(seconds))
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+class Eta:
+    """Wall-clock time left, from the pace of the steps measured since the first one of this run ended
+    (that first step carries the start-up: compiling kernels, connecting, the first moves). ``None``
+    until at least ``MIN_STEPS`` steps over ``MIN_S`` seconds after it give a pace: an ETA from one
+    step read 102:34:40 for a 20-minute job.
+
+    >>> eta = Eta(total=100)
+    >>> eta.update(1, 30.0) is None           # the first step took 30 s (start-up)
+    True
+    >>> eta.update(4, 31.0) is None           # 3 steps since: not yet a pace
+    True
+    >>> round(eta.update(11, 32.0), 1)        # 10 steps in 2 s: 89 steps left take 17.8 s
+    17.8
+    """
+
+    MIN_STEPS = 5
+    MIN_S = 1.0
+
+    def __init__(self, total: int):
+        self.total = total
+        self._first: tuple[int, float] | None = None
+
+    def update(self, done: int, now: float) -> float | None:
+        if self._first is None:
+            self._first = (done, now)
+            return None
+        n, dt = done - self._first[0], now - self._first[1]
+        if n < self.MIN_STEPS or dt < self.MIN_S:
+            return None
+        return (self.total - done) * dt / n
+
+    @staticmethod
+    def text(seconds: float | None) -> str:
+        return "?" if seconds is None else _hms(seconds)
 
 
 def _seed(text: str) -> int:
@@ -54,6 +91,21 @@ def _not_empty(text: str, what: str = "file") -> str:
     if not text.strip():
         raise UsageError(f"--out: empty; give a {what} name")
     return text
+
+
+@contextlib.contextmanager
+def planning(out: _Out, what: str, show: bool):
+    """A spinner with the time spent while ``what`` is planned (it may take a minute), on a terminal
+    only (``show``: neither --quiet nor --json); it disappears once the plan is made."""
+    if not (show and out.console.is_terminal):
+        yield
+        return
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=out.console,
+                  transient=True) as progress:
+        progress.add_task(f"planning {what}", total=None)
+        yield
 
 
 def _writable_out(text: str, *, folder: bool = False, force: bool = False) -> Path:

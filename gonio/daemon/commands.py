@@ -96,8 +96,9 @@ def cmd_queue(args) -> int:
                   f"seed {st['seed']}")
             print(f"  progress: {st['steps_done']}/{st['steps']} steps ({100 * st['progress']:.1f} %), "
                   f"campaign time {_hms(st['campaign_s'])}")
-            eta = f"{_hms(st['eta_wall_s'])} wall, " if st["eta_wall_s"] is not None else ""
-            print(f"  ETA: {eta}about {_hms(st['eta_gantry_s'])} of gantry time left")
+            if st["steps_done"] < st["steps"] and st["state"] != "aborted":
+                eta = f"{_hms(st['eta_wall_s'])} wall, " if st["eta_wall_s"] is not None else ""
+                print(f"  ETA: {eta}about {_hms(st['eta_gantry_s'])} of gantry time left")
             for key in ("latched_fault", "last_fault", "error"):
                 if st[key]:
                     print(f"  {key.replace('_', ' ')}: {st[key]}")
