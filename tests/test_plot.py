@@ -122,3 +122,39 @@ def test_albedo_exr_is_the_cosine_weighted_integral_and_a_lambertian_stays_below
         np.testing.assert_allclose(got[0, k], (w.ravel()[ok, None] * ev.value[ok]).sum(0), rtol=1e-6)
     # θo up to 80° holds sin²(80°) = 97 % of the projected solid angle: 0.6 * 0.97
     np.testing.assert_allclose(got[0, :, 1], 0.6 * np.sin(np.radians(80.0)) ** 2, rtol=0.01)
+
+
+def test_the_reciprocity_plot_counts_each_measured_pair_once(campaign, tmp_path):
+    """It counted every sample against the interpolant at its swap: 603 'pairs' where the report's
+    check (and this independent count) finds 299 pairs measured both ways."""
+    import re
+
+    from gonio.dataset import read_brdf
+
+    rep = plot(campaign, "reciprocity", tmp_path / "r.png")
+    data = read_brdf(campaign / "brdf.h5")
+    ti, pi_, to, po = np.round(np.asarray(data.planned, float), 2).T
+    dphi = np.where((ti == 0) | (to == 0), 0.0, np.mod(po - pi_, 360.0))
+    keys = set(zip(ti, to, dphi, strict=True))
+    partner = {k: (k[1], k[0], round((360.0 - k[2]) % 360.0, 2)) for k in keys}
+    both = {frozenset((k, partner[k])) for k in keys if partner[k] in keys and partner[k] != k}
+    assert 250 < len(both) < len(data.value) / 2
+    (note,) = [n for n in rep.notes if "measured pairs" in n]
+    count, beyond3 = re.match(r"(\d+) measured pairs, each counted once; ([\d.]+) %", note).groups()
+    assert int(count) == len(both)
+    from gonio.brdf import open_brdf
+    from gonio.report.checks import reciprocity_pairs
+
+    assert float(beyond3) == round(100 * reciprocity_pairs(data, open_brdf(data))["beyond_3"], 1)
+
+
+def test_titles_break_between_items_never_inside_a_value():
+    from gonio.plot import _title
+
+    b = open_brdf(sampled(SPEC, "iso:step=30"))
+    lines = _title("copper", b, width=30).splitlines()
+    spec, grid = b.attrs["material"], b.attrs["grid"].split(",order=")[0]
+    assert len(lines) > 3 and "".join(lines[1:]) == spec + grid
+    ends = (spec, grid)
+    # a line ends after a comma or where the spec or the grid ends: never inside a key=value
+    assert all(line.endswith(",") or any(e.endswith(line) for e in ends) for line in lines[1:]), lines
