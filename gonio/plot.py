@@ -57,6 +57,9 @@ class PlotReport:
     path: Path
     slice: Slice
     notes: list = field(default_factory=list)
+    #: What a figure shows beyond the slice, by name (the albedo plot: ``hemisphere`` (T, C), the albedo
+    #: over the whole hemisphere with its gaps filled, and ``peak_unmeasured`` (T,) bool).
+    shown: dict = field(default_factory=dict)
 
     def __str__(self) -> str:
         return f"{self.kind}: {self.path}" + "".join(f"\n  {n}" for n in self.notes)
@@ -358,34 +361,73 @@ def _draw_reciprocity(b, data, s, title, report):
 
 # -- albedo -----------------------------------------------------------------------------------------
 def _draw_albedo(b, data, s, title, report):
-    fig = _figure(6.4, 4.6)
+    """Per channel: the whole hemisphere, each unmeasured cell taking the least f_r measured on its θo
+    ring (solid; exact for a diffuse sample, no peak added that was not measured), and the measured part
+    alone (dotted; a lower bound). Shaded: incidences whose
+    specular direction lies where nothing was measured (the occlusion gap around retro-reflection
+    holds the mirror direction at small θi), where the albedo misses the specular peak."""
+    fig = _figure(6.8, 4.6)
     ax = fig.add_subplot()
     th = np.asarray(s.attrs["cols_deg"])
+    phi = float(s.attrs["phi_i_deg"])
+    cov = np.asarray(s.attrs["coverage"])
+    lower = s.image[0]
+    whole = albedo_slice(b, th, phi, fill=True).image[0]
+    from gonio.brdf import Reason
+
+    mirror = b.eval_deg(th, np.full_like(th, phi), th, np.full_like(th, phi + 180.0))
+    peak_gap = mirror.reason == Reason.NO_DATA
+    report.shown.update(hemisphere=whole, peak_unmeasured=peak_gap)
     colours = {"R": "#d62728", "G": "#2ca02c", "B": "#1f77b4"}
     n = len(b.channels)
     for k, ch in enumerate(b.channels):
+        colour = colours.get(ch, f"C{k}")
         # widest first, so that channels that coincide (a grey sample) stay visible as nested lines
-        ax.plot(th, s.image[0, :, k], color=colours.get(ch, f"C{k}"), lw=1.2 + 1.6 * (n - 1 - k), alpha=0.85,
-                label=ch, zorder=2 + k)
+        ax.plot(th, whole[:, k], color=colour, lw=1.2 + 1.6 * (n - 1 - k), alpha=0.85, label=ch, zorder=2 + k)
+        ax.plot(th, lower[:, k], color=colour, lw=1.0, ls=":", alpha=0.9, zorder=2 + k)
     ax.axhline(1.0, color="k", ls="--", lw=1.0, label="1.0: energy\nconservation limit")
-    top = max(1.08, float(np.nanmax(s.image)) * 1.1)
+    ax.plot([], [], color="0.3", lw=1.0, ls=":", label="measured part only\n(a lower bound)")
+    top = max(1.08, float(np.nanmax(whole)) * 1.1)
     ax.set_ylim(0.0, top)
     ax.set_xlim(0.0, 90.0)
     ax.set_xticks(range(0, 91, 15))
     ax.set_xlabel("θi, incidence angle (°)")
     ax.set_ylabel("directional albedo ∫ f_r cos θo dωo")
-    cov = np.asarray(s.attrs["coverage"])
+    for lo, hi in _runs(th, peak_gap):
+        ax.axvspan(lo, hi, color="#f2c14e", alpha=0.35, lw=0, zorder=1)
+        ax.text(0.5 * (lo + hi), 0.04 * top, "specular\ndirection\nnot measured\n(occlusion\ngap)",
+                ha="center", va="bottom", fontsize=7.5, color="0.25")
+        report.notes.append(f"θi {lo:g}–{hi:g}°: the specular direction lies in the occlusion gap, where "
+                            "nothing was measured; the albedo there misses any specular peak")
+    lo_c, hi_c = f"{100 * cov.min():.1f}", f"{100 * cov.max():.1f}"
+    span = lo_c if lo_c == hi_c else f"{lo_c}–{hi_c}"
     if cov.min() < 0.999:
-        ax.plot(th, cov, color="0.45", ls=":", lw=1.5, label="measured fraction\nof the projected\n"
-                "hemisphere (albedo\nis a lower bound\nwhere it is < 1)")
-        lo, hi = f"{100 * cov.min():.1f}", f"{100 * cov.max():.1f}"
-        span = lo if lo == hi else f"{lo}–{hi}"
-        report.notes.append(f"integrated over the measured part of the hemisphere ({span} % of the "
-                            "projected solid angle): a lower bound")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+        report.notes.append(f"solid: the whole hemisphere, the unmeasured {100 - 100 * cov.max():.1f}–"
+                            f"{100 - 100 * cov.min():.1f} % taking the least f_r measured at the same θo; "
+                            f"dotted: the measured part alone ({span} %), a lower bound")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
+              title="solid: whole hemisphere, each\nunmeasured direction taking\nthe least f_r measured "
+                    "at\nits θo (exact if diffuse)", title_fontsize=8)
     ax.grid(alpha=0.3)
     ax.set_title(f"{title}\ndirectional albedo (energy conservation at a glance)", fontsize=10)
     return fig
+
+
+def _runs(x: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
+    """The spans of ``x`` (sorted) where ``mask`` holds, each widened to halfway to its neighbours."""
+    out = []
+    edges = np.concatenate([[x[0]], 0.5 * (x[1:] + x[:-1]), [x[-1]]])
+    k = 0
+    while k < len(x):
+        if mask[k]:
+            j = k
+            while j + 1 < len(x) and mask[j + 1]:
+                j += 1
+            out.append((float(edges[k]), float(edges[j + 1])))
+            k = j + 1
+        else:
+            k += 1
+    return out
 
 
 _DRAW = {"polar": _draw_polar, "hemisphere": _draw_hemisphere, "merl": _draw_merl,

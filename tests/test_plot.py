@@ -158,3 +158,48 @@ def test_titles_break_between_items_never_inside_a_value():
     ends = (spec, grid)
     # a line ends after a comma or where the spec or the grid ends: never inside a key=value
     assert all(line.endswith(",") or any(e.endswith(line) for e in ends) for line in lines[1:]), lines
+
+
+def _true_albedo(spec, theta_i_deg):
+    """∫ f_r cos θo dωo of the material itself (midpoint rule, 0.2° × 1°)."""
+    from gonio.geometry import sph_to_vec
+    from gonio.sim.materials import load
+
+    t, p = np.meshgrid(np.radians(np.arange(0.1, 90, 0.2)), np.radians(np.arange(0.5, 360, 1.0)),
+                       indexing="ij")
+    wo = sph_to_vec(t.ravel(), p.ravel())
+    w = (np.cos(t) * np.sin(t)).ravel() * np.radians(0.2) * np.radians(1.0)
+    wi = np.ascontiguousarray(np.broadcast_to(sph_to_vec(np.radians(theta_i_deg), 0.0), wo.shape))
+    return (w[:, None] * load(spec).eval(wi, wo)).sum(axis=0)
+
+
+def test_the_albedo_plot_reads_a_lambertian_right_and_says_where_the_peak_went_unmeasured(campaign, tmp_path):
+    """A Lambertian 0.5 read 0.47 (only the measured part of the hemisphere, without saying so on the
+    curve), and the copper's albedo fell below θi = 15° with nothing on the figure saying why."""
+    from gonio.campaign import create_campaign, run_campaign
+    from gonio.config import load_config
+    from gonio.wiring import build_gantry
+
+    folder = tmp_path / "lambert"
+    c = create_campaign(folder, load_config(), grid="iso:step=15", material="lambert:albedo=0.5", seed=3)
+    try:
+        run_campaign(c, build_gantry(c.cfg, "lambert:albedo=0.5", seed=3))
+    finally:
+        c.close()
+    rep = plot(folder, "albedo", tmp_path / "lambert.png")
+    assert rep.slice.image.min() < 0.47           # the measured part alone: the gaps are real
+    np.testing.assert_allclose(rep.shown["hemisphere"], 0.5, rtol=0.01)
+
+    rep = plot(campaign, "albedo", tmp_path / "copper.png")
+    th = np.round(np.asarray(rep.slice.attrs["cols_deg"]), 6)
+    gap = rep.shown["peak_unmeasured"]
+    # the mirror pose of θi = 0 is retro-reflection (never measured); those of the lattice's θi = 15°, 30°
+    # were measured
+    assert gap[th == 0].all() and not gap[(th == 15) | (th == 30)].any()
+    assert any("occlusion gap" in n and n.startswith("θi 0–") for n in rep.notes)
+    whole, lower = rep.shown["hemisphere"], rep.slice.image[0]
+    for t in (15.0, 30.0, 45.0):
+        k = int(np.flatnonzero(th == t)[0])
+        truth = _true_albedo(SPEC, t)
+        assert np.all(whole[k] >= lower[k]) and np.all(whole[k] <= truth * 1.03), (t, whole[k], truth)
+        assert np.all(np.abs(whole[k] - truth) < np.abs(lower[k] - truth) + 1e-9)   # closer than the bound
