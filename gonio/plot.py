@@ -58,7 +58,8 @@ class PlotReport:
     slice: Slice
     notes: list = field(default_factory=list)
     #: What a figure shows beyond the slice, by name (the albedo plot: ``hemisphere`` (T, C), the albedo
-    #: over the whole hemisphere with its gaps filled, and ``peak_unmeasured`` (T,) bool).
+    #: over the whole hemisphere with its gaps filled, and ``peak_unmeasured`` (T,) bool; a log-polar
+    #: plot: ``polar_rlim``, its radial range, and ``least``, the least value drawn).
     shown: dict = field(default_factory=dict)
 
     def __str__(self) -> str:
@@ -257,7 +258,10 @@ def _draw_polar(b, data, s, title, report):
         cx.axvline(t, color=colours[k], lw=0.7, ls=":")  # the mirror direction of this θi
     if log:
         ax.set_rscale("log")
-        ax.set_rlim(norm.vmin * 0.7, norm.vmax * 1.5)
+        # The centre of a log-polar plot is a value, not zero: a decade below the least one drawn, so
+        # that a diffuse body sits well out from the centre instead of crowding into it.
+        ax.set_rlim(polar_floor(norm.vmin), norm.vmax * 1.5)
+        report.shown.update(polar_rlim=ax.get_ylim(), least=float(norm.vmin))
         cx.set_yscale("log")
         cx.set_ylim(norm.vmin * 0.7, norm.vmax * 1.5)
     else:
@@ -277,6 +281,15 @@ def _draw_polar(b, data, s, title, report):
               title="lines: interpolant\npoints: measured ±1σ\ndotted: mirror θo", title_fontsize=8)
     fig.suptitle(f"{title}\nin-plane f_r, plane of incidence φi = {s.attrs['phi_i_deg']:g}°", fontsize=10)
     return fig
+
+
+#: The log-polar panel's centre, in decades below the least value drawn.
+POLAR_DECADES_BELOW = 1.0
+
+
+def polar_floor(least: float) -> float:
+    """The radius at the centre of a log-polar panel whose least value drawn is ``least``."""
+    return least * 10.0 ** -POLAR_DECADES_BELOW
 
 
 # -- hemisphere -------------------------------------------------------------------------------------

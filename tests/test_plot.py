@@ -203,3 +203,12 @@ def test_the_albedo_plot_reads_a_lambertian_right_and_says_where_the_peak_went_u
         truth = _true_albedo(SPEC, t)
         assert np.all(whole[k] >= lower[k]) and np.all(whole[k] <= truth * 1.03), (t, whole[k], truth)
         assert np.all(np.abs(whole[k] - truth) < np.abs(lower[k] - truth) + 1e-9)   # closer than the bound
+
+
+def test_the_log_polar_panel_keeps_the_diffuse_body_out_of_its_centre(campaign, tmp_path):
+    """Its centre sat just below the least value, so a copper's diffuse body (0.07 sr⁻¹ beside a 30 sr⁻¹
+    peak) was drawn within 5 % of the radius from the centre."""
+    rep = plot(campaign, "polar", tmp_path / "p.png")
+    lo, hi = rep.shown["polar_rlim"]
+    out_from_centre = np.log10(rep.shown["least"] / lo) / np.log10(hi / lo)
+    assert out_from_centre >= 0.2, out_from_centre
