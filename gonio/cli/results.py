@@ -201,8 +201,8 @@ def add_parsers(sub, fmt) -> None:
     sq.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
     sq.add_argument("--out", required=True, metavar="REPORT.html", help="the page to write")
     sq.add_argument("--models", default=None, metavar="MODELS",
-                    help="comma-separated fit MODELs as for gonio fit (default: lambert, ward, "
-                         "cook-torrance, ggx, lambert+ggx)")
+                    help="comma-separated fit MODELs as for gonio fit (default: lambert, lambert+ward, "
+                         "lambert+cook-torrance, lambert+ggx: gonio.report.DEFAULT_MODELS)")
     add_force(sq)
     sq.set_defaults(func=cmd_report)
 
