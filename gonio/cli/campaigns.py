@@ -25,6 +25,7 @@ from gonio.cli.common import (
     _lock_holder,
     _not_empty,
     _Out,
+    _ReferenceFormatter,
     _seed,
     planning,
     refuse_emulated_placeholders,
@@ -115,6 +116,21 @@ def _fly_command(args, cfg, material, exports) -> int:
         f"and {folder / JOURNAL_NAME}")
     out(_model_check(folder, material))
     _write_exports(folder, exports, out)
+    return 0
+
+
+# -- gonio materials -------------------------------------------------------------------------------
+def cmd_materials(args) -> int:
+    from gonio.sim.materials import MODELS
+    from gonio.sim.materials.catalog import catalog, format_catalog
+
+    if args.name is not None and args.name.strip().lower() not in MODELS:
+        raise UsageError(f"NAME: {args.name!r} is not a material model; allowed: "
+                         f"{', '.join(MODELS)}")
+    entries = catalog()
+    if args.name is not None:
+        entries = [e for e in entries if e.model == args.name.strip().lower()]
+    print(format_catalog(entries), end="")
     return 0
 
 
@@ -499,16 +515,22 @@ def cmd_run(args) -> int:
 
 def add_parsers(sub, fmt) -> None:
     """This module's subcommands."""
-    sp = sub.add_parser("plan", formatter_class=fmt, help="count and time a plan without moving anything")
-    sp.add_argument("--grid", required=True, help="GRID, e.g. iso:step=5, full:step=15, merl:stride=4")
+    from gonio.plan.grids import grid_help
+
+    sp = sub.add_parser("plan", formatter_class=_ReferenceFormatter, epilog=grid_help(),
+                        help="count and time a plan without moving anything")
+    sp.add_argument("--grid", required=True, help="GRID, e.g. iso:step=5, full:step=15, merl:stride=4 "
+                    "(every kind and option below)")
     sp.add_argument("--config", default=None,
                     help="gantry config: a TOML file or a shipped config's name (default: sim)")
     sp.add_argument("--json", action="store_true", help="one JSON object instead of the report")
     sp.set_defaults(func=cmd_plan)
     ss = sub.add_parser("simulate", formatter_class=fmt, help="run a whole campaign on the simulated gantry")
     ss.add_argument("material",
-                    help="MATERIAL, e.g. lambert:albedo=0.8 or cook-torrance:d=beckmann,m=0.2,metal=gold")
-    ss.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
+                    help="MATERIAL, e.g. lambert:albedo=0.8 or cook-torrance:d=beckmann,m=0.2,metal=gold "
+                         "(every model, key and range: gonio materials)")
+    ss.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10 (every kind and option: gonio "
+                    "plan --help)")
     ss.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
     ss.add_argument("--config", default=None,
                     help="gantry config: a TOML file or a shipped config's name (default: sim)")
@@ -533,6 +555,10 @@ def add_parsers(sub, fmt) -> None:
                     "GONIO_URL, else http://127.0.0.1:8765)")
     st.add_argument("--json", action="store_true", help="one JSON object")
     st.set_defaults(func=cmd_status)
+    sm = sub.add_parser("materials", formatter_class=fmt,
+                        help="the material models of MATERIAL strings: keys, ranges, defaults and rules")
+    sm.add_argument("name", nargs="?", default=None, help="one model (default: every model)")
+    sm.set_defaults(func=cmd_materials)
     sc = sub.add_parser("config", formatter_class=fmt, help="list or print the shipped gantry configs")
     sc.add_argument("action", choices=["list", "show"])
     sc.add_argument("name", nargs="?", help="config name (for show) or a path")

@@ -167,6 +167,11 @@ class _DefaultsFormatter(argparse.HelpFormatter):
         return f"{text} (default: {default})"
 
 
+class _ReferenceFormatter(_DefaultsFormatter, argparse.RawDescriptionHelpFormatter):
+    """As :class:`_DefaultsFormatter`, with the epilog (a reference generated from a registry) kept as it
+    is laid out."""
+
+
 # -- gonio status ---------------------------------------------------------------------------------
 def _lock_holder(folder: Path) -> int | None:
     """The pid holding the campaign's lock (running it now), or None."""
