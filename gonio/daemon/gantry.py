@@ -32,8 +32,16 @@ log = logging.getLogger(__name__)
 ANGLES = ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")
 
 
-def snapshot(gantry, owner: str | None) -> dict:
-    """Axes (position, moving, fault, limits), the arm angles they make, light and detector."""
+def reference_fr(cfg: GonioConfig) -> list[float]:
+    """ρ_ref · response of the white standard per detector channel: a reading's ratio to the reference
+    times this over π is f_r in sr⁻¹ (the web view's slice)."""
+    d = cfg.detector
+    return [float(x) for x in cfg.reference.reference_fr(d.channel_names, d.wavelengths_nm)]
+
+
+def snapshot(gantry, owner: str | None, cfg: GonioConfig | None = None) -> dict:
+    """Axes (position, moving, fault, limits), the arm angles they make, light and detector (with the
+    white standard's :func:`reference_fr` when ``cfg`` is given)."""
     kin = gantry.kinematics
     axes, pos = [], []
     for name in kin.axis_names:
@@ -48,7 +56,8 @@ def snapshot(gantry, owner: str | None) -> dict:
             "angles": {"theta_i_deg": ti, "phi_i_deg": pi_, "theta_o_deg": to, "phi_o_deg": po},
             "moving": any(a["moving"] for a in axes), "faults": [a["name"] for a in axes if a["fault"]],
             "light": {"name": light.name, "on": bool(light.is_on())},
-            "detector": {"name": gantry.detector.name, "channels": list(gantry.detector.channels)}}
+            "detector": {"name": gantry.detector.name, "channels": list(gantry.detector.channels),
+                         **({"reference_fr": reference_fr(cfg)} if cfg is not None else {})}}
 
 
 class GantryOwner:
@@ -101,7 +110,7 @@ class GantryOwner:
 
     def status(self) -> dict:
         """The idle gantry's status; answers during a manual move too (reads only)."""
-        return snapshot(self._idle(), None)
+        return snapshot(self._idle(), None, self.cfg)
 
     def halt(self) -> None:
         """Stop every axis of the idle gantry now, mid-move too (never waits for a lock)."""
@@ -131,7 +140,7 @@ class GantryOwner:
             self._halt.clear()
             for leg in np.atleast_2d(legs):
                 self._drive_leg(g, axes, leg)
-            return snapshot(g, None)
+            return snapshot(g, None, self.cfg)
         finally:
             self._lock.release()
 
