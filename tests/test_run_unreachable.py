@@ -56,5 +56,5 @@ def test_a_port_that_does_not_open_is_one_line_exit_1_before_planning(tmp_path, 
     out = tmp_path / "run"
     argv = ["run", "--config", str(config), "--grid", "iso:step=30", "--out", str(out), "--sample", "felt"]
     assert main(argv) == 1
-    one_clear_line(capsys, "cannot open port", str(missing), "nothing was planned or written")
+    one_clear_line(capsys, "cannot open port", str(missing), "nothing was written")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gantry.toml"]

@@ -471,7 +471,7 @@ def _connected_gantry(cfg, material, seed: int):
     try:
         gantry.connect()
     except DeviceFault as err:
-        raise GantryUnreachable(f"gantry: {err}; nothing was planned or written: connect it (or start its "
+        raise GantryUnreachable(f"gantry: {err}; nothing was written: connect it (or start its "
                                 "emulators), then run the same command") from None
     return gantry
 
@@ -495,6 +495,10 @@ def cmd_run(args) -> int:
         raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
                          "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
     folder = _check_out(args.out)
+    # order=fly: what sweeps is known once the lines are planned; a gantry that cannot fly them is
+    # refused before anything is connected or written.
+    with planning(_Out(args.quiet), args.grid, fly and not args.quiet):
+        plans = _checked_fly_plans(args, cfg) if fly else None
     gantry = None
     if not (folder / JOURNAL_NAME).exists():
         try:
@@ -502,13 +506,6 @@ def cmd_run(args) -> int:
         except GantryUnreachable as err:
             _Out()(str(err), style="red")
             return 1
-    try:
-        with planning(_Out(args.quiet), args.grid, fly and not args.quiet):
-            plans = _checked_fly_plans(args, cfg) if fly else None
-    except BaseException:
-        if gantry is not None:
-            gantry.close()
-        raise
     return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
                              relocate_buses=True, fly_plans=plans, gantry=gantry)
 
