@@ -1,29 +1,38 @@
-# The two commands a new machine needs: `make demo` and `make test`. Each does the whole set-up.
-VENV   ?= .venv
-PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.installed-stamp
-DEMO   ?= demo-out
+# The two commands a new machine needs: `make demo` and `make test`. Each does the set-up it needs:
+# `make demo` the runtime dependencies only, `make test` also the development extras and chromium.
+VENV    ?= .venv
+PY      := $(VENV)/bin/python
+RUNTIME := $(VENV)/.runtime-stamp
+DEV     := $(VENV)/.dev-stamp
+DEMO    ?= demo-out
 
 .PHONY: setup demo test lint bench clean
 
-$(STAMP): pyproject.toml tools/setup.sh
-	bash tools/setup.sh $(VENV)
-	touch $(STAMP)
+$(RUNTIME): pyproject.toml tools/setup.sh
+	@echo "make: installing gonio and its runtime dependencies into $(VENV)"
+	@bash tools/setup.sh $(VENV) runtime
+	@touch $@
 
-setup: $(STAMP)
+# The development set-up includes the runtime one.
+$(DEV): pyproject.toml tools/setup.sh
+	@echo "make: installing gonio, its runtime dependencies and the development extras into $(VENV)"
+	@bash tools/setup.sh $(VENV) dev
+	@touch $@ $(RUNTIME)
 
-demo: $(STAMP)
+setup: $(DEV)
+
+demo: $(RUNTIME)
 	$(VENV)/bin/gonio simulate "cook-torrance:d=beckmann,m=0.3,metal=gold,rho_d=0.1" \
 		--grid iso:step=10 --out $(DEMO) --seed 1
-	$(VENV)/bin/gonio plan --grid iso:step=5
+	$(VENV)/bin/gonio plot $(DEMO) --kind polar --out $(DEMO)/polar.png --force
 
-test: $(STAMP)
+test: $(DEV)
 	$(PY) -m pytest -q -p no:cacheprovider
 
-lint: $(STAMP)
-	$(VENV)/bin/ruff check gonio drivers sim tests tools
+lint: $(DEV)
+	$(VENV)/bin/ruff check gonio drivers sim tests tools examples
 
-bench: $(STAMP)
+bench: $(DEV)
 	$(PY) tools/bench_materials.py
 	$(PY) tools/bench_plan.py
 	$(PY) tools/bench_runner.py

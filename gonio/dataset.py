@@ -33,7 +33,7 @@ variable                        dimensions        units     what
 
 Attributes (on the file and on the group, so that a reader of either sees them): ``format``
 ("gonio-brdf"), ``format_version`` (2), ``units`` ("sr^-1"), ``cosine`` ("none"), ``angles_units``
-("degrees"), ``frame`` and ``angle_convention`` (DESIGN.md), ``channels``, ``color_space``,
+("degrees"), ``frame`` and ``angle_convention`` (docs/conventions.md), ``channels``, ``color_space``,
 ``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo`` (and
 ``reference_reflectance``, ρ_ref · response per channel, where the standard was given per channel, as a
 spectrum or with an angular response), ``seed``,

@@ -57,6 +57,10 @@ class PlotReport:
     path: Path
     slice: Slice
     notes: list = field(default_factory=list)
+    #: What a figure shows beyond the slice, by name (the albedo plot: ``hemisphere`` (T, C), the albedo
+    #: over the whole hemisphere with its gaps filled, and ``peak_unmeasured`` (T,) bool; a log-polar
+    #: plot: ``polar_rlim``, its radial range, and ``least``, the least value drawn).
+    shown: dict = field(default_factory=dict)
 
     def __str__(self) -> str:
         return f"{self.kind}: {self.path}" + "".join(f"\n  {n}" for n in self.notes)
@@ -120,12 +124,28 @@ def _what(b: MeasuredBRDF) -> str:
 
 
 def _title(name: str, b: MeasuredBRDF, width: int = 80) -> str:
-    """The campaign's name, then what was measured on which grid (wrapped: specs run long)."""
-    import textwrap
+    """The campaign's name, then what was measured on which grid, wrapped only between ``key=value``
+    items (a spec broken inside a number, ``rho_s=0.`` / ``8``, reads as another value)."""
+    parts = (_what(b), str(b.attrs.get("grid", "")).split(",order=")[0])
+    return "\n".join([f"campaign {name}", *(line for p in parts if p for line in wrap_items(p, width))])
 
-    sub = " · ".join(x for x in (_what(b), str(b.attrs.get("grid", "")).split(",order=")[0]) if x)
-    lines = textwrap.wrap(sub, width, break_on_hyphens=False) if sub else []
-    return "\n".join([f"campaign {name}", *lines])
+
+def wrap_items(text: str, width: int) -> list[str]:
+    """``text`` in lines of at most ``width`` characters where it can, broken only after a comma or
+    before a `` · ``; an item longer than ``width`` stays whole.
+
+    >>> wrap_items("ggx:alpha=0.15,metal=copper,rho_d=0.2,rho_s=0.8 · iso:step=15", 30)
+    ['ggx:alpha=0.15,metal=copper,', 'rho_d=0.2,rho_s=0.8', '· iso:step=15']
+    """
+    import re
+
+    lines: list[str] = []
+    for part in filter(None, re.split(r"(?<=,)|(?= · )", text)):
+        if lines and len(lines[-1]) + len(part.rstrip()) <= width:
+            lines[-1] += part
+        else:
+            lines.append(part.strip())
+    return [line.strip() for line in lines]
 
 
 def _incidences(b: MeasuredBRDF, data: SampledBRDF, most: int = 6) -> np.ndarray:
@@ -238,7 +258,10 @@ def _draw_polar(b, data, s, title, report):
         cx.axvline(t, color=colours[k], lw=0.7, ls=":")  # the mirror direction of this θi
     if log:
         ax.set_rscale("log")
-        ax.set_rlim(norm.vmin * 0.7, norm.vmax * 1.5)
+        # The centre of a log-polar plot is a value, not zero: a decade below the least one drawn, so
+        # that a diffuse body sits well out from the centre instead of crowding into it.
+        ax.set_rlim(polar_floor(norm.vmin), norm.vmax * 1.5)
+        report.shown.update(polar_rlim=ax.get_ylim(), least=float(norm.vmin))
         cx.set_yscale("log")
         cx.set_ylim(norm.vmin * 0.7, norm.vmax * 1.5)
     else:
@@ -258,6 +281,15 @@ def _draw_polar(b, data, s, title, report):
               title="lines: interpolant\npoints: measured ±1σ\ndotted: mirror θo", title_fontsize=8)
     fig.suptitle(f"{title}\nin-plane f_r, plane of incidence φi = {s.attrs['phi_i_deg']:g}°", fontsize=10)
     return fig
+
+
+#: The log-polar panel's centre, in decades below the least value drawn.
+POLAR_DECADES_BELOW = 1.0
+
+
+def polar_floor(least: float) -> float:
+    """The radius at the centre of a log-polar panel whose least value drawn is ``least``."""
+    return least * 10.0 ** -POLAR_DECADES_BELOW
 
 
 # -- hemisphere -------------------------------------------------------------------------------------
@@ -317,68 +349,98 @@ def _draw_reciprocity(b, data, s, title, report):
     ax.set_ylabel("θo (°)")
     median = 100 * np.median(finite) if finite.size else 0.0
     ax.set_title(f"in-plane, φo = φi + 180°; median |diff| {median:.2g} %", fontsize=9)
-    z = _reciprocity_z(b, data)
+    from gonio.report.checks import reciprocity_pairs
+
+    # Each pair measured both ways, once: the same pairs, z-scores and counts as the report's check.
+    pairs = reciprocity_pairs(data, b)
+    z = pairs["z"][np.isfinite(pairs["z"])]
     if z.size:
         hx.hist(np.clip(z, -6, 6), bins=np.linspace(-6, 6, 49), color="0.4")
-        hx.axvline(-2, color="C3", ls="--", lw=0.8)
-        hx.axvline(2, color="C3", ls="--", lw=0.8, label="±2σ")
+        for at, colour in ((2, "C1"), (3, "C3")):
+            hx.axvline(-at, color=colour, ls="--", lw=0.8)
+            hx.axvline(at, color=colour, ls="--", lw=0.8, label=f"±{at}σ")
         hx.legend(fontsize=8)
-        frac = float(np.mean(np.abs(z) > 2.0))
-        hx.set_title(f"{z.size} measured pairs: {100 * frac:.1f} % beyond ±2σ (≈5 % if reciprocal)",
-                     fontsize=9)
-        report.notes.append(f"{z.size} measured pairs; {100 * frac:.1f} % differ from their reciprocal by "
-                            "more than 2 sigma")
-    hx.set_xlabel("z = (f(ωi,ωo) − f(ωo,ωi)) / σ   (clipped to ±6)")
+        beyond2, beyond3 = (float(np.mean(np.abs(z) > a)) for a in (2.0, 3.0))
+        hx.set_title(f"{z.size} measured pairs: {100 * beyond3:.1f} % beyond ±3σ, "
+                     f"{100 * beyond2:.1f} % beyond ±2σ\n(0.27 % and 4.6 % where the pairs agree within "
+                     "their stated σ)", fontsize=9)
+        report.notes.append(f"{z.size} measured pairs, each counted once; {100 * beyond3:.1f} % differ from "
+                            f"their reciprocal by more than 3 sigma, {100 * beyond2:.1f} % by more than 2")
+    hx.set_xlabel("z = (f(ωi,ωo) − f(ωo,ωi)) / √(σ₁² + σ₂²)   (clipped to ±6)")
     hx.set_ylabel("pairs")
     fig.suptitle(f"{title}\nHelmholtz reciprocity residual (luminance Y)", fontsize=10)
     return fig
 
 
-def _reciprocity_z(b, data) -> np.ndarray:
-    """z-scores of each measured sample against the interpolant at its swapped pair (luminance)."""
-    ang = data.planned if b.angles == "planned" else np.stack(
-        [data.theta_i, data.phi_i, data.theta_o, data.phi_o], axis=1)
-    ang = np.asarray(ang, float)
-    ev = b.eval_deg(ang[:, 2], ang[:, 3], ang[:, 0], ang[:, 1])
-    ok = np.isfinite(ev.value).all(axis=1)
-    f = luminance(np.asarray(data.value, float)[ok], b.channels)
-    g = luminance(ev.value[ok], b.channels)
-    w2 = LUMA ** 2 if b.channels == ("R", "G", "B") else np.eye(1, len(b.channels))[0]
-    var = np.asarray(data.stddev, float)[ok] ** 2 @ w2 + ev.stddev[ok] ** 2 @ w2
-    keep = var > 0
-    return (f[keep] - g[keep]) / np.sqrt(var[keep])
-
-
 # -- albedo -----------------------------------------------------------------------------------------
 def _draw_albedo(b, data, s, title, report):
-    fig = _figure(6.4, 4.6)
+    """Per channel: the whole hemisphere, each unmeasured cell taking the least f_r measured on its θo
+    ring (solid; exact for a diffuse sample, no peak added that was not measured), and the measured part
+    alone (dotted; a lower bound). Shaded: incidences whose
+    specular direction lies where nothing was measured (the occlusion gap around retro-reflection
+    holds the mirror direction at small θi), where the albedo misses the specular peak."""
+    fig = _figure(6.8, 4.6)
     ax = fig.add_subplot()
     th = np.asarray(s.attrs["cols_deg"])
+    phi = float(s.attrs["phi_i_deg"])
+    cov = np.asarray(s.attrs["coverage"])
+    lower = s.image[0]
+    whole = albedo_slice(b, th, phi, fill=True).image[0]
+    from gonio.brdf import Reason
+
+    mirror = b.eval_deg(th, np.full_like(th, phi), th, np.full_like(th, phi + 180.0))
+    peak_gap = mirror.reason == Reason.NO_DATA
+    report.shown.update(hemisphere=whole, peak_unmeasured=peak_gap)
     colours = {"R": "#d62728", "G": "#2ca02c", "B": "#1f77b4"}
     n = len(b.channels)
     for k, ch in enumerate(b.channels):
+        colour = colours.get(ch, f"C{k}")
         # widest first, so that channels that coincide (a grey sample) stay visible as nested lines
-        ax.plot(th, s.image[0, :, k], color=colours.get(ch, f"C{k}"), lw=1.2 + 1.6 * (n - 1 - k), alpha=0.85,
-                label=ch, zorder=2 + k)
+        ax.plot(th, whole[:, k], color=colour, lw=1.2 + 1.6 * (n - 1 - k), alpha=0.85, label=ch, zorder=2 + k)
+        ax.plot(th, lower[:, k], color=colour, lw=1.0, ls=":", alpha=0.9, zorder=2 + k)
     ax.axhline(1.0, color="k", ls="--", lw=1.0, label="1.0: energy\nconservation limit")
-    top = max(1.08, float(np.nanmax(s.image)) * 1.1)
+    ax.plot([], [], color="0.3", lw=1.0, ls=":", label="measured part only\n(a lower bound)")
+    top = max(1.08, float(np.nanmax(whole)) * 1.1)
     ax.set_ylim(0.0, top)
     ax.set_xlim(0.0, 90.0)
     ax.set_xticks(range(0, 91, 15))
     ax.set_xlabel("θi, incidence angle (°)")
     ax.set_ylabel("directional albedo ∫ f_r cos θo dωo")
-    cov = np.asarray(s.attrs["coverage"])
+    for lo, hi in _runs(th, peak_gap):
+        ax.axvspan(lo, hi, color="#f2c14e", alpha=0.35, lw=0, zorder=1)
+        ax.text(0.5 * (lo + hi), 0.04 * top, "specular\ndirection\nnot measured\n(occlusion\ngap)",
+                ha="center", va="bottom", fontsize=7.5, color="0.25")
+        report.notes.append(f"θi {lo:g}–{hi:g}°: the specular direction lies in the occlusion gap, where "
+                            "nothing was measured; the albedo there misses any specular peak")
+    lo_c, hi_c = f"{100 * cov.min():.1f}", f"{100 * cov.max():.1f}"
+    span = lo_c if lo_c == hi_c else f"{lo_c}–{hi_c}"
     if cov.min() < 0.999:
-        ax.plot(th, cov, color="0.45", ls=":", lw=1.5, label="measured fraction\nof the projected\n"
-                "hemisphere (albedo\nis a lower bound\nwhere it is < 1)")
-        lo, hi = f"{100 * cov.min():.1f}", f"{100 * cov.max():.1f}"
-        span = lo if lo == hi else f"{lo}–{hi}"
-        report.notes.append(f"integrated over the measured part of the hemisphere ({span} % of the "
-                            "projected solid angle): a lower bound")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+        report.notes.append(f"solid: the whole hemisphere, the unmeasured {100 - 100 * cov.max():.1f}–"
+                            f"{100 - 100 * cov.min():.1f} % taking the least f_r measured at the same θo; "
+                            f"dotted: the measured part alone ({span} %), a lower bound")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
+              title="solid: whole hemisphere, each\nunmeasured direction taking\nthe least f_r measured "
+                    "at\nits θo (exact if diffuse)", title_fontsize=8)
     ax.grid(alpha=0.3)
     ax.set_title(f"{title}\ndirectional albedo (energy conservation at a glance)", fontsize=10)
     return fig
+
+
+def _runs(x: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
+    """The spans of ``x`` (sorted) where ``mask`` holds, each widened to halfway to its neighbours."""
+    out = []
+    edges = np.concatenate([[x[0]], 0.5 * (x[1:] + x[:-1]), [x[-1]]])
+    k = 0
+    while k < len(x):
+        if mask[k]:
+            j = k
+            while j + 1 < len(x) and mask[j + 1]:
+                j += 1
+            out.append((float(edges[k]), float(edges[j + 1])))
+            k = j + 1
+        else:
+            k += 1
+    return out
 
 
 _DRAW = {"polar": _draw_polar, "hemisphere": _draw_hemisphere, "merl": _draw_merl,

@@ -70,7 +70,7 @@ TRANSITIONS: dict[State, frozenset[State]] = {
     State.IDLE: frozenset({State.RUNNING, State.ABORTED}),
     State.RUNNING: frozenset({State.PAUSING, State.DONE, State.ABORTED, State.FAULTED, State.HALTED}),
     State.PAUSING: frozenset({State.PAUSED, State.DONE, State.ABORTED, State.FAULTED, State.HALTED}),
-    State.PAUSED: frozenset({State.RUNNING, State.ABORTED}),
+    State.PAUSED: frozenset({State.RUNNING, State.ABORTED, State.HALTED}),   # halted: while it parks
     State.HALTED: frozenset({State.RUNNING, State.ABORTED}),
     State.FAULTED: frozenset({State.RUNNING, State.ABORTED}),
     State.DONE: frozenset(),
@@ -232,8 +232,13 @@ class Runner:
         units whose first step the journal holds are skipped (a fly campaign's sweeps).
 
         Returns the state it stopped in: done, paused, halted, aborted or faulted. A campaign whose
-        fault is latched returns ``faulted`` at once without touching the gantry.
+        fault is latched returns ``faulted`` at once without touching the gantry. A pause halted while it
+        parks ends ``halted``.
         """
+        self._run(units)
+        return self._state
+
+    def _run(self, units: Iterable[Unit] | None) -> State:
         if self._state in (State.DONE, State.ABORTED):
             raise TransitionError(f"runner: campaign is {self._state}; nothing to run")
         latched = self.journal.latched_fault()
@@ -330,8 +335,16 @@ class Runner:
             self.journal.log_event("park" if park else "stopped", message="axes home" if park else
                                    "axes left where they stopped", campaign_s=self.campaign_s(),
                                    axes_deg=self._positions())
+        except _Halted:
+            # A halt (a second Ctrl-C) while parking: the axes stop where they are, as a halt says. The
+            # campaign is halted, not paused, unless it had finished or been aborted.
+            self.journal.log_event("stopped", message="halted while parking: axes left where they stopped",
+                                   campaign_s=self.campaign_s(), axes_deg=self._positions())
+            if self._state == State.PAUSED:
+                self._to(State.HALTED, "halted while parking")
         except Exception as err:
-            self.journal.log_event("fault", message=f"park failed: {err}", campaign_s=self.campaign_s())
+            reason = str(err) or type(err).__name__
+            self.journal.log_event("fault", message=f"park failed: {reason}", campaign_s=self.campaign_s())
         self._journal_warnings()
         report = getattr(self.gantry, "link_report", None)
         line = report() if report is not None else None

@@ -135,11 +135,16 @@ def reciprocity_slice(b: MeasuredBRDF, phi_i_deg: float = 0.0, size: int = 121) 
                  {"theta_max_deg": float(top), "phi_i_deg": float(phi_i_deg)})
 
 
-def albedo_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0) -> Slice:
+def albedo_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0, *, fill: bool = False) -> Slice:
     """Directional albedo ∫ f_r cos θo dωo against θi, over the measured part of the hemisphere.
 
     ``attrs["coverage"]`` is, per θi, the fraction of the projected solid angle (π) whose f_r exists:
-    the albedo shown is a lower bound where it is below 1.
+    the albedo shown is a lower bound where it is below 1. With ``fill``, each cell where nothing was
+    measured (the occlusion gap around retro-reflection, θo beyond theta_max) takes the least f_r
+    measured on its θo ring (on the nearest ring with a measurement where its own has none, e.g. beyond
+    theta_max): an estimate over the whole
+    hemisphere that is exact for a diffuse sample and adds no peak that was not measured (a glossy
+    sample's gaps get its diffuse level; its specular peak counts only where it was measured).
     """
     cols = np.asarray(thetas_i_deg, dtype=np.float64)
     dt, dp = 1.0, 5.0
@@ -153,12 +158,31 @@ def albedo_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0) -> Slice
     for k, ti in enumerate(cols):
         ev = b.eval_deg(ti, phi_i_deg, t, phi_i_deg + p)
         ok = ev.reason == Reason.OK
-        out[0, k] = (w[ok, None] * ev.value[ok]).sum(axis=0)
         coverage[k] = w[ok].sum() / np.pi
+        value = ev.value
+        if fill and ok.any() and not ok.all():
+            value, ok = _ring_minimum_fill(value, ok, len(to)), np.ones_like(ok)
+        out[0, k] = (w[ok, None] * value[ok]).sum(axis=0)
+    rule = ("sum over every cell of f_r cos(theta_o) dw, a cell where nothing was measured taking the least "
+            "f_r measured on its theta_o ring (or the nearest ring measured)" if fill else
+            "sum over the measured cells of f_r cos(theta_o) dw")
     return Slice("albedo", out, b.channels, "directional albedo (dimensionless)",
-                 "one row; column c: theta_i = cols_deg[c] deg at phi_i; value = sum over the measured cells "
-                 "of f_r cos(theta_o) dw, midpoint rule with 1 deg in theta_o and 5 deg in phi_o",
+                 f"one row; column c: theta_i = cols_deg[c] deg at phi_i; value = {rule}, midpoint rule with "
+                 "1 deg in theta_o and 5 deg in phi_o",
                  {"cols_deg": cols.tolist(), "phi_i_deg": float(phi_i_deg), "coverage": coverage.tolist()})
+
+
+def _ring_minimum_fill(value: np.ndarray, ok: np.ndarray, rings: int) -> np.ndarray:
+    """``value`` (rings·azimuths, C) of cells ordered ring by ring, its unmeasured cells (``~ok``) set to
+    the least measured value on their ring, or on the nearest ring with a measured cell."""
+    v = value.reshape(rings, -1, value.shape[-1]).copy()
+    good = ok.reshape(rings, -1)
+    measured = np.flatnonzero(good.any(axis=1))
+    least = {r: np.where(good[r][:, None], v[r], np.inf).min(axis=0) for r in measured}
+    for r in range(rings):
+        nearest = int(measured[np.argmin(np.abs(measured - r))])
+        v[r][~good[r]] = least[nearest]
+    return v.reshape(value.shape)
 
 
 def write_exr(path: str | Path, s: Slice, meta: dict) -> Path:

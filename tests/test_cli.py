@@ -11,6 +11,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from cli_helpers import one_clear_line as _one_clear_line
 
 from gonio.cli import main
 
@@ -106,14 +107,6 @@ def test_console_script_runs_as_a_process(tmp_path):
 
 # -- user mistakes: one line, exit 2, nothing written --------------------------------------------
 SIM = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet"]
-
-
-def _one_clear_line(capsys, *needles):
-    err = capsys.readouterr().err
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    for n in needles:
-        assert n in err, err
-    return err
 
 
 def test_out_that_is_a_file_is_refused(tmp_path, capsys):
@@ -305,6 +298,60 @@ def test_a_signal_inside_a_journal_transaction_pauses_cleanly(tmp_path, capsys, 
         kinds = [e["kind"] for e in j.events()]
         assert "signal" in kinds and kinds[-1] == "park" and j.last_event("state")["state"] == "paused"
         assert j.done_count() >= 10 and j.done_steps().tolist() == list(range(j.done_count()))
+    finally:
+        j.close()
+    monkeypatch.undo()
+    assert main(argv) == 0
+
+
+class _InlineThread:
+    """threading.Thread for the CLI's signal actors, run at once in the signalled thread: the second
+    signal then acts at a known point (the test sends it from inside a move command)."""
+
+    def __init__(self, target, args=(), name=None, daemon=None):
+        self.target, self.args = target, args
+
+    def start(self):
+        self.target(*self.args)
+
+    def join(self, timeout=None):
+        pass
+
+
+def test_a_second_signal_while_the_pause_parks_halts_and_says_halted(tmp_path, capsys, monkeypatch):
+    import gonio.cli.campaigns
+    from gonio.sim.axis import SimAxis
+    from gonio.store import JOURNAL_NAME, Journal
+
+    monkeypatch.setattr(gonio.cli.campaigns.threading, "Thread", _InlineThread)
+    real_write, real_move = Journal._write, SimAxis.move_to
+    seen = {"moves": 0, "paused": False, "second": False}
+
+    def write(self, sql, params=()):
+        real_write(self, sql, params)
+        if sql.startswith("INSERT INTO events") and "paused" in params:
+            seen["paused"] = True        # the runner journals 'paused', then parks
+
+    def move_to(self, target):
+        real_move(self, target)
+        seen["moves"] += 1
+        if seen["moves"] == 20:
+            os.kill(os.getpid(), signal.SIGINT)          # the first: pause
+        elif seen["paused"] and not seen["second"]:
+            seen["second"] = True
+            os.kill(os.getpid(), signal.SIGINT)          # the second, while parking: halt
+
+    monkeypatch.setattr(Journal, "_write", write)
+    monkeypatch.setattr(SimAxis, "move_to", move_to)
+    out = tmp_path / "run"
+    argv = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=15", "--quiet", "--out", str(out)]
+    assert main(argv) == 130
+    err = capsys.readouterr().err
+    assert seen["second"] and "interrupted (SIGINT): halted at step" in err and "paused" not in err, err
+    j = Journal.open(out / JOURNAL_NAME, readonly=True)
+    try:
+        assert j.last_event("state")["state"] == "halted"
+        assert [e for e in j.events() if e["kind"] == "fault"] == []   # was: 'park failed: ' (no reason)
     finally:
         j.close()
     monkeypatch.undo()

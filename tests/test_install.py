@@ -32,8 +32,10 @@ def installed(tmp_path_factory):
     shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".git", ".venv", "build", "*.egg-info",
                                                              "__pycache__", "demo-out", "gonio-data"))
     # The build uses this environment's setuptools (no download); the wheel is what `pip install .` makes.
-    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(wheels),
-          str(src)])
+    # Verbose: setuptools' warnings about the package list are shown only then (pip -q hides them).
+    build = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-v", "-w",
+                  str(wheels), str(src)])
+    (base / "build.log").write_text(build.stdout + build.stderr)
     (wheel,) = wheels.glob("gonio-*.whl")
     venv = base / "venv"
     _run([sys.executable, "-m", "venv", str(venv)])
@@ -42,9 +44,37 @@ def installed(tmp_path_factory):
     # the source tree stays out); gonio itself from the wheel, installed by pip into the new environment.
     where = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
     site = Path(_run([str(py), "-c", where]).stdout.strip())
-    (site / "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    # Every site-packages folder of this environment: a worktree's environment may borrow its packages
+    # from another one through a .pth file of its own, which the new environment would not follow.
+    deps = [sysconfig.get_paths()["purelib"]] + [p for p in sys.path if p.endswith("site-packages")]
+    (site / "deps.pth").write_text("\n".join(dict.fromkeys(deps)) + "\n")
     _run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)])
     return venv, base / "elsewhere"
+
+
+@pytest.fixture(scope="module")
+def wheel_build(installed):
+    base = installed[1].parent
+    (wheel,) = (base / "wheels").glob("gonio-*.whl")
+    return wheel, (base / "build.log").read_text()
+
+
+def test_the_wheel_build_warns_of_nothing_and_carries_every_data_file(wheel_build):
+    """Data folders missing from the package list made setuptools print a screen of "Package would be
+    ignored" warnings on every install; each data file of the source tree must be in the wheel."""
+    import zipfile
+
+    wheel, log = wheel_build
+    assert "would be ignored" not in log and "SetuptoolsDeprecationWarning" not in log, log[-3000:]
+    inside = set(zipfile.ZipFile(wheel).namelist())
+    roots = {"gonio": ROOT / "gonio", "gonio/drivers": ROOT / "drivers", "gonio/sim": ROOT / "sim",
+             "gonio/configs": ROOT / "config"}
+    data = [(prefix, f.relative_to(folder)) for prefix, folder in roots.items() for f in folder.rglob("*")
+            if f.is_file() and f.suffix not in (".py", ".pyc", ".md") and "__pycache__" not in f.parts]
+    assert len(data) >= 16   # configs, Modbus profiles, spectral tables, the web view
+    names = [f"{prefix}/{rel.as_posix()}" for prefix, rel in data]
+    missing = [name for name in names if name not in inside]
+    assert missing == []
 
 
 def test_wheel_installs_gonio_with_its_configs_outside_the_source_tree(installed):

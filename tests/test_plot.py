@@ -122,3 +122,93 @@ def test_albedo_exr_is_the_cosine_weighted_integral_and_a_lambertian_stays_below
         np.testing.assert_allclose(got[0, k], (w.ravel()[ok, None] * ev.value[ok]).sum(0), rtol=1e-6)
     # θo up to 80° holds sin²(80°) = 97 % of the projected solid angle: 0.6 * 0.97
     np.testing.assert_allclose(got[0, :, 1], 0.6 * np.sin(np.radians(80.0)) ** 2, rtol=0.01)
+
+
+def test_the_reciprocity_plot_counts_each_measured_pair_once(campaign, tmp_path):
+    """It counted every sample against the interpolant at its swap: 603 'pairs' where the report's
+    check (and this independent count) finds 299 pairs measured both ways."""
+    import re
+
+    from gonio.dataset import read_brdf
+
+    rep = plot(campaign, "reciprocity", tmp_path / "r.png")
+    data = read_brdf(campaign / "brdf.h5")
+    ti, pi_, to, po = np.round(np.asarray(data.planned, float), 2).T
+    dphi = np.where((ti == 0) | (to == 0), 0.0, np.mod(po - pi_, 360.0))
+    keys = set(zip(ti, to, dphi, strict=True))
+    partner = {k: (k[1], k[0], round((360.0 - k[2]) % 360.0, 2)) for k in keys}
+    both = {frozenset((k, partner[k])) for k in keys if partner[k] in keys and partner[k] != k}
+    assert 250 < len(both) < len(data.value) / 2
+    (note,) = [n for n in rep.notes if "measured pairs" in n]
+    count, beyond3 = re.match(r"(\d+) measured pairs, each counted once; ([\d.]+) %", note).groups()
+    assert int(count) == len(both)
+    from gonio.brdf import open_brdf
+    from gonio.report.checks import reciprocity_pairs
+
+    assert float(beyond3) == round(100 * reciprocity_pairs(data, open_brdf(data))["beyond_3"], 1)
+
+
+def test_titles_break_between_items_never_inside_a_value():
+    from gonio.plot import _title
+
+    b = open_brdf(sampled(SPEC, "iso:step=30"))
+    lines = _title("copper", b, width=30).splitlines()
+    spec, grid = b.attrs["material"], b.attrs["grid"].split(",order=")[0]
+    assert len(lines) > 3 and "".join(lines[1:]) == spec + grid
+    ends = (spec, grid)
+    # a line ends after a comma or where the spec or the grid ends: never inside a key=value
+    assert all(line.endswith(",") or any(e.endswith(line) for e in ends) for line in lines[1:]), lines
+
+
+def _true_albedo(spec, theta_i_deg):
+    """∫ f_r cos θo dωo of the material itself (midpoint rule, 0.2° × 1°)."""
+    from gonio.geometry import sph_to_vec
+    from gonio.sim.materials import load
+
+    t, p = np.meshgrid(np.radians(np.arange(0.1, 90, 0.2)), np.radians(np.arange(0.5, 360, 1.0)),
+                       indexing="ij")
+    wo = sph_to_vec(t.ravel(), p.ravel())
+    w = (np.cos(t) * np.sin(t)).ravel() * np.radians(0.2) * np.radians(1.0)
+    wi = np.ascontiguousarray(np.broadcast_to(sph_to_vec(np.radians(theta_i_deg), 0.0), wo.shape))
+    return (w[:, None] * load(spec).eval(wi, wo)).sum(axis=0)
+
+
+def test_the_albedo_plot_reads_a_lambertian_right_and_says_where_the_peak_went_unmeasured(campaign, tmp_path):
+    """A Lambertian 0.5 read 0.47 (only the measured part of the hemisphere, without saying so on the
+    curve), and the copper's albedo fell below θi = 15° with nothing on the figure saying why."""
+    from gonio.campaign import create_campaign, run_campaign
+    from gonio.config import load_config
+    from gonio.wiring import build_gantry
+
+    folder = tmp_path / "lambert"
+    c = create_campaign(folder, load_config(), grid="iso:step=15", material="lambert:albedo=0.5", seed=3)
+    try:
+        run_campaign(c, build_gantry(c.cfg, "lambert:albedo=0.5", seed=3))
+    finally:
+        c.close()
+    rep = plot(folder, "albedo", tmp_path / "lambert.png")
+    assert rep.slice.image.min() < 0.47           # the measured part alone: the gaps are real
+    np.testing.assert_allclose(rep.shown["hemisphere"], 0.5, rtol=0.01)
+
+    rep = plot(campaign, "albedo", tmp_path / "copper.png")
+    th = np.round(np.asarray(rep.slice.attrs["cols_deg"]), 6)
+    gap = rep.shown["peak_unmeasured"]
+    # the mirror pose of θi = 0 is retro-reflection (never measured); those of the lattice's θi = 15°, 30°
+    # were measured
+    assert gap[th == 0].all() and not gap[(th == 15) | (th == 30)].any()
+    assert any("occlusion gap" in n and n.startswith("θi 0–") for n in rep.notes)
+    whole, lower = rep.shown["hemisphere"], rep.slice.image[0]
+    for t in (15.0, 30.0, 45.0):
+        k = int(np.flatnonzero(th == t)[0])
+        truth = _true_albedo(SPEC, t)
+        assert np.all(whole[k] >= lower[k]) and np.all(whole[k] <= truth * 1.03), (t, whole[k], truth)
+        assert np.all(np.abs(whole[k] - truth) < np.abs(lower[k] - truth) + 1e-9)   # closer than the bound
+
+
+def test_the_log_polar_panel_keeps_the_diffuse_body_out_of_its_centre(campaign, tmp_path):
+    """Its centre sat just below the least value, so a copper's diffuse body (0.07 sr⁻¹ beside a 30 sr⁻¹
+    peak) was drawn within 5 % of the radius from the centre."""
+    rep = plot(campaign, "polar", tmp_path / "p.png")
+    lo, hi = rep.shown["polar_rlim"]
+    out_from_centre = np.log10(rep.shown["least"] / lo) / np.log10(hi / lo)
+    assert out_from_centre >= 0.2, out_from_centre

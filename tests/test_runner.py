@@ -36,8 +36,9 @@ def test_transition_table_is_closed_and_terminal_states_are_final():
     for dsts in TRANSITIONS.values():
         assert set(dsts) <= set(State)
     assert TRANSITIONS[State.DONE] == frozenset() and TRANSITIONS[State.ABORTED] == frozenset()
-    # a pause or a halt is only ever left by resuming or aborting, never straight to done
-    assert TRANSITIONS[State.PAUSED] == frozenset({State.RUNNING, State.ABORTED})
+    # a pause or a halt is only ever left by resuming or aborting, never straight to done; a pause is
+    # halted while it parks (a second Ctrl-C)
+    assert TRANSITIONS[State.PAUSED] == frozenset({State.RUNNING, State.ABORTED, State.HALTED})
     assert TRANSITIONS[State.HALTED] == frozenset({State.RUNNING, State.ABORTED})
     assert set(TRANSITIONS) == set(State)
 
@@ -96,6 +97,33 @@ def test_abort_while_paused_is_immediate(tmp_path, cfg):
     assert r.run() == State.PAUSED
     r.request_abort()
     assert r.state == State.ABORTED
+
+
+def test_a_halt_while_the_pause_parks_ends_halted_with_the_axes_where_they_stopped(tmp_path, cfg):
+    """A second Ctrl-C: the first pauses, the second arrives while the gantry parks. It used to log a
+    fault 'park failed: ' with an empty reason and end 'paused'."""
+    c, g, r = _setup(tmp_path, cfg, on_step=lambda run, s: s == 3 and run.request_pause())
+    for axis in g.axes.values():
+        def move_to(t, real=axis.move_to):
+            real(t)
+            if r.state == State.PAUSED:      # the park's first command has gone out: halt now
+                r.request_halt("second SIGINT")
+
+        axis.move_to = move_to
+    assert r.run() == State.HALTED
+    assert c.journal.done_steps().tolist() == [0, 1, 2, 3]
+    faults = _events(c, "fault")
+    assert faults == [], faults
+    stopped = _events(c, "stopped")
+    assert len(stopped) == 1 and "halted while parking" in stopped[0]["message"]
+    assert _events(c, "park") == []
+    assert c.journal.last_event("state")["state"] == "halted"
+    home = np.asarray(g.kinematics.home_deg, float)
+    assert not np.allclose(stopped[0]["axes_deg"], home)     # stopped on the way, not parked
+    assert not any(a.is_moving() for a in g.axes.values())
+    # and it resumes from where it stopped
+    r.on_step = None
+    assert r.run() == State.DONE
 
 
 def test_timeout_is_retried_after_the_axes_are_still(tmp_path, cfg):

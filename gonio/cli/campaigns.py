@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -16,13 +17,18 @@ from pathlib import Path
 import numpy as np
 
 from gonio.cli.common import (
+    Eta,
     UsageError,
     _hms,
     _in_main_thread,
     _install_startup_handlers,
     _lock_holder,
+    _not_empty,
     _Out,
+    _ReferenceFormatter,
     _seed,
+    planning,
+    refuse_emulated_placeholders,
 )
 from gonio.cli.results import _export_formats, _write_exports
 from gonio.config import load_config
@@ -36,16 +42,18 @@ def cmd_plan(args) -> int:
     from gonio.plan import build_plan, format_plan, plan_summary
 
     cfg = load_config(args.config)
-    plan = build_plan(args.grid, cfg)
-    fly = None
-    if not plan.grid.startswith("merl:"):  # lattices have lines to sweep: fly side by side
-        from gonio.plan import parse_grid
-        from gonio.plan.fly import fly_plan
+    show = sys.stdout.isatty() and not args.json    # a spinner only where a person watches the report
+    with planning(_Out(), args.grid, show):
+        plan = build_plan(args.grid, cfg)
+        fly = None
+        if not plan.grid.startswith("merl:"):  # lattices have lines to sweep: fly side by side
+            from gonio.plan import parse_grid
+            from gonio.plan.fly import fly_plan
 
-        # A fly campaign sweeps the serpentine's lines (order=fly), whatever order auto chose here.
-        lines = plan if plan.order == "serpentine" else build_plan(
-            parse_grid(args.grid).spelled(order="fly"), cfg)
-        fly = fly_plan(lines, cfg)
+            # A fly campaign sweeps the serpentine's lines (order=fly), whatever order auto chose here.
+            lines = plan if plan.order == "serpentine" else build_plan(
+                parse_grid(args.grid).spelled(order="fly"), cfg)
+            fly = fly_plan(lines, cfg)
     if args.json:
         print(json.dumps(plan_summary(plan, fly), indent=2))
     else:
@@ -78,8 +86,7 @@ def _fly_command(args, cfg, material, exports) -> int:
         raise UsageError("--grid: order=fly simulates the photodiode of a simulated gantry only "
                          "([detector] driver = 'sim', [detector.sim] kind = 'photodiode')")
     out = _Out(args.quiet)
-    folder = Path(args.out)
-    _check_out(folder)
+    folder = _check_out(args.out)
     if (folder / JOURNAL_NAME).exists():
         c = open_campaign(folder)
         diff = compare_campaign(c.meta, material=material.spec, grid=args.grid, seed=args.seed, cfg=cfg)
@@ -89,7 +96,9 @@ def _fly_command(args, cfg, material, exports) -> int:
                              "command to resume it, or choose another --out")
         out(f"resuming the fly campaign in {folder} at step {c.journal.next_step()}")
     else:
-        c = _created(create_fly_campaign, folder, cfg, grid=args.grid, material=material.spec, seed=args.seed)
+        with planning(out, args.grid, not args.quiet):
+            c = _created(create_fly_campaign, folder, cfg, grid=args.grid, material=material.spec,
+                         seed=args.seed)
     meta = c.meta
     out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} in {meta['fly']['lines']} sweeps, "
         f"estimated {_hms(meta['estimated_s'])} of gantry time (bound {_hms(meta['lower_bound_s'])}; "
@@ -107,6 +116,21 @@ def _fly_command(args, cfg, material, exports) -> int:
         f"and {folder / JOURNAL_NAME}")
     out(_model_check(folder, material))
     _write_exports(folder, exports, out)
+    return 0
+
+
+# -- gonio materials -------------------------------------------------------------------------------
+def cmd_materials(args) -> int:
+    from gonio.sim.materials import MODELS
+    from gonio.sim.materials.catalog import catalog, format_catalog
+
+    if args.name is not None and args.name.strip().lower() not in MODELS:
+        raise UsageError(f"NAME: {args.name!r} is not a material model; allowed: "
+                         f"{', '.join(MODELS)}")
+    entries = catalog()
+    if args.name is not None:
+        entries = [e for e in entries if e.model == args.name.strip().lower()]
+    print(format_catalog(entries), end="")
     return 0
 
 
@@ -163,8 +187,10 @@ def _created(create, folder: Path, *args, **kw):
                          "folder") from None
 
 
-def _check_out(out: Path) -> None:
-    """--out must be a folder we can write, or a path where one can be made; checked before writing."""
+def _check_out(text: str) -> Path:
+    """--out must be a folder we can write, or a path where one can be made; checked before writing.
+    Empty is refused (it would be the current folder)."""
+    out = Path(_not_empty(text, "folder"))
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} is a file, not a folder; give a folder for the campaign")
     probe = out
@@ -174,6 +200,7 @@ def _check_out(out: Path) -> None:
         raise UsageError(f"--out: {probe} is a file, so {out} cannot be a folder")
     if not os.access(probe, os.W_OK | os.X_OK):
         raise UsageError(f"--out: {probe} is not writable (permission denied); choose another folder")
+    return out
 
 
 def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
@@ -188,25 +215,25 @@ def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
                             TextColumn("gantry {task.fields[sim]}"), TextColumn("wall"), TimeElapsedColumn(),
                             TextColumn("ETA {task.fields[eta]}"), console=out.console, transient=False)
         task = progress.add_task("measuring", total=total, completed=done0, sim="0:00:00", eta="?")
+        eta = Eta(total)
 
         def on_step(runner, step):
             now = time.perf_counter() - t0
-            done = step + 1 - done0
-            eta = now / done * (total - step - 1) if done > 0 else 0.0
-            progress.update(task, completed=step + 1, sim=_hms(runner.campaign_s()), eta=_hms(eta))
+            progress.update(task, completed=step + 1, sim=_hms(runner.campaign_s()),
+                            eta=Eta.text(eta.update(step + 1, now)))
 
         return progress, on_step
     last = [-PLAIN_PROGRESS_EVERY_S]
+    eta = Eta(total)
 
     def on_step(runner, step):
         now = time.perf_counter() - t0
+        left = eta.update(step + 1, now)
         if now - last[0] < PLAIN_PROGRESS_EVERY_S and step + 1 < total:
             return
         last[0] = now
-        done = step + 1 - done0
-        eta = now / done * (total - step - 1) if done > 0 else 0.0
         out(f"measuring: {step + 1}/{total} steps ({100 * (step + 1) / total:.0f} %), gantry "
-            f"{_hms(runner.campaign_s())}, wall {now:.1f} s, ETA {_hms(eta)}")
+            f"{_hms(runner.campaign_s())}, wall {now:.1f} s, ETA {Eta.text(left)}")
 
     return None, on_step
 
@@ -234,14 +261,15 @@ def cmd_simulate(args) -> int:
 
 
 def _campaign_command(args, cfg, *, material, sample: str | None, model_check: bool, exports=(),
-                      relocate_buses: bool = False, fly_plans=None) -> int:
+                      relocate_buses: bool = False, fly_plans=None, gantry=None) -> int:
     """Create or resume the campaign in ``args.out`` and run it on the gantry ``cfg`` wires (``gonio
     simulate`` and ``gonio run``): progress, signals, latched faults, ``--clear-fault``, brdf.h5.
     ``fly_plans``: an order=fly campaign's plans (:func:`gonio.fly.create_fly_campaign`), one sweep
     per unit.
 
     ``relocate_buses``: a resumed campaign's devices are reached where ``cfg``'s buses say now (a
-    re-plugged adapter, a restarted emulator); every other setting must match the campaign's."""
+    re-plugged adapter, a restarted emulator); every other setting must match the campaign's.
+    ``gantry``: a new campaign's gantry, already connected (:func:`_connected_gantry`)."""
     from gonio.campaign import compare_campaign, create_campaign, gantry_state, open_campaign, run_campaign
     from gonio.config import relocate
     from gonio.dataset import BRDF_NAME
@@ -251,9 +279,8 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
     from gonio.wiring import build_gantry
 
     out = _Out(args.quiet)
-    folder = Path(args.out)
+    folder = _check_out(args.out)
     spec = material.spec if material is not None else None
-    _check_out(folder)
     if (folder / JOURNAL_NAME).exists():
         c = open_campaign(folder)
         now = relocate(cfg, c.cfg) if relocate_buses else cfg
@@ -275,13 +302,20 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
             from gonio.fly import create_fly_campaign
 
             create_campaign = partial(create_fly_campaign, plans=fly_plans)
-        c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
-                     sample=sample)
+        try:
+            with planning(out, args.grid, not args.quiet):
+                c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
+                             sample=sample)
+        except BaseException:
+            if gantry is not None:
+                gantry.close()
+            raise
     meta = c.meta
     n_steps = c.journal.step_count()
     try:
-        gantry = build_gantry(relocate(c.cfg, cfg) if relocate_buses else c.cfg, material, seed=meta["seed"],
-                              state=gantry_state(c))
+        if gantry is None:
+            gantry = build_gantry(relocate(c.cfg, cfg) if relocate_buses else c.cfg, material,
+                                  seed=meta["seed"], state=gantry_state(c))
     except BaseException:
         c.close()
         raise
@@ -414,8 +448,10 @@ def cmd_status(args) -> int:
         f"  {what} on {st['gantry']}, grid {st['grid']}, seed {st['seed']}",
         f"  progress: {st['steps_done']}/{st['steps']} steps ({pct:.1f} %), campaign time "
         f"{_hms(st['campaign_s'])}",
-        f"  ETA: about {_hms(st['estimated_remaining_s'])} of gantry time left (the plan's estimate)",
     ]
+    if st["steps_done"] < st["steps"] and not st["state"].startswith("aborted"):
+        lines.append(f"  ETA: about {_hms(st['estimated_remaining_s'])} of gantry time left (the plan's "
+                     "estimate)")
     if st["latched_fault"]:
         lines.append(f"  latched fault: {st['latched_fault']} (resume with --clear-fault once fixed)")
     elif st["last_fault"]:
@@ -425,22 +461,54 @@ def cmd_status(args) -> int:
 
 
 # -- gonio run, gonio emulate, gonio gantry (configured hardware) -----------------------------------
+def _connected_gantry(cfg, material, seed: int):
+    """A new campaign's gantry, connected before anything is planned or written: a port that cannot be
+    opened is one line (exit 1) and leaves no half-made campaign behind."""
+    from gonio.protocols import DeviceFault
+    from gonio.wiring import build_gantry
+
+    gantry = build_gantry(cfg, material, seed=seed)
+    try:
+        gantry.connect()
+    except DeviceFault as err:
+        raise GantryUnreachable(f"gantry: {err}; nothing was written: connect it (or start its "
+                                "emulators), then run the same command") from None
+    return gantry
+
+
+class GantryUnreachable(RuntimeError):
+    """The devices of a new campaign could not be connected (exit code 1)."""
+
+
 def cmd_run(args) -> int:
     from gonio.plan import parse_grid
     from gonio.sim.materials import load as load_material
+    from gonio.store import JOURNAL_NAME
 
     material = load_material(args.material) if args.material else None
     fly = parse_grid(args.grid).order == "fly"
     cfg = load_config(args.config)
+    refuse_emulated_placeholders(cfg, args.config)
     if not args.sample.strip():
         raise UsageError("--sample: give the name of the sample measured (not empty)")
     if cfg.detector.driver == "sim" and material is None:
         raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
                          "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
-    plans = _checked_fly_plans(args, cfg) if fly else None
+    folder = _check_out(args.out)
+    # order=fly: what sweeps is known once the lines are planned; a gantry that cannot fly them is
+    # refused before anything is connected or written.
+    with planning(_Out(args.quiet), args.grid, fly and not args.quiet):
+        plans = _checked_fly_plans(args, cfg) if fly else None
     _check_referenced(cfg, material)
+    gantry = None
+    if not (folder / JOURNAL_NAME).exists():
+        try:
+            gantry = _connected_gantry(cfg, material, args.seed)
+        except GantryUnreachable as err:
+            _Out()(str(err), style="red")
+            return 1
     return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
-                             relocate_buses=True, fly_plans=plans)
+                             relocate_buses=True, fly_plans=plans, gantry=gantry)
 
 
 def _check_referenced(cfg, material) -> None:
@@ -467,16 +535,22 @@ def _check_referenced(cfg, material) -> None:
 
 def add_parsers(sub, fmt) -> None:
     """This module's subcommands."""
-    sp = sub.add_parser("plan", formatter_class=fmt, help="count and time a plan without moving anything")
-    sp.add_argument("--grid", required=True, help="GRID, e.g. iso:step=5, full:step=15, merl:stride=4")
+    from gonio.plan.grids import grid_help
+
+    sp = sub.add_parser("plan", formatter_class=_ReferenceFormatter, epilog=grid_help(),
+                        help="count and time a plan without moving anything")
+    sp.add_argument("--grid", required=True, help="GRID, e.g. iso:step=5, full:step=15, merl:stride=4 "
+                    "(every kind and option below)")
     sp.add_argument("--config", default=None,
                     help="gantry config: a TOML file or a shipped config's name (default: sim)")
     sp.add_argument("--json", action="store_true", help="one JSON object instead of the report")
     sp.set_defaults(func=cmd_plan)
     ss = sub.add_parser("simulate", formatter_class=fmt, help="run a whole campaign on the simulated gantry")
     ss.add_argument("material",
-                    help="MATERIAL, e.g. lambert:albedo=0.8 or cook-torrance:d=beckmann,m=0.2,metal=gold")
-    ss.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
+                    help="MATERIAL, e.g. lambert:albedo=0.8 or cook-torrance:d=beckmann,m=0.2,metal=gold "
+                         "(every model, key and range: gonio materials)")
+    ss.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10 (every kind and option: gonio "
+                    "plan --help)")
     ss.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
     ss.add_argument("--config", default=None,
                     help="gantry config: a TOML file or a shipped config's name (default: sim)")
@@ -501,6 +575,10 @@ def add_parsers(sub, fmt) -> None:
                     "GONIO_URL, else http://127.0.0.1:8765)")
     st.add_argument("--json", action="store_true", help="one JSON object")
     st.set_defaults(func=cmd_status)
+    sm = sub.add_parser("materials", formatter_class=fmt,
+                        help="the material models of MATERIAL strings: keys, ranges, defaults and rules")
+    sm.add_argument("name", nargs="?", default=None, help="one model (default: every model)")
+    sm.set_defaults(func=cmd_materials)
     sc = sub.add_parser("config", formatter_class=fmt, help="list or print the shipped gantry configs")
     sc.add_argument("action", choices=["list", "show"])
     sc.add_argument("name", nargs="?", help="config name (for show) or a path")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import threading
@@ -24,6 +25,42 @@ class Interrupted(BaseException):
 def _hms(seconds: float) -> str:
     s = int(round(seconds))
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+class Eta:
+    """Wall-clock time left, from the pace of the steps measured since the first one of this run ended
+    (that first step carries the start-up: compiling kernels, connecting, the first moves). ``None``
+    until at least ``MIN_STEPS`` steps over ``MIN_S`` seconds after it give a pace: an ETA from one
+    step read 102:34:40 for a 20-minute job.
+
+    >>> eta = Eta(total=100)
+    >>> eta.update(1, 30.0) is None           # the first step took 30 s (start-up)
+    True
+    >>> eta.update(4, 31.0) is None           # 3 steps since: not yet a pace
+    True
+    >>> round(eta.update(11, 32.0), 1)        # 10 steps in 2 s: 89 steps left take 17.8 s
+    17.8
+    """
+
+    MIN_STEPS = 5
+    MIN_S = 1.0
+
+    def __init__(self, total: int):
+        self.total = total
+        self._first: tuple[int, float] | None = None
+
+    def update(self, done: int, now: float) -> float | None:
+        if self._first is None:
+            self._first = (done, now)
+            return None
+        n, dt = done - self._first[0], now - self._first[1]
+        if n < self.MIN_STEPS or dt < self.MIN_S:
+            return None
+        return (self.total - done) * dt / n
+
+    @staticmethod
+    def text(seconds: float | None) -> str:
+        return "?" if seconds is None else _hms(seconds)
 
 
 def _seed(text: str) -> int:
@@ -49,10 +86,32 @@ class _Out:
         self.console.print(message, style=style, markup=False)
 
 
-def _writable_out(text: str, *, folder: bool = False) -> Path:
-    """--out checked before any work: its folder exists and takes a file; a file (or, with ``folder``,
-    a folder) may be replaced, nothing else."""
-    out = Path(text)
+def _not_empty(text: str, what: str = "file") -> str:
+    """--out as typed; an empty one is refused (it would name the current folder)."""
+    if not text.strip():
+        raise UsageError(f"--out: empty; give a {what} name")
+    return text
+
+
+@contextlib.contextmanager
+def planning(out: _Out, what: str, show: bool):
+    """A spinner with the time spent while ``what`` is planned (it may take a minute), on a terminal
+    only (``show``: neither --quiet nor --json); it disappears once the plan is made."""
+    if not (show and out.console.is_terminal):
+        yield
+        return
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=out.console,
+                  transient=True) as progress:
+        progress.add_task(f"planning {what}", total=None)
+        yield
+
+
+def _writable_out(text: str, *, folder: bool = False, force: bool = False) -> Path:
+    """--out checked before any work: not empty, its folder exists and takes a file; an existing file
+    (or, with ``folder``, a folder of files) is replaced only with ``force`` (``--force``)."""
+    out = Path(_not_empty(text, "folder" if folder else "file"))
     parent = out.parent if str(out.parent) else Path(".")
     if not parent.is_dir():
         raise UsageError(f"--out: folder {parent} does not exist; create it or choose another path")
@@ -60,6 +119,8 @@ def _writable_out(text: str, *, folder: bool = False) -> Path:
         raise UsageError(f"--out: {out} is a folder; give a file name")
     if out.exists() and folder and not out.is_dir():
         raise UsageError(f"--out: {out} is a file; this format writes a folder of files")
+    if out.exists() and not force:
+        raise UsageError(f"--out: {out} exists; choose another path, or add --force to replace it")
     probe = parent / f".{out.name}.{os.getpid()}.probe"
     try:
         probe.open("w").close()
@@ -68,6 +129,28 @@ def _writable_out(text: str, *, folder: bool = False) -> Path:
         raise UsageError(f"--out: {out} cannot be written ({err.strerror or err}); choose another path") \
             from None
     return out
+
+
+def add_force(parser) -> None:
+    """``--force``: the commands that write one --out file (or folder) replace an existing one only then."""
+    parser.add_argument("--force", action="store_true", help="replace --out if it exists")
+
+
+#: The port a shipped ``emulated-*`` config gives each serial bus: a placeholder that ``gonio emulate
+#: --write-config FILE`` replaces with the pty its emulator listens on.
+EMULATED_PORT = "emulated://"
+
+
+def refuse_emulated_placeholders(cfg, config: str | None) -> None:
+    """A config whose buses still name ``emulated://`` ports cannot be opened: one line saying what to run
+    (before anything is planned or written)."""
+    for name, bus in cfg.buses.items():
+        port = getattr(bus, "port", None) or ""
+        if port.startswith(EMULATED_PORT):
+            shown = config or cfg.name
+            raise UsageError(f"--config: {shown} reaches its devices through emulators (bus '{name}': port "
+                             f"{port}); start them in another shell with `gonio emulate --config {shown} "
+                             "--write-config emu.toml`, then pass --config emu.toml")
 
 
 # -- the parser -----------------------------------------------------------------------------------
@@ -82,6 +165,11 @@ class _DefaultsFormatter(argparse.HelpFormatter):
                 or action.required or not action.option_strings):
             return text
         return f"{text} (default: {default})"
+
+
+class _ReferenceFormatter(_DefaultsFormatter, argparse.RawDescriptionHelpFormatter):
+    """As :class:`_DefaultsFormatter`, with the epilog (a reference generated from a registry) kept as it
+    is laid out."""
 
 
 # -- gonio status ---------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ from gonio.cli.common import (
     UsageError,
     _in_main_thread,
     _seed,
+    refuse_emulated_placeholders,
 )
 from gonio.config import load_config
 
@@ -65,6 +66,7 @@ def cmd_gantry(args) -> int:
     from gonio.wiring import build_gantry
 
     cfg = load_config(args.config)
+    refuse_emulated_placeholders(cfg, args.config)
     gantry = build_gantry(cfg, "lambert:albedo=0.5" if cfg.detector.driver == "sim" else None)
     kin = gantry.kinematics
     angles = [args.theta_i, args.phi_i, args.theta_o, args.phi_o] if args.action == "move" else []

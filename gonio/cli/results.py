@@ -11,8 +11,10 @@ import numpy as np
 from gonio.cli.common import (
     UsageError,
     _lock_holder,
+    _not_empty,
     _Out,
     _writable_out,
+    add_force,
 )
 
 
@@ -27,7 +29,7 @@ def cmd_fit(args) -> int:
     if source.is_dir() and not (source / BRDF_NAME).is_file():
         raise UsageError(f"{source}: not a finished campaign (no {BRDF_NAME}; it is written once every "
                          "step is measured: finish the campaign with the command that started it)")
-    out = _writable_out(args.out) if args.out else None
+    out = _writable_out(args.out, force=args.force) if args.out is not None else None
     channels = parse_channels(args.channels)
     parse_model(args.model, channels)  # a bad MODEL is reported before any data is read
     if args.starts < 1:
@@ -103,7 +105,7 @@ def cmd_export(args) -> int:
     if len(fmt) != 1:
         raise UsageError(f"--format: one format per export, got {args.format!r}")
     source = finished_campaign(Path(args.dir))
-    out = _writable_out(args.out, folder=fmt[0] == "radiance")
+    out = _writable_out(args.out, folder=fmt[0] == "radiance", force=args.force)
     report = export(source, fmt[0], out)
     print(report)
     for note in report.notes:
@@ -116,6 +118,7 @@ def cmd_plot(args) -> int:
     """Draw a finished campaign; the file written (and any caveat) on stdout."""
     from gonio.plot import KINDS, SUFFIXES, plot
 
+    _not_empty(args.out)
     if args.kind not in KINDS:
         raise UsageError(f"--kind: {args.kind!r} is unknown; allowed: {', '.join(KINDS)}")
     if Path(args.out).suffix.lower() not in SUFFIXES:
@@ -125,7 +128,7 @@ def cmd_plot(args) -> int:
     if not np.isfinite(args.phi_i):
         raise UsageError(f"--phi-i: must be a finite number of degrees, got {args.phi_i}")
     source = finished_campaign(Path(args.dir))
-    out = _writable_out(args.out)
+    out = _writable_out(args.out, force=args.force)
     print(plot(source.parent, args.kind, out, theta_i_deg=args.theta_i, phi_i_deg=args.phi_i))
     return 0
 
@@ -136,14 +139,14 @@ def cmd_report(args) -> int:
     from gonio.report import SUFFIXES, parse_models, report
     from gonio.report.html import LEVELS
 
-    out = Path(args.out)
+    out = Path(_not_empty(args.out))
     if out.is_dir():
         raise UsageError(f"--out: {out} is a folder; give a file name ending in .html")
     if out.suffix.lower() not in SUFFIXES:
         raise UsageError(f"--out: {out} must end in .html (the report is one self-contained HTML page)")
     models = parse_models(args.models)  # a bad MODEL is reported before any data is read
     source = finished_campaign(Path(args.dir))
-    out = _writable_out(args.out)
+    out = _writable_out(args.out, force=args.force)
     rep = report(source.parent, out, models)
     print(f"report: {out}")
     for level, topic, text in rep.verdicts:
@@ -168,6 +171,7 @@ def add_parsers(sub, fmt) -> None:
     sf.add_argument("--out", metavar="FIT.json", default=None,
                     help="write parameters, uncertainties, loss and residual statistics as JSON")
     sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")
+    add_force(sf)
     sf.set_defaults(func=cmd_fit)
     se = sub.add_parser("export", formatter_class=fmt,
                         help="export a finished campaign's BRDF to a renderer's or a tool's file format")
@@ -176,6 +180,7 @@ def add_parsers(sub, fmt) -> None:
                     help="merl, bsdf (Mitsuba 3 / pbrt-v4 tensor, RGB), bsdf-spectral, radiance (a folder of "
                          "PAB-Opto files), csv, h5")
     se.add_argument("--out", required=True, metavar="FILE", help="output file (a folder for radiance)")
+    add_force(se)
     se.set_defaults(func=cmd_export)
     sg = sub.add_parser("plot", formatter_class=fmt,
                         help="draw a finished campaign's BRDF (a PNG/PDF figure, or the slice's float "
@@ -188,6 +193,7 @@ def add_parsers(sub, fmt) -> None:
     sg.add_argument("--out", required=True, metavar="FILE", help="FILE.png, FILE.pdf or FILE.exr")
     sg.add_argument("--theta-i", type=float, default=30.0, help="θi of the hemisphere plot, degrees")
     sg.add_argument("--phi-i", type=float, default=0.0, help="φi (plane of incidence), degrees")
+    add_force(sg)
     sg.set_defaults(func=cmd_plot)
     sq = sub.add_parser("report", formatter_class=fmt,
                         help="a finished campaign's report as one self-contained HTML page: the campaign, "
@@ -195,7 +201,8 @@ def add_parsers(sub, fmt) -> None:
     sq.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
     sq.add_argument("--out", required=True, metavar="REPORT.html", help="the page to write")
     sq.add_argument("--models", default=None, metavar="MODELS",
-                    help="comma-separated fit MODELs as for gonio fit (default: lambert, ward, "
-                         "cook-torrance, ggx, lambert+ggx)")
+                    help="comma-separated fit MODELs as for gonio fit (default: lambert, lambert+ward, "
+                         "lambert+cook-torrance, lambert+ggx: gonio.report.DEFAULT_MODELS)")
+    add_force(sq)
     sq.set_defaults(func=cmd_report)
 

@@ -229,7 +229,7 @@ def create_app(d: Daemon) -> FastAPI:
         with q._cond:
             g, rec = q.gantry, q.current
         if g is not None and rec is not None:
-            return snapshot(g, rec.id)
+            return snapshot(g, rec.id, d.cfg)
         return d.gantry.status()
 
     def _idle_only() -> None:

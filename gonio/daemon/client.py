@@ -3,28 +3,45 @@
 The daemon is found at ``--url`` or ``GONIO_URL`` (default ``http://127.0.0.1:8765``); writes carry
 ``GONIO_TOKEN`` as a bearer token. Every failure is one line (:class:`ClientError`): the daemon is not
 running, it refused (with its own reason), or it answered something unexpected.
+
+A submission the daemon did not answer in time (it plans the campaign before it answers, and a busy
+daemon plans slowly) may still be accepted: :meth:`Client.submit` then looks for it in the queue for a
+while, and says so (exit code 4, :data:`ACCEPTED_UNKNOWN`) rather than "no daemon", which would invite a
+duplicate.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 
-__all__ = ["Client", "ClientError", "DEFAULT_URL", "iter_sse"]
+__all__ = ["Client", "ClientError", "DEFAULT_URL", "iter_sse", "NO_DAEMON", "ACCEPTED_UNKNOWN"]
 
 DEFAULT_URL = "http://127.0.0.1:8765"
+#: Exit status: no daemon answered (nothing was sent, or a read that changes nothing went unanswered).
+NO_DAEMON = 3
+#: Exit status: the daemon accepted the campaign, or may have: do not submit it again, look at the queue.
+ACCEPTED_UNKNOWN = 4
+#: Seconds a submission waits for its answer (the daemon plans the campaign first).
+SUBMIT_TIMEOUT_S = 120.0
+#: After a submission went unanswered: how long to look for it in the queue, and how often.
+FIND_S = 60.0
+FIND_POLL_S = 1.0
 
 
 class ClientError(RuntimeError):
-    """One line for the user; ``code`` is the exit status (1: refused or failed, 3: no daemon)."""
+    """One line for the user; ``code`` is the exit status (1: refused or failed, 3: no daemon, 4: the
+    campaign was or may have been accepted). ``sent``: the request may have reached the daemon."""
 
-    def __init__(self, message: str, code: int = 1):
+    def __init__(self, message: str, code: int = 1, sent: bool = True):
         super().__init__(message)
         self.code = code
+        self.sent = sent
 
 
 def _reason(r: httpx.Response) -> str:
@@ -38,6 +55,30 @@ def _reason(r: httpx.Response) -> str:
         msg = d.get("msg", "")
         detail = msg if msg.startswith(f"{loc}:") or not loc else f"{loc}: {msg}"
     return str(detail)
+
+
+def _same_campaign(st: dict, request: dict) -> bool:
+    """Whether the queue's campaign ``st`` is what ``request`` asked for: the same material (normalized)
+    or sample, the same seed, and a grid that spells out to the same one."""
+    from gonio.plan import parse_grid
+
+    if int(st.get("seed", -1)) != int(request.get("seed", 0)) or st.get("sample") != request.get("sample"):
+        return False
+    if request.get("material") is not None:
+        from gonio.sim.materials import load
+
+        try:
+            if load(request["material"]).spec != st.get("material"):
+                return False
+        except ValueError:
+            return False
+    try:
+        want, got = parse_grid(request["grid"]), parse_grid(st["grid"])
+    except ValueError:
+        return False
+    fields = ("kind", "step_deg", "stride", "reciprocity", "mirror")
+    return (all(getattr(want, f) == getattr(got, f) for f in fields)
+            and want.theta_max_deg in (None, got.theta_max_deg) and want.order in ("auto", got.order))
 
 
 def iter_sse(lines: Iterator[str]) -> Iterator[tuple[str, str | None, str]]:
@@ -88,13 +129,13 @@ class Client:
     def request(self, method: str, path: str, **kw) -> httpx.Response:
         try:
             r = self.http.request(method, path, **kw)
-        except httpx.ConnectError:
+        except (httpx.ConnectError, httpx.ConnectTimeout):
             raise ClientError(f"no gonio daemon at {self.url} (start one with `gonio serve`, or set --url / "
-                              "GONIO_URL)", code=3) from None
+                              "GONIO_URL)", code=NO_DAEMON, sent=False) from None
         except httpx.TimeoutException:
-            raise ClientError(f"the daemon at {self.url} did not answer in time", code=3) from None
+            raise ClientError(f"the daemon at {self.url} did not answer in time", code=NO_DAEMON) from None
         except httpx.HTTPError as err:
-            raise ClientError(f"{self.url}: {err}", code=3) from None
+            raise ClientError(f"{self.url}: {err}", code=NO_DAEMON) from None
         if r.status_code == 401:
             raise ClientError(f"the daemon at {self.url} refused: it needs its token (set GONIO_TOKEN)")
         if r.status_code >= 400:
@@ -108,7 +149,30 @@ class Client:
         return self.request("POST", path, json=body, **kw).json()
 
     def submit(self, request: dict) -> dict:
-        return self.post("/campaigns", request)
+        """Submit a campaign; its status. When the daemon does not answer in time, the queue is searched
+        for the campaign (new since the submission, same material or sample, grid and seed): found, its
+        status with ``"found_in_queue": True``; not found, a ClientError with code ACCEPTED_UNKNOWN."""
+        before = {st["id"] for st in self.campaigns()["campaigns"]}
+        try:
+            return self.post("/campaigns", request, timeout=SUBMIT_TIMEOUT_S)
+        except ClientError as err:
+            if err.code != NO_DAEMON or not err.sent:
+                raise
+        deadline = time.monotonic() + FIND_S
+        while True:
+            try:
+                found = [st for st in self.campaigns()["campaigns"]
+                         if st["id"] not in before and _same_campaign(st, request)]
+            except ClientError:
+                found = []
+            if found:
+                return {**found[0], "found_in_queue": True}
+            if time.monotonic() >= deadline:
+                raise ClientError(f"the daemon at {self.url} did not answer the submission within "
+                                  f"{SUBMIT_TIMEOUT_S:g} s, nor show it in its queue within {FIND_S:g} s "
+                                  "more; it may still accept it: look with `gonio queue` before submitting "
+                                  "again", code=ACCEPTED_UNKNOWN)
+            time.sleep(FIND_POLL_S)
 
     def campaigns(self) -> dict:
         return self.get("/campaigns")

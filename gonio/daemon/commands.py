@@ -4,7 +4,8 @@
 ``abort``, ``halt`` and ``fetch`` talk to it (:mod:`gonio.daemon.client`). ``gonio queue [ID]`` shows
 the daemon's queue, or one campaign of it, as ``gonio status ID`` does (``gonio status DIR`` reads a
 campaign folder directly). Each returns an exit status and prints one line on failure:
-1 refused or failed, 2 a usage mistake, 3 no daemon (or lost it).
+1 refused or failed, 2 a usage mistake, 3 no daemon (or lost it), 4 the campaign was (or may have been)
+accepted but the command lost sight of it: do not submit it again (``gonio queue``, ``gonio watch ID``).
 """
 
 from __future__ import annotations
@@ -31,11 +32,13 @@ def _fail(args, err) -> int:
 
 
 def cmd_serve(args) -> int:
+    from gonio.cli.common import refuse_emulated_placeholders
     from gonio.config import load_config
     from gonio.daemon.pacing import check_pace
     from gonio.daemon.server import serve, setup_logging
 
     cfg = load_config(args.config)
+    refuse_emulated_placeholders(cfg, args.config)
     pace = check_pace(args.pace)
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port: must be within [0, 65535], got {args.port}")
@@ -74,11 +77,24 @@ def cmd_submit(args) -> int:
         request["detector"] = detector
 
     def body(c) -> int:
+        from gonio.daemon.client import ACCEPTED_UNKNOWN, NO_DAEMON, ClientError
+
         st = c.submit(request)
         print(st["id"])
+        if st.get("found_in_queue"):
+            print(f"the daemon was slow to answer but accepted the campaign: it is {st['id']} in its queue",
+                  file=sys.stderr)
         print(f"campaign {st['id']}: {st['state']}, {st['poses']} poses of {st['grid']} "
               f"({st['steps']} steps), about {_hms(st['eta_gantry_s'])} of gantry time", file=sys.stderr)
-        return _watch(c, st["id"]) if args.watch else 0
+        if not args.watch:
+            return 0
+        try:
+            return _watch(c, st["id"])
+        except ClientError as err:
+            if err.code != NO_DAEMON:
+                raise
+            raise ClientError(f"campaign {st['id']} was accepted, but {err}; follow it with `gonio watch "
+                              f"{st['id']}` (do not submit it again)", code=ACCEPTED_UNKNOWN) from None
 
     return _run(args, body)
 
@@ -95,8 +111,9 @@ def cmd_queue(args) -> int:
                   f"seed {st['seed']}")
             print(f"  progress: {st['steps_done']}/{st['steps']} steps ({100 * st['progress']:.1f} %), "
                   f"campaign time {_hms(st['campaign_s'])}")
-            eta = f"{_hms(st['eta_wall_s'])} wall, " if st["eta_wall_s"] is not None else ""
-            print(f"  ETA: {eta}about {_hms(st['eta_gantry_s'])} of gantry time left")
+            if st["steps_done"] < st["steps"] and st["state"] != "aborted":
+                eta = f"{_hms(st['eta_wall_s'])} wall, " if st["eta_wall_s"] is not None else ""
+                print(f"  ETA: {eta}about {_hms(st['eta_gantry_s'])} of gantry time left")
             for key in ("latched_fault", "last_fault", "error"):
                 if st[key]:
                     print(f"  {key.replace('_', ' ')}: {st[key]}")

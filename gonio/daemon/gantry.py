@@ -37,9 +37,17 @@ log = logging.getLogger(__name__)
 ANGLES = ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")
 
 
-def snapshot(gantry, owner: str | None, light: bool = True) -> dict:
-    """Axes (position, moving, fault, limits), the arm angles they make, light and detector (``light``
-    False: the lamp is not connected and is not asked)."""
+def reference_fr(cfg: GonioConfig) -> list[float]:
+    """ρ_ref · response of the white standard per detector channel: a reading's ratio to the reference
+    times this over π is f_r in sr⁻¹ (the web view's slice)."""
+    d = cfg.detector
+    return [float(x) for x in cfg.reference.reference_fr(d.channel_names, d.wavelengths_nm)]
+
+
+def snapshot(gantry, owner: str | None, cfg: GonioConfig | None = None, light: bool = True) -> dict:
+    """Axes (position, moving, fault, limits), the arm angles they make, light and detector (with the
+    white standard's :func:`reference_fr` when ``cfg`` is given; ``light`` False: the lamp is not
+    connected and is not asked)."""
     kin = gantry.kinematics
     axes, pos = [], []
     for name in kin.axis_names:
@@ -57,7 +65,8 @@ def snapshot(gantry, owner: str | None, light: bool = True) -> dict:
             "moving": any(a["moving"] for a in axes), "faults": [a["name"] for a in axes if a["fault"]],
             "unreferenced": unreferenced,
             "light": {"name": lamp.name, "on": bool(lamp.is_on()) if light else None},
-            "detector": {"name": gantry.detector.name, "channels": list(gantry.detector.channels)}}
+            "detector": {"name": gantry.detector.name, "channels": list(gantry.detector.channels),
+                         **({"reference_fr": reference_fr(cfg)} if cfg is not None else {})}}
 
 
 class GantryOwner:
@@ -124,7 +133,7 @@ class GantryOwner:
         """The idle gantry's status; answers during a manual move too (reads only; see the module
         docstring)."""
         g = self._idle(readonly=True)
-        return snapshot(g, None, light=not self._readonly)
+        return snapshot(g, None, self.cfg, light=not self._readonly)
 
     def unreferenced(self) -> list[str]:
         """The axes not referenced, looked at read-only (a submitted campaign is refused while any)."""
@@ -162,7 +171,7 @@ class GantryOwner:
             self._halt.clear()
             for leg in np.atleast_2d(legs):
                 self._drive_leg(g, axes, leg)
-            return snapshot(g, None)
+            return snapshot(g, None, self.cfg)
         finally:
             self._lock.release()
 

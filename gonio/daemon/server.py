@@ -172,15 +172,19 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
     check_bind(host, check_token(token))
     d = build_daemon(cfg, data, token=token, pace=pace, hold=hold, max_streams=max_streams,
                      materials=materials, allow_hosts=allow_hosts, halt_needs_token=halt_needs_token)
-    fd = _lock_data(data)
-    # The runner's thread computes (Dr.Jit, numpy) between short waits: hand the GIL over more often than
-    # every 5 ms so that a request thread is not kept waiting behind it.
-    sys.setswitchinterval(0.0005)
+    # The port first: a port that is taken leaves nothing behind in the data folder (no daemon.lock).
     try:
         sock = _listen(host, port)
     except OSError as err:
-        os.close(fd)
         raise ValueError(f"--port: cannot listen on {host}:{port} ({err.strerror or err})") from None
+    try:
+        fd = _lock_data(data)
+    except BaseException:
+        sock.close()
+        raise
+    # The runner's thread computes (Dr.Jit, numpy) between short waits: hand the GIL over more often than
+    # every 5 ms so that a request thread is not kept waiting behind it.
+    sys.setswitchinterval(0.0005)
     bound = sock.getsockname()[1]
     d.hosts.listen(host, bound)
     d.queue.start()

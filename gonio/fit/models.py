@@ -247,10 +247,31 @@ def parse_model(text: str, channels=(0, 1, 2)) -> FitModel:
         items[key] = value
     if diffuse and "rho_d" in items:
         raise _error(norm, "rho_d is what lambert+ fits; drop one of them")
+    _check_fixed(norm, name, items, tuple(channels), anisotropic, diffuse)
     m = FitModel(norm, name, tuple(channels), items, anisotropic)
     m.variables = _variables(m, diffuse)
     m.base = _base_material(m)
     return m
+
+
+def _check_fixed(text: str, name: str, items: dict, channels, anisotropic: bool, diffuse: bool) -> None:
+    """A value held fixed must lie within the bounds the fit gives that key when it is free: the model
+    is then one the fit could have found (``ggx:alpha=5`` is a material, but no fit of ggx goes there)."""
+    structure = {k: v for k, v in items.items() if k in _structure_keys(name)}
+    free = FitModel(text, name, channels, structure, anisotropic)
+    bounds = {v.key: (v.lo, v.hi) for v in _variables(free, diffuse)}
+    for key, value in items.items():
+        if key not in bounds:
+            continue
+        lo, hi = bounds[key]
+        for part in value.split("/"):
+            try:
+                x = float(part)
+            except ValueError:
+                continue   # not a number: load() names it with the material's own message
+            if not lo <= x <= hi:
+                raise _error(text, f"{key}={value} is outside the range the fit uses for {key}, "
+                                   f"[{format_number(lo)}, {format_number(hi)}]")
 
 
 def _colour_vars(m: FitModel, key: str, lo=0.0, hi=1.0, start=0.5, fraction=False) -> list[Variable]:

@@ -1,27 +1,9 @@
 """GRID strings: parsing, validation and enumeration of the poses a campaign measures.
 
-Grammar: ``KIND:OPTION=VALUE[,OPTION=VALUE...]``, spaces ignored, each option at most once.
-
-=========  ==========================================================================================
-kind       poses
-=========  ==========================================================================================
-``iso``    θi, θo in {0, S, 2S, …} <= theta_max; Δφ = φo − φi in {0, S, …} < 360°; measured with
-           φi = 0, φo = Δφ (an isotropic sample). Options: ``step`` (required), ``theta_max``,
-           ``reciprocity``, ``mirror``, ``isotropy`` (true only), ``order``.
-``full``   θi, φi, θo, φo on the same S-degree lattice (an anisotropic sample). Options: ``step``
-           (required), ``theta_max``, ``reciprocity``, ``isotropy`` (false only), ``order``.
-``merl``   centres of every K-th MERL bin along θh, θd and φd, with φh = 0. Options: ``stride``
-           (required), ``theta_max``, ``reciprocity``, ``isotropy`` (true only), ``order``.
-=========  ==========================================================================================
-
-Options: ``step`` degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ + 180° stay on the grid);
-``stride`` an integer 1..90; ``theta_max`` degrees in (0, 90] (default: the config's
-``kinematics.theta_max_deg``); ``reciprocity`` true|false (default true): keep one pose of each
-Helmholtz pair (ωi, ωo) ~ (ωo, ωi); ``mirror`` true|false (iso only, default false): also identify
-Δφ with −Δφ; ``order`` auto|serpentine|raster|tour|fly (default auto: the serpentine for full; for
-iso the serpentine, or the tour when that is estimated quicker on a grid of up to 10,000 poses; a
-tour for merl; fly, iso and full only: the serpentine's poses read while one
-axis sweeps each line, :mod:`gonio.plan.fly`).
+Grammar: ``KIND:OPTION=VALUE[,OPTION=VALUE...]``, spaces ignored, each option at most once. The kinds
+(``iso``, ``full``, ``merl``), the poses each measures and the options each takes are the registry
+:data:`GRID_KINDS`; what each option takes, its default and what it does, :data:`GRID_OPTIONS`
+(:func:`grid_help` writes both out: ``gonio plan --help``).
 
 Count stages, in order (each the number of poses left after it): ``grid`` (the raw lattice), then
 ``pole_collapse`` (iso, full: one azimuth where θ = 0), ``reciprocity`` (when on), ``mirror`` (iso, when
@@ -38,18 +20,39 @@ import numpy as np
 from gonio.geometry import MERL_SHAPE, from_half_diff, merl_bin_centres, vec_to_sph
 
 __all__ = ["GridSpec", "GridPoses", "parse_grid", "enumerate_grid", "pose_bound", "check_pose_bound",
-           "KINDS", "ORDERS", "MAX_POSES"]
+           "class_members", "KINDS", "ORDERS", "MAX_POSES", "GRID_KINDS", "GRID_OPTIONS", "grid_help"]
 
-KINDS = ("iso", "full", "merl")
 ORDERS = ("auto", "serpentine", "raster", "tour", "fly")
 #: A plan holds at most this many poses (memory and time stay within a workstation's reach).
 MAX_POSES = 3_000_000
 
-_OPTIONS = {
-    "iso": ("step", "theta_max", "reciprocity", "mirror", "isotropy", "order"),
-    "full": ("step", "theta_max", "reciprocity", "isotropy", "order"),
-    "merl": ("stride", "theta_max", "reciprocity", "isotropy", "order"),
+#: The registry of grid kinds: the poses each measures and the options it takes (the parser accepts
+#: exactly these; ``gonio plan --help`` lists them from here).
+GRID_KINDS = {
+    "iso": ("θi, θo in {0, S, 2S, ...} <= theta_max; Δφ = φo − φi in {0, S, ...} < 360°, measured with "
+            "φi = 0, φo = Δφ (an isotropic sample)",
+            ("step", "theta_max", "reciprocity", "mirror", "isotropy", "order")),
+    "full": ("θi, φi, θo, φo on the same S-degree lattice (an anisotropic sample)",
+             ("step", "theta_max", "reciprocity", "isotropy", "order")),
+    "merl": ("centres of every K-th MERL bin along θh, θd and φd, with φh = 0 (an isotropic sample)",
+             ("stride", "theta_max", "reciprocity", "isotropy", "order")),
 }
+#: The registry of grid options: what each takes, its default and what it does.
+GRID_OPTIONS = {
+    "step": "S degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ + 180° stay on the grid); required",
+    "stride": "K, an integer from 1 to 90; required",
+    "theta_max": "degrees in (0, 90]; default: the config's kinematics.theta_max_deg",
+    "reciprocity": "true|false, default true: measure one pose of each Helmholtz pair (ωi, ωo) ~ (ωo, ωi)",
+    "mirror": "true|false, default false: also identify Δφ with −Δφ (a sample symmetric about its "
+              "plane of incidence)",
+    "isotropy": "true for iso and merl, false for full: states the assumption the kind already makes "
+                "(accepted for clarity, it changes nothing; the other value is refused)",
+    "order": f"{'|'.join(ORDERS)}, default auto: serpentine sweeps (full; iso unless the tour is "
+             "estimated quicker, up to 10,000 poses), a tour (merl), raster, or fly: the serpentine's poses "
+             "read while one axis sweeps each line (iso and full)",
+}
+KINDS = tuple(GRID_KINDS)
+_OPTIONS = {kind: options for kind, (_, options) in GRID_KINDS.items()}
 _BOOLS = {"true": True, "false": False}
 # Tolerance on "step divides 360" and on θ <= theta_max for values that come from decimal degrees.
 _DIV_TOL = 1e-9
@@ -129,6 +132,25 @@ class GridPoses:
     phi_o: np.ndarray
     loops: np.ndarray
     counts: dict[str, int]
+
+
+def grid_help() -> str:
+    """Every grid kind and option of the registries, as text (``gonio plan --help``).
+
+    >>> "isotropy" in grid_help() and "merl:stride=K" in grid_help()
+    True
+    """
+    import textwrap
+
+    lines = ["GRID is KIND:OPTION=VALUE,... with KIND one of:"]
+    for kind, (poses, options) in GRID_KINDS.items():
+        size = "stride=K" if "stride" in options else "step=S"
+        lines += textwrap.wrap(f"{kind}:{size}  {poses}; options: {', '.join(options)}", 100,
+                               initial_indent="  ", subsequent_indent="      ")
+    lines.append("options:")
+    for option, text in GRID_OPTIONS.items():
+        lines += textwrap.wrap(f"{option}: {text}", 100, initial_indent="  ", subsequent_indent="      ")
+    return "\n".join(lines)
 
 
 def parse_grid(grid: str) -> GridSpec:

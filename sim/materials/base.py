@@ -101,6 +101,10 @@ class Material:
     model: ClassVar[str] = ""
     reciprocal: ClassVar[bool] = True
     energy_conserving: ClassVar[bool] = False
+    #: Specs that together read every key of the model (the catalogue lists keys from them; tested).
+    EXAMPLES: ClassVar[tuple[str, ...]] = ()
+    #: The spec's form where it is not key=value (a file path), e.g. ``merl:PATH``.
+    USAGE: ClassVar[str] = ""
     channels = ("R", "G", "B")
 
     def __init__(self, spec: str, *, isotropic: bool = True):

@@ -34,6 +34,7 @@ class MeasuredTensor(Material):
     """A tensor-file measured BSDF (see the module docstring)."""
 
     model = "bsdf"
+    USAGE = "bsdf:PATH (a Mitsuba 3 / pbrt-v4 measured-BSDF tensor file)"
     reciprocal = False
     energy_conserving = False
 

@@ -51,6 +51,10 @@ class CookTorrance(Material):
     reciprocal = True
     energy_conserving = False
     KEYS = ("d", "m", "fresnel", "metal", "eta", "k", "denom", "rho_d", "rho_s")
+    EXAMPLES = ("cook-torrance:d=beckmann,m=0.2,metal=gold",
+                "cook-torrance:d=blinn,m=0.3,fresnel=dielectric,eta=1.5,denom=4",
+                "cook-torrance:d=gaussian,m=0.2,fresnel=conductor,eta=0.37,k=2.82,rho_d=0.1",
+                "cook-torrance:d=beckmann,m=0.3,fresnel=none")
 
     def __init__(self, spec: str, distribution: str, m: float, fresnel: str, fresnel_params: dict,
                  denom: str, rho_d, rho_s):

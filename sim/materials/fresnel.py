@@ -82,6 +82,10 @@ def dielectric(cos_theta, eta):
     return dr.select(sin2_t >= 1, 1, 0.5 * (r_par * r_par + r_perp * r_perp))
 
 
+_FRESNEL_RULE = ("say how the facets reflect: metal=NAME (" + ", ".join(METALS) + "), fresnel=conductor "
+                 "with eta and k, fresnel=dielectric with eta, or fresnel=none")
+
+
 def read_fresnel(p) -> tuple[str, dict]:
     """Read the Fresnel keys of a microfacet spec: ``fresnel``, ``metal``, ``eta``, ``k``.
 
@@ -95,6 +99,7 @@ def read_fresnel(p) -> tuple[str, dict]:
     (form, parameters) : str, dict
         form is one of :data:`FRESNEL_FORMS`; parameters has RGB tuples ``eta`` and ``k`` as needed.
     """
+    p.rule(_FRESNEL_RULE)
     if p.has("metal"):
         p.reject(("eta", "k"), "together with 'metal' (the metal sets eta and k)")
         p.choice("fresnel", ("conductor",), "conductor", context="when 'metal' is given")
@@ -102,8 +107,7 @@ def read_fresnel(p) -> tuple[str, dict]:
         eta, k = METALS[metal]
         return "conductor", {"eta": eta, "k": k}
     if not p.has("fresnel") and not p.has("eta") and not p.has("k"):
-        raise p.error("say how the facets reflect: metal=NAME (" + ", ".join(METALS) + "), "
-                      "fresnel=conductor with eta and k, fresnel=dielectric with eta, or fresnel=none")
+        raise p.error(_FRESNEL_RULE)
     default = "conductor" if p.has("k") else "dielectric" if p.has("eta") else None
     form = p.choice("fresnel", FRESNEL_FORMS, default)
     if form == "none":

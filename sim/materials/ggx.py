@@ -48,6 +48,9 @@ class GGX(Material):
     reciprocal = True
     energy_conserving = True
     KEYS = ("alpha", "alpha_u", "alpha_v", "fresnel", "metal", "eta", "k", "smith", "rho_d", "rho_s")
+    EXAMPLES = ("ggx:alpha=0.2,metal=gold", "ggx:alpha=0.15,metal=copper,rho_d=0.2,rho_s=0.8",
+                "ggx:alpha_u=0.1,alpha_v=0.3,fresnel=conductor,eta=0.2,k=3",
+                "ggx:alpha=0.2,fresnel=dielectric,eta=1.5,smith=correlated", "ggx:alpha=0.2,fresnel=none")
 
     def __init__(self, spec: str, alpha_u: float, alpha_v: float, fresnel: str, fresnel_params: dict,
                  smith: str, rho_d, rho_s):

@@ -21,6 +21,7 @@ class Lambert(Material):
     reciprocal = True
     energy_conserving = True
     KEYS = ("albedo",)
+    EXAMPLES = ("lambert:albedo=0.8", "lambert:albedo=0.8/0.6/0.4")
 
     def __init__(self, spec: str, albedo):
         super().__init__(spec)

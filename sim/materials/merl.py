@@ -77,6 +77,7 @@ class Merl(Material):
     """
 
     model = "merl"
+    USAGE = "merl:PATH (a MERL .binary table; the nearest bin, no-data bins read as 0)"
     reciprocal = True
     energy_conserving = False
 

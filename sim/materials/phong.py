@@ -111,6 +111,7 @@ class Phong(_CosineLobe):
     conserving. Spec ``phong:ks=0.5,ke=20[,rho_d=0.1]``."""
 
     model = "phong"
+    EXAMPLES = ("phong:ks=0.5,ke=20",)
     reciprocal = False
     energy_conserving = False
 
@@ -120,6 +121,7 @@ class ModifiedPhong(_CosineLobe):
     Spec ``modified-phong:ks=0.5,ke=20[,rho_d=0.1]`` with rho_d + ks <= 1."""
 
     model = "modified-phong"
+    EXAMPLES = ("modified-phong:ks=0.5,ke=20,rho_d=0.3",)
     reciprocal = True
     energy_conserving = True
 
@@ -135,6 +137,7 @@ class BlinnPhong(_CosineLobe):
     conserving. Spec ``blinn-phong:ks=0.5,ke=20[,rho_d=0.1]``."""
 
     model = "blinn-phong"
+    EXAMPLES = ("blinn-phong:ks=0.5,ke=20",)
     reciprocal = False
     energy_conserving = False
     uses_half_vector = True
@@ -145,6 +148,7 @@ class NormalizedBlinnPhong(_CosineLobe):
     Spec ``normalized-blinn-phong:ks=0.5,ke=20[,rho_d=0.1]`` with rho_d + ks <= 1."""
 
     model = "normalized-blinn-phong"
+    EXAMPLES = ("normalized-blinn-phong:ks=0.5,ke=20",)
     reciprocal = True
     energy_conserving = True
     uses_half_vector = True

@@ -12,11 +12,30 @@ that mean the same material compare equal.
 
 from __future__ import annotations
 
+import contextvars
 import math
 
-__all__ = ["Params", "split_spec", "format_number"]
+__all__ = ["Params", "split_spec", "format_number", "recording"]
 
 RGB = ("R", "G", "B")
+
+#: While set (:func:`recording`), every key a model reads, and every rule across keys, is appended here:
+#: how :mod:`.catalog` lists each model's keys, ranges and defaults from the parsers themselves.
+_RECORD: contextvars.ContextVar[list | None] = contextvars.ContextVar("gonio_material_keys", default=None)
+
+
+class recording:
+    """``with recording() as notes: load(spec)``: ``notes`` is then the list of what the model's parser
+    read, in order: dicts with ``kind`` ``number``, ``colour``, ``word`` (``key``, ``what``, ``default``,
+    ``options`` for words, ``context`` the words chosen before it) or ``rule`` (``text``)."""
+
+    def __enter__(self) -> list:
+        self.notes: list = []
+        self._token = _RECORD.set(self.notes)
+        return self.notes
+
+    def __exit__(self, *exc) -> None:
+        _RECORD.reset(self._token)
 
 
 def format_number(x: float) -> str:
@@ -33,14 +52,19 @@ def split_spec(spec: str) -> tuple[str, str]:
     return name.strip().lower(), rest.strip()
 
 
+def _bound(x: float) -> str:
+    """A range's bound as a person reads it: π/2 is 1.5708 (to 6 digits), 1 is 1."""
+    return format_number(float(f"{x:.6g}"))
+
+
 def _range_text(lo, hi, lo_open, hi_open) -> str:
     if lo is not None and hi is not None:
         left, right = "(" if lo_open else "[", ")" if hi_open else "]"
-        return f"in {left}{format_number(lo)}, {format_number(hi)}{right}"
+        return f"in {left}{_bound(lo)}, {_bound(hi)}{right}"
     if lo is not None:
-        return f"{'>' if lo_open else '>='} {format_number(lo)}"
+        return f"{'>' if lo_open else '>='} {_bound(lo)}"
     if hi is not None:
-        return f"{'<' if hi_open else '<='} {format_number(hi)}"
+        return f"{'<' if hi_open else '<='} {_bound(hi)}"
     return "a finite number"
 
 
@@ -65,6 +89,7 @@ class Params:
         self.allowed = tuple(allowed)
         self._raw: dict[str, str] = {}
         self._used: list[tuple[str, str]] = []
+        self._words: dict[str, str] = {}
         for position, item in enumerate(text.split(",") if text else [], start=1):
             key, eq, value = item.partition("=")
             key, value = key.strip().lower(), value.strip()
@@ -75,6 +100,15 @@ class Params:
             if key in self._raw:
                 raise self.error(f"parameter {key!r} is given twice")
             self._raw[key] = value
+
+    def _note(self, kind: str, **entry) -> None:
+        notes = _RECORD.get()
+        if notes is not None:
+            notes.append({"kind": kind, "context": dict(self._words), **entry})
+
+    def rule(self, text: str) -> None:
+        """A rule across keys (what a combination must be), for the catalogue of models."""
+        self._note("rule", text=text)
 
     def error(self, message: str) -> ValueError:
         """A ValueError prefixed with the model name."""
@@ -104,6 +138,7 @@ class Params:
                hi_open=False, unit: str = "") -> float:
         """One real number in the stated range (``lo``/``hi`` inclusive unless ``*_open``)."""
         what = _range_text(lo, hi, lo_open, hi_open) + (f" {unit}" if unit else "")
+        self._note("number", key=key, what=what, default=default)
         text = self._take(key, default, f"a number {what}")
         if "/" in (text or ""):
             raise self.error(f"parameter {key!r} takes one number, not R/G/B values, got {text!r}")
@@ -116,6 +151,7 @@ class Params:
                hi_open=False) -> tuple[float, float, float]:
         """One number for R, G and B, or three separated by ``/``; each in the stated range."""
         what = _range_text(lo, hi, lo_open, hi_open)
+        self._note("colour", key=key, what=what, default=default)
         text = self._take(key, default, f"one number {what} or three as R/G/B")
         if text is None:
             values = (float(default),) * 3
@@ -136,16 +172,19 @@ class Params:
     def choice(self, key: str, options, default: str | None = None, *, context: str = "") -> str:
         """One word out of ``options``; ``context`` (e.g. "with metal=...") is added to errors."""
         options = tuple(options)
+        self._note("word", key=key, what=f"one of {', '.join(options)}", options=options, default=default)
         text = self._take(key, default, f"one of {', '.join(options)}")
         value = default if text is None else text.lower()
         if value not in options:
             where = f" {context}" if context else ""
             raise self.error(f"parameter {key!r} must be one of {', '.join(options)}{where}, got {text!r}")
         self._used.append((key, value))
+        self._words[key] = value
         return value
 
     def roughness(self, iso: str, aniso: tuple[str, str]) -> tuple[float, float]:
         """Either ``iso`` (the same along x and y) or both keys of ``aniso``; each > 0."""
+        self.rule(f"give {iso}, or both {aniso[0]} and {aniso[1]} (anisotropic)")
         if self.has(iso):
             self.reject(aniso, f"together with {iso!r} (give either {iso} or both {aniso[0]} and {aniso[1]})")
             a = self.number(iso, lo=0.0, lo_open=True)
@@ -170,6 +209,7 @@ class Params:
 
     def at_most_one(self, weights: dict[str, tuple[float, float, float]], why: str) -> None:
         """Raise unless the per-channel sum of ``weights`` is <= 1 (e.g. rho_d + ks for energy)."""
+        self.rule(f"{' + '.join(weights)} <= 1 in each channel ({why})")
         for i, channel in enumerate(RGB):
             total = sum(w[i] for w in weights.values())
             if total > 1.0 + 1e-12:

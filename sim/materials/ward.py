@@ -37,6 +37,7 @@ class Ward(Material):
     reciprocal = True
     energy_conserving = False
     KEYS = ("rho_d", "rho_s", "alpha", "alpha_x", "alpha_y")
+    EXAMPLES = ("ward:rho_d=0.1,rho_s=0.05,alpha=0.1", "ward:rho_d=0.1,rho_s=0.05,alpha_x=0.1,alpha_y=0.3")
 
     def __init__(self, spec: str, rho_d, rho_s, alpha_x: float, alpha_y: float):
         super().__init__(spec, isotropic=alpha_x == alpha_y)

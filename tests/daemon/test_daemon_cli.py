@@ -84,3 +84,83 @@ def test_one_clear_line_when_there_is_no_daemon_or_it_refuses(serve, env, capsys
     capsys.readouterr()
     assert main(["status", "c00001", "--url", "http://127.0.0.1:9"]) == 3
     assert capsys.readouterr().err.strip().startswith("gonio status: no gonio daemon at http://127.0.0.1:9")
+
+
+@pytest.fixture
+def slow_planning(monkeypatch):
+    """The daemon plans a submission only once ``release`` is set (a daemon under load); the client
+    gives up waiting for the answer after 0.3 s and looks in the queue every 10 ms."""
+    import threading
+
+    import gonio.daemon.client as client
+    import gonio.daemon.queue as queue
+
+    release = threading.Event()
+    real = queue.validate_request
+
+    def validate(cfg, req):
+        assert release.wait(30.0), "the test never released the planning"
+        return real(cfg, req)
+
+    monkeypatch.setattr(queue, "validate_request", validate)
+    monkeypatch.setattr(client, "SUBMIT_TIMEOUT_S", 0.3)
+    monkeypatch.setattr(client, "FIND_POLL_S", 0.01)
+    yield release
+    release.set()
+
+
+def test_submit_watch_under_load_finds_the_campaign_the_daemon_accepted(serve, env, slow_planning,
+                                                                         monkeypatch, capsys):
+    """It said 'did not answer in time' and exited 3 (no daemon) while the daemon went on to accept the
+    campaign: a user resubmitted and got a duplicate."""
+    from gonio.daemon.client import Client
+
+    r = serve()
+    env(r.url)
+    real, calls = Client.campaigns, []
+
+    def campaigns(self):
+        calls.append(1)
+        if len(calls) == 2:          # the client has given up on the answer and looks in the queue
+            slow_planning.set()
+        return real(self)
+
+    monkeypatch.setattr(Client, "campaigns", campaigns)
+    assert main(["submit", "lambert:albedo=0.5", "--grid", "iso:step=30", "--seed", "3", "--watch"]) == 0
+    out = capsys.readouterr()
+    assert out.out.strip() == "c00001"
+    assert "slow to answer but accepted the campaign: it is c00001" in out.err
+    assert "campaign c00001: done" in out.err
+    assert [st["id"] for st in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]
+
+
+def test_a_submission_still_unanswered_says_not_to_submit_again(serve, env, slow_planning, monkeypatch,
+                                                                capsys):
+    import gonio.daemon.client as client
+
+    monkeypatch.setattr(client, "FIND_S", 0.2)
+    r = serve()
+    env(r.url)
+    assert main(["submit", "lambert:albedo=0.5", "--grid", "iso:step=30"]) == 4
+    err = capsys.readouterr().err.strip()
+    assert "may still accept it" in err and "gonio queue" in err and "no gonio daemon" not in err
+    assert "\n" not in err
+    slow_planning.set()              # and the daemon does accept it, once
+    wait_for(lambda: r.client.get("/campaigns").json()["campaigns"], "the campaign in the queue")
+
+
+def test_watch_after_the_daemon_accepted_says_so_when_it_loses_the_daemon(serve, env, monkeypatch, capsys):
+    from gonio.daemon.client import Client, ClientError
+
+    r = serve()
+    env(r.url)
+
+    def events(self, cid, last_event_id=None):
+        raise ClientError(f"lost the daemon at {self.url} (ReadError); run the same command to watch again",
+                          code=3)
+        yield   # a generator, as the real one
+
+    monkeypatch.setattr(Client, "events", events)
+    assert main(["submit", "lambert:albedo=0.5", "--grid", "iso:step=30", "--watch"]) == 4
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "campaign c00001 was accepted" in err and "gonio watch c00001" in err and "do not submit" in err

@@ -68,3 +68,41 @@ def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_p
     if st["state"] == "halted":
         page.wait_for_function("document.querySelector('#message').textContent.startsWith('halt')")
     r.client.post("/campaigns/c00001/abort")
+
+
+def test_the_web_view_says_what_it_shows_in_sr_and_nothing_overlaps(serve, page, tmp_path):
+    """The card read 'Running: c00001 done' with an ETA, the slice had no zero, no legend and f_r in
+    units of ρ_ref/π, the arms' labels lay on top of each other at 0°, and there was no favicon."""
+    r = serve()
+    submit(r.client, grid="iso:step=30", material="lambert:albedo=0.5")
+    wait_state(r.client, "c00001", "done")
+    bad = []
+    page.on("response", lambda resp: resp.status >= 400 and bad.append((resp.status, resp.url)))
+    page.goto(r.url + "/")
+    page.wait_for_function("document.querySelector('#run-state').textContent === 'done'")
+    # every in-plane reading replayed (the label counts them), and the reference's reflectance known
+    page.wait_for_function("document.querySelector('#slice').dataset.fmax > 0 && "
+                           "document.querySelector('#slice-label').textContent.includes('f_r in sr⁻¹)')")
+    title = " ".join(page.text_content("#running-panel h2").split())
+    assert title == "Campaign c00001 done" and "Running" not in title
+    assert "ETA" not in page.text_content("#run-progress")
+    assert page.get_attribute("#bar-fill", "style").replace(" ", "") in ("width:100%;", "width:100.0%;")
+    # a Lambertian of albedo 0.5 is 0.5/π sr⁻¹ in every direction (it read 0.505 in units of ρ_ref/π)
+    fmax = float(page.get_attribute("#slice", "data-fmax"))
+    assert abs(fmax / (0.5 / np.pi) - 1) < 0.03, fmax
+    assert int(page.get_attribute("#slice", "data-incidences")) >= 2
+    # parked at home: both arms point up, and their labels must not overlap
+    import json
+
+    page.wait_for_function("document.querySelector('#sketch').dataset.labels")
+    a, b = json.loads(page.get_attribute("#sketch", "data-labels"))
+    assert "θi 0.0°" in page.text_content("#pose") and "θo 0.0°" in page.text_content("#pose")
+    assert a["x"] + a["w"] <= b["x"] or b["x"] + b["w"] <= a["x"] or a["y"] + a["h"] <= b["y"] \
+        or b["y"] + b["h"] <= a["y"], (a, b)
+    assert page.get_attribute("link[rel=icon]", "href").startswith("data:image/svg+xml")
+    assert bad == [], bad
+    shot = tmp_path / "done.png"
+    page.screenshot(path=str(shot), full_page=True)
+    keep = os.environ.get("GONIO_WEB_SCREENSHOT")
+    if keep:
+        shutil.copy(shot, Path(keep).with_name("done-" + Path(keep).name))

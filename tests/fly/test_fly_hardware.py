@@ -322,8 +322,10 @@ def test_a_servo_hardware_error_mid_sweep_faults_naming_the_axis(tmp_path):
 
 
 def test_gonio_run_refuses_order_fly_where_a_sweeping_axis_is_not_a_dynamixel_servo(tmp_path, capsys):
+    # the real config (its emulated twin names placeholder ports, refused first): refused before any
+    # controller is connected
     out = tmp_path / "run"
-    code = main(["run", "--config", "emulated-sample-stage-modbus", "--grid", GRID + ",order=fly",
+    code = main(["run", "--config", "sample-stage-modbus", "--grid", GRID + ",order=fly",
                  "--out", str(out), "--sample", "x"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
