@@ -27,8 +27,10 @@ DEFAULT_URL = "http://127.0.0.1:8765"
 NO_DAEMON = 3
 #: Exit status: the daemon accepted the campaign, or may have: do not submit it again, look at the queue.
 ACCEPTED_UNKNOWN = 4
-#: Seconds a submission waits for its answer (the daemon plans the campaign first).
-SUBMIT_TIMEOUT_S = 120.0
+#: Seconds a submission waits for its answer: longer than the daemon may plan it (its planner stops after
+#: gonio.daemon.planner.PLAN_TIMEOUT_S of CPU time, at most WALL_FACTOR times that of wall time, 600 s),
+#: since the daemon drops a submission whose client has gone away.
+SUBMIT_TIMEOUT_S = 660.0
 #: After a submission went unanswered: how long to look for it in the queue, and how often.
 FIND_S = 60.0
 FIND_POLL_S = 1.0

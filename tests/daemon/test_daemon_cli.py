@@ -87,29 +87,39 @@ def test_one_clear_line_when_there_is_no_daemon_or_it_refuses(serve, env, capsys
 
 
 @pytest.fixture
-def slow_planning(monkeypatch):
-    """The daemon plans a submission only once ``release`` is set (a daemon under load); the client
-    gives up waiting for the answer after 0.3 s and looks in the queue every 10 ms."""
+def slow_admission(monkeypatch):
+    """The daemon plans a submission, then admits it only once ``release`` is set (a daemon under load:
+    the answer comes after the client gave up waiting, which it does after 5 s, looking in the queue
+    every 10 ms). A client that leaves while the campaign is still being planned cancels it; one that
+    leaves while it is being admitted does not: that is the case where a campaign was accepted and its
+    client never heard."""
     import threading
 
     import gonio.daemon.client as client
-    import gonio.daemon.queue as queue
+    from gonio.daemon.queue import CampaignQueue
 
     release = threading.Event()
-    real = queue.validate_request
+    real = CampaignQueue.admit
 
-    def validate(cfg, req):
-        assert release.wait(30.0), "the test never released the planning"
-        return real(cfg, req)
+    def admit(self, *args, **kw):
+        assert release.wait(30.0), "the test never released the admission"
+        return real(self, *args, **kw)
 
-    monkeypatch.setattr(queue, "validate_request", validate)
-    monkeypatch.setattr(client, "SUBMIT_TIMEOUT_S", 0.3)
+    monkeypatch.setattr(CampaignQueue, "admit", admit)
+    monkeypatch.setattr(client, "SUBMIT_TIMEOUT_S", 5.0)
     monkeypatch.setattr(client, "FIND_POLL_S", 0.01)
     yield release
     release.set()
 
 
-def test_submit_watch_under_load_finds_the_campaign_the_daemon_accepted(serve, env, slow_planning,
+def test_a_submission_waits_longer_than_the_daemon_may_plan():
+    from gonio.daemon.client import SUBMIT_TIMEOUT_S
+    from gonio.daemon.planner import PLAN_TIMEOUT_S, WALL_FACTOR
+
+    assert SUBMIT_TIMEOUT_S > PLAN_TIMEOUT_S * WALL_FACTOR
+
+
+def test_submit_watch_under_load_finds_the_campaign_the_daemon_accepted(serve, env, slow_admission,
                                                                          monkeypatch, capsys):
     """It said 'did not answer in time' and exited 3 (no daemon) while the daemon went on to accept the
     campaign: a user resubmitted and got a duplicate."""
@@ -122,7 +132,7 @@ def test_submit_watch_under_load_finds_the_campaign_the_daemon_accepted(serve, e
     def campaigns(self):
         calls.append(1)
         if len(calls) == 2:          # the client has given up on the answer and looks in the queue
-            slow_planning.set()
+            slow_admission.set()
         return real(self)
 
     monkeypatch.setattr(Client, "campaigns", campaigns)
@@ -134,7 +144,7 @@ def test_submit_watch_under_load_finds_the_campaign_the_daemon_accepted(serve, e
     assert [st["id"] for st in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]
 
 
-def test_a_submission_still_unanswered_says_not_to_submit_again(serve, env, slow_planning, monkeypatch,
+def test_a_submission_still_unanswered_says_not_to_submit_again(serve, env, slow_admission, monkeypatch,
                                                                 capsys):
     import gonio.daemon.client as client
 
@@ -145,7 +155,7 @@ def test_a_submission_still_unanswered_says_not_to_submit_again(serve, env, slow
     err = capsys.readouterr().err.strip()
     assert "may still accept it" in err and "gonio queue" in err and "no gonio daemon" not in err
     assert "\n" not in err
-    slow_planning.set()              # and the daemon does accept it, once
+    slow_admission.set()              # and the daemon does accept it, once
     wait_for(lambda: r.client.get("/campaigns").json()["campaigns"], "the campaign in the queue")
 
 

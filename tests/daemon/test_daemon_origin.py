@@ -61,13 +61,17 @@ def test_cross_site_forms_and_no_cors_fetches_are_refused_while_a_campaign_runs(
         try:
             # Another site (attacker.test), and the same site on another port (127.0.0.1:1).
             for origin in ("http://attacker.test/", f"http://127.0.0.1:{int(port) % 60000 + 1}/"):
-                page, seen = _page_at(browser, origin, '<html><body><iframe name="sink"></iframe></body>')
+                page, seen = _page_at(browser, origin, '<html><body></body></html>')
                 for path in ATTACKS:
                     for enctype in ("text/plain", "application/x-www-form-urlencoded"):
                         with page.expect_response(f"{daemon}{path}") as resp:
+                            # A frame of its own for each form: a submission into a frame still
+                            # loading the last answer was sometimes never sent.
                             page.evaluate("""([url, enctype]) => {
+                                const sink = document.createElement('iframe');
+                                sink.name = 'sink' + Math.random(); document.body.appendChild(sink);
                                 const f = document.createElement('form');
-                                f.method = 'POST'; f.action = url; f.enctype = enctype; f.target = 'sink';
+                                f.method = 'POST'; f.action = url; f.enctype = enctype; f.target = sink.name;
                                 const i = document.createElement('input');
                                 i.name = '{"grid": "iso:step=30", "material": "lambert:albedo=0.5", "x';
                                 i.value = '"}';
