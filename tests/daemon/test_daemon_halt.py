@@ -50,7 +50,7 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
         except httpx.ReadTimeout:
             results.append(0)    # a submit that gave up waiting (its planning is cancelled)
 
-    # Seconds of planning each; their clients give up after 10 s, which cancels them.
+    # Seconds of planning each on a slow machine; their clients give up after 10 s, which cancels them.
     slow_grid = {"material": "lambert:albedo=0.5", "grid": "iso:step=2"}
     threads = [threading.Thread(target=call, args=("GET", "/campaigns")) for _ in range(60)]
     threads += [threading.Thread(target=call, args=("POST", "/campaigns", 10.0), kwargs={"json": slow_grid})
@@ -78,6 +78,8 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
             t.join(WAIT_S)
     st = wait_state(r.client, "c00001", "halted")
     assert st["steps_done"] < st["steps"]
-    assert set(results) <= {0, 200}                            # the reads answered in the end, none failed
+    # The reads answered in the end and none failed; a submit whose planning ended before its client gave up (a
+    # fast machine) is admitted once its admission is released (201).
+    assert set(results) <= {0, 200, 201}
     wait_for(lambda: not r.daemon.planner.busy, "the abandoned submits to be cancelled")
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]

@@ -131,13 +131,19 @@ def _samples(path: Path) -> dict:
         return {k: f["samples"][k][()] for k in f["samples"]}
 
 
+PACE = "0.01"
+
+
 def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_result(tmp_path):
     material, grid, seed = "ggx:alpha=0.2,metal=gold", "iso:step=12", 5
     ref = _reference(tmp_path, material, grid, seed)
     data = tmp_path / "data"
     folder = data / "campaigns" / "c00001"
     rng = random.Random(7)
-    s = Serve(data, "--pace", "0")
+    # Paced at 10 ms of wall time per gantry second (~10 ms a step): a kill, which waits for at most total // 14
+    # more steps or 0.3 s, lands well before the end however fast the machine (unpaced, a fast machine ran the
+    # rest of the campaign within a kill's wait). Pacing spends wall time only: the readings are the same.
+    s = Serve(data, "--pace", PACE)
     s.client.post("/campaigns", json={"material": material, "grid": grid, "seed": seed}).raise_for_status()
     total = Journal.open(folder / JOURNAL_NAME, readonly=True).step_count()
     kills, progress = 0, []
@@ -152,7 +158,7 @@ def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_resul
         kills += 1
         progress.append(_done(folder))
         assert progress[-1] < total, "the campaign finished before its kill"
-        s = Serve(data, "--pace", "0")
+        s = Serve(data, "--pace", PACE)
     wait_for(lambda: s.client.get("/campaigns/c00001").json()["state"] == "done", "the campaign to finish")
     assert s.stop() == 0
     assert kills >= 5 and len(set(progress)) >= 3, progress
