@@ -27,9 +27,9 @@ streams named by ``np.random.SeedSequence([seed, stream, step, attempt])``: a Ph
 render stream's state, with counters (sample, pixel), so every lane is an independent draw, and a numpy
 generator for the sensor noise. The same key gives the same frame bit for bit on one backend.
 
-Backends: one kernel, built from the array types of the backend chosen at run time (``"llvm"``, or
-``"cuda"`` when a CUDA device is present; the default picks CUDA when it is there). Pose, light and
-seed are opaque: new poses and keys reuse the compiled kernel.
+Backends: one kernel, built from the array types of the backend chosen at run time
+(:func:`gonio.jit.resolve_backend`: ``"llvm"``, or ``"cuda"`` when a CUDA device is present). Pose, light
+and seed are opaque: new poses and keys reuse the compiled kernel.
 """
 
 from __future__ import annotations
@@ -41,22 +41,11 @@ import drjit as dr
 import numpy as np
 
 from gonio.frames import Frame
+from gonio.jit import array_types, resolve_backend
 
-__all__ = ["CameraSettings", "SimCamera", "pick_backend", "BACKENDS"]
+__all__ = ["CameraSettings", "SimCamera"]
 
-BACKENDS = ("llvm", "cuda")
 _RENDER_STREAM, _NOISE_STREAM = 10, 11
-
-
-def pick_backend(backend: str | None = None) -> str:
-    """The Dr.Jit backend to render with: ``backend`` if given (and present), else CUDA when present."""
-    if backend is None:
-        return "cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm"
-    if backend not in BACKENDS:
-        raise ValueError(f"backend: {backend!r} is not one of {', '.join(BACKENDS)}")
-    if backend == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
-        raise ValueError("backend: 'cuda' asked for, but Dr.Jit finds no CUDA device")
-    return backend
 
 
 @dataclass(frozen=True)
@@ -173,7 +162,8 @@ class SimCamera:
     seed : int
         Campaign seed, >= 0; with each frame's key it names every random number drawn.
     backend : {"llvm", "cuda"}, optional
-        Dr.Jit backend; default CUDA when present, else LLVM.
+        Dr.Jit backend; default :func:`gonio.jit.resolve_backend` (``GONIO_BACKEND``, else CUDA when
+        present, else LLVM).
     """
 
     def __init__(self, settings: CameraSettings, material, *, seed: int = 0, backend: str | None = None):
@@ -182,8 +172,8 @@ class SimCamera:
         self.settings = settings
         self.material = material
         self.seed = int(seed)
-        self.backend = pick_backend(backend)
-        self._t = dr.cuda if self.backend == "cuda" else dr.llvm
+        self.backend = resolve_backend(backend)
+        self._t = array_types(self.backend)
         self._count = 0
 
     # -- geometry ---------------------------------------------------------------------------------

@@ -53,12 +53,13 @@ from collections.abc import Callable, Mapping
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Array3f, Array3f64, Float, Philox4x32, UInt32, UInt64
 
 from gonio.config import DetectorConfig
+from gonio.jit import array_types, resolve_backend
 from gonio.protocols import Clock, DeviceFault, Reading
 
-__all__ = ["SimDetector", "TARGETS", "MOTION_TIMES", "aperture_radiance_factor"]
+__all__ = ["SimDetector", "TARGETS", "MOTION_TIMES", "aperture_radiance_factor", "aperture_directions",
+           "check_seed_state"]
 
 #: What can be under the beam: the sample, or the white reference standard.
 TARGETS = ("sample", "reference")
@@ -74,8 +75,9 @@ MOTION_TIMES = 16
 _POISSON_MAX = 1e15
 
 
-def _cone_directions(axis: Array3f, one_minus_cos_max: Float, u1: Float, u2: Float) -> Array3f:
-    """Directions uniform in solid angle within a cone around the unit vector(s) ``axis``."""
+def _cone_directions(axis, one_minus_cos_max, u1, u2):
+    """Directions uniform in solid angle within a cone around the unit vector(s) ``axis`` (a Dr.Jit
+    3-vector; the result has its type)."""
     # w = 1 − cos θ is uniform in [0, 1 − cos α]; sin θ from w keeps float32 precision for tiny cones.
     w = u1 * one_minus_cos_max
     cos_t = 1.0 - w
@@ -86,16 +88,21 @@ def _cone_directions(axis: Array3f, one_minus_cos_max: Float, u1: Float, u2: Flo
     sign = dr.copysign(1.0, n.z)
     a = -1.0 / (sign + n.z)
     b = n.x * n.y * a
-    s = Array3f(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x)
-    t = Array3f(b, sign + n.y * n.y * a, -n.y)
+    vector = type(axis)
+    s = vector(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x)
+    t = vector(b, sign + n.y * n.y * a, -n.y)
     return s * (sin_t * cos_p) + t * (sin_t * sin_p) + n * cos_t
 
 
 def aperture_directions(wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
-                        detector_half_angle_deg: float, samples: int, seed_state: tuple[int, int]):
+                        detector_half_angle_deg: float, samples: int, seed_state: tuple[int, int],
+                        backend: str | None = None):
     """The Monte Carlo directions of :func:`aperture_radiance_factor`: ``samples`` pairs (ωi', ωo') per
-    pose, uniform in the source and detector cones, as Dr.Jit Array3f (N·samples lanes, pose-major).
-    Lane (j, p) draws from the Philox4x32 counter (j, p, word, 0) under the key of ``seed_state``."""
+    pose, uniform in the source and detector cones, as Dr.Jit Array3f of ``backend`` (N·samples lanes,
+    pose-major). Lane (j, p) draws from the Philox4x32 counter (j, p, word, 0) under the key of
+    ``seed_state``."""
+    t = array_types(resolve_backend(backend))
+    Float, UInt32, UInt64 = t.Float, t.UInt32, t.UInt64
     n = wi.shape[0]
     key, word = seed_state
     om_src = 1.0 - np.cos(np.radians(source_half_angle_deg))
@@ -104,13 +111,13 @@ def aperture_directions(wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: f
     pose = lane // samples
     # Both axes of every pose in one buffer, (N, 6) row-major: one input whatever N.
     axes = Float(np.ascontiguousarray(np.hstack([wi, wo]), dtype=np.float32).ravel())
-    wi_c = dr.gather(Array3f, axes, 2 * pose)
-    wo_c = dr.gather(Array3f, axes, 2 * pose + 1)
+    wi_c = dr.gather(t.Array3f, axes, 2 * pose)
+    wo_c = dr.gather(t.Array3f, axes, 2 * pose + 1)
     # A counter-based generator keyed per reading: lane (j, p) is the cipher of its own counter, so
     # neighbouring lanes are independent (PCG32 seeded with state + k, seq + k per lane is not: its
     # error came out up to 1.3x the independent-sample figure). Opaque key and apertures: a new
     # reading must not compile a new kernel.
-    rng = Philox4x32(dr.opaque(UInt64, key), lane - pose * samples, pose, dr.opaque(UInt32, word))
+    rng = t.Philox4x32(dr.opaque(UInt64, key), lane - pose * samples, pose, dr.opaque(UInt32, word))
     u1, u2, u3, u4 = rng.next_float32x4()
     wi_s = _cone_directions(wi_c, dr.opaque(Float, om_src), u1, u2)
     wo_s = _cone_directions(wo_c, dr.opaque(Float, om_det), u3, u4)
@@ -128,8 +135,8 @@ def _straight(t0: float, a_deg: np.ndarray, t1: float, b_deg: np.ndarray):
 
 
 def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
-                             detector_half_angle_deg: float, samples: int,
-                             seed_state: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+                             detector_half_angle_deg: float, samples: int, seed_state: tuple[int, int],
+                             backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Reflected radiance per unit source radiance and its Monte Carlo standard error, for many poses
     in one Dr.Jit launch.
 
@@ -147,6 +154,8 @@ def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_ha
         A 64-bit Philox4x32 key and a 32-bit stream word. Sample j of pose p draws its four uniforms
         from the counter (j, p, word, 0) under that key: every lane is an independent draw, and the
         same (key, word) gives pose p the same samples in any batch.
+    backend : {"llvm", "cuda"}, optional
+        Dr.Jit backend (default: :func:`gonio.jit.resolve_backend`, CUDA when present).
 
     Returns
     -------
@@ -160,7 +169,7 @@ def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_ha
     wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
     if isinstance(samples, bool) or not isinstance(samples, int | np.integer) or not 2 <= samples <= 1 << 20:
         raise ValueError(f"samples: must be an integer in [2, {1 << 20}], got {samples!r}")
-    key, word = _check_seed_state(seed_state)
+    key, word = check_seed_state(seed_state)
     n = wi.shape[0]
     if n == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
@@ -168,13 +177,14 @@ def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_ha
         raise ValueError(f"wo: expected {n} directions like wi, got {wo.shape[0]}")
     samples = int(samples)
     om_src = 1.0 - np.cos(np.radians(source_half_angle_deg))
+    backend = resolve_backend(backend)
     wi_s, wo_s = aperture_directions(wi, wo, source_half_angle_deg, detector_half_angle_deg, samples,
-                                     (key, word))
+                                     (key, word), backend)
     fr_cos = material.eval_dr(wi_s, wo_s) * dr.maximum(wi_s.z, 0.0)
     # float64 sums: Σx² − (Σx)²/n cancels down to the variance, which can be ~1e-10 of the squared
     # mean (a Lambertian in a 0.5° cone), far below float32's resolution: float32 sums gave 100x the
     # true error there (tools/bench_detector.py).
-    x = Array3f64(fr_cos)
+    x = array_types(backend).Array3f64(fr_cos)
     x2 = x * x
     dr.eval(x, x2)  # one kernel for the samples; the block sums then only read memory
     s1, s2 = (np.stack([np.asarray(s, dtype=np.float64) for s in dr.block_sum(v, samples)], axis=1)
@@ -209,10 +219,14 @@ class SimDetector:
         module docstring).
     name : str
         Device name used in messages.
+    backend : {"llvm", "cuda"}, optional
+        Dr.Jit backend of the render; default ``cfg.sim.backend``, else :func:`gonio.jit.resolve_backend`
+        (``GONIO_BACKEND``, else CUDA when present).
     """
 
     def __init__(self, cfg: DetectorConfig, *, light, axes: Mapping, kinematics, materials: Mapping,
-                 clock: Clock, seed: int = 0, name: str = "detector", track_motion: bool = False):
+                 clock: Clock, seed: int = 0, name: str = "detector", track_motion: bool = False,
+                 backend: str | None = None):
         if len(cfg.channels) != 3:
             raise ValueError(
                 f"detector.channels: the simulated detector renders RGB materials and needs exactly "
@@ -234,6 +248,7 @@ class SimDetector:
         self.name = name
         self.channels = tuple(cfg.channels)
         self.cfg = cfg
+        self.backend = resolve_backend(cfg.sim.backend if backend is None else backend)
         self._light = light
         self._axes = axes
         self._kinematics = kinematics
@@ -284,8 +299,8 @@ class SimDetector:
             sensor noise: every frame has the same aperture samples), or for a single frame the
             standard deviation the noise model predicts (one frame cannot estimate its own spread).
             ``extra`` holds the target, the actual axis positions (°), the start time (s), the
-            reading number, the key, and the two parts of ``stderr`` (``stderr_integration``,
-            ``stderr_sensor``).
+            reading number, the key, the Dr.Jit backend that rendered it, and the two parts of
+            ``stderr`` (``stderr_integration``, ``stderr_sensor``).
         """
         self._require_connected()
         exposure_s = _check_exposure(exposure_s)
@@ -344,7 +359,7 @@ class SimDetector:
             self._clock.sleep(exposure_s * frames)
         extra = {"target": self._target, "axes_deg": dict(zip(self._kinematics.axis_names,
                                                               axes_deg.tolist(), strict=True)),
-                 "t_s": t0, "reading": n, "key": key, "moving": path is not None,
+                 "t_s": t0, "reading": n, "key": key, "moving": path is not None, "backend": self.backend,
                  "stderr_integration": integration_se, "stderr_sensor": sensor_se}
         return Reading(signal=mean, stderr=stderr, exposure_s=exposure_s, frames=int(frames), extra=extra)
 
@@ -416,7 +431,7 @@ class SimDetector:
         wi, wo = self._kinematics.directions(axes_deg)
         return aperture_radiance_factor(
             self._materials[target], wi, wo, self._light.half_angle_deg, self.cfg.sim.half_angle_deg,
-            self.cfg.sim.aperture_samples if samples is None else samples, seed_state,
+            self.cfg.sim.aperture_samples if samples is None else samples, seed_state, self.backend,
         )
 
     def _noisy_frames(self, clean: np.ndarray, exposure_s: float, frames: int, rng) -> np.ndarray:
@@ -456,7 +471,8 @@ def _check_key(key) -> tuple[int, int] | None:
     return int(key[0]), int(key[1])
 
 
-def _check_seed_state(seed_state) -> tuple[int, int]:
+def check_seed_state(seed_state) -> tuple[int, int]:
+    """``seed_state`` as (key, word), a 64-bit Philox4x32 key and a 32-bit word; ValueError otherwise."""
     ok = (isinstance(seed_state, tuple | list) and len(seed_state) == 2
           and all(isinstance(k, int | np.integer) and not isinstance(k, bool) for k in seed_state)
           and 0 <= seed_state[0] < 1 << 64 and 0 <= seed_state[1] < 1 << 32)

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.sim.detector import SimDetector, _check_seed_state, aperture_directions
+from gonio.jit import resolve_backend
+from gonio.sim.detector import SimDetector, aperture_directions, check_seed_state
 from gonio.sim.materials.spectral import CONDUCTORS, SpectralConductor, SpectralLambert
 
 __all__ = ["SpectrometerDetector", "spectral_material", "spectral_aperture_factor", "constant_reflectance"]
@@ -36,8 +37,9 @@ def constant_reflectance(value: float):
 def spectral_material(material):
     """The spectral material for a MATERIAL (string or loaded RGB material) that has one.
 
-    Returns an object with ``eval(wi, wo, wavelength_nm) -> (..., L)`` in sr⁻¹. A material that already
-    is spectral (has ``eval`` of three arguments and no ``eval_dr``) is returned as it is.
+    Returns an object with ``eval(wi, wo, wavelength_nm, backend=None) -> (..., L)`` in sr⁻¹ (``backend``
+    the Dr.Jit backend, as :mod:`gonio.sim.materials.spectral`'s). A material that already is spectral
+    (has such an ``eval`` and no ``eval_dr``) is returned as it is.
 
     Raises
     ------
@@ -69,27 +71,30 @@ def spectral_material(material):
 
 def spectral_aperture_factor(material, wi: np.ndarray, wo: np.ndarray, wavelength_nm,
                              source_half_angle_deg: float, detector_half_angle_deg: float, samples: int,
-                             seed_state: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+                             seed_state: tuple[int, int], backend: str | None = None,
+                             ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`gonio.sim.detector.aperture_radiance_factor` for a spectral material: (factor, stderr), each
-    (N, L) for L wavelengths, from the same aperture directions (same ``seed_state``: same samples)."""
+    (N, L) for L wavelengths, from the same aperture directions (same ``seed_state``: same samples), on
+    the Dr.Jit ``backend`` (default :func:`gonio.jit.resolve_backend`)."""
     wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
     wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=np.float64))
     if isinstance(samples, bool) or not isinstance(samples, int | np.integer) or not 2 <= samples <= 1 << 20:
         raise ValueError(f"samples: must be an integer in [2, {1 << 20}], got {samples!r}")
-    key, word = _check_seed_state(seed_state)
+    key, word = check_seed_state(seed_state)
     n = wi.shape[0]
     if n == 0:
         return np.zeros((0, wl.size)), np.zeros((0, wl.size))
     samples = int(samples)
+    backend = resolve_backend(backend)
     wi_s, wo_s = aperture_directions(wi, wo, source_half_angle_deg, detector_half_angle_deg, samples,
-                                     (key, word))
+                                     (key, word), backend)
     wi_np = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in (wi_s.x, wi_s.y, wi_s.z)], axis=1)
     wo_np = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in (wo_s.x, wo_s.y, wo_s.z)], axis=1)
     # float32 directions renormalized in float64 (the materials check unit length)
     wi_np /= np.linalg.norm(wi_np, axis=1, keepdims=True)
     wo_np /= np.linalg.norm(wo_np, axis=1, keepdims=True)
-    x = material.eval(wi_np, wo_np, wl) * np.maximum(wi_np[:, 2], 0.0)[:, None]
+    x = material.eval(wi_np, wo_np, wl, backend=backend) * np.maximum(wi_np[:, 2], 0.0)[:, None]
     x = x.reshape(n, samples, wl.size)
     mean = x.mean(axis=1)
     var = x.var(axis=1, ddof=1)
@@ -106,10 +111,10 @@ class SpectrometerDetector(SimDetector):
     """
 
     def __init__(self, cfg, *, light, axes, kinematics, materials, clock, seed: int = 0,
-                 name: str = "detector", track_motion: bool = False):
+                 name: str = "detector", track_motion: bool = False, backend: str | None = None):
         super().__init__(cfg, light=light, axes=axes, kinematics=kinematics,
                          materials={t: spectral_material(m) for t, m in materials.items()}, clock=clock,
-                         seed=seed, name=name, track_motion=track_motion)
+                         seed=seed, name=name, track_motion=track_motion, backend=backend)
         wl = cfg.wavelengths_nm
         if wl is None:
             raise ValueError("detector.sim.kind: a SpectrometerDetector needs kind = 'spectrometer'")
@@ -121,4 +126,4 @@ class SpectrometerDetector(SimDetector):
         return spectral_aperture_factor(
             self._materials[target], wi, wo, self.wavelengths_nm, self._light.half_angle_deg,
             self.cfg.sim.half_angle_deg, self.cfg.sim.aperture_samples if samples is None else samples,
-            seed_state)
+            seed_state, self.backend)

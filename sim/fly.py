@@ -142,7 +142,7 @@ class FlySimulator:
             key, word = np.random.SeedSequence([self.seed, _MC, step]).generate_state(2, np.uint64)
             factor, factor_se = aperture_radiance_factor(
                 material, wi, wo, self.light.half_angle_deg, cfg.detector.sim.half_angle_deg, self.samples,
-                (int(key), int(word) >> 32))
+                (int(key), int(word) >> 32), cfg.detector.sim.backend)
             radiance = np.array([self.light.lamp_radiance(t) for t in (t0 + times).ravel()])[:, None]
             # Signal per time sample as if it lasted the whole exposure (signal units).
             clean = (radiance * factor * e).reshape(n, TIME_SAMPLES, channels)

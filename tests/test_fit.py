@@ -5,7 +5,6 @@ import json
 import drjit as dr
 import numpy as np
 import pytest
-from drjit.llvm.ad import Array3f64, Float64
 
 from gonio.campaign import create_campaign, run_campaign
 from gonio.cli import main
@@ -14,9 +13,13 @@ from gonio.fit import FitData, fit, parse_model
 from gonio.fit.models import FIT_MODELS
 from gonio.fit.solve import Problem
 from gonio.geometry import sph_to_vec
+from gonio.jit import array_types
 from gonio.plan import build_plan
 from gonio.sim.materials import load
 from gonio.wiring import build_gantry
+
+# Each test runs on every Dr.Jit backend (CUDA skipped without a device).
+pytestmark = pytest.mark.usefixtures("backend")
 
 ISO_GRID = "iso:step=15,theta_max=75"
 
@@ -60,9 +63,11 @@ def _assert_recovered(result, spec, rtol=0.02):
     "cook-torrance:d=blinn,m=0.3,fresnel=dielectric,eta=1.5,denom=4",
     "ggx:alpha_u=0.1,alpha_v=0.3,metal=gold,rho_d=0.1,rho_s=0.8",
 ])
-def test_eval_params_is_eval_and_its_ad_derivative_matches_central_differences(spec):
+def test_eval_params_is_eval_and_its_ad_derivative_matches_central_differences(spec, backend):
     wi, wo = _plan_dirs("iso:step=30")
     m = load(spec)
+    t = array_types(backend, ad=True)
+    Float64, Array3f64 = t.Float64, t.Array3f64
 
     def values(shift_key=None, h=0.0, grad_key=None):
         v = {}

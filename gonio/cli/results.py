@@ -16,12 +16,14 @@ from gonio.cli.common import (
     _writable_out,
     add_force,
 )
+from gonio.jit import BACKENDS
 
 
 def cmd_fit(args) -> int:
     """Fit a model to a finished campaign; the MATERIAL string on stdout, the JSON in --out."""
     from gonio.dataset import BRDF_NAME
     from gonio.fit import fit, parse_channels, parse_model
+    from gonio.jit import using_backend
 
     source = Path(args.dir)
     if not source.exists():
@@ -34,7 +36,8 @@ def cmd_fit(args) -> int:
     parse_model(args.model, channels)  # a bad MODEL is reported before any data is read
     if args.starts < 1:
         raise UsageError(f"--starts: must be an integer >= 1, got {args.starts}")
-    result = fit(source, args.model, channels=args.channels, loss=args.loss, starts=args.starts)
+    with using_backend(args.backend):
+        result = fit(source, args.model, channels=args.channels, loss=args.loss, starts=args.starts)
     if out is not None:
         tmp = out.with_name(out.name + ".partial")
         tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n")
@@ -168,6 +171,9 @@ def add_parsers(sub, fmt) -> None:
                     help="chi2: weighted by the measured stddev; cos: cos θi cos θo (f_model − f); auto: "
                          "chi2 when the data have stddevs")
     sf.add_argument("--starts", type=int, default=4, help="number of starts; the best fit wins")
+    sf.add_argument("--backend", choices=BACKENDS, default=None,
+                    help="Dr.Jit backend of the model evaluations (default: $GONIO_BACKEND, else cuda when a "
+                         "CUDA device is present, else llvm)")
     sf.add_argument("--out", metavar="FIT.json", default=None,
                     help="write parameters, uncertainties, loss and residual statistics as JSON")
     sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")

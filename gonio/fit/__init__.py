@@ -155,7 +155,7 @@ def _iso_key(model: FitModel, key: str) -> str:
 
 
 def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", starts: int = 4,
-        jac: str = "ad") -> FitResult:
+        jac: str = "ad", backend: str | None = None) -> FitResult:
     """Fit ``model`` to the measured samples of ``source``.
 
     Parameters
@@ -175,6 +175,9 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
         Number of starts (the best wins).
     jac : {"ad", "2-point"}
         Dr.Jit AD Jacobian (default) or scipy finite differences (for comparison).
+    backend : {"llvm", "cuda"}, optional
+        Dr.Jit backend of the model evaluations (default: :func:`gonio.jit.resolve_backend`, CUDA when
+        present).
 
     Returns
     -------
@@ -190,7 +193,7 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
     m = parse_model(model, chan)
     if not m.variables:
         raise ValueError(f"model {m.text!r}: every parameter is held fixed; nothing to fit")
-    problem = Problem(m, data, loss)
+    problem = Problem(m, data, loss, backend)
     if problem.loss == "chi2" and isinstance(source, str | Path) and Path(source).is_dir():
         problem.set_shared(shared_errors(source, data.value))
     best = solve(problem, starts=starts, jac=jac)

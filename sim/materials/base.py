@@ -2,8 +2,8 @@
 
 A material is evaluated over whole batches of direction pairs in the sample frame (N = +z). Models
 write one Dr.Jit function, :meth:`Material._eval_dr`, that is generic in the array type: it derives its
-types from its inputs, so the same code runs on LLVM float32 (the simulation path), LLVM float64 (the
-reference path of the tests) and CUDA when present.
+types from its inputs, so the same code runs on LLVM and CUDA (:mod:`gonio.jit`), in float32 (the
+simulation path) and float64 (the reference path of the tests and the fits).
 
 Kernel reuse: every model parameter is uploaded once per array type as an *opaque* array
 (:func:`drjit.opaque`), so Dr.Jit reads it from memory instead of baking its value into the generated
@@ -20,7 +20,9 @@ from typing import ClassVar
 import drjit as dr
 import numpy as np
 
-__all__ = ["Material", "positive_power", "check_directions", "INV_PI"]
+from gonio.jit import array_types, resolve_backend
+
+__all__ = ["Material", "positive_power", "check_directions", "vector_type", "INV_PI"]
 
 INV_PI = 1.0 / math.pi
 # Rows whose length differs from 1 by more than this are rejected by Material.eval (not renormalized).
@@ -72,12 +74,12 @@ def _aligned_column(v: np.ndarray, dtype) -> np.ndarray:
     return out
 
 
-def _llvm_vector_type(precision: str):
-    from drjit.llvm import Array3f, Array3f64
-
+def vector_type(precision: str, backend: str):
+    """The Dr.Jit 3-vector type of ``precision`` (``"float32"``, ``"float64"``) on ``backend``."""
     if precision not in _PRECISIONS:
         raise ValueError(f"precision must be one of {', '.join(_PRECISIONS)}, got {precision!r}")
-    return Array3f if precision == "float32" else Array3f64
+    t = array_types(backend)
+    return t.Array3f if precision == "float32" else t.Array3f64
 
 
 class Material:
@@ -193,8 +195,8 @@ class Material:
         """
         return self._eval_dr(wi, wo, self._parameters_dr(v))
 
-    def eval(self, wi, wo, *, precision: str = "float32") -> np.ndarray:
-        """f_r in sr⁻¹ for numpy direction pairs, evaluated with :meth:`eval_dr` on the LLVM backend.
+    def eval(self, wi, wo, *, precision: str = "float32", backend: str | None = None) -> np.ndarray:
+        """f_r in sr⁻¹ for numpy direction pairs, evaluated with :meth:`eval_dr`.
 
         Parameters
         ----------
@@ -203,23 +205,25 @@ class Material:
             or not of unit length (within 1e-4) raise ValueError.
         precision : {"float32", "float64"}
             Dr.Jit precision: float32 is the simulation path, float64 the reference path.
+        backend : {"llvm", "cuda"}, optional
+            Dr.Jit backend (default: :func:`gonio.jit.resolve_backend`, CUDA when present).
 
         Returns
         -------
         numpy.ndarray, shape (..., 3), float64
             f_r per channel (R, G, B) in sr⁻¹, without the cosine factor.
         """
-        vector_type = _llvm_vector_type(precision)
+        vtype = vector_type(precision, resolve_backend(backend))
         wi, wo = np.broadcast_arrays(check_directions("wi", wi), check_directions("wo", wo))
         shape = wi.shape[:-1]
         flat_i, flat_o = wi.reshape(-1, 3), wo.reshape(-1, 3)
         if flat_i.shape[0] == 0:
             return np.zeros(shape + (3,))
-        scalar = dr.value_t(vector_type)
+        scalar = dr.value_t(vtype)
         dtype = np.float32 if precision == "float32" else np.float64
 
         def to_dr(v):
-            return vector_type(*(scalar(_aligned_column(v[:, j], dtype)) for j in range(3)))
+            return vtype(*(scalar(_aligned_column(v[:, j], dtype)) for j in range(3)))
 
         result = self.eval_dr(to_dr(flat_i), to_dr(flat_o))
         dr.eval(result)

@@ -15,6 +15,9 @@ from gonio.sim.detector import aperture_radiance_factor
 from gonio.sim.gantry import SimGantry
 from gonio.sim.light import SimLight
 
+# Each test runs on every Dr.Jit backend (CUDA skipped without a device).
+pytestmark = pytest.mark.usefixtures("backend")
+
 RADIANCE = 1000.0
 COOK_TORRANCE = "cook-torrance:d=beckmann,m=0.3,metal=gold,rho_s=0.9/0.6/0.3"  # rough, coloured
 GLOSSY = "cook-torrance:d=beckmann,m=0.1,metal=gold"

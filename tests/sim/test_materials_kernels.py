@@ -7,7 +7,6 @@ import drjit as dr
 import materials_ref as ref
 import numpy as np
 import pytest
-from drjit.llvm import PCG32, Array3f
 
 from gonio.sim.materials import load
 
@@ -43,14 +42,14 @@ def _jit_kernels(run):
         return [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
 
 
-def _directions(n, seed):
+def _directions(n, seed, jit):
     """Directions made in Dr.Jit and evaluated (otherwise their generation, seed included, would be
     fused into the BRDF kernel, and that part belongs to the caller)."""
-    rng = PCG32(size=n, initstate=seed)
+    rng = jit.PCG32(size=n, initstate=seed)
     z = rng.next_float32() * 0.99 + 0.01
     phi = rng.next_float32() * 6.283185
     r = dr.sqrt(1 - z * z)
-    w = Array3f(r * dr.cos(phi), r * dr.sin(phi), z)
+    w = jit.Array3f(r * dr.cos(phi), r * dr.sin(phi), z)
     dr.eval(w)
     return w
 
@@ -63,21 +62,21 @@ def _directions(n, seed):
     ["modified-phong:ks=0.5,ke=20", "modified-phong:ks=0.2/0.3/0.4,ke=3.5,rho_d=0.5"],
     ["cook-torrance:d=gaussian,m=0.2,fresnel=none", "cook-torrance:d=gaussian,m=0.9,fresnel=none,denom=4"],
 ])
-def test_one_kernel_per_configuration(family):
+def test_one_kernel_per_configuration(family, jit):
     """After a first call, new directions, batch sizes and parameter values reuse the compiled kernel
     (parameters are opaque), on both the Dr.Jit path and the numpy path."""
     materials = [load(spec) for spec in family]
     wi_np, wo_np = ref.random_pairs(np.random.default_rng(6), 3000)
 
     def warm():
-        dr.eval(materials[0].eval_dr(_directions(1000, 1), _directions(1000, 2)))
+        dr.eval(materials[0].eval_dr(_directions(1000, 1, jit), _directions(1000, 2, jit)))
         materials[0].eval(wi_np[:1000], wo_np[:1000])
 
     _jit_kernels(warm)
     later = []
     for i, m in enumerate(materials):
         n = 1500 + 700 * i
-        wi, wo = _directions(n, 10 + i), _directions(n, 20 + i)
+        wi, wo = _directions(n, 10 + i, jit), _directions(n, 20 + i, jit)
         later += _jit_kernels(lambda m=m, wi=wi, wo=wo: dr.eval(m.eval_dr(wi, wo)))
         later += _jit_kernels(lambda m=m, n=n: m.eval(wi_np[:n], wo_np[:n]))
     assert len(later) == 2 * len(materials)  # one kernel per call, nothing else compiled
