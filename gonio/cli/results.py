@@ -163,9 +163,11 @@ def add_parsers(sub, fmt) -> None:
                         help="fit a reflectance model to a finished campaign's measured samples")
     sf.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder (or its brdf.h5)")
     sf.add_argument("--model", required=True,
-                    help="lambert, phong, modified-phong, blinn-phong, normalized-blinn-phong, ward, "
-                         "cook-torrance, ggx, or lambert+NAME; ':key=value,...' holds keys fixed or picks "
-                         "the form (d=blinn, fresnel=dielectric, metal=gold), ':anisotropic' for ward/ggx")
+                    help="a material model, fitted with every key the material has, rho_d included: "
+                         "lambert, phong, modified-phong, blinn-phong, normalized-blinn-phong, ward, "
+                         "cook-torrance, ggx; NAME-lobe: the lobe alone (rho_d held at 0); ':key=value,...' "
+                         "holds keys fixed or picks the form (d=blinn, fresnel=dielectric, metal=gold), "
+                         "':anisotropic' for ward/ggx")
     sf.add_argument("--channels", default=None, help="channels to fit, e.g. R,G,B or G (default: all)")
     sf.add_argument("--loss", default="auto", choices=["auto", "chi2", "cos"],
                     help="chi2: weighted by the measured stddev; cos: cos θi cos θo (f_model − f); auto: "
@@ -207,8 +209,8 @@ def add_parsers(sub, fmt) -> None:
     sq.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
     sq.add_argument("--out", required=True, metavar="REPORT.html", help="the page to write")
     sq.add_argument("--models", default=None, metavar="MODELS",
-                    help="comma-separated fit MODELs as for gonio fit (default: lambert, lambert+ward, "
-                         "lambert+cook-torrance, lambert+ggx: gonio.report.DEFAULT_MODELS)")
+                    help="comma-separated fit MODELs as for gonio fit (default: lambert, ward, "
+                         "cook-torrance, ggx: gonio.report.DEFAULT_MODELS)")
     add_force(sq)
     sq.set_defaults(func=cmd_report)
 

@@ -13,7 +13,7 @@ standard uncertainties, the loss, the residual statistics and the degrees of fre
 
 Example
 -------
->>> r = fit("campaign-folder", "lambert+ggx")                               # doctest: +SKIP
+>>> r = fit("campaign-folder", "ggx")                                       # doctest: +SKIP
 >>> r.material, r.parameters["alpha"]                                        # doctest: +SKIP
 ('ggx:fresnel=none,alpha=0.2,rho_d=0.3,rho_s=0.5', {'value': 0.2, 'stddev': 0.0004, ...})
 """
@@ -164,7 +164,7 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
         A finished campaign folder, a ``brdf.h5``, data read with :func:`gonio.dataset.read_brdf`, or
         directions with values.
     model : str
-        Fit MODEL, e.g. ``lambert+ggx``, ``cook-torrance:d=blinn``, ``ward:anisotropic``
+        Fit MODEL, e.g. ``ggx``, ``ggx-lobe``, ``cook-torrance:d=blinn``, ``ward:anisotropic``
         (:mod:`gonio.fit.models`).
     channels : str, optional
         ``"R,G,B"`` or a subset: the channels whose data enter the loss; colour parameters are fitted
