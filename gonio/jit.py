@@ -26,7 +26,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 __all__ = ["BACKENDS", "ENV_VAR", "resolve_backend", "using_backend", "cuda_available", "array_types",
-           "backend_of"]
+           "backend_of", "upload"]
 
 #: The Dr.Jit backends gonio computes on.
 BACKENDS = ("llvm", "cuda")
@@ -112,3 +112,21 @@ def backend_of(value) -> str:
     import drjit as dr
 
     return "cuda" if dr.backend_v(value) == dr.JitBackend.CUDA else "llvm"
+
+
+def upload(cls, values, dtype):
+    """A Dr.Jit array of type ``cls`` holding ``values`` (1-D, converted to the numpy ``dtype``), from a
+    64-byte aligned copy.
+
+    Dr.Jit maps numpy memory as it finds it and compiles loads for that alignment, so inputs of varying
+    alignment would compile a new kernel on every call; aligned buffers keep one kernel.
+    """
+    import numpy as np
+
+    v = np.asarray(values, dtype=dtype).reshape(-1)
+    itemsize = v.dtype.itemsize
+    buffer = np.empty(v.size + 64 // itemsize, dtype=v.dtype)
+    start = (-buffer.ctypes.data % 64) // itemsize
+    out = buffer[start:start + v.size]
+    out[:] = v
+    return cls(out)

@@ -42,6 +42,7 @@ import numpy as np
 
 from gonio.frames import Frame
 from gonio.jit import array_types, resolve_backend
+from gonio.sim.aperture import seed_state
 
 __all__ = ["CameraSettings", "SimCamera"]
 
@@ -143,11 +144,6 @@ def _check_pose(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg) -> tuple[float, 
         if not math.isfinite(v):
             raise ValueError(f"{name}: must be finite, got {v!r}")
     return pose
-
-
-def _seed_state(seed: int, stream: int, a: int, b: int) -> tuple[int, int]:
-    key, word = np.random.SeedSequence([seed, stream, a, b]).generate_state(2, np.uint64)
-    return int(key), int(word) >> 32
 
 
 class SimCamera:
@@ -303,7 +299,7 @@ class SimCamera:
         self._count += 1
         s = self.settings
         pose = _check_pose(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg)
-        clean = self.radiance(*pose, seed_state=_seed_state(self.seed, _RENDER_STREAM, a, b),
+        clean = self.radiance(*pose, seed_state=seed_state(self.seed, _RENDER_STREAM, a, b),
                               source_radiance=source_radiance)
         if s.shot_counts_per_unit > 0.0 or s.read_sigma > 0.0:
             signal = clean.astype(np.float64) * exposure_s

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.jit import resolve_backend
-from gonio.sim.detector import SimDetector, aperture_directions, check_seed_state
+from gonio.sim.aperture import aperture_directions, check_seed_state
+from gonio.sim.detector import SimDetector
 from gonio.sim.materials.spectral import CONDUCTORS, SpectralConductor, SpectralLambert
 
 __all__ = ["SpectrometerDetector", "spectral_material", "spectral_aperture_factor", "constant_reflectance"]
@@ -121,9 +122,25 @@ class SpectrometerDetector(SimDetector):
         self.wavelengths_nm = np.asarray(wl, dtype=np.float64)
         self.channels = tuple(cfg.channel_names)
 
-    def _radiance_factor(self, axes_deg: np.ndarray, target: str, seed_state, samples: int | None = None):
+    def _render(self, axes_deg: np.ndarray, target: str, keys, words, counters,
+                samples: int | None = None):
+        """:meth:`SimDetector._render` of the spectral integrand: rows of one stream at a time, counters
+        0, 1, ... within it (a still reading is one row; a reading over a motion 16 rows of one key)."""
         wi, wo = self._kinematics.directions(axes_deg)
-        return spectral_aperture_factor(
-            self._materials[target], wi, wo, self.wavelengths_nm, self._light.half_angle_deg,
-            self.cfg.sim.half_angle_deg, self.cfg.sim.aperture_samples if samples is None else samples,
-            seed_state, self.backend)
+        factor = np.zeros((len(keys), len(self.channels)))
+        factor_se = np.zeros_like(factor)
+        lo = 0
+        while lo < len(keys):
+            hi = lo + 1
+            while hi < len(keys) and (keys[hi], words[hi]) == (keys[lo], words[lo]):
+                hi += 1
+            if not np.array_equal(counters[lo:hi], np.arange(hi - lo)):
+                raise ValueError("counters: the spectrometer renders the rows of one stream with counters "
+                                 "0, 1, ...")
+            factor[lo:hi], factor_se[lo:hi] = spectral_aperture_factor(
+                self._materials[target], wi[lo:hi], wo[lo:hi], self.wavelengths_nm,
+                self._light.half_angle_deg, self.cfg.sim.half_angle_deg,
+                self.cfg.sim.aperture_samples if samples is None else samples,
+                (int(keys[lo]), int(words[lo])), self.backend)
+            lo = hi
+        return factor, factor_se

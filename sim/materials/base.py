@@ -20,7 +20,7 @@ from typing import ClassVar
 import drjit as dr
 import numpy as np
 
-from gonio.jit import array_types, resolve_backend
+from gonio.jit import array_types, resolve_backend, upload
 
 __all__ = ["Material", "positive_power", "check_directions", "vector_type", "INV_PI"]
 
@@ -58,20 +58,6 @@ def check_directions(name: str, w) -> np.ndarray:
         raise ValueError(f"{name}: vectors must have unit length (within {UNIT_TOLERANCE}), row {row} has "
                          f"length {norm[row]:.6g}")
     return w
-
-
-def _aligned_column(v: np.ndarray, dtype) -> np.ndarray:
-    """A copy of ``v`` in a 64-byte aligned buffer.
-
-    Dr.Jit maps numpy memory without copying and compiles loads for the alignment it finds, so inputs
-    of varying alignment would compile a new kernel on every call; aligned buffers keep one kernel.
-    """
-    itemsize = np.dtype(dtype).itemsize
-    buffer = np.empty(v.shape[0] + 64 // itemsize, dtype=dtype)
-    start = (-buffer.ctypes.data % 64) // itemsize
-    out = buffer[start:start + v.shape[0]]
-    out[:] = v
-    return out
 
 
 def vector_type(precision: str, backend: str):
@@ -223,7 +209,7 @@ class Material:
         dtype = np.float32 if precision == "float32" else np.float64
 
         def to_dr(v):
-            return vtype(*(scalar(_aligned_column(v[:, j], dtype)) for j in range(3)))
+            return vtype(*(upload(scalar, v[:, j], dtype) for j in range(3)))
 
         result = self.eval_dr(to_dr(flat_i), to_dr(flat_o))
         dr.eval(result)

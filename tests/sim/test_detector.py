@@ -11,7 +11,7 @@ from gonio.config import load_config, parse_config
 from gonio.motion.trapezoid import move_time
 from gonio.protocols import Detector, DeviceFault, LightSource
 from gonio.sim import materials
-from gonio.sim.detector import aperture_radiance_factor
+from gonio.sim.aperture import aperture_radiance_factor
 from gonio.sim.gantry import SimGantry
 from gonio.sim.light import SimLight
 
