@@ -10,11 +10,20 @@ Kernel reuse: every model parameter is uploaded once per array type as an *opaqu
 code. Calls with new directions, a new batch size or another material of the same model and
 configuration (say gold and copper under the same Beckmann Cook-Torrance) therefore reuse one compiled
 kernel; only a change of structure (another model, another D or Fresnel form) compiles a new one.
+
+Per-call overhead: :meth:`Material.eval_dr` traces the model's few hundred array operations on every
+call (~0.07 ms for GGX), which dominates below ~10⁵ directions. :meth:`Material.evaluate` (and
+:meth:`Material.eval`, which goes through it) replays a frozen function (:func:`drjit.freeze`): the first
+call of a material with arrays of one type traces and records the launch, later calls launch the
+recorded kernel with the new inputs (~0.02 ms), the same kernel, so the same values bit for bit.
+``eval_dr`` stays the way to compose a material into a larger kernel (the detector's, the camera's, a
+fit's AD graph).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from typing import ClassVar
 
 import drjit as dr
@@ -99,6 +108,8 @@ class Material:
         self.spec = spec
         self.isotropic = isotropic
         self._dr_cache: dict[type, dict] = {}
+        self._frozen = None
+        self._frozen_lock = threading.Lock()
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.spec!r})"
@@ -161,6 +172,32 @@ class Material:
         """
         return self._eval_dr(wi, wo, self.dr_parameters(type(wi)))
 
+    def evaluate(self, wi, wo):
+        """:meth:`eval_dr`, evaluated, through a frozen function (module docstring): the same values
+        bit for bit, without tracing the model again after the first call.
+
+        Parameters
+        ----------
+        wi, wo : Dr.Jit 3-vector
+            As for :meth:`eval_dr` (evaluated or not; inputs with gradients enabled take the traced
+            path, since the recording holds no derivative).
+
+        Returns
+        -------
+        Dr.Jit 3-vector of the type of ``wi``, evaluated
+            f_r per channel (R, G, B) in sr⁻¹.
+        """
+        if dr.grad_enabled(wi) or dr.grad_enabled(wo):
+            out = self.eval_dr(wi, wo)
+            dr.eval(out)
+            return out
+        params = self.dr_parameters(type(wi))
+        # A frozen function keeps its recordings in the object: one call at a time (daemon threads).
+        with self._frozen_lock:
+            if self._frozen is None:
+                self._frozen = dr.freeze(self._eval_dr)
+            return self._frozen(wi, wo, params)
+
     def eval_params(self, v: dict, wi, wo):
         """f_r like :meth:`eval_dr`, with the spec parameters given as Dr.Jit arrays (e.g. for AD).
 
@@ -211,8 +248,7 @@ class Material:
         def to_dr(v):
             return vtype(*(upload(scalar, v[:, j], dtype) for j in range(3)))
 
-        result = self.eval_dr(to_dr(flat_i), to_dr(flat_o))
-        dr.eval(result)
+        result = self.evaluate(to_dr(flat_i), to_dr(flat_o))
         # Per channel: Array3f.numpy() would run a small export kernel specialized to the batch size.
         channels = [np.asarray(c.numpy(), dtype=np.float64) for c in (result.x, result.y, result.z)]
         return np.stack(channels, axis=-1).reshape(shape + (3,))
