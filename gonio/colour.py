@@ -35,13 +35,13 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from drjit.llvm import Float64
 from scipy.optimize import minimize_scalar
 
 # colour-science sets numpy's print options (legacy="1.13") when imported: keep the process's own.
 with np.printoptions():
     import colour
 
+from gonio.jit import array_types, resolve_backend
 from gonio.sim.materials.fresnel import conductor_exact
 from gonio.sim.materials.spectral import conductor_index
 
@@ -159,7 +159,9 @@ def material_rgb(material, wi, wo, space: str = "sRGB", illuminant: str = "D65")
 
 
 def _fresnel_exact(cos_theta: np.ndarray, eta, k) -> np.ndarray:
-    """Exact conductor reflectance (Dr.Jit, float64) for every (cos θ, λ) pair: shape (T, L)."""
+    """Exact conductor reflectance (Dr.Jit, float64, on :func:`gonio.jit.resolve_backend`'s backend) for
+    every (cos θ, λ) pair: shape (T, L)."""
+    Float64 = array_types(resolve_backend()).Float64
     c = np.repeat(cos_theta, np.size(eta))
     e = np.tile(np.atleast_1d(eta), cos_theta.size)
     kk = np.tile(np.atleast_1d(k), cos_theta.size)

@@ -398,6 +398,9 @@ class DetectorSimConfig(_Strict):
     #: Monte Carlo samples per reading over the source and detector apertures (2 at least: the
     #: detector estimates its integration error from their spread).
     aperture_samples: int = Field(256, ge=2, le=1 << 20)
+    #: Dr.Jit backend of the render (photodiode, spectrometer, camera); None: ``GONIO_BACKEND``, else
+    #: CUDA when present, else LLVM (:func:`gonio.jit.resolve_backend`).
+    backend: Literal["llvm", "cuda"] | None = None
     noise: NoiseConfig = NoiseConfig()
     spectrometer: SpectrometerSimConfig = SpectrometerSimConfig()
     camera: CameraSimConfig = CameraSimConfig()

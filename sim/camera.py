@@ -27,9 +27,9 @@ streams named by ``np.random.SeedSequence([seed, stream, step, attempt])``: a Ph
 render stream's state, with counters (sample, pixel), so every lane is an independent draw, and a numpy
 generator for the sensor noise. The same key gives the same frame bit for bit on one backend.
 
-Backends: one kernel, built from the array types of the backend chosen at run time (``"llvm"``, or
-``"cuda"`` when a CUDA device is present; the default picks CUDA when it is there). Pose, light and
-seed are opaque: new poses and keys reuse the compiled kernel.
+Backends: one kernel, built from the array types of the backend chosen at run time
+(:func:`gonio.jit.resolve_backend`: ``"llvm"``, or ``"cuda"`` when a CUDA device is present). Pose, light
+and seed are opaque: new poses and keys reuse the compiled kernel.
 """
 
 from __future__ import annotations
@@ -41,22 +41,12 @@ import drjit as dr
 import numpy as np
 
 from gonio.frames import Frame
+from gonio.jit import array_types, resolve_backend
+from gonio.sim.aperture import seed_state
 
-__all__ = ["CameraSettings", "SimCamera", "pick_backend", "BACKENDS"]
+__all__ = ["CameraSettings", "SimCamera"]
 
-BACKENDS = ("llvm", "cuda")
 _RENDER_STREAM, _NOISE_STREAM = 10, 11
-
-
-def pick_backend(backend: str | None = None) -> str:
-    """The Dr.Jit backend to render with: ``backend`` if given (and present), else CUDA when present."""
-    if backend is None:
-        return "cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm"
-    if backend not in BACKENDS:
-        raise ValueError(f"backend: {backend!r} is not one of {', '.join(BACKENDS)}")
-    if backend == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
-        raise ValueError("backend: 'cuda' asked for, but Dr.Jit finds no CUDA device")
-    return backend
 
 
 @dataclass(frozen=True)
@@ -156,11 +146,6 @@ def _check_pose(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg) -> tuple[float, 
     return pose
 
 
-def _seed_state(seed: int, stream: int, a: int, b: int) -> tuple[int, int]:
-    key, word = np.random.SeedSequence([seed, stream, a, b]).generate_state(2, np.uint64)
-    return int(key), int(word) >> 32
-
-
 class SimCamera:
     """A simulated imaging detector (see the module docstring).
 
@@ -173,7 +158,8 @@ class SimCamera:
     seed : int
         Campaign seed, >= 0; with each frame's key it names every random number drawn.
     backend : {"llvm", "cuda"}, optional
-        Dr.Jit backend; default CUDA when present, else LLVM.
+        Dr.Jit backend; default :func:`gonio.jit.resolve_backend` (``GONIO_BACKEND``, else CUDA when
+        present, else LLVM).
     """
 
     def __init__(self, settings: CameraSettings, material, *, seed: int = 0, backend: str | None = None):
@@ -182,8 +168,8 @@ class SimCamera:
         self.settings = settings
         self.material = material
         self.seed = int(seed)
-        self.backend = pick_backend(backend)
-        self._t = dr.cuda if self.backend == "cuda" else dr.llvm
+        self.backend = resolve_backend(backend)
+        self._t = array_types(self.backend)
         self._count = 0
 
     # -- geometry ---------------------------------------------------------------------------------
@@ -313,7 +299,7 @@ class SimCamera:
         self._count += 1
         s = self.settings
         pose = _check_pose(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg)
-        clean = self.radiance(*pose, seed_state=_seed_state(self.seed, _RENDER_STREAM, a, b),
+        clean = self.radiance(*pose, seed_state=seed_state(self.seed, _RENDER_STREAM, a, b),
                               source_radiance=source_radiance)
         if s.shot_counts_per_unit > 0.0 or s.read_sigma > 0.0:
             signal = clean.astype(np.float64) * exposure_s

@@ -2,15 +2,9 @@
 a linear sensor's noise.
 
 Optics. The source subtends a cone of half-angle α_s around ωi and the detector sees a cone of half-angle
-α_d around ωo. The detector measures the reflected radiance
-
-    L = L_src ∫_{source cone} f_r(ωi', ωo') cos θi' dωi',   averaged uniformly over ωo' in the detector cone,
-
-estimated by Monte Carlo: ``aperture_samples`` pairs (ωi', ωo') per pose, each uniform in its cone
-(cos θ uniform in [cos α, 1] about the cone's axis), so L ≈ L_src · Ω_s · mean(f_r · cos θi'), with
-Ω_s = 2π(1 − cos α_s). All poses of a batch are one Dr.Jit launch, which also returns the standard
-error of each pose's mean, Ω_s · s/√n from the sample variance s² of f_r · cos θi' over its n samples
-(sums and sums of squares accumulated in float64, so the variance survives the cancellation).
+α_d around ωo; the reflected radiance over both cones is estimated by Monte Carlo with its standard error
+(:mod:`gonio.sim.aperture`: ``aperture_samples`` pairs per pose, float64 sums in sample order). Every
+pose of a batch is one row of one Dr.Jit launch, with its own random stream.
 
 Sensor. signal = L · exposure_s (linear), plus ``dark_offset · exposure_s``; shot noise is Poisson on
 ``signal · shot_counts_per_unit`` counts, converted back to signal units; read noise is Gaussian with
@@ -37,28 +31,34 @@ frames does not shrink it), and the sensor's, the spread of the frames over √f
 noise model's σ (one frame cannot estimate its own spread).
 
 Seeding. Every random number of a reading comes from streams named by ``np.random.SeedSequence([seed,
-stream, a, b])``: the aperture samples from a Philox4x32 keyed by that stream's state, with counters
-(sample, pose) so that every Monte Carlo lane is an independent draw, and the sensor noise from a numpy
-generator. For ``measure(..., key=(step, attempt))``, (a, b) = (step, attempt): the same reading of
-the same campaign is bit-identical whatever the process did before it, so a campaign resumed from its
-journal in a new process replays an uninterrupted one, and a retried step draws fresh samples. Without
-a key, (a, b) = (n, 0) on separate streams, n the number of readings this detector object has taken
-(keyed or not) since it was built: reproducible within one process only. ``expected_signal`` has its
-own fixed stream, so it returns the same values on every call.
+stream, a, b])``: the aperture samples from a Philox4x32 keyed by that stream's state (a still pose is
+row counter 0 of :func:`gonio.sim.aperture.aperture_factors`; a reading over a motion has rows 0..15
+under one key), and the sensor noise from a numpy generator. For ``measure(..., key=(step, attempt))``,
+(a, b) = (step, attempt): the same reading of the same campaign is bit-identical whatever the process
+did before it, so a campaign resumed from its journal in a new process replays an uninterrupted one,
+and a retried step draws fresh samples. Without a key, (a, b) = (n, 0) on separate streams, n the number
+of readings this detector object has taken (keyed or not) since it was built: reproducible within one
+process only. ``expected_signal`` has its own fixed stream, so it returns the same values on every call.
+
+Batches. Where the poses are known in advance (a simulation: every pose of a plan), :meth:`SimDetector.
+measure_poses` renders the still readings of many poses in one launch per target: reading for reading
+bit-identical to what :meth:`SimDetector.measure` gives with the same key, pose, source radiance,
+exposure and frames (the same rows, the same per-reading sensor code), at a fraction of the CPU time
+(``tools/bench_batch_detector.py``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 
-import drjit as dr
 import numpy as np
-from drjit.llvm import Array3f, Array3f64, Float, Philox4x32, UInt32, UInt64
 
 from gonio.config import DetectorConfig
+from gonio.jit import resolve_backend
 from gonio.protocols import Clock, DeviceFault, Reading
+from gonio.sim.aperture import aperture_factors, aperture_radiance_factor, seed_state
 
-__all__ = ["SimDetector", "TARGETS", "MOTION_TIMES", "aperture_radiance_factor"]
+__all__ = ["SimDetector", "TARGETS", "MOTION_TIMES", "BATCH_ROWS", "aperture_radiance_factor"]
 
 #: What can be under the beam: the sample, or the white reference standard.
 TARGETS = ("sample", "reference")
@@ -70,51 +70,10 @@ _MC_STREAM, _NOISE_STREAM, _EXPECTED_STREAM, _MC_COUNTER_STREAM, _NOISE_COUNTER_
 _MOTION_STREAM = 5
 #: Times per reading at which a moving gantry is sampled (stratified over the integration).
 MOTION_TIMES = 16
+#: Poses per Dr.Jit launch of :meth:`SimDetector.measure_poses` (bounds the launch's memory).
+BATCH_ROWS = 16384
 #: Above this many expected counts numpy's Poisson sampler is replaced by its Gaussian limit.
 _POISSON_MAX = 1e15
-
-
-def _cone_directions(axis: Array3f, one_minus_cos_max: Float, u1: Float, u2: Float) -> Array3f:
-    """Directions uniform in solid angle within a cone around the unit vector(s) ``axis``."""
-    # w = 1 − cos θ is uniform in [0, 1 − cos α]; sin θ from w keeps float32 precision for tiny cones.
-    w = u1 * one_minus_cos_max
-    cos_t = 1.0 - w
-    sin_t = dr.safe_sqrt(w * (2.0 - w))
-    sin_p, cos_p = dr.sincos(2.0 * dr.pi * u2)
-    # Orthonormal basis around the axis without a branch (Duff et al. 2017, JCGT 6(1)).
-    n = axis
-    sign = dr.copysign(1.0, n.z)
-    a = -1.0 / (sign + n.z)
-    b = n.x * n.y * a
-    s = Array3f(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x)
-    t = Array3f(b, sign + n.y * n.y * a, -n.y)
-    return s * (sin_t * cos_p) + t * (sin_t * sin_p) + n * cos_t
-
-
-def aperture_directions(wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
-                        detector_half_angle_deg: float, samples: int, seed_state: tuple[int, int]):
-    """The Monte Carlo directions of :func:`aperture_radiance_factor`: ``samples`` pairs (ωi', ωo') per
-    pose, uniform in the source and detector cones, as Dr.Jit Array3f (N·samples lanes, pose-major).
-    Lane (j, p) draws from the Philox4x32 counter (j, p, word, 0) under the key of ``seed_state``."""
-    n = wi.shape[0]
-    key, word = seed_state
-    om_src = 1.0 - np.cos(np.radians(source_half_angle_deg))
-    om_det = 1.0 - np.cos(np.radians(detector_half_angle_deg))
-    lane = dr.arange(UInt32, n * samples)
-    pose = lane // samples
-    # Both axes of every pose in one buffer, (N, 6) row-major: one input whatever N.
-    axes = Float(np.ascontiguousarray(np.hstack([wi, wo]), dtype=np.float32).ravel())
-    wi_c = dr.gather(Array3f, axes, 2 * pose)
-    wo_c = dr.gather(Array3f, axes, 2 * pose + 1)
-    # A counter-based generator keyed per reading: lane (j, p) is the cipher of its own counter, so
-    # neighbouring lanes are independent (PCG32 seeded with state + k, seq + k per lane is not: its
-    # error came out up to 1.3x the independent-sample figure). Opaque key and apertures: a new
-    # reading must not compile a new kernel.
-    rng = Philox4x32(dr.opaque(UInt64, key), lane - pose * samples, pose, dr.opaque(UInt32, word))
-    u1, u2, u3, u4 = rng.next_float32x4()
-    wi_s = _cone_directions(wi_c, dr.opaque(Float, om_src), u1, u2)
-    wo_s = _cone_directions(wo_c, dr.opaque(Float, om_det), u3, u4)
-    return wi_s, wo_s
 
 
 def _straight(t0: float, a_deg: np.ndarray, t1: float, b_deg: np.ndarray):
@@ -125,65 +84,6 @@ def _straight(t0: float, a_deg: np.ndarray, t1: float, b_deg: np.ndarray):
     def motion(times) -> np.ndarray:
         return a + ((np.asarray(times, dtype=np.float64) - t0) / (t1 - t0))[:, None] * d
     return motion
-
-
-def aperture_radiance_factor(material, wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
-                             detector_half_angle_deg: float, samples: int,
-                             seed_state: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Reflected radiance per unit source radiance and its Monte Carlo standard error, for many poses
-    in one Dr.Jit launch.
-
-    Parameters
-    ----------
-    material
-        Has ``eval_dr(wi, wo) -> Array3f``: f_r in sr⁻¹ (0 below the horizon), sample frame.
-    wi, wo : ndarray, shape (N, 3)
-        Unit vectors (sample frame) toward the centre of the source and of the detector's field.
-    source_half_angle_deg, detector_half_angle_deg : float
-        Half-angles (°) of the cone the source subtends and of the cone the detector sees.
-    samples : int
-        Monte Carlo samples per pose, >= 2 (one sample cannot estimate its own error).
-    seed_state : (int, int)
-        A 64-bit Philox4x32 key and a 32-bit stream word. Sample j of pose p draws its four uniforms
-        from the counter (j, p, word, 0) under that key: every lane is an independent draw, and the
-        same (key, word) gives pose p the same samples in any batch.
-
-    Returns
-    -------
-    factor : ndarray, shape (N, 3)
-        Ω_s · mean(f_r(ωi', ωo') · cos θi') per pose: L / L_src, dimensionless (sr⁻¹ · sr).
-    stderr : ndarray, shape (N, 3)
-        Ω_s · s / √samples, s² the sample variance of f_r · cos θi' over the pose's samples: the
-        standard error of ``factor`` from the integration alone.
-    """
-    wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
-    wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
-    if isinstance(samples, bool) or not isinstance(samples, int | np.integer) or not 2 <= samples <= 1 << 20:
-        raise ValueError(f"samples: must be an integer in [2, {1 << 20}], got {samples!r}")
-    key, word = _check_seed_state(seed_state)
-    n = wi.shape[0]
-    if n == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    if wo.shape[0] != n:
-        raise ValueError(f"wo: expected {n} directions like wi, got {wo.shape[0]}")
-    samples = int(samples)
-    om_src = 1.0 - np.cos(np.radians(source_half_angle_deg))
-    wi_s, wo_s = aperture_directions(wi, wo, source_half_angle_deg, detector_half_angle_deg, samples,
-                                     (key, word))
-    fr_cos = material.eval_dr(wi_s, wo_s) * dr.maximum(wi_s.z, 0.0)
-    # float64 sums: Σx² − (Σx)²/n cancels down to the variance, which can be ~1e-10 of the squared
-    # mean (a Lambertian in a 0.5° cone), far below float32's resolution: float32 sums gave 100x the
-    # true error there (tools/bench_detector.py).
-    x = Array3f64(fr_cos)
-    x2 = x * x
-    dr.eval(x, x2)  # one kernel for the samples; the block sums then only read memory
-    s1, s2 = (np.stack([np.asarray(s, dtype=np.float64) for s in dr.block_sum(v, samples)], axis=1)
-              for v in (x, x2))
-    mean = s1 / samples
-    # Rounding can leave a zero variance (a constant integrand) a hair below zero.
-    var = np.maximum(s2 - s1 * mean, 0.0) / (samples - 1)
-    omega = 2.0 * np.pi * om_src
-    return omega * mean, omega * np.sqrt(var / samples)
 
 
 class SimDetector:
@@ -209,10 +109,14 @@ class SimDetector:
         module docstring).
     name : str
         Device name used in messages.
+    backend : {"llvm", "cuda"}, optional
+        Dr.Jit backend of the render; default ``cfg.sim.backend``, else :func:`gonio.jit.resolve_backend`
+        (``GONIO_BACKEND``, else CUDA when present).
     """
 
     def __init__(self, cfg: DetectorConfig, *, light, axes: Mapping, kinematics, materials: Mapping,
-                 clock: Clock, seed: int = 0, name: str = "detector", track_motion: bool = False):
+                 clock: Clock, seed: int = 0, name: str = "detector", track_motion: bool = False,
+                 backend: str | None = None):
         if len(cfg.channels) != 3:
             raise ValueError(
                 f"detector.channels: the simulated detector renders RGB materials and needs exactly "
@@ -234,6 +138,7 @@ class SimDetector:
         self.name = name
         self.channels = tuple(cfg.channels)
         self.cfg = cfg
+        self.backend = resolve_backend(cfg.sim.backend if backend is None else backend)
         self._light = light
         self._axes = axes
         self._kinematics = kinematics
@@ -284,13 +189,12 @@ class SimDetector:
             sensor noise: every frame has the same aperture samples), or for a single frame the
             standard deviation the noise model predicts (one frame cannot estimate its own spread).
             ``extra`` holds the target, the actual axis positions (°), the start time (s), the
-            reading number, the key, and the two parts of ``stderr`` (``stderr_integration``,
-            ``stderr_sensor``).
+            reading number, the key, whether the axes moved, the Dr.Jit backend that rendered it,
+            and the two parts of ``stderr`` (``stderr_integration``, ``stderr_sensor``).
         """
         self._require_connected()
         exposure_s = _check_exposure(exposure_s)
-        if isinstance(frames, bool) or not isinstance(frames, int | np.integer) or not 1 <= frames <= 1000:
-            raise ValueError(f"frames: must be an integer in [1, 1000], got {frames!r}")
+        frames = _check_frames(frames)
         key = _check_key(key)
         t0 = self._clock.now()
         axes_deg = self.actual_axes_deg()
@@ -319,34 +223,89 @@ class SimDetector:
             path = np.asarray(motion(times), dtype=np.float64).reshape(MOTION_TIMES, -1)
             if np.array_equal(path, np.broadcast_to(axes_deg, path.shape)):
                 path = None  # still: the exact still reading
+        key_word = seed_state(self._seed, *mc_id)
         if path is not None:
             per = max(2, self.cfg.sim.aperture_samples // MOTION_TIMES)
-            factors, ses = self._radiance_factor(path, self._target, _seed_state(self._seed, *mc_id), per)
+            factors, ses = self._render(path, self._target, *_one_stream(key_word, MOTION_TIMES), per)
             factor, factor_se = factors.mean(axis=0), np.sqrt((ses**2).sum(axis=0)) / MOTION_TIMES
         elif source > 0.0:
-            factor, factor_se = self._radiance_factor(axes_deg[None, :], self._target,
-                                                      _seed_state(self._seed, *mc_id))
+            factor, factor_se = self._render(axes_deg[None, :], self._target, *_rows([key_word]))
             factor, factor_se = factor[0], factor_se[0]
         else:
             # Shutter closed: skip the render; no light, no integration error.
             factor = factor_se = np.zeros(len(self.channels))
-        clean = source * factor * exposure_s
-        rng = np.random.default_rng(np.random.SeedSequence([self._seed, *noise_id]))
-        frame_values = self._noisy_frames(clean, exposure_s, int(frames), rng)
-        mean = frame_values.mean(axis=0)
-        if frames > 1:
-            sensor_se = frame_values.std(axis=0, ddof=1) / np.sqrt(frames)
-        else:
-            sensor_se = self.noise_sigma(clean)
-        integration_se = source * factor_se * exposure_s
-        stderr = np.hypot(integration_se, sensor_se)
+        reading = self._reading(factor, factor_se, source, exposure_s, frames, noise_id, {
+            "target": self._target, "axes_deg": self._named(axes_deg), "t_s": t0, "reading": n, "key": key,
+            "moving": path is not None})
         if not slept:
             self._clock.sleep(exposure_s * frames)
-        extra = {"target": self._target, "axes_deg": dict(zip(self._kinematics.axis_names,
-                                                              axes_deg.tolist(), strict=True)),
-                 "t_s": t0, "reading": n, "key": key, "moving": path is not None,
-                 "stderr_integration": integration_se, "stderr_sensor": sensor_se}
-        return Reading(signal=mean, stderr=stderr, exposure_s=exposure_s, frames=int(frames), extra=extra)
+        return reading
+
+    def measure_poses(self, axes_deg, keys, *, exposure_s: float | Sequence[float] | None = None,
+                      frames: int | Sequence[int] | None = None, targets: str | Sequence[str] | None = None,
+                      sources: float | Sequence[float] | None = None,
+                      times_s: float | Sequence[float] | None = None) -> list[Reading]:
+        """The keyed readings of many still poses at once: what :meth:`measure` would give at each.
+
+        For a simulation whose poses are known in advance (a whole plan): the poses of each target are
+        rendered in one Dr.Jit launch (in launches of :data:`BATCH_ROWS`), and reading k is bit for bit
+        the reading ``measure(exposure_s[k], frames[k], key=keys[k])`` takes with the axes at
+        ``axes_deg[k]``, the target ``targets[k]`` under the beam and the source at ``sources[k]``
+        (the same random streams, the same sensor code). Nothing moves and the clock does not advance;
+        the reading numbers advance as ``len(keys)`` readings would. A reading whose axes move during
+        its integration is :meth:`measure`'s alone.
+
+        Parameters
+        ----------
+        axes_deg : array_like, shape (P, n_axes)
+            Actual axis positions (°) at each reading, columns in ``kinematics.axis_names`` order.
+        keys : array_like, shape (P, 2)
+            (step, attempt) of each reading, integers >= 0.
+        exposure_s, frames, targets, sources, times_s : scalar or sequence of P, optional
+            Exposure (s; default ``cfg.exposure_s``), frames (default ``cfg.frames``), target (one of
+            :data:`TARGETS`; default the current one), source radiance at the reading's start (>= 0;
+            0: shutter closed; default the light's radiance now) and start time (s, kept in ``extra``;
+            default the clock now), each one for all or one per reading.
+
+        Returns
+        -------
+        list of Reading
+            As :meth:`measure`'s, in the order of ``keys``.
+        """
+        self._require_connected()
+        n_axes = len(self._kinematics.axis_names)
+        axes_deg = np.asarray(axes_deg, dtype=np.float64)
+        if axes_deg.ndim != 2 or axes_deg.shape[1] != n_axes:
+            raise ValueError(f"axes_deg: expected shape (P, {n_axes}), got {axes_deg.shape}")
+        p = axes_deg.shape[0]
+        keys = [_check_key(tuple(k)) if isinstance(k, tuple | list | np.ndarray) else _check_key(k)
+                for k in keys]
+        if len(keys) != p:
+            raise ValueError(f"keys: expected one (step, attempt) per pose ({p}), got {len(keys)}")
+        exposure = [_check_exposure(e) for e in _each("exposure_s", exposure_s, self.cfg.exposure_s, p)]
+        frame_counts = [_check_frames(f) for f in _each("frames", frames, self.cfg.frames, p)]
+        targets = [_check_target(t) for t in _each("targets", targets, self._target, p)]
+        sources = [float(r) for r in _each("sources", sources, None, p)] if sources is not None else \
+            [self._light.radiance()] * p
+        if any(not (np.isfinite(r) and r >= 0.0) for r in sources):
+            raise ValueError("sources: each source radiance must be finite and >= 0")
+        times = [float(t) for t in _each("times_s", times_s, self._clock.now(), p)]
+        first = self._count
+        self._count += p
+        factor = np.zeros((p, len(self.channels)))
+        factor_se = np.zeros_like(factor)
+        key_words = [seed_state(self._seed, _MC_STREAM, *k) for k in keys]
+        for target in TARGETS:
+            lit = [k for k in range(p) if targets[k] == target and sources[k] > 0.0]
+            for lo in range(0, len(lit), BATCH_ROWS):
+                part = lit[lo:lo + BATCH_ROWS]
+                f, e = self._render(axes_deg[part], target, *_rows([key_words[k] for k in part]))
+                factor[part], factor_se[part] = f, e
+        return [self._reading(factor[k], factor_se[k], sources[k], exposure[k], frame_counts[k],
+                              (_NOISE_STREAM, *keys[k]), {
+                                  "target": targets[k], "axes_deg": self._named(axes_deg[k]), "t_s": times[k],
+                                  "reading": first + k, "key": keys[k], "moving": False})
+                for k in range(p)]
 
     # -- simulation-only ----------------------------------------------------------------------------
     @property
@@ -355,9 +314,7 @@ class SimDetector:
         return self._target
 
     def set_target(self, target: str) -> None:
-        if target not in TARGETS:
-            raise ValueError(f"target: {target!r} is not one of {', '.join(repr(t) for t in TARGETS)}")
-        self._target = target
+        self._target = _check_target(target)
 
     def actual_axes_deg(self) -> np.ndarray:
         """Actual shaft angles (°) of the axes now, in ``kinematics.axis_names`` order."""
@@ -385,9 +342,7 @@ class SimDetector:
             batch gets the same samples whatever the batch).
         """
         self._require_connected()
-        target = self._target if target is None else target
-        if target not in TARGETS:
-            raise ValueError(f"target: {target!r} is not one of {', '.join(repr(t) for t in TARGETS)}")
+        target = _check_target(self._target if target is None else target)
         exposure_s = _check_exposure(self.cfg.exposure_s if exposure_s is None else exposure_s)
         n_axes = len(self._kinematics.axis_names)
         axes_deg = np.asarray(axes_deg, dtype=np.float64)
@@ -397,7 +352,8 @@ class SimDetector:
         dark = self.cfg.sim.noise.dark_offset * exposure_s
         if source == 0.0:
             return np.full((axes_deg.shape[0], len(self.channels)), dark)
-        factor, _ = self._radiance_factor(axes_deg, target, _seed_state(self._seed, _EXPECTED_STREAM, 0, 0))
+        stream = seed_state(self._seed, _EXPECTED_STREAM, 0, 0)
+        factor, _ = self._render(axes_deg, target, *_one_stream(stream, axes_deg.shape[0]))
         return source * factor * exposure_s + dark
 
     def noise_sigma(self, clean_signal) -> np.ndarray:
@@ -409,15 +365,38 @@ class SimDetector:
         return np.sqrt(var)
 
     # -- internals ----------------------------------------------------------------------------------
-    def _radiance_factor(self, axes_deg: np.ndarray, target: str, seed_state,
-                         samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(factor, stderr) per pose of ``axes_deg`` (K, n_axes), ``samples`` aperture pairs each
-        (default ``aperture_samples``)."""
+    def _render(self, axes_deg: np.ndarray, target: str, keys, words, counters,
+                samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(factor, stderr) per pose of ``axes_deg`` (K, n_axes), each pose a row of
+        :func:`gonio.sim.aperture.aperture_factors` with its stream (keys, words, counters), ``samples``
+        aperture pairs each (default ``aperture_samples``)."""
         wi, wo = self._kinematics.directions(axes_deg)
-        return aperture_radiance_factor(
+        return aperture_factors(
             self._materials[target], wi, wo, self._light.half_angle_deg, self.cfg.sim.half_angle_deg,
-            self.cfg.sim.aperture_samples if samples is None else samples, seed_state,
-        )
+            self.cfg.sim.aperture_samples if samples is None else samples, keys, words, counters,
+            self.backend)
+
+    def _reading(self, factor: np.ndarray, factor_se: np.ndarray, source: float, exposure_s: float,
+                 frames: int, noise_id: tuple[int, int, int], extra: dict) -> Reading:
+        """The reading of a rendered pose through the sensor: the one code path of every reading."""
+        clean = source * factor * exposure_s
+        noise = self.cfg.sim.noise
+        # The generator is drawn from only with shot or read noise (building it costs more than a render).
+        rng = np.random.default_rng(np.random.SeedSequence([self._seed, *noise_id])) \
+            if noise.shot_counts_per_unit > 0.0 or noise.read_sigma > 0.0 else None
+        frame_values = self._noisy_frames(clean, exposure_s, frames, rng)
+        mean = frame_values.mean(axis=0)
+        if frames > 1:
+            sensor_se = frame_values.std(axis=0, ddof=1) / np.sqrt(frames)
+        else:
+            sensor_se = self.noise_sigma(clean)
+        integration_se = source * factor_se * exposure_s
+        stderr = np.hypot(integration_se, sensor_se)
+        extra.update(backend=self.backend, stderr_integration=integration_se, stderr_sensor=sensor_se)
+        return Reading(signal=mean, stderr=stderr, exposure_s=exposure_s, frames=frames, extra=extra)
+
+    def _named(self, axes_deg: np.ndarray) -> dict:
+        return dict(zip(self._kinematics.axis_names, axes_deg.tolist(), strict=True))
 
     def _noisy_frames(self, clean: np.ndarray, exposure_s: float, frames: int, rng) -> np.ndarray:
         noise = self.cfg.sim.noise
@@ -456,17 +435,38 @@ def _check_key(key) -> tuple[int, int] | None:
     return int(key[0]), int(key[1])
 
 
-def _check_seed_state(seed_state) -> tuple[int, int]:
-    ok = (isinstance(seed_state, tuple | list) and len(seed_state) == 2
-          and all(isinstance(k, int | np.integer) and not isinstance(k, bool) for k in seed_state)
-          and 0 <= seed_state[0] < 1 << 64 and 0 <= seed_state[1] < 1 << 32)
-    if not ok:
-        raise ValueError(f"seed_state: must be (key, word), integers in [0, 2**64) and [0, 2**32), "
-                         f"got {seed_state!r}")
-    return int(seed_state[0]), int(seed_state[1])
+def _check_frames(frames) -> int:
+    if isinstance(frames, bool) or not isinstance(frames, int | np.integer) or not 1 <= frames <= 1000:
+        raise ValueError(f"frames: must be an integer in [1, 1000], got {frames!r}")
+    return int(frames)
 
 
-def _seed_state(seed: int, stream: int, a: int, b: int) -> tuple[int, int]:
-    """The Philox4x32 (key, word) of stream ``stream`` for (a, b): (step, attempt) or (n, 0)."""
-    key, word = np.random.SeedSequence([seed, stream, a, b]).generate_state(2, np.uint64)
-    return int(key), int(word) >> 32
+def _check_target(target) -> str:
+    if target not in TARGETS:
+        raise ValueError(f"target: {target!r} is not one of {', '.join(repr(t) for t in TARGETS)}")
+    return target
+
+
+def _each(name: str, value, default, n: int) -> list:
+    """``value`` for each of ``n`` readings: a scalar (or None: ``default``) for all, or a sequence of n."""
+    if value is None:
+        return [default] * n
+    if isinstance(value, str) or np.ndim(value) == 0:
+        return [value] * n
+    values = list(value)
+    if len(values) != n:
+        raise ValueError(f"{name}: expected one value or one per pose ({n}), got {len(values)}")
+    return values
+
+
+def _rows(key_words: list[tuple[int, int]]):
+    """Rows of their own streams, counter 0 each: (keys, words, counters) of :meth:`SimDetector._render`."""
+    keys = np.array([k for k, _ in key_words], dtype=np.uint64)
+    words = np.array([w for _, w in key_words], dtype=np.uint32)
+    return keys, words, np.zeros(len(key_words), dtype=np.uint32)
+
+
+def _one_stream(key_word: tuple[int, int], n: int):
+    """n rows sharing one stream, counters 0..n−1 (a reading over a motion, ``expected_signal``)."""
+    key, word = key_word
+    return np.full(n, key, dtype=np.uint64), np.full(n, word, dtype=np.uint32), np.arange(n, dtype=np.uint32)

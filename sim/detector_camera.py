@@ -36,6 +36,7 @@ import numpy as np
 from skimage import morphology
 
 from gonio.frames import Frame, FrameError, auto_exposure, check_frame, merge_brackets, region_mean
+from gonio.jit import resolve_backend
 from gonio.protocols import Clock, DeviceFault, Reading
 from gonio.sim.camera import CameraSettings, SimCamera
 from gonio.sim.detector import TARGETS, SimDetector
@@ -70,8 +71,9 @@ class CameraDetector:
         ``radiance()`` now (0 with the shutter closed).
     axes, kinematics, materials, clock, seed, name
         As :class:`gonio.sim.detector.SimDetector`'s (RGB materials for ``"sample"`` and ``"reference"``).
-    backend : str, optional
-        Dr.Jit backend of the renderer (default: CUDA when present, else LLVM).
+    backend : {"llvm", "cuda"}, optional
+        Dr.Jit backend of the renderer (default: ``cfg.sim.backend``, else
+        :func:`gonio.jit.resolve_backend`).
     """
 
     def __init__(self, cfg, settings: CameraSettings, *, light, axes, kinematics, materials, clock: Clock,
@@ -90,7 +92,9 @@ class CameraDetector:
         self._axes = axes
         self._kinematics = kinematics
         self._clock = clock
-        self._cameras = {t: SimCamera(settings, materials[t], seed=seed, backend=backend) for t in TARGETS}
+        self.backend = resolve_backend(cfg.sim.backend if backend is None else backend)
+        self._cameras = {t: SimCamera(settings, materials[t], seed=seed, backend=self.backend)
+                         for t in TARGETS}
         self._target = "sample"
         self._connected = False
         self._count = 0

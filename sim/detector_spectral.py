@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.sim.detector import SimDetector, _check_seed_state, aperture_directions
+from gonio.jit import resolve_backend
+from gonio.sim.aperture import aperture_directions, check_seed_state
+from gonio.sim.detector import SimDetector
 from gonio.sim.materials.spectral import CONDUCTORS, SpectralConductor, SpectralLambert
 
 __all__ = ["SpectrometerDetector", "spectral_material", "spectral_aperture_factor", "constant_reflectance"]
@@ -36,8 +38,9 @@ def constant_reflectance(value: float):
 def spectral_material(material):
     """The spectral material for a MATERIAL (string or loaded RGB material) that has one.
 
-    Returns an object with ``eval(wi, wo, wavelength_nm) -> (..., L)`` in sr⁻¹. A material that already
-    is spectral (has ``eval`` of three arguments and no ``eval_dr``) is returned as it is.
+    Returns an object with ``eval(wi, wo, wavelength_nm, backend=None) -> (..., L)`` in sr⁻¹ (``backend``
+    the Dr.Jit backend, as :mod:`gonio.sim.materials.spectral`'s). A material that already is spectral
+    (has such an ``eval`` and no ``eval_dr``) is returned as it is.
 
     Raises
     ------
@@ -69,27 +72,30 @@ def spectral_material(material):
 
 def spectral_aperture_factor(material, wi: np.ndarray, wo: np.ndarray, wavelength_nm,
                              source_half_angle_deg: float, detector_half_angle_deg: float, samples: int,
-                             seed_state: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+                             seed_state: tuple[int, int], backend: str | None = None,
+                             ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`gonio.sim.detector.aperture_radiance_factor` for a spectral material: (factor, stderr), each
-    (N, L) for L wavelengths, from the same aperture directions (same ``seed_state``: same samples)."""
+    (N, L) for L wavelengths, from the same aperture directions (same ``seed_state``: same samples), on
+    the Dr.Jit ``backend`` (default :func:`gonio.jit.resolve_backend`)."""
     wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
     wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=np.float64))
     if isinstance(samples, bool) or not isinstance(samples, int | np.integer) or not 2 <= samples <= 1 << 20:
         raise ValueError(f"samples: must be an integer in [2, {1 << 20}], got {samples!r}")
-    key, word = _check_seed_state(seed_state)
+    key, word = check_seed_state(seed_state)
     n = wi.shape[0]
     if n == 0:
         return np.zeros((0, wl.size)), np.zeros((0, wl.size))
     samples = int(samples)
+    backend = resolve_backend(backend)
     wi_s, wo_s = aperture_directions(wi, wo, source_half_angle_deg, detector_half_angle_deg, samples,
-                                     (key, word))
+                                     (key, word), backend)
     wi_np = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in (wi_s.x, wi_s.y, wi_s.z)], axis=1)
     wo_np = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in (wo_s.x, wo_s.y, wo_s.z)], axis=1)
     # float32 directions renormalized in float64 (the materials check unit length)
     wi_np /= np.linalg.norm(wi_np, axis=1, keepdims=True)
     wo_np /= np.linalg.norm(wo_np, axis=1, keepdims=True)
-    x = material.eval(wi_np, wo_np, wl) * np.maximum(wi_np[:, 2], 0.0)[:, None]
+    x = material.eval(wi_np, wo_np, wl, backend=backend) * np.maximum(wi_np[:, 2], 0.0)[:, None]
     x = x.reshape(n, samples, wl.size)
     mean = x.mean(axis=1)
     var = x.var(axis=1, ddof=1)
@@ -106,19 +112,35 @@ class SpectrometerDetector(SimDetector):
     """
 
     def __init__(self, cfg, *, light, axes, kinematics, materials, clock, seed: int = 0,
-                 name: str = "detector", track_motion: bool = False):
+                 name: str = "detector", track_motion: bool = False, backend: str | None = None):
         super().__init__(cfg, light=light, axes=axes, kinematics=kinematics,
                          materials={t: spectral_material(m) for t, m in materials.items()}, clock=clock,
-                         seed=seed, name=name, track_motion=track_motion)
+                         seed=seed, name=name, track_motion=track_motion, backend=backend)
         wl = cfg.wavelengths_nm
         if wl is None:
             raise ValueError("detector.sim.kind: a SpectrometerDetector needs kind = 'spectrometer'")
         self.wavelengths_nm = np.asarray(wl, dtype=np.float64)
         self.channels = tuple(cfg.channel_names)
 
-    def _radiance_factor(self, axes_deg: np.ndarray, target: str, seed_state, samples: int | None = None):
+    def _render(self, axes_deg: np.ndarray, target: str, keys, words, counters,
+                samples: int | None = None):
+        """:meth:`SimDetector._render` of the spectral integrand: rows of one stream at a time, counters
+        0, 1, ... within it (a still reading is one row; a reading over a motion 16 rows of one key)."""
         wi, wo = self._kinematics.directions(axes_deg)
-        return spectral_aperture_factor(
-            self._materials[target], wi, wo, self.wavelengths_nm, self._light.half_angle_deg,
-            self.cfg.sim.half_angle_deg, self.cfg.sim.aperture_samples if samples is None else samples,
-            seed_state)
+        factor = np.zeros((len(keys), len(self.channels)))
+        factor_se = np.zeros_like(factor)
+        lo = 0
+        while lo < len(keys):
+            hi = lo + 1
+            while hi < len(keys) and (keys[hi], words[hi]) == (keys[lo], words[lo]):
+                hi += 1
+            if not np.array_equal(counters[lo:hi], np.arange(hi - lo)):
+                raise ValueError("counters: the spectrometer renders the rows of one stream with counters "
+                                 "0, 1, ...")
+            factor[lo:hi], factor_se[lo:hi] = spectral_aperture_factor(
+                self._materials[target], wi[lo:hi], wo[lo:hi], self.wavelengths_nm,
+                self._light.half_angle_deg, self.cfg.sim.half_angle_deg,
+                self.cfg.sim.aperture_samples if samples is None else samples,
+                (int(keys[lo]), int(words[lo])), self.backend)
+            lo = hi
+        return factor, factor_se

@@ -60,7 +60,7 @@ from gonio.kinematics import make_kinematics
 from gonio.plan.fly import FlyLine, FlyPlan, fly_steps
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.sim import materials as _materials
-from gonio.sim.detector import aperture_radiance_factor
+from gonio.sim.aperture import aperture_radiance_factor
 from gonio.sim.gantry import reference_material
 from gonio.sim.light import SimLight
 from gonio.store import Measurement
@@ -142,7 +142,7 @@ class FlySimulator:
             key, word = np.random.SeedSequence([self.seed, _MC, step]).generate_state(2, np.uint64)
             factor, factor_se = aperture_radiance_factor(
                 material, wi, wo, self.light.half_angle_deg, cfg.detector.sim.half_angle_deg, self.samples,
-                (int(key), int(word) >> 32))
+                (int(key), int(word) >> 32), cfg.detector.sim.backend)
             radiance = np.array([self.light.lamp_radiance(t) for t in (t0 + times).ravel()])[:, None]
             # Signal per time sample as if it lasted the whole exposure (signal units).
             clean = (radiance * factor * e).reshape(n, TIME_SAMPLES, channels)

@@ -24,7 +24,9 @@ from gonio.sim.materials.spectral import (
 colour = gc.colour
 Z = np.array([[0.0, 0.0, 1.0]])
 # colour-science warns each time it aligns a distribution to the CMFs' grid; that is intended here.
-pytestmark = pytest.mark.filterwarnings("ignore::colour.utilities.ColourRuntimeWarning")
+# Each test runs on every Dr.Jit backend (CUDA skipped without a device).
+pytestmark = [pytest.mark.filterwarnings("ignore::colour.utilities.ColourRuntimeWarning"),
+              pytest.mark.usefixtures("backend")]
 
 
 def _fresnel_complex(n, k):

@@ -21,6 +21,9 @@ from gonio.sim.materials import load
 from gonio.sim.materials.spectral import SpectralConductor
 from gonio.wiring import build_gantry
 
+# Each test runs on every Dr.Jit backend (CUDA skipped without a device).
+pytestmark = pytest.mark.usefixtures("backend")
+
 
 def _cfg(kind: str, **camera):
     return with_sim_detector(load_config(), kind, **({"camera": camera} if camera else {}))

@@ -10,8 +10,8 @@ import pytest
 from scipy import ndimage
 
 from gonio import frames
+from gonio.sim.aperture import aperture_radiance_factor
 from gonio.sim.camera import CameraSettings, SimCamera
-from gonio.sim.detector import aperture_radiance_factor
 from gonio.sim.materials import load
 
 LAMBERT = load("lambert:albedo=0.7")
@@ -112,9 +112,10 @@ def test_dark_frames_subtract_the_offset_and_dark_signal():
 
 
 def _state(cam):
-    from gonio.sim.camera import _RENDER_STREAM, _seed_state
+    from gonio.sim.aperture import seed_state
+    from gonio.sim.camera import _RENDER_STREAM
 
-    return _seed_state(cam.seed, _RENDER_STREAM, 0, 0)
+    return seed_state(cam.seed, _RENDER_STREAM, 0, 0)
 
 
 @pytest.mark.parametrize(("pixels", "kwargs", "message"), [

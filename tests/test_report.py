@@ -121,11 +121,11 @@ def test_the_report_has_every_section_and_says_what_the_campaign_was(copper):
 def test_models_are_ranked_and_a_missing_fresnel_term_is_found_where_it_shows(copper):
     _, out, rep = copper
     ranked = [m["model"] for m in rep.fits]
-    assert ranked[0] == "lambert+ggx" and sorted(ranked) == sorted(DEFAULT_MODELS)
+    assert ranked[0] == "ggx" and sorted(ranked) == sorted(DEFAULT_MODELS)
     per_dof = [m["per_dof"] for m in rep.fits]
     assert per_dof == sorted(per_dof) and [m["rank"] for m in rep.fits] == [1, 2, 3, 4]
     best = rep.fits[0]
-    # copper's conductor Fresnel rises at large θd; lambert+ggx fits it without Fresnel: only there it fails
+    # copper's conductor Fresnel rises at large θd; ggx fits it without Fresnel: only there it fails
     assert best["flagged"] == ["fresnel"]
     assert "in the Fresnel rise" in best["words"]
     for m in rep.fits[1:]:  # no lobe, or no diffuse part: fails at the peak too
@@ -137,21 +137,21 @@ def test_models_are_ranked_and_a_missing_fresnel_term_is_found_where_it_shows(co
 
 
 def test_the_default_models_recover_a_ggx_with_a_diffuse_part(copper, capsys):
-    """The defaults were single-lobe models beside lambert+ggx: on this ggx + diffuse copper, ggx alone
-    found alpha = 0.67 (made with 0.15) and ward ended at its bounds. Each default lobe now has the
-    diffuse part the sample has; lambert+ggx finds the material it was made from."""
+    """The defaults were single-lobe models beside lambert+ggx: on this ggx + diffuse copper, the ggx lobe
+    alone found alpha = 0.67 (made with 0.15) and ward's ended at its bounds. Each default model is now
+    its material, the diffuse part included; ggx finds the material it was made from."""
     _, _, rep = copper
-    assert DEFAULT_MODELS == ("lambert", "lambert+ward", "lambert+cook-torrance", "lambert+ggx")
+    assert DEFAULT_MODELS == ("lambert", "ward", "cook-torrance", "ggx")
     with pytest.raises(SystemExit):
         main(["report", "--help"])
     assert f"(default: {', '.join(DEFAULT_MODELS)}:" in " ".join(capsys.readouterr().out.split())
     fits = {m["model"]: m["result"].parameters for m in rep.fits}
-    ggx = fits["lambert+ggx"]
+    ggx = fits["ggx"]
     assert abs(ggx["alpha"]["value"] / 0.15 - 1) < 0.03, ggx["alpha"]
     for ch in "RGB":
         assert abs(ggx[f"rho_d.{ch}"]["value"] / 0.2 - 1) < 0.03, ggx
     assert not any(p["at_bound"] for p in ggx.values())
-    for model in ("lambert+ward", "lambert+cook-torrance"):   # their lobes' widths are found, not bounds
+    for model in ("ward", "cook-torrance"):   # their lobes' widths are found, not bounds
         width = fits[model]["alpha" if "ward" in model else "m"]
         assert not width["at_bound"] and 0.1 < width["value"] < 0.3, (model, width)
 

@@ -31,7 +31,7 @@ from drjit.llvm import PCG32, Array3f, Float, UInt32, UInt64
 
 from gonio.config import load_config, parse_config
 from gonio.sim import materials
-from gonio.sim.detector import _cone_directions, aperture_radiance_factor
+from gonio.sim.aperture import aperture_radiance_factor, cone_directions
 from gonio.sim.gantry import SimGantry
 
 SHARP = "ggx:alpha=0.05,metal=gold"
@@ -49,8 +49,8 @@ def _in_plane(theta_deg: float, phi_deg: float) -> np.ndarray:
 def _lane_values(material, wi, wo, half_angle_deg, rng) -> np.ndarray:
     """f_r · cos θi' of every lane (float32 kernel), as float64 (lanes, 3), cones of one half-angle."""
     om = dr.opaque(Float, 1.0 - np.cos(np.radians(half_angle_deg)))
-    wi_s = _cone_directions(wi, om, rng.next_float32(), rng.next_float32())
-    wo_s = _cone_directions(wo, om, rng.next_float32(), rng.next_float32())
+    wi_s = cone_directions(wi, om, rng.next_float32(), rng.next_float32())
+    wo_s = cone_directions(wo, om, rng.next_float32(), rng.next_float32())
     x = material.eval_dr(wi_s, wo_s) * dr.maximum(wi_s.z, 0.0)
     return np.stack([np.asarray(x[k], dtype=np.float64) for k in range(3)], axis=1)
 

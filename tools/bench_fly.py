@@ -64,7 +64,7 @@ def _sharp_peaks(cfg, spec: str = "ward:rho_d=0.1,rho_s=0.2,alpha=0.02", seeds=r
     reading of the same pose sees, over ``seeds``; and over the readings whose blur (the mean over the
     exposure's path against the value at the pose) exceeds their noise."""
     from gonio.plan.fly import FLY_DUTY, FlyLine
-    from gonio.sim.detector import aperture_radiance_factor
+    from gonio.sim.aperture import aperture_radiance_factor
 
     m = materials.load(spec)
     src, det = cfg.light.sim.half_angle_deg, cfg.detector.sim.half_angle_deg

@@ -32,6 +32,7 @@ from gonio.cli.common import (
 )
 from gonio.cli.results import _export_formats, _write_exports
 from gonio.config import load_config
+from gonio.jit import BACKENDS
 
 #: Seconds between progress lines when stderr is not a terminal (logs, CI, a daemon's journal).
 PLAIN_PROGRESS_EVERY_S = 5.0
@@ -239,6 +240,14 @@ def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
 
 
 def cmd_simulate(args) -> int:
+    from gonio.jit import using_backend
+
+    # cuda without a device is refused here, in one line, before anything is written
+    with using_backend(args.backend):
+        return _simulate(args)
+
+
+def _simulate(args) -> int:
     from gonio.plan import parse_grid
     from gonio.sim.materials import load as load_material
 
@@ -559,6 +568,10 @@ def add_parsers(sub, fmt) -> None:
                     help="the simulated detector (default: the config's [detector.sim] kind, photodiode): "
                          "RGB photodiode, spectrometer (bands of [detector.sim.spectrometer], spectral "
                          "materials) or camera (frames reduced to the sample's mean radiance)")
+    ss.add_argument("--backend", choices=BACKENDS, default=None,
+                    help="Dr.Jit backend of the simulation (default: $GONIO_BACKEND, else cuda when a CUDA "
+                         "device is present, else llvm; the config's [detector.sim] backend, where set, "
+                         "wins for the detector)")
     ss.add_argument("--clear-fault", action="store_true",
                     help="clear the campaign's latched fault (after fixing its cause) and resume")
     ss.add_argument("--quiet", action="store_true", help="no progress output")

@@ -16,12 +16,14 @@ from gonio.cli.common import (
     _writable_out,
     add_force,
 )
+from gonio.jit import BACKENDS
 
 
 def cmd_fit(args) -> int:
     """Fit a model to a finished campaign; the MATERIAL string on stdout, the JSON in --out."""
     from gonio.dataset import BRDF_NAME
     from gonio.fit import fit, parse_channels, parse_model
+    from gonio.jit import using_backend
 
     source = Path(args.dir)
     if not source.exists():
@@ -34,7 +36,8 @@ def cmd_fit(args) -> int:
     parse_model(args.model, channels)  # a bad MODEL is reported before any data is read
     if args.starts < 1:
         raise UsageError(f"--starts: must be an integer >= 1, got {args.starts}")
-    result = fit(source, args.model, channels=args.channels, loss=args.loss, starts=args.starts)
+    with using_backend(args.backend):
+        result = fit(source, args.model, channels=args.channels, loss=args.loss, starts=args.starts)
     if out is not None:
         tmp = out.with_name(out.name + ".partial")
         tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n")
@@ -160,14 +163,19 @@ def add_parsers(sub, fmt) -> None:
                         help="fit a reflectance model to a finished campaign's measured samples")
     sf.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder (or its brdf.h5)")
     sf.add_argument("--model", required=True,
-                    help="lambert, phong, modified-phong, blinn-phong, normalized-blinn-phong, ward, "
-                         "cook-torrance, ggx, or lambert+NAME; ':key=value,...' holds keys fixed or picks "
-                         "the form (d=blinn, fresnel=dielectric, metal=gold), ':anisotropic' for ward/ggx")
+                    help="a material model, fitted with every key the material has, rho_d included: "
+                         "lambert, phong, modified-phong, blinn-phong, normalized-blinn-phong, ward, "
+                         "cook-torrance, ggx; NAME-lobe: the lobe alone (rho_d held at 0); ':key=value,...' "
+                         "holds keys fixed or picks the form (d=blinn, fresnel=dielectric, metal=gold), "
+                         "':anisotropic' for ward/ggx")
     sf.add_argument("--channels", default=None, help="channels to fit, e.g. R,G,B or G (default: all)")
     sf.add_argument("--loss", default="auto", choices=["auto", "chi2", "cos"],
                     help="chi2: weighted by the measured stddev; cos: cos θi cos θo (f_model − f); auto: "
                          "chi2 when the data have stddevs")
     sf.add_argument("--starts", type=int, default=4, help="number of starts; the best fit wins")
+    sf.add_argument("--backend", choices=BACKENDS, default=None,
+                    help="Dr.Jit backend of the model evaluations (default: $GONIO_BACKEND, else cuda when a "
+                         "CUDA device is present, else llvm)")
     sf.add_argument("--out", metavar="FIT.json", default=None,
                     help="write parameters, uncertainties, loss and residual statistics as JSON")
     sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")
@@ -201,8 +209,8 @@ def add_parsers(sub, fmt) -> None:
     sq.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
     sq.add_argument("--out", required=True, metavar="REPORT.html", help="the page to write")
     sq.add_argument("--models", default=None, metavar="MODELS",
-                    help="comma-separated fit MODELs as for gonio fit (default: lambert, lambert+ward, "
-                         "lambert+cook-torrance, lambert+ggx: gonio.report.DEFAULT_MODELS)")
+                    help="comma-separated fit MODELs as for gonio fit (default: lambert, ward, "
+                         "cook-torrance, ggx: gonio.report.DEFAULT_MODELS)")
     add_force(sq)
     sq.set_defaults(func=cmd_report)
 

@@ -13,7 +13,7 @@ standard uncertainties, the loss, the residual statistics and the degrees of fre
 
 Example
 -------
->>> r = fit("campaign-folder", "lambert+ggx")                               # doctest: +SKIP
+>>> r = fit("campaign-folder", "ggx")                                       # doctest: +SKIP
 >>> r.material, r.parameters["alpha"]                                        # doctest: +SKIP
 ('ggx:fresnel=none,alpha=0.2,rho_d=0.3,rho_s=0.5', {'value': 0.2, 'stddev': 0.0004, ...})
 """
@@ -155,7 +155,7 @@ def _iso_key(model: FitModel, key: str) -> str:
 
 
 def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", starts: int = 4,
-        jac: str = "ad") -> FitResult:
+        jac: str = "ad", backend: str | None = None) -> FitResult:
     """Fit ``model`` to the measured samples of ``source``.
 
     Parameters
@@ -164,7 +164,7 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
         A finished campaign folder, a ``brdf.h5``, data read with :func:`gonio.dataset.read_brdf`, or
         directions with values.
     model : str
-        Fit MODEL, e.g. ``lambert+ggx``, ``cook-torrance:d=blinn``, ``ward:anisotropic``
+        Fit MODEL, e.g. ``ggx``, ``ggx-lobe``, ``cook-torrance:d=blinn``, ``ward:anisotropic``
         (:mod:`gonio.fit.models`).
     channels : str, optional
         ``"R,G,B"`` or a subset: the channels whose data enter the loss; colour parameters are fitted
@@ -175,6 +175,9 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
         Number of starts (the best wins).
     jac : {"ad", "2-point"}
         Dr.Jit AD Jacobian (default) or scipy finite differences (for comparison).
+    backend : {"llvm", "cuda"}, optional
+        Dr.Jit backend of the model evaluations (default: :func:`gonio.jit.resolve_backend`, CUDA when
+        present).
 
     Returns
     -------
@@ -190,7 +193,7 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
     m = parse_model(model, chan)
     if not m.variables:
         raise ValueError(f"model {m.text!r}: every parameter is held fixed; nothing to fit")
-    problem = Problem(m, data, loss)
+    problem = Problem(m, data, loss, backend)
     if problem.loss == "chi2" and isinstance(source, str | Path) and Path(source).is_dir():
         problem.set_shared(shared_errors(source, data.value))
     best = solve(problem, starts=starts, jac=jac)

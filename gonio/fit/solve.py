@@ -1,9 +1,10 @@
 """Least-squares fits of a material model to measured f_r, with the Jacobian from Dr.Jit's AD.
 
-The model is evaluated by the simulator's own code, :meth:`Material.eval_params`, on LLVM float64 AD
-arrays: the fit variables are opaque size-1 arrays with gradients enabled, so one compiled kernel
-serves every iteration, and the Jacobian's columns are forward-mode derivatives (one
-``dr.forward_from`` per variable through the same graph, all columns evaluated in one launch).
+The model is evaluated by the simulator's own code, :meth:`Material.eval_params`, on float64 AD arrays
+of the chosen Dr.Jit backend (:func:`gonio.jit.resolve_backend`: CUDA when present): the fit variables
+are opaque size-1 arrays with gradients enabled, so one compiled kernel serves every iteration, and the
+Jacobian's columns are forward-mode derivatives (one ``dr.forward_from`` per variable through the same
+graph, all columns evaluated in one launch).
 A projected Levenberg-Marquardt on the p × p normal equations (:func:`_projected_lm`) takes the
 residuals, that Jacobian and the bounds (scipy's ``least_squares(method="trf")`` is the alternative,
 ``jac="trf-ad"``, and with finite differences the speed baseline of ``tools/bench_fit.py``).
@@ -42,11 +43,11 @@ from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
-from drjit.llvm.ad import Array3f64, Float64
 from scipy.optimize import least_squares
 
 from gonio.fit.models import FitModel
 from gonio.geometry import to_half_diff
+from gonio.jit import array_types, resolve_backend
 
 __all__ = ["FitData", "Problem", "LOSSES", "solve", "residual_statistics"]
 
@@ -75,11 +76,15 @@ class FitData:
 
 
 class Problem:
-    """Residuals and their AD Jacobian for one model, data set, channel choice and loss."""
+    """Residuals and their AD Jacobian for one model, data set, channel choice and loss, on the Dr.Jit
+    ``backend`` (``"llvm"`` or ``"cuda"``; default :func:`gonio.jit.resolve_backend`)."""
 
-    def __init__(self, model: FitModel, data: FitData, loss: str = "auto"):
+    def __init__(self, model: FitModel, data: FitData, loss: str = "auto", backend: str | None = None):
         if loss not in LOSSES:
             raise ValueError(f"loss: must be one of {', '.join(LOSSES)}, got {loss!r}")
+        self.backend = resolve_backend(backend)
+        t = array_types(self.backend, ad=True)
+        self._float, self._vector = t.Float64, t.Array3f64
         self.model = model
         keep = (data.wi[:, 2] > 0) & (data.wo[:, 2] > 0) & np.isfinite(data.value).all(axis=1)
         chans = list(model.channels)
@@ -110,20 +115,20 @@ class Problem:
             raise ValueError(f"{self.n_samples} usable samples cannot fix {len(model.variables)} parameters")
 
         def vec(v):
-            return Array3f64(*(Float64(np.ascontiguousarray(v[:, j])) for j in range(3)))
+            return self._vector(*(self._float(np.ascontiguousarray(v[:, j])) for j in range(3)))
 
         self._wi, self._wo = vec(self.wi), vec(self.wo)
-        self._y = [Float64(np.ascontiguousarray(self.value[:, k])) for k in range(len(chans))]
-        self._w = [Float64(np.ascontiguousarray(self.weight[:, k])) for k in range(len(chans))]
+        self._y = [self._float(np.ascontiguousarray(self.value[:, k])) for k in range(len(chans))]
+        self._w = [self._float(np.ascontiguousarray(self.weight[:, k])) for k in range(len(chans))]
         self.evaluations = 0
         self.jacobians = 0
 
     def _residual_dr(self, x, grad: bool):
-        xs = [dr.opaque(Float64, float(t)) for t in x]
+        xs = [dr.opaque(self._float, float(t)) for t in x]
         if grad:
             for v in xs:
                 dr.enable_grad(v)
-        values = self.model.values(xs, colour=Array3f64)
+        values = self.model.values(xs, colour=self._vector)
         f = self.model.base.eval_params(values, self._wi, self._wo)
         res = [(f[c] - y) * w for c, y, w in zip(self.model.channels, self._y, self._w, strict=True)]
         return xs, res

@@ -38,10 +38,10 @@ from gonio.sim.materials import load
 __all__ = ["DEFAULT_MODELS", "REGIONS", "parse_models", "fit_models", "regions_of", "PEAK_THETA_H_DEG",
            "FRESNEL_THETA_D_DEG", "GRAZING_THETA_DEG", "REGION_RELATIVE", "REGION_CHI2", "REGION_MIN_SAMPLES"]
 
-#: A sample with a diffuse part (most are) is fitted as one: single-lobe models end at their bounds on
-#: such data (ward at its alpha bound, ggx with alpha 0.67 on data made with 0.15); lambert alone
-#: beside them says how much a lobe adds. A pure metal gets rho_d ≈ 0.
-DEFAULT_MODELS = ("lambert", "lambert+ward", "lambert+cook-torrance", "lambert+ggx")
+#: Each model as its material: a lobe with its diffuse part rho_d (most samples have one; the lobe alone,
+#: NAME-lobe, ends at its bounds on such data: ward at its alpha bound, ggx with alpha 0.67 on data made
+#: with 0.15); lambert alone beside them says how much a lobe adds. A pure metal gets rho_d ≈ 0.
+DEFAULT_MODELS = ("lambert", "ward", "cook-torrance", "ggx")
 PEAK_THETA_H_DEG = 10.0
 FRESNEL_THETA_D_DEG = 60.0
 GRAZING_THETA_DEG = 70.0
@@ -54,7 +54,7 @@ REGIONS = {"peak": "at the specular peak", "fresnel": "in the Fresnel rise", "gr
 
 
 def parse_models(text: str | None) -> list[str]:
-    """``"ggx,lambert+ggx"`` → the model list (each checked by :func:`gonio.fit.parse_model`); None →
+    """``"ggx-lobe,ggx"`` → the model list (each checked by :func:`gonio.fit.parse_model`); None →
     :data:`DEFAULT_MODELS`. Raises ValueError naming ``--models`` and the bad entry."""
     if text is None:
         return list(DEFAULT_MODELS)

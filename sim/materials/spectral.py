@@ -24,8 +24,9 @@ Dielectrics (``DIELECTRICS``), real index from a dispersion formula with λ in �
 
 Materials
 ---------
-Each spectral material has ``eval(wi, wo, wavelength_nm) -> (N, L)``: f_r in sr⁻¹ for N direction
-pairs (sample frame, as :mod:`gonio.sim.materials`) at L wavelengths, one Dr.Jit launch over N·L lanes.
+Each spectral material has ``eval(wi, wo, wavelength_nm, backend=None) -> (N, L)``: f_r in sr⁻¹ for N
+direction pairs (sample frame, as :mod:`gonio.sim.materials`) at L wavelengths, one Dr.Jit launch over
+N·L lanes in float64, on ``backend`` (:func:`gonio.jit.resolve_backend`: CUDA when present).
 
 - :class:`SpectralLambert`: f = ρ(λ)/π.
 - :class:`SpectralConductor`: a rough conductor, GGX microfacets (Smith separable masking) with the exact
@@ -42,7 +43,8 @@ from pathlib import Path
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Array3f64, Float64, UInt32
+
+from gonio.jit import array_types, resolve_backend
 
 from .base import check_directions
 from .fresnel import conductor_exact, dielectric
@@ -116,20 +118,27 @@ def dielectric_index(name: str, wavelength_nm) -> np.ndarray:
 
 
 # -- materials -------------------------------------------------------------------------------------------
-def _lanes(wi, wo, wavelength_nm):
-    """Direction pairs and wavelengths as N·L Dr.Jit lanes (pair-major), float64 LLVM."""
+def _lanes(wi, wo, wavelength_nm, backend: str | None):
+    """Direction pairs and wavelengths as N·L Dr.Jit lanes (pair-major), float64 on ``backend``;
+    also the scalar type, so that the caller uploads its per-band values alike."""
+    t = array_types(resolve_backend(backend))
     wi, wo = np.broadcast_arrays(check_directions("wi", wi), check_directions("wo", wo))
     shape = wi.shape[:-1]
     wi, wo = wi.reshape(-1, 3), wo.reshape(-1, 3)
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=np.float64))
     n, n_wl = wi.shape[0], wl.size
-    lane = dr.arange(UInt32, n * n_wl)
+    lane = dr.arange(t.UInt32, n * n_wl)
     pair, band = lane // n_wl, lane % n_wl
 
     def gather(v):
-        return dr.gather(Array3f64, Float64(np.ascontiguousarray(v).ravel()), pair)
+        return dr.gather(t.Array3f64, t.Float64(np.ascontiguousarray(v).ravel()), pair)
 
-    return gather(wi), gather(wo), band, shape + (n_wl,), wl
+    return gather(wi), gather(wo), band, shape + (n_wl,), wl, t.Float64
+
+
+def _per_band(scalar, values, band):
+    """Per-band float64 values (one per wavelength) gathered onto the lanes."""
+    return dr.gather(scalar, scalar(np.asarray(values, dtype=np.float64)), band)
 
 
 def _ggx_lobe(wi, wo, alpha: float):
@@ -159,10 +168,10 @@ class SpectralLambert:
     def __init__(self, reflectance):
         self.reflectance = reflectance
 
-    def eval(self, wi, wo, wavelength_nm) -> np.ndarray:
+    def eval(self, wi, wo, wavelength_nm, backend: str | None = None) -> np.ndarray:
         """f_r in sr⁻¹, shape (..., L) for directions (..., 3) and L wavelengths (nm)."""
-        wi, wo, band, shape, wl = _lanes(wi, wo, wavelength_nm)
-        rho = dr.gather(Float64, Float64(np.asarray(self.reflectance(wl), dtype=np.float64)), band)
+        wi, wo, band, shape, wl, scalar = _lanes(wi, wo, wavelength_nm, backend)
+        rho = _per_band(scalar, self.reflectance(wl), band)
         return _result(dr.select((wi.z > 0) & (wo.z > 0), rho / math.pi, 0.0), shape)
 
 
@@ -188,12 +197,12 @@ class SpectralConductor:
         n, k = self.index.at(wavelength_nm)
         return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
 
-    def eval(self, wi, wo, wavelength_nm) -> np.ndarray:
+    def eval(self, wi, wo, wavelength_nm, backend: str | None = None) -> np.ndarray:
         """f_r in sr⁻¹, shape (..., L) for directions (..., 3) and L wavelengths (nm)."""
-        wi, wo, band, shape, wl = _lanes(wi, wo, wavelength_nm)
+        wi, wo, band, shape, wl, scalar = _lanes(wi, wo, wavelength_nm, backend)
         n, k = self.index.at(wl)
         lobe, cos_d, _ = _ggx_lobe(wi, wo, self.alpha)
-        f = conductor_exact(cos_d, dr.gather(Float64, Float64(n), band), dr.gather(Float64, Float64(k), band))
+        f = conductor_exact(cos_d, _per_band(scalar, n, band), _per_band(scalar, k, band))
         return _result(f * lobe, shape)
 
 
@@ -223,13 +232,12 @@ class SpectralDielectric:
         self.alpha = float(alpha)
         self.reflectance = reflectance
 
-    def eval(self, wi, wo, wavelength_nm) -> np.ndarray:
+    def eval(self, wi, wo, wavelength_nm, backend: str | None = None) -> np.ndarray:
         """f_r in sr⁻¹, shape (..., L) for directions (..., 3) and L wavelengths (nm)."""
-        wi, wo, band, shape, wl = _lanes(wi, wo, wavelength_nm)
-        eta = dr.gather(Float64, Float64(np.asarray(self.eta(wl), dtype=np.float64)), band)
+        wi, wo, band, shape, wl, scalar = _lanes(wi, wo, wavelength_nm, backend)
+        eta = _per_band(scalar, self.eta(wl), band)
         lobe, cos_d, above = _ggx_lobe(wi, wo, self.alpha)
         f = dielectric(cos_d, eta) * lobe
         if self.reflectance is not None:
-            rho = dr.gather(Float64, Float64(np.asarray(self.reflectance(wl), dtype=np.float64)), band)
-            f = f + dr.select(above, rho / math.pi, 0.0)
+            f = f + dr.select(above, _per_band(scalar, self.reflectance(wl), band) / math.pi, 0.0)
         return _result(f, shape)

@@ -17,7 +17,7 @@ from gonio.plan import build_plan
 from gonio.plan.fly import FLY_DUTY, FlyLine, fly_plan, fly_steps
 from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
 from gonio.sim import materials
-from gonio.sim.detector import aperture_radiance_factor
+from gonio.sim.aperture import aperture_radiance_factor
 from gonio.sim.fly import SUBFRAMES, FlySimulator
 from gonio.sim.gantry import reference_material
 

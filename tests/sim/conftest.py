@@ -8,6 +8,9 @@ import sys
 import drjit as dr
 import numpy as np
 import pytest
+from jit_backends import backend_params
+
+from gonio.jit import array_types
 
 # The numpy reference (materials_ref.py) is a plain module beside the tests, not a package.
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -20,24 +23,20 @@ def rng():
 
 
 def _vector_types():
-    from drjit.llvm import Array3f, Array3f64
-
-    params = [pytest.param(Array3f, id="llvm-float32"), pytest.param(Array3f64, id="llvm-float64")]
-    cuda = dr.has_backend(dr.JitBackend.CUDA)
-    if cuda:
-        from drjit.cuda import Array3f as CudaArray3f
-
-        params.append(pytest.param(CudaArray3f, id="cuda-float32"))
-    else:
-        params.append(pytest.param(None, id="cuda-float32",
-                                   marks=pytest.mark.skip(reason="no CUDA device")))
+    """Array3f and Array3f64 of every backend (CUDA skipped without a device)."""
+    params = []
+    for backend in backend_params():
+        name = backend.values[0]
+        for precision, attr in (("float32", "Array3f"), ("float64", "Array3f64")):
+            params.append(pytest.param((name, attr), id=f"{name}-{precision}", marks=backend.marks))
     return params
 
 
 @pytest.fixture(params=_vector_types())
 def vector_type(request):
     """Each Dr.Jit 3-vector type a material must run on (CUDA skipped when absent)."""
-    return request.param
+    backend, attr = request.param
+    return getattr(array_types(backend), attr)
 
 
 def _to_dr(vector_type, w):

@@ -16,12 +16,12 @@ LAMBERT = load("lambert:albedo=0.5")
 SMALL = CameraSettings(width=96, height=96, samples_per_pixel=8)
 
 
-def test_lambertian_under_a_disc_light_at_normal_incidence_reflects_rho_sin2_alpha():
+def test_lambertian_under_a_disc_light_at_normal_incidence_reflects_rho_sin2_alpha(backend):
     # A disc of radiance L subtending α gives an irradiance π L sin²α at the centre (exactly), so a
     # Lambertian of albedo ρ has radiance ρ L sin²α. Central pixels see points within ~1 mm of the
     # centre, where the irradiance differs from that by < 1e-5.
     s = CameraSettings(width=64, height=64, samples_per_pixel=64, light_half_angle_deg=2.0)
-    cam = SimCamera(s, LAMBERT, backend="llvm")
+    cam = SimCamera(s, LAMBERT, backend=backend)
     img = cam.radiance(0.0, 0.0, 40.0, 180.0, seed_state=(5, 6))
     centre = img[28:36, 28:36].reshape(-1, 3)
     want = 0.5 * s.radiance * math.sin(math.radians(2.0)) ** 2
@@ -29,8 +29,8 @@ def test_lambertian_under_a_disc_light_at_normal_incidence_reflects_rho_sin2_alp
 
 
 @pytest.mark.parametrize("pose", [(0.0, 0.0, 0.0, 0.0), (30.0, 0.0, 45.0, 180.0), (20.0, 90.0, 60.0, 300.0)])
-def test_the_patch_is_centred_and_as_large_as_its_projection(pose):
-    cam = SimCamera(SMALL, LAMBERT, backend="llvm")
+def test_the_patch_is_centred_and_as_large_as_its_projection(pose, backend):
+    cam = SimCamera(SMALL, LAMBERT, backend=backend)
     mask = cam.sample_mask(pose[2], pose[3])
     rows, cols = np.nonzero(mask)
     # The patch centre is on the optical axis: the mask is centred within a pixel or so (perspective
@@ -48,10 +48,10 @@ def test_the_patch_is_centred_and_as_large_as_its_projection(pose):
     assert lit[mask].all()
 
 
-def test_keyed_frames_are_reproducible_and_keys_differ():
+def test_keyed_frames_are_reproducible_and_keys_differ(backend):
     s = CameraSettings(width=32, height=32, samples_per_pixel=4, read_sigma=1e-3, shot_counts_per_unit=1e4)
-    a = SimCamera(s, LAMBERT, seed=7, backend="llvm")
-    b = SimCamera(s, LAMBERT, seed=7, backend="llvm")
+    a = SimCamera(s, LAMBERT, seed=7, backend=backend)
+    b = SimCamera(s, LAMBERT, seed=7, backend=backend)
     b.render(10.0, 0.0, 20.0, 180.0, 0.1)  # unkeyed use must not shift keyed frames
     fa = a.render(10.0, 0.0, 20.0, 180.0, 0.1, key=(3, 1))
     fb = b.render(10.0, 0.0, 20.0, 180.0, 0.1, key=(3, 1))
@@ -61,9 +61,9 @@ def test_keyed_frames_are_reproducible_and_keys_differ():
     assert fa.metadata["theta_o_deg"] == 20.0 and fa.metadata["camera"]["width"] == 32
 
 
-def test_vignetting_is_cos4_of_the_ray_angle():
-    plain = SimCamera(SMALL, LAMBERT, backend="llvm")
-    vig = SimCamera(CameraSettings(**{**SMALL.__dict__, "vignetting": True}), LAMBERT, backend="llvm")
+def test_vignetting_is_cos4_of_the_ray_angle(backend):
+    plain = SimCamera(SMALL, LAMBERT, backend=backend)
+    vig = SimCamera(CameraSettings(**{**SMALL.__dict__, "vignetting": True}), LAMBERT, backend=backend)
     a = plain.radiance(0.0, 0.0, 0.0, 0.0, seed_state=(1, 1))[..., 0]
     b = vig.radiance(0.0, 0.0, 0.0, 0.0, seed_state=(1, 1))[..., 0]
     inside = np.zeros_like(a, bool)
@@ -75,10 +75,10 @@ def test_vignetting_is_cos4_of_the_ray_angle():
     np.testing.assert_allclose(b[inside] / a[inside], cos4[inside], rtol=2e-4)
 
 
-def test_sensor_black_level_read_noise_and_saturation():
+def test_sensor_black_level_read_noise_and_saturation(backend):
     s = CameraSettings(width=64, height=64, samples_per_pixel=4, black_level=0.01, read_sigma=2e-3,
                        saturation=0.02)
-    frame = SimCamera(s, LAMBERT, backend="llvm").render(0.0, 0.0, 30.0, 180.0, 10.0, key=(0, 0))
+    frame = SimCamera(s, LAMBERT, backend=backend).render(0.0, 0.0, 30.0, 180.0, 10.0, key=(0, 0))
     px = frame.pixels.astype(np.float64)
     surround = px[:4].ravel()
     assert surround.mean() == pytest.approx(0.01, abs=3e-4)
@@ -87,22 +87,22 @@ def test_sensor_black_level_read_noise_and_saturation():
     assert (px[28:36, 28:36] == np.float32(0.02)).all()
 
 
-def test_a_gold_highlight_is_gold():
+def test_a_gold_highlight_is_gold(backend):
     s = CameraSettings(width=64, height=64, samples_per_pixel=8)
-    cam = SimCamera(s, load("ggx:alpha=0.2,metal=gold"), backend="llvm")
+    cam = SimCamera(s, load("ggx:alpha=0.2,metal=gold"), backend=backend)
     img = cam.radiance(30.0, 0.0, 30.0, 180.0)
     r, g, b = img[24:40, 24:40].reshape(-1, 3).mean(axis=0)
     assert r > g > b > 0
 
 
-def test_settings_errors_name_the_field():
+def test_settings_errors_name_the_field(backend):
     with pytest.raises(ValueError, match=r"camera.width: must be an integer in \[1, 8192\], got 0"):
         CameraSettings(width=0)
     with pytest.raises(ValueError, match=r"camera.saturation: must exceed black_level"):
         CameraSettings(black_level=2.0, saturation=1.0)
     with pytest.raises(ValueError, match=r"camera.distance_m: must exceed the sample's diagonal"):
         CameraSettings(distance_m=0.05)
-    cam = SimCamera(SMALL, LAMBERT, backend="llvm")
+    cam = SimCamera(SMALL, LAMBERT, backend=backend)
     with pytest.raises(ValueError, match=r"theta_o_deg: must be in \[0°, 90°\), got 95.0"):
         cam.render(0.0, 0.0, 95.0, 0.0, 1.0)
     with pytest.raises(ValueError, match=r"key: must be \(step, attempt\)"):

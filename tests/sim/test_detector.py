@@ -11,9 +11,12 @@ from gonio.config import load_config, parse_config
 from gonio.motion.trapezoid import move_time
 from gonio.protocols import Detector, DeviceFault, LightSource
 from gonio.sim import materials
-from gonio.sim.detector import aperture_radiance_factor
+from gonio.sim.aperture import aperture_radiance_factor
 from gonio.sim.gantry import SimGantry
 from gonio.sim.light import SimLight
+
+# Each test runs on every Dr.Jit backend (CUDA skipped without a device).
+pytestmark = pytest.mark.usefixtures("backend")
 
 RADIANCE = 1000.0
 COOK_TORRANCE = "cook-torrance:d=beckmann,m=0.3,metal=gold,rho_s=0.9/0.6/0.3"  # rough, coloured

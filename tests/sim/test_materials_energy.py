@@ -18,41 +18,43 @@ import drjit as dr
 import materials_ref as ref
 import numpy as np
 import pytest
-from drjit.llvm import PCG32, Array3f64, Float64, UInt32
 
+from gonio.jit import array_types
 from gonio.sim.materials import load
 
 P = functools.partial
 THETAS_DEG = np.arange(0.0, 86.0, 5.0)  # 0°, 5°, …, 85°
 
 
-def _cosine_directions(u1, u2):
+def _cosine_directions(u1, u2, vector):
     r, phi = dr.sqrt(u1), 2 * math.pi * u2
-    return Array3f64(r * dr.cos(phi), r * dr.sin(phi), dr.sqrt(1 - u1))
+    return vector(r * dr.cos(phi), r * dr.sin(phi), dr.sqrt(1 - u1))
 
 
-def albedo_mc(material, thetas_deg, n_side=192, replicas=6, lobe_exponent=100.0, seed=1):
-    """(mean, standard error) of the albedo, arrays of shape (len(thetas), 3).
+def albedo_mc(material, thetas_deg, backend, n_side=192, replicas=6, lobe_exponent=100.0, seed=1):
+    """(mean, standard error) of the albedo, arrays of shape (len(thetas), 3), in float64 on ``backend``.
 
     ``replicas`` independent estimates of 2·``n_side``² samples each (half per technique); their
     spread gives the standard error of their mean (a per-sample variance would ignore what
     stratification gains).
     """
+    t = array_types(backend)
+    Float64, Array3f64 = t.Float64, t.Array3f64
     per_angle = n_side * n_side
     k = len(thetas_deg)
     size = 2 * per_angle * k * replicas
-    index = dr.arange(UInt32, size)
+    index = dr.arange(t.UInt32, size)
     cell, block = index % per_angle, (index // per_angle) % k
     technique_h = ((index // (per_angle * k)) % 2) == 1
-    rng = PCG32(size=size, initstate=seed)
+    rng = t.PCG32(size=size, initstate=seed)
     u1 = (Float64(cell % n_side) + rng.next_float64()) / n_side
     u2 = (Float64(cell // n_side) + rng.next_float64()) / n_side
     theta_i = dr.gather(Float64, Float64(np.radians(thetas_deg)), block)
     wi = Array3f64(dr.sin(theta_i), 0, dr.cos(theta_i))
     n = lobe_exponent
     # Technique h: cos θh = u1^(1/(n+1)) has density (n+1)/(2π) cos^n θh over half vectors.
-    h = _cosine_directions(1 - dr.power(u1, 2 / (n + 1)), u2)
-    wo = dr.select(technique_h, 2 * dr.dot(wi, h) * h - wi, _cosine_directions(u1, u2))
+    h = _cosine_directions(1 - dr.power(u1, 2 / (n + 1)), u2, Array3f64)
+    wo = dr.select(technique_h, 2 * dr.dot(wi, h) * h - wi, _cosine_directions(u1, u2, Array3f64))
     above = wo.z > 0
     wo = dr.select(above, dr.normalize(wo), Array3f64(0, 0, 1))  # below: weight 0, any valid vector
     hh = dr.normalize(wi + wo)
@@ -84,8 +86,8 @@ def albedo_quadrature(reference, theta_i_deg, n=200):
     return np.einsum("ijc,i->c", values, w_mu) * (2 * np.pi / n_phi)
 
 
-def test_lambert_albedo_is_rho_d():
-    mean, se = albedo_mc(load("lambert:albedo=0.8/0.6/0.4"), [0.0, 45.0, 85.0])
+def test_lambert_albedo_is_rho_d(backend):
+    mean, se = albedo_mc(load("lambert:albedo=0.8/0.6/0.4"), [0.0, 45.0, 85.0], backend)
     assert se.max() < 2e-4
     np.testing.assert_allclose(mean, np.tile([0.8, 0.6, 0.4], (3, 1)), atol=1e-3)
 
@@ -114,10 +116,10 @@ CONSERVING = {
 
 
 @pytest.mark.parametrize("spec", list(CONSERVING))
-def test_energy_conserving_models_reflect_at_most_what_arrives(spec):
+def test_energy_conserving_models_reflect_at_most_what_arrives(spec, backend):
     m = load(spec)
     assert m.energy_conserving
-    mean, se = albedo_mc(m, THETAS_DEG)
+    mean, se = albedo_mc(m, THETAS_DEG, backend)
     assert se.max() < 2e-3  # precise enough for the bound below to mean something
     excess = mean - (1 + 3 * se)
     assert excess.max() <= 0, f"albedo {mean.max():.5f} at θi = {THETAS_DEG[excess.max(1).argmax()]}°"
@@ -127,9 +129,9 @@ def test_energy_conserving_models_reflect_at_most_what_arrives(spec):
                                    atol=4 * se[row].max() + 2e-3)
 
 
-def test_exact_blinn_phong_normalization_makes_normal_incidence_albedo_ks():
+def test_exact_blinn_phong_normalization_makes_normal_incidence_albedo_ks(backend):
     for ke in (0.0, 3.0, 40.0):
-        mean, se = albedo_mc(load(f"normalized-blinn-phong:ks=0.8,ke={ke}"), [0.0])
+        mean, se = albedo_mc(load(f"normalized-blinn-phong:ks=0.8,ke={ke}"), [0.0], backend)
         assert mean[0, 0] == pytest.approx(0.8, abs=4 * se[0, 0] + 1e-4)
 
 
@@ -145,32 +147,32 @@ EXCEEDING = [
 
 
 @pytest.mark.parametrize("spec,reference,theta", EXCEEDING, ids=[e[0] for e in EXCEEDING])
-def test_notes_forms_exceed_unit_albedo_by_the_quadrature_amount(spec, reference, theta):
+def test_notes_forms_exceed_unit_albedo_by_the_quadrature_amount(spec, reference, theta, backend):
     m = load(spec)
     assert not m.energy_conserving
     expected = albedo_quadrature(reference, theta, n=400)[0]
     assert expected > 1.1  # by at least 10 %: the excess is real, not quadrature noise
-    mean, se = albedo_mc(m, [theta])
+    mean, se = albedo_mc(m, [theta], backend)
     assert mean[0, 0] == pytest.approx(expected, rel=0.01)
     assert se[0, 0] < 0.005 * expected
 
 
-def test_classic_phong_albedo_at_normal_incidence_and_growth_toward_grazing():
+def test_classic_phong_albedo_at_normal_incidence_and_growth_toward_grazing(backend):
     """At θi = 0, R(I) = N and the lobe integrates to ks·2π/(ke + 2) < 1; the 1/(I·N) factor then makes
     the albedo grow without bound toward grazing incidence."""
-    mean, _ = albedo_mc(load("phong:ks=1,ke=10"), [0.0, 60.0, 80.0, 85.0, 88.0])
+    mean, _ = albedo_mc(load("phong:ks=1,ke=10"), [0.0, 60.0, 80.0, 85.0, 88.0], backend)
     assert mean[0, 0] == pytest.approx(2 * math.pi / 12, rel=1e-3)
     assert np.all(np.diff(mean[:, 0]) > 0) and mean[-1, 0] > 1
 
 
-def test_cook_torrance_pi_reflects_four_over_pi_times_the_modern_form():
-    same_samples = [albedo_mc(load(f"cook-torrance:d=beckmann,m=0.3,metal=gold,denom={d}"), [0.0, 70.0])[0]
-                    for d in ("pi", "4")]
+def test_cook_torrance_pi_reflects_four_over_pi_times_the_modern_form(backend):
+    same_samples = [albedo_mc(load(f"cook-torrance:d=beckmann,m=0.3,metal=gold,denom={d}"), [0.0, 70.0],
+                              backend)[0] for d in ("pi", "4")]
     np.testing.assert_allclose(same_samples[0] / same_samples[1], 4 / math.pi, rtol=1e-12)
 
 
-def test_ward_loses_energy_below_grazing_and_exceeds_near_it():
+def test_ward_loses_energy_below_grazing_and_exceeds_near_it(backend):
     """Ward's 1/sqrt(cos θi cos θo) lets the albedo diverge as θi → 90°; below ~89° it stays < 1."""
-    mean, _ = albedo_mc(load("ward:rho_s=1,alpha=0.5"), [0.0, 45.0, 85.0, 89.5, 89.9])
+    mean, _ = albedo_mc(load("ward:rho_s=1,alpha=0.5"), [0.0, 45.0, 85.0, 89.5, 89.9], backend)
     assert mean[:3, 0].max() < 1
     assert mean[-1, 0] > mean[-2, 0] > mean[-3, 0]

@@ -56,14 +56,12 @@ def near_edge(wi, wo, tol):
 
 
 @pytest.mark.parametrize("precision,edge_tol", [("float64", 1e-9), ("float32", 2e-3)])
-def test_drjit_index_matches_geometry_merl_index(precision, edge_tol, to_dr):
-    from drjit.llvm import Array3f, Array3f64
-
+def test_drjit_index_matches_geometry_merl_index(precision, edge_tol, to_dr, jit):
     rng = np.random.default_rng(3)
     wi, wo = ref.random_pairs(rng, 100_000, specular_fraction=0.3)
     theta_h, _, theta_d, phi_d = to_half_diff(wi, wo)
     expected = merl_index(theta_h, theta_d, phi_d)
-    vector_type = Array3f64 if precision == "float64" else Array3f
+    vector_type = jit.Array3f64 if precision == "float64" else jit.Array3f
     got = merl_index_dr(to_dr(vector_type, wi), to_dr(vector_type, wo)).numpy().astype(np.int64)
     mismatch = got != expected
     # A different bin is allowed only for pairs this close to a bin edge, where rounding decides.

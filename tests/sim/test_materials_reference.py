@@ -13,6 +13,9 @@ from gonio.geometry import sph_to_vec
 from gonio.sim.materials import fresnel, load
 from gonio.sim.materials.base import positive_power
 
+# Each test runs on every Dr.Jit backend (CUDA skipped without a device).
+pytestmark = pytest.mark.usefixtures("backend")
+
 P = functools.partial
 GOLD, COPPER = ref.METALS["gold"], ref.METALS["copper"]
 

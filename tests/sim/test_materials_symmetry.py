@@ -9,6 +9,9 @@ import pytest
 from gonio.geometry import sph_to_vec
 from gonio.sim.materials import load
 
+# Each test runs on every Dr.Jit backend (CUDA skipped without a device).
+pytestmark = pytest.mark.usefixtures("backend")
+
 RECIPROCAL = [
     "lambert:albedo=0.7",
     "modified-phong:ks=0.5,ke=20,rho_d=0.2",
