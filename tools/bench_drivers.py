@@ -140,11 +140,13 @@ def bench_modbus_looks(n, latencies_ms=(0.0, 1.0, 3.0)):
 
 
 class _Split:
-    """Wall time spent inside chosen functions (wrapped in place; :meth:`undo` restores them). A call
-    made inside another wrapped call of the same thread counts for the outer one only."""
+    """Wall time (and the calling thread's CPU time) spent inside chosen functions (wrapped in place;
+    :meth:`undo` restores them). A call made inside another wrapped call of the same thread counts for the
+    outer one only."""
 
     def __init__(self):
         self.s = collections.Counter()
+        self.cpu = collections.Counter()
         self.n = collections.Counter()
         self._undo = []
         self._depth = threading.local()
@@ -155,13 +157,14 @@ class _Split:
         def timed(*a, **k):
             depth = getattr(self._depth, "n", 0)
             self._depth.n = depth + 1
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.thread_time()
             try:
                 return fn(*a, **k)
             finally:
                 self._depth.n = depth
                 if depth == 0:
                     self.s[key] += time.perf_counter() - t
+                    self.cpu[key] += time.thread_time() - c
                     self.n[key] += 1
 
         setattr(owner, attr, timed)
@@ -175,6 +178,20 @@ class _Split:
         for owner, attr, fn in reversed(self._undo):
             setattr(owner, attr, fn)
         self._undo = []
+
+
+def _emulator_cpu() -> float:
+    """CPU seconds used so far by the emulators' threads (named ``emu-*``: the Modbus servers, the serial
+    and Dynamixel links): the devices' own work, which a real rig does on the devices' processors. In
+    this benchmark they share the interpreter with gonio, so a round trip's wall time holds it too."""
+    total = 0.0
+    for t in threading.enumerate():
+        if t.name.startswith("emu-") and t.ident is not None:
+            try:
+                total += time.clock_gettime(time.pthread_getcpuclockid(t.ident))
+            except OSError:        # the thread ended meanwhile
+                pass
+    return total
 
 
 class _PerAxis:
@@ -275,19 +292,20 @@ def _campaign(twin, grid, per_axis, watchdog, modbus):
             split.n.clear()
             sent = {n: len(getattr(e, "received", getattr(e, "requests", [])))
                     for n, e in emu.emulators.items()}
-            t = time.perf_counter()
+            t, emu_cpu = time.perf_counter(), _emulator_cpu()
             state, _ = run_campaign(c, _PerAxis(gantry) if per_axis else gantry)
             wall = time.perf_counter() - t
+            emu_cpu = _emulator_cpu() - emu_cpu
             c.close()
             dxl = sum(len(e.received) - sent[n] for n, e in emu.emulators.items() if hasattr(e, "servos"))
             mb = sum(len(e.requests) - sent[n] for n, e in emu.emulators.items() if hasattr(e, "profile"))
     finally:
         split.undo()
     return dict(wall=wall, state=state, poses=poses, steps=steps, gantry_s=clock.now(), s=split.s, n=split.n,
-                dxl=dxl, mb=mb)
+                dxl=dxl, mb=mb, emu=emu_cpu - split.cpu["render"])
 
 
-def _report(twin, grid, how, repeat, *, wall, state, poses, steps, gantry_s, s, n, dxl, mb):
+def _report(twin, grid, how, repeat, *, wall, state, poses, steps, gantry_s, s, n, dxl, mb, emu):
     ms = {k: 1e3 * v / poses for k, v in s.items()}
     render = ms.get("render", 0.0)
     parts = {"driver round trips": ms.get("driver", 0.0) - render,
@@ -300,6 +318,9 @@ def _report(twin, grid, how, repeat, *, wall, state, poses, steps, gantry_s, s, 
           f"drivers {1e3 * wall / poses - render:.2f} ms:")
     print("    " + ", ".join(f"{k} {v:.2f} ms" for k, v in parts.items())
           + f"; per pose {dxl / poses:.1f} Dynamixel instruction packets, {mb / poses:.1f} Modbus requests")
+    through, own = 1e3 * wall / poses - render, 1e3 * emu / poses
+    print(f"    the emulators' own work (their threads' CPU, less the render's) {own:.2f} ms per pose: "
+          f"gonio's overhead through the drivers without it {through - own:.2f} ms")
 
 
 def main():
