@@ -41,9 +41,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    from gonio.cli import campaigns, hardware, results
+    from gonio.cli import batch, campaigns, hardware, results
 
     campaigns.add_parsers(sub, fmt)
+    batch.add_parsers(sub, fmt)
     results.add_parsers(sub, fmt)
     hardware.add_parsers(sub, fmt)
 

@@ -7,7 +7,6 @@ flight, park, journal the interruption and say how to resume (exit code 130); a 
 from __future__ import annotations
 
 import json
-import os
 import signal
 import sys
 import threading
@@ -27,6 +26,7 @@ from gonio.cli.common import (
     _Out,
     _ReferenceFormatter,
     _seed,
+    creatable_folder,
     planning,
     refuse_emulated_placeholders,
 )
@@ -194,14 +194,7 @@ def _check_out(text: str) -> Path:
     out = Path(_not_empty(text, "folder"))
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} is a file, not a folder; give a folder for the campaign")
-    probe = out
-    while not probe.exists():
-        probe = probe.parent
-    if not probe.is_dir():
-        raise UsageError(f"--out: {probe} is a file, so {out} cannot be a folder")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise UsageError(f"--out: {probe} is not writable (permission denied); choose another folder")
-    return out
+    return creatable_folder(out)
 
 
 def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):

@@ -108,6 +108,18 @@ def planning(out: _Out, what: str, show: bool):
         yield
 
 
+def creatable_folder(out: Path) -> Path:
+    """--out where a folder is (or can be) made: its nearest existing ancestor is a writable folder."""
+    probe = out
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise UsageError(f"--out: {probe} is a file, so {out} cannot be a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise UsageError(f"--out: {probe} is not writable (permission denied); choose another folder")
+    return out
+
+
 def _writable_out(text: str, *, folder: bool = False, force: bool = False) -> Path:
     """--out checked before any work: not empty, its folder exists and takes a file; an existing file
     (or, with ``folder``, a folder of files) is replaced only with ``force`` (``--force``)."""

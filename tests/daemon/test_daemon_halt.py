@@ -78,8 +78,8 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
             t.join(WAIT_S)
     st = wait_state(r.client, "c00001", "halted")
     assert st["steps_done"] < st["steps"]
-    # The reads answered in the end and none failed; a submit whose planning ended before its client gave up (a
-    # fast machine) is admitted once its admission is released (201).
+    # The reads answered in the end and none failed; a submit whose planning ended before its client gave
+    # up (a fast machine) is admitted once its admission is released (201).
     assert set(results) <= {0, 200, 201}
     wait_for(lambda: not r.daemon.planner.busy, "the abandoned submits to be cancelled")
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]

@@ -140,9 +140,9 @@ def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_resul
     data = tmp_path / "data"
     folder = data / "campaigns" / "c00001"
     rng = random.Random(7)
-    # Paced at 10 ms of wall time per gantry second (~10 ms a step): a kill, which waits for at most total // 14
-    # more steps or 0.3 s, lands well before the end however fast the machine (unpaced, a fast machine ran the
-    # rest of the campaign within a kill's wait). Pacing spends wall time only: the readings are the same.
+    # Paced at 10 ms of wall time per gantry second (~10 ms a step): a kill, which waits for at most
+    # total // 14 more steps or 0.3 s, lands well before the end however fast the machine (unpaced, a fast
+    # machine ran the rest of the campaign within a kill's wait). Pacing spends wall time only.
     s = Serve(data, "--pace", PACE)
     s.client.post("/campaigns", json={"material": material, "grid": grid, "seed": seed}).raise_for_status()
     total = Journal.open(folder / JOURNAL_NAME, readonly=True).step_count()

@@ -1,0 +1,180 @@
+"""Running a batch: every material's simulated campaign as a Dask task, each result written into the
+store (:mod:`gonio.batch.store`) as it arrives.
+
+A task runs exactly what ``gonio simulate MATERIAL --grid GRID --seed S`` runs (a campaign created in a
+temporary folder, the simulated gantry, the runner, the calibration, ``brdf.h5``), so each row is bit for
+bit that command's samples. The client keeps at most one task per worker in flight and writes each
+result as it comes, so memory holds at most one material's result per worker whatever the batch's size.
+A failing material is recorded in the store (``status`` failed, its message in ``error``) and the others
+go on. A rerun of the same command does only the rows that are not done.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gonio.batch.store import DONE, BatchStore, Row, row_data
+
+__all__ = ["BatchSummary", "simulate_row", "run_batch", "batch_attrs", "check_store"]
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """What a run did: rows written now, done before, failed (material, message), and the store."""
+
+    path: Path
+    written: int
+    done_before: int
+    failed: list
+
+
+def simulate_row(material: str, grid: str, seed: int, cfg, threads: int | None = None) -> Row:
+    """The :class:`~gonio.batch.store.Row` of ``gonio simulate MATERIAL --grid GRID --seed SEED`` on
+    ``cfg``'s simulated gantry (a Dask task; ``threads`` caps Dr.Jit's thread pool in this worker).
+    A failure is returned as a row with its ``error``, never raised."""
+    try:
+        if threads is not None:
+            import drjit as dr
+
+            if dr.thread_count() != threads:
+                dr.set_thread_count(threads)
+        from gonio.campaign import create_campaign, gantry_state, run_campaign
+        from gonio.dataset import BRDF_NAME, read_brdf
+        from gonio.sim.materials import load
+        from gonio.wiring import build_gantry
+
+        mat = load(material)
+        with tempfile.TemporaryDirectory(prefix="gonio-batch-") as d:
+            c = create_campaign(Path(d) / "c", cfg, grid=grid, material=mat.spec, seed=seed)
+            try:
+                gantry = build_gantry(c.cfg, mat, seed=c.meta["seed"], state=gantry_state(c))
+                try:
+                    state, _ = run_campaign(c, gantry)
+                finally:
+                    gantry.close()
+            finally:
+                c.close()
+            if state != "done":
+                return Row({}, {}, error=f"the campaign ended {state}, not done")
+            return row_data(read_brdf(Path(d) / "c" / BRDF_NAME))
+    except Exception as e:      # recorded in the store; the batch goes on
+        return Row({}, {}, error=f"{type(e).__name__}: {e}")
+
+
+def batch_attrs(grid: str, seed: int, cfg) -> dict:
+    """The store attributes that name a batch: a rerun must match them to continue it."""
+    from gonio.campaign import config_hash, software_version
+    from gonio.plan import parse_grid
+
+    return {"batch_grid": parse_grid(grid).normalized, "batch_seed": int(seed), "batch_config_sha256":
+            config_hash(cfg), "batch_software_version": software_version()}
+
+
+def check_store(store: BatchStore, attrs: dict, materials: list[str]) -> str | None:
+    """How the store at hand differs from the batch asked for (None: the same batch)."""
+    names = {"batch_grid": "grid", "batch_seed": "seed", "batch_config_sha256": "config",
+             "batch_software_version": "gonio version"}
+    for key, what in names.items():
+        if store.attrs.get(key) != attrs[key]:
+            return f"its {what} is {store.attrs.get(key)!r}, this batch's {attrs[key]!r}"
+    if store.materials != materials:
+        pairs = zip([*store.materials, ""], [*materials, ""], strict=False)
+        first = next(k for k, (a, b) in enumerate(pairs) if a != b)
+        return (f"its materials differ: it holds {len(store.materials)}, this batch {len(materials)}; the "
+                f"first difference at #{first + 1}")
+    return None
+
+
+def run_batch(materials: list[str], *, grid: str, seed: int, cfg, out: Path, client,
+              threads: int | None = None, on_row: Callable[[int, Row], None] | None = None) -> BatchSummary:
+    """Run every material of the batch not yet done in the store at ``out`` on the Dask ``client``.
+
+    Parameters
+    ----------
+    materials : list of str
+        Normalized MATERIAL strings (:func:`gonio.batch.materials.read_materials`).
+    out : Path
+        The store; created at the first result, continued where it holds this batch (a store of
+        another batch is refused with ValueError).
+    client : distributed.Client
+    threads : int, optional
+        Dr.Jit threads per task (1 on a local cluster of one-thread workers).
+    on_row : callable, optional
+        Called with the material's index and its row after each row is written.
+    """
+    from gonio.campaign import LockHeld, pid_lock
+
+    attrs = batch_attrs(grid, seed, cfg)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        lock = pid_lock(out.parent / f".{out.name}.lock")
+    except LockHeld as held:
+        raise ValueError(f"--out: another gonio batch (pid {held.holder}) is writing {out}; wait for it, or "
+                         "stop it first") from None
+    try:
+        return _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs)
+    finally:
+        os.close(lock)
+
+
+def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs) -> BatchSummary:
+    from distributed import as_completed
+
+    store = None
+    todo = list(range(len(materials)))
+    done_before = 0
+    if out.exists():
+        store = BatchStore(out)
+        diff = check_store(store, attrs, materials)
+        if diff is not None:
+            raise ValueError(f"--out: {out} holds another batch ({diff}); repeat the original command to "
+                             "continue it, or choose another --out")
+        status = store.status()
+        todo = [int(i) for i in np.flatnonzero(status != DONE)]
+        done_before = len(materials) - len(todo)
+    workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
+    pending = iter(todo)
+    futures = as_completed()
+    key = hashlib.sha256(json.dumps(attrs, sort_keys=True).encode()).hexdigest()[:12]
+
+    def submit() -> bool:
+        i = next(pending, None)
+        if i is None:
+            return False
+        f = client.submit(simulate_row, materials[i], grid, seed, cfg, threads, key=f"gonio-{key}-{i}",
+                          pure=False)
+        f.gonio_index = i
+        futures.add(f)
+        return True
+
+    for _ in range(workers):
+        if not submit():
+            break
+    written, failed, held = 0, [], []
+    for f in futures:
+        i, row = f.gonio_index, f.result()
+        f.release()
+        if row.error:
+            failed.append((materials[i], row.error))
+        elif store is None:
+            store = BatchStore.create(out, materials, seed, row, attrs)
+        if store is None:
+            held.append((i, row))      # a failure before any row gave the store its shape
+        else:
+            for j, r in [*held, (i, row)]:
+                store.write(j, r)
+                written += 1
+            held.clear()
+        if on_row is not None:
+            on_row(i, row)
+        submit()
+    return BatchSummary(out, written, done_before, failed)

@@ -1,0 +1,158 @@
+"""``gonio batch`` as a user runs it: a local cluster of two worker processes, killed midway and rerun;
+an existing Dask scheduler and worker on loopback; bad input refused in one line with nothing written.
+The three stores agree bit for bit."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+from cli_helpers import one_clear_line
+
+from gonio.batch import DONE, open_store
+from gonio.cli import main
+
+GONIO = [sys.executable, "-m", "gonio.cli"]
+MATERIALS = "ggx:alpha=0.1..0.4x3,metal=gold|copper"          # 6 materials
+ARGS = ["--grid", "iso:step=45", "--seed", "2", "--quiet"]
+WAIT_S = 120.0
+
+
+def _start(cmd, **kw) -> subprocess.Popen:
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **kw)
+
+
+def _stop(p: subprocess.Popen, sig=signal.SIGTERM) -> None:
+    """Signal the process group (a local cluster's worker processes too) and reap the leader."""
+    try:
+        os.killpg(p.pid, sig)
+    except ProcessLookupError:
+        pass
+    try:
+        p.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait(timeout=30)
+
+
+def _done(store: Path) -> int:
+    try:
+        return int((zarr.open_group(str(store), mode="r")["status"][:] == DONE).sum())
+    except Exception:        # not created yet
+        return 0
+
+
+def _rows(store: Path) -> dict:
+    ds = open_store(store)
+    return {k: ds[k].values for k in ds.variables} | {"attrs": json.dumps(ds.attrs, sort_keys=True)}
+
+
+@pytest.fixture(scope="module")
+def whole(tmp_path_factory):
+    """The batch run whole, in this process (one Dask worker thread): what the command must write."""
+    from distributed import Client, LocalCluster
+
+    from gonio.batch import read_materials, run_batch
+    from gonio.config import load_config
+
+    out = tmp_path_factory.mktemp("whole") / "b.zarr"
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
+    with cluster, Client(cluster) as client:
+        run_batch(read_materials(MATERIALS), grid="iso:step=45", seed=2, cfg=load_config(), out=out,
+                  client=client, threads=1)
+    ds = open_store(out)
+    assert ds.sizes["material"] == 6 and (ds.status.values == DONE).all()
+    assert np.isfinite(ds.value.values).all() and (ds.value.values > 0).any()
+    return out
+
+
+def test_two_local_workers_killed_midway_then_rerun_agree_bit_for_bit(whole, tmp_path):
+    out = tmp_path / "b.zarr"
+    cmd = [*GONIO, "batch", MATERIALS, "--out", str(out), "--workers", "2", *ARGS]
+    p = _start(cmd)
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while _done(out) < 1 and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        _stop(p, signal.SIGKILL)
+    done = _done(out)
+    assert 1 <= done < 6, f"the kill landed with {done} rows done"
+    r = subprocess.run(cmd[:-1], capture_output=True, text=True, timeout=WAIT_S)    # not quiet: the summary
+    assert r.returncode == 0, r.stderr
+    assert f"({6 - done} written now, {done} before, 0 failed)" in r.stderr
+    a, b = _rows(whole), _rows(out)
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_an_existing_scheduler_and_worker_on_loopback(whole, tmp_path):
+    info = tmp_path / "scheduler.json"
+    dask = [sys.executable, "-m", "dask"]
+    scheduler = _start([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                        "--scheduler-file", str(info)])
+    worker = None
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while not info.is_file() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        address = json.loads(info.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:")
+        worker = _start([*dask, "worker", address, "--nthreads", "1", "--nworkers", "1", "--no-dashboard",
+                         "--host", "127.0.0.1"])
+        out = tmp_path / "b.zarr"
+        r = subprocess.run([*GONIO, "batch", MATERIALS, "--out", str(out), "--scheduler", address, *ARGS],
+                           capture_output=True, text=True, timeout=WAIT_S)
+        assert r.returncode == 0, r.stderr
+    finally:
+        for p in (worker, scheduler):
+            if p is not None:
+                _stop(p)
+    a, b = _rows(whole), _rows(out)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["lambert:albedo=2", "--grid", "iso:step=45"], "albedo"),
+    (["lambert:albedo=0.5", "--grid", "iso:step=0"], "--grid"),
+    (["lambert:albedo=0.5", "--grid", "iso:step=45,order=fly"], "order=fly is not for a batch"),
+    (["lambert:albedo=0.5", "--grid", "iso:step=45", "--scheduler", "http://x/y"], "--scheduler"),
+    (["lambert:albedo=0.5", "--grid", "iso:step=45", "--config", "emulated-two-arm-dynamixel"], "--config"),
+])
+def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, args, message):
+    out = tmp_path / "b.zarr"
+    assert main(["batch", *args, "--out", str(out)]) == 2
+    one_clear_line(capsys, "gonio batch: ", message)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--workers", "0"], "argument --workers: must be an integer from 1 to 256, got 0"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "not allowed with argument --workers"),
+])
+def test_bad_arguments_are_refused_by_the_parser_nothing_written(tmp_path, capsys, args, message):
+    with pytest.raises(SystemExit) as e:
+        main(["batch", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", str(tmp_path / "b"), *args])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.strip().splitlines()[-1].endswith(message), err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_file_or_a_folder_that_is_no_store_is_refused_as_out(tmp_path, capsys):
+    for name, make in (("f.zarr", lambda p: p.write_text("x")), ("d.zarr", lambda p: p.mkdir())):
+        out = tmp_path / name
+        make(out)
+        assert main(["batch", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", str(out)]) == 2
+        one_clear_line(capsys, "gonio batch: --out:")
