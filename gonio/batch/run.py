@@ -127,7 +127,7 @@ def run_batch(materials: list[str], *, grid: str, seed: int, cfg, out: Path, cli
 
 
 def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs) -> BatchSummary:
-    from distributed import as_completed
+    from gonio.batch.cluster import bounded_map
 
     store = None
     todo = list(range(len(materials)))
@@ -138,31 +138,12 @@ def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs) -> Bat
         if diff is not None:
             raise ValueError(f"--out: {out} holds another batch ({diff}); repeat the original command to "
                              "continue it, or choose another --out")
-        status = store.status()
-        todo = [int(i) for i in np.flatnonzero(status != DONE)]
+        todo = [int(i) for i in np.flatnonzero(store.status() != DONE)]
         done_before = len(materials) - len(todo)
-    workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
-    pending = iter(todo)
-    futures = as_completed()
-    key = hashlib.sha256(json.dumps(attrs, sort_keys=True).encode()).hexdigest()[:12]
-
-    def submit() -> bool:
-        i = next(pending, None)
-        if i is None:
-            return False
-        f = client.submit(simulate_row, materials[i], grid, seed, cfg, threads, key=f"gonio-{key}-{i}",
-                          pure=False)
-        f.gonio_index = i
-        futures.add(f)
-        return True
-
-    for _ in range(workers):
-        if not submit():
-            break
     written, failed, held = 0, [], []
-    for f in futures:
-        i, row = f.gonio_index, f.result()
-        f.release()
+
+    def take(i: int, row: Row) -> None:
+        nonlocal store, written
         if row.error:
             failed.append((materials[i], row.error))
         elif store is None:
@@ -176,5 +157,8 @@ def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs) -> Bat
             held.clear()
         if on_row is not None:
             on_row(i, row)
-        submit()
+
+    key = hashlib.sha256(json.dumps(attrs, sort_keys=True).encode()).hexdigest()[:12]
+    tasks = ((i, (materials[i], grid, seed, cfg, threads)) for i in todo)
+    bounded_map(client, simulate_row, tasks, take, key)
     return BatchSummary(out, written, done_before, failed)

@@ -2,29 +2,50 @@
 
 from __future__ import annotations
 
-import os
-import re
 import sys
 from pathlib import Path
 
 from gonio.cli.common import Interrupted, UsageError, _Out, _seed, creatable_folder
 
-_SCHEDULER = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+$")
-#: The most local workers (a local cluster runs one process each).
-MAX_WORKERS = 256
-
 
 def _workers(text: str) -> int:
     import argparse
 
+    from gonio.batch.cluster import MAX_WORKERS
+
     try:
         n = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer from 1 to {MAX_WORKERS}, got {text!r}") \
-            from None
-    if not 1 <= n <= MAX_WORKERS:
-        raise argparse.ArgumentTypeError(f"must be an integer from 1 to {MAX_WORKERS}, got {n}")
+        n = None
+    if n is None or not 1 <= n <= MAX_WORKERS:
+        raise argparse.ArgumentTypeError(f"must be an integer from 1 to {MAX_WORKERS}, got {text!r}")
     return n
+
+
+def add_cluster_arguments(parser) -> None:
+    """``--workers N | --scheduler ADDRESS``: where a batch's tasks run."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_workers, default=None,
+                       help="local worker processes (default: the CPU count)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (its workers need this "
+                            "gonio version)")
+
+
+def connected(args, out: _Out, what: str):
+    """The Dask client of ``--workers``/``--scheduler`` (see :func:`gonio.batch.cluster.connect`), with
+    the line that says where the work runs."""
+    from gonio.batch.cluster import connect
+
+    try:
+        client, cluster, threads = connect(args.workers, args.scheduler)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    workers = len(client.scheduler_info(n_workers=-1)["workers"])
+    where = f"{workers} local workers" if cluster is not None else f"the scheduler at {args.scheduler}"
+    link = client.dashboard_link if cluster is None or cluster.dashboard_link else None
+    out(f"{what} on {where}" + (f"; dashboard {link}" if link else ""))
+    return client, cluster, threads
 
 
 def _check_out(text: str) -> Path:
@@ -36,65 +57,6 @@ def _check_out(text: str) -> Path:
     if out.is_dir() and not (out / ".zgroup").is_file():
         raise UsageError(f"--out: {out} is a folder but no batch store; choose a new name (e.g. batch.zarr)")
     return creatable_folder(out)
-
-
-def _client(args, out: _Out):
-    """The Dask client: a local cluster of one-thread worker processes on loopback, or the scheduler
-    given. Returns (client, cluster or None, Dr.Jit threads per task)."""
-    import dask
-    from distributed import Client, LocalCluster
-
-    if args.scheduler is not None:
-        if not _SCHEDULER.match(args.scheduler):
-            raise UsageError(f"--scheduler: {args.scheduler!r} is no scheduler address; give e.g. "
-                             "tcp://127.0.0.1:8786")
-        try:
-            client = Client(args.scheduler, timeout="10s")
-        except (OSError, TimeoutError) as e:
-            raise UsageError(f"--scheduler: no Dask scheduler answers at {args.scheduler} ({e})") from None
-        return client, None, None
-    workers = args.workers or len(os.sched_getaffinity(0))
-    with dask.config.set({"distributed.worker.daemon": True}):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=_dashboard(), silence_logs=40)
-    return Client(cluster), cluster, 1
-
-
-def _dashboard():
-    """Loopback dashboard on a free port where bokeh is installed (Dask's dashboard needs it)."""
-    import importlib.util
-
-    return "127.0.0.1:0" if importlib.util.find_spec("bokeh") is not None else None
-
-
-#: How long ``--scheduler`` waits for a first worker to join.
-WORKER_WAIT_S = 30.0
-
-
-def _check_versions(client) -> None:
-    from gonio.campaign import software_version
-
-    try:
-        client.wait_for_workers(1, timeout=WORKER_WAIT_S)
-    except TimeoutError:
-        raise UsageError(f"--scheduler: no worker joined the scheduler at {client.scheduler.address} in "
-                         f"{WORKER_WAIT_S:.0f} s; start one (python -m dask worker ADDRESS)") from None
-    mine = software_version()
-
-    def theirs():
-        from gonio.campaign import software_version
-
-        return software_version()
-
-    try:
-        versions = client.run(theirs)
-    except Exception as e:      # a worker without gonio at all
-        raise UsageError(f"--scheduler: a worker cannot run gonio ({type(e).__name__}: {e}); install gonio "
-                         f"{mine} on every worker") from None
-    for worker, v in versions.items():
-        if v != mine:
-            raise UsageError(f"--scheduler: worker {worker} runs gonio {v}, this is gonio {mine}; give every "
-                             "worker the same version")
 
 
 def cmd_batch(args) -> int:
@@ -116,14 +78,8 @@ def cmd_batch(args) -> int:
     if cfg.detector.driver != "sim":
         raise UsageError(f"--config: the detector of config '{cfg.name}' is '{cfg.detector.driver}'; a batch "
                          "simulates, so it needs a simulated detector (driver 'sim')")
-    client, cluster, threads = _client(args, out)
+    client, cluster, threads = connected(args, out, f"batch of {len(materials)} materials")
     try:
-        if cluster is None:
-            _check_versions(client)
-        workers = len(client.scheduler_info(n_workers=-1)["workers"])
-        where = f"{workers} local workers" if cluster is not None else f"the scheduler at {args.scheduler}"
-        link = client.dashboard_link if _dashboard() is not None or cluster is None else None
-        out(f"batch of {len(materials)} materials on {where}" + (f"; dashboard {link}" if link else ""))
         summary = _run(args, out, materials, args.grid, cfg, client, threads, store)
     except Interrupted as err:
         print(f"gonio batch: interrupted ({err}); {store} keeps every row written: run the same command to "
@@ -171,11 +127,6 @@ def add_parsers(sub, fmt) -> None:
     sb.add_argument("--seed", type=_seed, default=0, help="seed of every campaign's simulated detector")
     sb.add_argument("--config", default=None,
                     help="gantry config with a simulated detector (default: sim)")
-    where = sb.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_workers, default=None,
-                       help="local worker processes (default: the CPU count)")
-    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help="an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (its workers need this "
-                            "gonio version)")
+    add_cluster_arguments(sb)
     sb.add_argument("--quiet", action="store_true", help="no progress output")
     sb.set_defaults(func=cmd_batch)

@@ -1,0 +1,111 @@
+"""Where a batch runs: a local Dask cluster on loopback, or an existing scheduler, and the bounded map
+that keeps at most one task per worker in flight (so memory holds one result per worker)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+from collections.abc import Callable, Iterable
+
+__all__ = ["WORKER_WAIT_S", "MAX_WORKERS", "connect", "bounded_map"]
+
+#: How long a client of an existing scheduler waits for a first worker to join.
+WORKER_WAIT_S = 30.0
+#: The most local workers (a local cluster runs one process each).
+MAX_WORKERS = 256
+_ADDRESS = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+$")
+
+
+def _dashboard():
+    """Loopback dashboard on a free port where bokeh is installed (Dask's dashboard needs it)."""
+    return "127.0.0.1:0" if importlib.util.find_spec("bokeh") is not None else None
+
+
+def connect(workers: int | None = None, scheduler: str | None = None):
+    """A Dask client: a local cluster of ``workers`` one-thread worker processes on loopback (default:
+    one per CPU), or the existing ``scheduler``, whose workers must run this gonio version.
+
+    Returns
+    -------
+    (client, cluster or None, Dr.Jit threads per task: 1 on the local cluster, None elsewhere)
+
+    Raises
+    ------
+    ValueError
+        A malformed address, no scheduler or no worker there, a worker with another gonio version;
+        the message names ``--scheduler``.
+    """
+    import dask
+    from distributed import Client, LocalCluster
+
+    if scheduler is None:
+        n = workers or len(os.sched_getaffinity(0))
+        with dask.config.set({"distributed.worker.daemon": True}):
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address=_dashboard(), silence_logs=40)
+        return Client(cluster), cluster, 1
+    if not _ADDRESS.match(scheduler):
+        raise ValueError(f"--scheduler: {scheduler!r} is no scheduler address; give e.g. tcp://127.0.0.1:8786")
+    try:
+        client = Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError) as e:
+        raise ValueError(f"--scheduler: no Dask scheduler answers at {scheduler} ({e})") from None
+    try:
+        _check_workers(client, scheduler)
+    except BaseException:
+        client.close()
+        raise
+    return client, None, None
+
+
+def _version() -> str:
+    from gonio.campaign import software_version
+
+    return software_version()
+
+
+def _check_workers(client, scheduler: str) -> None:
+    try:
+        client.wait_for_workers(1, timeout=WORKER_WAIT_S)
+    except TimeoutError:
+        raise ValueError(f"--scheduler: no worker joined the scheduler at {scheduler} in {WORKER_WAIT_S:.0f} "
+                         "s; start one (python -m dask worker ADDRESS)") from None
+    mine = _version()
+    try:
+        versions = client.run(_version)
+    except Exception as e:      # a worker without gonio at all
+        raise ValueError(f"--scheduler: a worker cannot run gonio ({type(e).__name__}: {e}); install gonio "
+                         f"{mine} on every worker") from None
+    for worker, v in versions.items():
+        if v != mine:
+            raise ValueError(f"--scheduler: worker {worker} runs gonio {v}, this is gonio {mine}; give every "
+                             "worker the same version")
+
+
+def bounded_map(client, fn: Callable, items: Iterable[tuple[int, tuple]],
+                on_result: Callable[[int, object], None], key: str) -> None:
+    """``fn(*args)`` for each ``(index, args)`` of ``items`` on the cluster, at most one task per worker in
+    flight; ``on_result(index, result)`` as each ends (in the order they end), before the next is sent."""
+    from distributed import as_completed
+
+    workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
+    pending = iter(items)
+    futures = as_completed()
+    index = {}
+
+    def submit() -> None:
+        item = next(pending, None)
+        if item is not None:
+            i, args = item
+            f = client.submit(fn, *args, key=f"gonio-{key}-{i}", pure=False)
+            index[f.key] = i
+            futures.add(f)
+
+    for _ in range(workers):
+        submit()
+    for f in futures:
+        result = f.result()
+        f.release()
+        on_result(index.pop(f.key), result)
+        submit()
