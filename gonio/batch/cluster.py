@@ -8,7 +8,7 @@ import os
 import re
 from collections.abc import Callable, Iterable
 
-__all__ = ["WORKER_WAIT_S", "MAX_WORKERS", "connect", "bounded_map"]
+__all__ = ["WORKER_WAIT_S", "MAX_WORKERS", "connect", "bounded_map", "dashboard_link"]
 
 #: How long a client of an existing scheduler waits for a first worker to join.
 WORKER_WAIT_S = 30.0
@@ -20,6 +20,13 @@ _ADDRESS = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+$")
 def _dashboard():
     """Loopback dashboard on a free port where bokeh is installed (Dask's dashboard needs it)."""
     return "127.0.0.1:0" if importlib.util.find_spec("bokeh") is not None else None
+
+
+def dashboard_link(client, cluster) -> str | None:
+    """The Dask dashboard's address, where there is one (a local cluster has one only with bokeh)."""
+    if cluster is not None and _dashboard() is None:
+        return None
+    return client.dashboard_link
 
 
 def connect(workers: int | None = None, scheduler: str | None = None):

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "MISSING", "DONE", "FAILED", "Row", "BatchStore", "open_store",
-           "row_data"]
+           "row_data", "row_brdf"]
 
 FORMAT = "gonio-batch"
 FORMAT_VERSION = 1
@@ -159,6 +159,24 @@ class BatchStore:
             target[i] = arr
         self._group["error"][i] = ""
         self._group["status"][i] = DONE
+
+
+def row_brdf(ds, k: int):
+    """Material ``k`` of an open store (:func:`open_store`) as the :class:`gonio.dataset.SampledBRDF`
+    its ``brdf.h5`` held (its attributes: the store's, with its material and seed)."""
+    from gonio.dataset import SampledBRDF
+
+    row = ds.isel(material=k).load()
+    attrs = dict(ds.attrs) | {"material": str(row["material"].values), "seed": int(row["seed"].values)}
+    for key in ("symmetries", "config"):
+        if isinstance(attrs.get(key), str):
+            attrs[key] = json.loads(attrs[key])
+    get = {name: row[name].values for name in row.data_vars}
+    planned = np.stack([get[f"{a}_planned"] for a in _ANGLES], axis=1)
+    return SampledBRDF(*(get[a] for a in _ANGLES), get["value"], get["stddev"], attrs, planned=planned,
+                       step=get["step"], pose=get["pose"], exposure_s=get["exposure_s"],
+                       campaign_s=get["campaign_s"], grid_index=get["grid_index"],
+                       grid_axes=tuple(str(a) for a in ds["grid_axis"].values))
 
 
 def open_store(path):

@@ -35,15 +35,16 @@ def add_cluster_arguments(parser) -> None:
 def connected(args, out: _Out, what: str):
     """The Dask client of ``--workers``/``--scheduler`` (see :func:`gonio.batch.cluster.connect`), with
     the line that says where the work runs."""
-    from gonio.batch.cluster import connect
+    from gonio.batch.cluster import connect, dashboard_link
 
     try:
         client, cluster, threads = connect(args.workers, args.scheduler)
     except ValueError as e:
         raise UsageError(str(e)) from None
     workers = len(client.scheduler_info(n_workers=-1)["workers"])
-    where = f"{workers} local workers" if cluster is not None else f"the scheduler at {args.scheduler}"
-    link = client.dashboard_link if cluster is None or cluster.dashboard_link else None
+    where = f"{workers} local worker{'s' * (workers != 1)}" if cluster is not None else \
+        f"the scheduler at {args.scheduler}"
+    link = dashboard_link(client, cluster)
     out(f"{what} on {where}" + (f"; dashboard {link}" if link else ""))
     return client, cluster, threads
 

@@ -28,6 +28,11 @@ def cmd_fit(args) -> int:
     source = Path(args.dir)
     if not source.exists():
         raise UsageError(f"{source}: no such campaign folder or {BRDF_NAME} file")
+    if source.is_dir() and not (source / BRDF_NAME).is_file() and _holds_many(source):
+        return _fit_many(args, source)
+    if args.workers is not None or args.scheduler is not None:
+        raise UsageError("--workers/--scheduler: for a batch store or a folder of campaigns; one campaign "
+                         "is fitted here")
     if source.is_dir() and not (source / BRDF_NAME).is_file():
         raise UsageError(f"{source}: not a finished campaign (no {BRDF_NAME}; it is written once every "
                          "step is measured: finish the campaign with the command that started it)")
@@ -54,6 +59,51 @@ def cmd_fit(args) -> int:
               f"{'; MISFIT: the model leaves a structured residual' if res['misfit'] else ''}",
               file=sys.stderr)
     return 0
+
+
+def _holds_many(folder: Path) -> bool:
+    """A batch store, or a folder with finished campaigns in it."""
+    from gonio.dataset import BRDF_NAME
+
+    return (folder / ".zgroup").is_file() or any((p / BRDF_NAME).is_file() for p in folder.iterdir())
+
+
+def _fit_many(args, source: Path) -> int:
+    """``gonio fit STORE.zarr|FOLDER``: every material or campaign on the cluster, one table."""
+    from gonio.batch.fit import FitJob, fit_many, sources, table_csv
+    from gonio.cli.batch import connected
+    from gonio.fit import parse_channels, parse_model
+
+    out = _writable_out(args.out, force=args.force) if args.out is not None else None
+    channels = parse_channels(args.channels)
+    parse_model(args.model, channels)  # a bad MODEL is reported before any data is read
+    if args.starts < 1:
+        raise UsageError(f"--starts: must be an integer >= 1, got {args.starts}")
+    kind, items = sources(source)
+    say = _Out(args.quiet)
+    noun = "material" if kind == "store" else "campaign"
+    client, cluster, threads = connected(args, say, f"fitting {args.model} to {len(items)} {noun}"
+                                         f"{'s' * (len(items) != 1)}")
+    try:
+        def said(k, r):
+            say(f"{r.status}: {r.source}" + (f": {r.error}" if r.error else ""))
+
+        job = FitJob(args.model, args.channels, args.loss, args.starts)
+        rows = fit_many(kind, items, job, client, threads, on_row=None if args.quiet else said)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    text = table_csv(rows)
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        tmp = out.with_name(out.name + ".partial")
+        tmp.write_text(text)
+        tmp.replace(out)
+    counts = {s: sum(r.status == s for r in rows) for s in ("ok", "misfit", "failed", "missing")}
+    say(", ".join(f"{n} {s}" for s, n in counts.items()) + (f"; the table in {out}" if out else ""))
+    return 1 if counts["failed"] else 0
 
 
 # -- gonio export ---------------------------------------------------------------------------------
@@ -161,7 +211,8 @@ def add_parsers(sub, fmt) -> None:
     """This module's subcommands."""
     sf = sub.add_parser("fit", formatter_class=fmt,
                         help="fit a reflectance model to a finished campaign's measured samples")
-    sf.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder (or its brdf.h5)")
+    sf.add_argument("dir", metavar="SOURCE", help="finished campaign folder (or its brdf.h5); or a batch "
+                    "store (gonio batch) or a folder of finished campaigns: each fitted, one CSV table")
     sf.add_argument("--model", required=True,
                     help="a material model, fitted with every key the material has, rho_d included: "
                          "lambert, phong, modified-phong, blinn-phong, normalized-blinn-phong, ward, "
@@ -177,7 +228,11 @@ def add_parsers(sub, fmt) -> None:
                     help="Dr.Jit backend of the model evaluations (default: $GONIO_BACKEND, else cuda when a "
                          "CUDA device is present, else llvm)")
     sf.add_argument("--out", metavar="FIT.json", default=None,
-                    help="write parameters, uncertainties, loss and residual statistics as JSON")
+                    help="write parameters, uncertainties, loss and residual statistics as JSON (many "
+                         "sources: the CSV table; default: stdout)")
+    from gonio.cli.batch import add_cluster_arguments
+
+    add_cluster_arguments(sf)
     sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")
     add_force(sf)
     sf.set_defaults(func=cmd_fit)
