@@ -20,17 +20,6 @@ GRID, SEED = "iso:step=30", 1
 
 
 @pytest.fixture(scope="module")
-def client():
-    from distributed import Client, LocalCluster
-
-    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
-    c = Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-
-
-@pytest.fixture(scope="module")
 def store(tmp_path_factory, client):
     out = tmp_path_factory.mktemp("fit") / "b.zarr"
     run_batch(read_materials("lambert:albedo=0.3|0.6"), grid=GRID, seed=SEED, cfg=load_config(), out=out,

@@ -22,17 +22,6 @@ VARIABLES = ("theta_i", "phi_i", "theta_o", "phi_o", "value", "stddev", "step", 
 
 
 @pytest.fixture(scope="module")
-def client():
-    from distributed import Client, LocalCluster
-
-    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
-    c = Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-
-
-@pytest.fixture(scope="module")
 def materials():
     return read_materials("ggx:alpha=0.1|0.4,metal=gold")[:1] + read_materials("lambert:albedo=0.3|0.7") \
         + read_materials("ward:rho_d=0.1,rho_s=0.05,alpha_x=0.1,alpha_y=0.3")
