@@ -36,10 +36,11 @@ class BatchSummary:
     failed: list
 
 
-def simulate_row(material: str, grid: str, seed: int, cfg, threads: int | None = None) -> Row:
+def simulate_row(material: str, grid: str, seed: int, cfg, threads: int | None = None, plan=None) -> Row:
     """The :class:`~gonio.batch.store.Row` of ``gonio simulate MATERIAL --grid GRID --seed SEED`` on
-    ``cfg``'s simulated gantry (a Dask task; ``threads`` caps Dr.Jit's thread pool in this worker).
-    A failure is returned as a row with its ``error``, never raised."""
+    ``cfg``'s simulated gantry (a Dask task; ``threads`` caps Dr.Jit's thread pool in this worker;
+    ``plan``: the grid's plan on ``cfg``, made once for the whole batch, else planned here). A failure
+    is returned as a row with its ``error``, never raised."""
     try:
         if threads is not None:
             import drjit as dr
@@ -53,7 +54,7 @@ def simulate_row(material: str, grid: str, seed: int, cfg, threads: int | None =
 
         mat = load(material)
         with tempfile.TemporaryDirectory(prefix="gonio-batch-") as d:
-            c = create_campaign(Path(d) / "c", cfg, grid=grid, material=mat.spec, seed=seed)
+            c = create_campaign(Path(d) / "c", cfg, grid=grid, material=mat.spec, seed=seed, plan=plan)
             try:
                 gantry = build_gantry(c.cfg, mat, seed=c.meta["seed"], state=gantry_state(c))
                 try:
@@ -158,7 +159,14 @@ def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs) -> Bat
         if on_row is not None:
             on_row(i, row)
 
+    if not todo:
+        return BatchSummary(out, 0, done_before, [])
+    from gonio.plan import build_plan
+
+    # Every campaign of the batch has the same plan (one grid, one config): planned once, here, and sent
+    # to each worker once (planning a tour costs more than simulating a material on a coarse grid).
+    plan = client.scatter(build_plan(grid, cfg), broadcast=True)
     key = hashlib.sha256(json.dumps(attrs, sort_keys=True).encode()).hexdigest()[:12]
-    tasks = ((i, (materials[i], grid, seed, cfg, threads)) for i in todo)
+    tasks = ((i, (materials[i], grid, seed, cfg, threads, plan)) for i in todo)
     bounded_map(client, simulate_row, tasks, take, key)
     return BatchSummary(out, written, done_before, failed)

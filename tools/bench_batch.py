@@ -1,0 +1,168 @@
+"""Benchmark: batch simulation past one machine (issue 24), three panels side by side.
+
+1. workers: ``N`` materials (``ggx:alpha=0.02..0.5xN/2,metal=gold|copper``) × ``--grid`` through
+   :func:`gonio.batch.run_batch`, on a local cluster of 1 and then 2 one-thread worker processes (each
+   its own new store); wall time, materials per second, the speed-up, and the client's peak resident
+   memory (the bounded map keeps one result per worker in flight, whatever N).
+2. detector: CPU time per reading of the simulated photodiode (process CPU, Dr.Jit's threads included)
+   for ``--poses`` still poses of a glossy material: :meth:`SimDetector.measure` one pose at a time (what
+   a campaign does) against :meth:`SimDetector.measure_poses` (all poses per target in one launch),
+   reading for reading the same values.
+3. materials: GGX with a gold conductor Fresnel, our :meth:`Material.evaluate` (a frozen Dr.Jit
+   function, float32, LLVM) against Mitsuba 3's ``roughconductor`` (``distribution=ggx``, ``material=Au``,
+   ``llvm_ad_rgb``) ``eval`` on the same random direction pairs, 10^2 (per-call overhead) to 10^7;
+   median of ``--repeats`` warm calls each, inputs already in memory, ``dr.eval`` and
+   ``dr.sync_thread`` included. (Mitsuba's value includes cos θo, ours does not: one multiply.)
+
+Run: ``.venv/bin/python tools/bench_batch.py [--materials 200] [--grid iso:step=15] [--poses 300]
+[--repeats 7] [--only workers|detector|materials]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def bench_workers(n: int, grid: str) -> None:
+    from gonio.batch import read_materials, run_batch
+    from gonio.batch.cluster import connect
+    from gonio.config import load_config
+
+    half = max(1, n // 2)
+    materials = read_materials(f"ggx:alpha=0.02..0.5x{half},metal=gold|copper" if half > 1 else
+                               "ggx:alpha=0.2,metal=gold|copper")
+    cfg = load_config()
+    walls = {}
+    for workers in (1, 2):
+        client, cluster, threads = connect(workers=workers)
+        try:
+            with tempfile.TemporaryDirectory() as d:
+                t = time.perf_counter()
+                s = run_batch(materials, grid=grid, seed=0, cfg=cfg, out=Path(d) / "b.zarr", client=client,
+                              threads=threads)
+                walls[workers] = time.perf_counter() - t
+                assert s.written == len(materials) and not s.failed, s.failed
+        finally:
+            client.close()
+            cluster.close()
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"workers {workers}: {len(materials)} materials x {grid} in {walls[workers]:.1f} s "
+              f"({len(materials) / walls[workers]:.2f} materials/s); client peak RSS {rss:.0f} MiB")
+    print(f"speed-up 2 workers / 1 worker: {walls[1] / walls[2]:.2f}x "
+          f"(load average at the end {os.getloadavg()[0]:.2f})")
+
+
+def bench_detector(poses: int) -> None:
+    from gonio.config import load_config
+    from gonio.sim.gantry import SimGantry
+
+    gantry = SimGantry.from_config(load_config(), "ggx:alpha=0.1,metal=gold", seed=3)
+    gantry.connect()
+    names = gantry.kinematics.axis_names
+    rng = np.random.default_rng(1)
+    lo = np.array([gantry.axes[a].cfg.min_deg for a in names])
+    hi = np.array([gantry.axes[a].cfg.max_deg for a in names])
+    axes = lo + (hi - lo) * rng.uniform(0.2, 0.8, (poses, len(names)))
+    keys = [(k, 0) for k in range(poses)]
+    gantry.light.set_on(True)
+    gantry.detector.set_target("sample")
+    gantry.detector.measure(0.1, key=(10**6, 0))        # compile the kernels first (both ways share them)
+    gantry.detector.measure_poses(axes[:2], [(10**6 + 1, 0), (10**6 + 2, 0)], exposure_s=0.1)
+    one, actual = [], []
+    cpu = 0.0
+    for k in range(poses):
+        for name, target in zip(names, axes[k], strict=True):
+            gantry.axes[name].move_to(target)
+        gantry.clock.sleep(max(a.arrival_time_s() for a in gantry.axes.values()) - gantry.clock.now())
+        actual.append(gantry.detector.actual_axes_deg())
+        c = time.process_time()
+        one.append(gantry.detector.measure(0.1, key=keys[k]))
+        cpu += time.process_time() - c
+    c = time.process_time()
+    batch = gantry.detector.measure_poses(np.array(actual), keys, exposure_s=0.1)
+    cpu_batch = time.process_time() - c
+    same = all(np.array_equal(a.signal, b.signal) for a, b in zip(one, batch, strict=True))
+    print(f"detector, {poses} poses: measure() one at a time {1e3 * cpu / poses:.3f} ms CPU per reading, "
+          f"measure_poses() {1e3 * cpu_batch / poses:.3f} ms CPU per reading "
+          f"({cpu / max(cpu_batch, 1e-9):.1f}x); readings identical: {same}")
+
+
+def _median_call(fn, repeats: int) -> float:
+    fn()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def bench_materials(repeats: int, sizes) -> None:
+    import drjit as dr
+    import mitsuba as mi
+
+    mi.set_variant("llvm_ad_rgb")
+    from drjit.llvm import Array3f
+
+    from gonio.sim.materials import load
+
+    ours = load("ggx:alpha=0.2,metal=gold")
+    theirs = mi.load_dict({"type": "roughconductor", "distribution": "ggx", "alpha": 0.2, "material": "Au"})
+    ctx = mi.BSDFContext()
+    rng = np.random.default_rng(5)
+    print("materials: size, ours (Material.evaluate), Mitsuba roughconductor eval, ours / Mitsuba")
+    for n in sizes:
+        n = int(n)
+        d = rng.normal(size=(2, n, 3))
+        d[..., 2] = np.abs(d[..., 2])
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        d = d.astype(np.float32)
+        wi, wo = Array3f(*d[0].T), Array3f(*d[1].T)
+        si = dr.zeros(mi.SurfaceInteraction3f, n)
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+        si.wi = mi.Vector3f(*d[0].T)
+        mwo = mi.Vector3f(*d[1].T)
+        dr.eval(wi, wo, si, mwo)
+
+        def run_ours(wi=wi, wo=wo):
+            v = ours.evaluate(wi, wo)
+            dr.eval(v)
+            dr.sync_thread()
+
+        def run_theirs(si=si, mwo=mwo):
+            v = theirs.eval(ctx, si, mwo)
+            dr.eval(v)
+            dr.sync_thread()
+
+        a, b = _median_call(run_ours, repeats), _median_call(run_theirs, repeats)
+        print(f"  {n:>10,d}: {1e3 * a:9.3f} ms  {1e3 * b:9.3f} ms  {a / b:5.2f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--materials", type=int, default=200)
+    ap.add_argument("--grid", default="iso:step=15")
+    ap.add_argument("--poses", type=int, default=300)
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--sizes", type=float, nargs="+", default=[1e2, 1e5, 1e6, 1e7])
+    ap.add_argument("--only", choices=("workers", "detector", "materials"))
+    a = ap.parse_args()
+    print(f"load average at the start: {os.getloadavg()[0]:.2f}")
+    if a.only in (None, "detector"):
+        bench_detector(a.poses)
+    if a.only in (None, "materials"):
+        bench_materials(a.repeats, a.sizes)
+    if a.only in (None, "workers"):
+        bench_workers(a.materials, a.grid)
+
+
+if __name__ == "__main__":
+    main()
