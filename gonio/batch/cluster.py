@@ -17,14 +17,17 @@ MAX_WORKERS = 256
 _ADDRESS = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+$")
 
 
-def _dashboard():
-    """Loopback dashboard on a free port where bokeh is installed (Dask's dashboard needs it)."""
-    return "127.0.0.1:0" if importlib.util.find_spec("bokeh") is not None else None
+#: The scheduler's HTTP server (the dashboard, where bokeh is installed): loopback, a free port.
+DASHBOARD_ADDRESS = "127.0.0.1:0"
+
+
+def _has_dashboard() -> bool:
+    return importlib.util.find_spec("bokeh") is not None     # Dask's dashboard needs bokeh
 
 
 def dashboard_link(client, cluster) -> str | None:
     """The Dask dashboard's address, where there is one (a local cluster has one only with bokeh)."""
-    if cluster is not None and _dashboard() is None:
+    if cluster is not None and not _has_dashboard():
         return None
     return client.dashboard_link
 
@@ -50,7 +53,7 @@ def connect(workers: int | None = None, scheduler: str | None = None):
         n = workers or len(os.sched_getaffinity(0))
         with dask.config.set({"distributed.worker.daemon": True}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                   dashboard_address=_dashboard(), silence_logs=40)
+                                   dashboard_address=DASHBOARD_ADDRESS, silence_logs=40)
         return Client(cluster), cluster, 1
     if not _ADDRESS.match(scheduler):
         raise ValueError(f"--scheduler: {scheduler!r} is no scheduler address; give e.g. tcp://127.0.0.1:8786")

@@ -65,7 +65,8 @@ def whole(tmp_path_factory):
     from gonio.config import load_config
 
     out = tmp_path_factory.mktemp("whole") / "b.zarr"
-    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                           dashboard_address="127.0.0.1:0")
     with cluster, Client(cluster) as client:
         run_batch(read_materials(MATERIALS), grid="iso:step=45", seed=2, cfg=load_config(), out=out,
                   client=client, threads=1)
