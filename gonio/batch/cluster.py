@@ -3,7 +3,6 @@ that keeps at most one task per worker in flight (so memory holds one result per
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 from collections.abc import Callable, Iterable
@@ -21,15 +20,24 @@ _ADDRESS = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+$")
 DASHBOARD_ADDRESS = "127.0.0.1:0"
 
 
-def _has_dashboard() -> bool:
-    return importlib.util.find_spec("bokeh") is not None     # Dask's dashboard needs bokeh
+def dashboard_link(client) -> str | None:
+    """Where the Dask dashboard is: its address where the scheduler serves one, a note where its HTTP
+    server answers that it needs bokeh, None where nothing answers."""
+    import httpx
 
-
-def dashboard_link(client, cluster) -> str | None:
-    """The Dask dashboard's address, where there is one (a local cluster has one only with bokeh)."""
-    if cluster is not None and not _has_dashboard():
+    port = client.scheduler_info(n_workers=0).get("services", {}).get("dashboard")
+    host = re.sub(r"^\w+://", "", client.scheduler.address).rsplit(":", 1)[0]
+    if port is None or not host:
         return None
-    return client.dashboard_link
+    link = f"http://{host}:{port}/status"
+    try:
+        r = httpx.get(link, timeout=2.0)
+    except httpx.HTTPError:
+        return None
+    if r.status_code != 200:
+        return None
+    return "none (the scheduler lacks bokeh >= 3.1, which the dashboard needs)" if "bokeh" in r.text[:200] \
+        else link
 
 
 def connect(workers: int | None = None, scheduler: str | None = None):

@@ -44,7 +44,7 @@ def connected(args, out: _Out, what: str):
     workers = len(client.scheduler_info(n_workers=-1)["workers"])
     where = f"{workers} local worker{'s' * (workers != 1)}" if cluster is not None else \
         f"the scheduler at {args.scheduler}"
-    link = dashboard_link(client, cluster)
+    link = dashboard_link(client)
     out(f"{what} on {where}" + (f"; dashboard {link}" if link else ""))
     return client, cluster, threads
 
