@@ -79,7 +79,8 @@ def cmd_batch(args) -> int:
     if cfg.detector.driver != "sim":
         raise UsageError(f"--config: the detector of config '{cfg.name}' is '{cfg.detector.driver}'; a batch "
                          "simulates, so it needs a simulated detector (driver 'sim')")
-    client, cluster, threads = connected(args, out, f"batch of {len(materials)} materials")
+    n = len(materials)
+    client, cluster, threads = connected(args, out, f"batch of {n} material{'s' * (n != 1)}")
     try:
         summary = _run(args, out, materials, args.grid, cfg, client, threads, store)
     except Interrupted as err:
