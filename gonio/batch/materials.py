@@ -10,7 +10,7 @@ The batch is the product of every spanned option, in the order written, the firs
 ``ggx:alpha=0.1..0.3x3,metal=gold|copper`` is ``ggx:alpha=0.1,metal=gold``, ``ggx:alpha=0.1,metal=copper``,
 ``ggx:alpha=0.2,metal=gold``, ... (6 materials). A file holds one such line per line; blank lines and
 lines starting with ``#`` are skipped. Every material is checked (:func:`gonio.sim.materials.load`) and
-named by its normalized MATERIAL string; the same material twice is refused.
+kept as written (spans expanded); the same material twice (as :func:`load` normalizes it) is refused.
 
 >>> expand("ggx:alpha=0.1..0.3x3,metal=gold|copper")[:3]
 ['ggx:alpha=0.1,metal=gold', 'ggx:alpha=0.1,metal=copper', 'ggx:alpha=0.2,metal=gold']
@@ -77,8 +77,8 @@ def expand(text: str, where: str = "MATERIALS") -> list[str]:
 
 
 def read_materials(arg: str) -> list[str]:
-    """The checked, normalized MATERIAL strings of the batch argument ``arg``: a file of lines, else
-    one line.
+    """The checked MATERIAL strings of the batch argument ``arg`` (a file of lines, else one line), as
+    written with their spans expanded.
 
     Raises
     ------
@@ -102,7 +102,7 @@ def read_materials(arg: str) -> list[str]:
                          "string)")
     else:
         lines = [("MATERIALS", arg)]
-    seen: dict[str, str] = {}
+    seen: dict[str, tuple[str, str]] = {}
     for where, line in lines:
         for material in expand(line, where):
             try:
@@ -110,9 +110,9 @@ def read_materials(arg: str) -> list[str]:
             except ValueError as e:
                 raise ValueError(f"{where}: {e}") from None
             if spec in seen:
-                raise ValueError(f"{where}: {spec} is already in the batch ({seen[spec]}); give each "
-                                 "material once")
-            seen[spec] = where
+                raise ValueError(f"{where}: {material} is already in the batch as {seen[spec][0]} "
+                                 f"({seen[spec][1]}); give each material once")
+            seen[spec] = (material, where)
             if len(seen) > MAX_MATERIALS:
                 raise ValueError(f"MATERIALS: more than {MAX_MATERIALS} materials; split the batch")
-    return list(seen)
+    return [material for material, _ in seen.values()]

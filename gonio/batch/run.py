@@ -101,7 +101,7 @@ def run_batch(materials: list[str], *, grid: str, seed: int, cfg, out: Path, cli
     Parameters
     ----------
     materials : list of str
-        Normalized MATERIAL strings (:func:`gonio.batch.materials.read_materials`).
+        MATERIAL strings, checked (:func:`gonio.batch.materials.read_materials`).
     out : Path
         The store; created at the first result, continued where it holds this batch (a store of
         another batch is refused with ValueError).

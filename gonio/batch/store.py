@@ -3,10 +3,12 @@
 Dimensions ``material`` × ``sample`` × ``channel`` (and ``grid_axis`` for the grid indices). Every
 variable of a campaign's ``brdf.h5`` (:mod:`gonio.dataset`: measured and planned angles, ``value`` and
 ``stddev`` in sr⁻¹, step, pose, exposure, campaign clock, grid indices) gains a leading ``material``
-dimension; ``material`` (the normalized MATERIAL strings) and ``seed`` are coordinates; ``status`` says
-per material whether its row is missing (0), done (1) or failed (2), and ``error`` holds a failure's
-message. The attributes hold what every material shares: the grid, the config snapshot and its hash, the
-software version, units and conventions, ``format = "gonio-batch"`` and its ``format_version``.
+dimension; ``material`` (the MATERIAL strings as given, spans expanded), ``spec`` (each as
+:func:`gonio.sim.materials.load` normalizes it, as ``brdf.h5`` records it) and ``seed`` are
+coordinates; ``status`` says per material whether its row is missing (0), done (1) or failed (2), and
+``error`` holds a failure's message. The attributes hold what every material shares: the grid, the
+config snapshot and its hash, the software version, units and conventions, ``format = "gonio-batch"``
+and its ``format_version``.
 
 Writes are crash-safe: the store is created under a temporary name and renamed into place; each material
 is one chunk of every variable (Zarr's local store writes each chunk file under a temporary name and
@@ -118,7 +120,11 @@ class BatchStore:
         data_vars["error"] = (("material",), da.full(m, "", dtype=f"<U{ERROR_CHARS}", chunks=1))
         encoding["status"] = {"_FillValue": None}
         encoding["error"] = {"_FillValue": None}
+        from gonio.sim.materials import load
+
+        specs = [load(m).spec for m in materials]
         coords = {"material": ("material", np.array(materials, dtype=object)),
+                  "spec": ("material", np.array(specs, dtype=object)),
                   "seed": ("material", np.full(m, seed, np.int64)),
                   "sample": ("sample", np.arange(n, dtype=np.int64)),
                   "channel": ("channel", np.array([str(x) for x in first.attrs["channels"]], dtype=object)),
@@ -167,7 +173,7 @@ def row_brdf(ds, k: int):
     from gonio.dataset import SampledBRDF
 
     row = ds.isel(material=k).load()
-    attrs = dict(ds.attrs) | {"material": str(row["material"].values), "seed": int(row["seed"].values)}
+    attrs = dict(ds.attrs) | {"material": str(row["spec"].values), "seed": int(row["seed"].values)}
     for key in ("symmetries", "config"):
         if isinstance(attrs.get(key), str):
             attrs[key] = json.loads(attrs[key])

@@ -33,7 +33,7 @@ def test_a_file_one_line_each_with_comments_blank_lines_and_spans(tmp_path):
     ("ggx:alpha=0.1|,metal=gold", "empty alternative"),
     ("ggx:alpha=-1..0.3x3,metal=gold", "alpha"),
     ("nosuchmodel:x=1", "unknown material model"),
-    ("lambert:albedo=0.5|0.50", "already in the batch"),
+    ("lambert:albedo=0.5|0.50", "lambert:albedo=0.50 is already in the batch as lambert:albedo=0.5"),
     ("lambert:albedo=0.1..0.9x10000,x=1|2|3|4|5|6|7|8|9|10|11", "at most"),     # 110,000 materials
 ])
 def test_bad_materials_are_refused_in_one_line_naming_where(text, message):

@@ -52,6 +52,7 @@ def test_every_row_is_bit_for_bit_the_simulated_campaign(tmp_path, client, mater
     assert summary.written == len(materials) and summary.failed == [] and summary.done_before == 0
     ds = xr.open_zarr(tmp_path / "b.zarr")          # an ordinary xarray reader
     assert [str(m) for m in ds.material.values] == materials
+    assert [str(m) for m in ds.spec.values] == [load(m).spec for m in materials]
     assert (ds.status.values == DONE).all() and (ds.seed.values == SEED).all()
     assert ds.attrs["batch_grid"].startswith("iso:step=45") and ds.attrs["units"] == "sr^-1"
     for k, material in enumerate(materials):
