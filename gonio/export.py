@@ -28,11 +28,11 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
 
+from gonio import software_version
 from gonio.brdf import MeasuredBRDF, Reason, open_brdf
 from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf, write_brdf
 from gonio.formats import atomic_path
@@ -107,13 +107,6 @@ def parse_formats(text: str, field: str = "--export") -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def _software_version() -> str:
-    try:
-        return version("gonio")
-    except PackageNotFoundError:
-        return "0+unknown"
-
-
 def _metadata(brdf: MeasuredBRDF, source, cosine: str) -> dict:
     a = brdf.attrs
     return {"units": "sr^-1", "cosine": cosine, "angles": "degrees; theta from +z, phi from the sample's +x",
@@ -121,7 +114,7 @@ def _metadata(brdf: MeasuredBRDF, source, cosine: str) -> dict:
             "source": "in-memory dataset" if isinstance(source, SampledBRDF | MeasuredBRDF) else str(source),
             "material": str(a.get("material", "")), "grid": str(a.get("grid", "")),
             "gantry": str(a.get("gantry", "")), "interpolation": f"{brdf.domain}/{brdf.method} (gonio.brdf)",
-            "software": f"gonio {_software_version()}"}
+            "software": f"gonio {software_version()}"}
 
 
 def export(source, fmt: str, out, *, method: str = "auto", theta_step_deg: float = 5.0,
@@ -337,7 +330,7 @@ def _csv(data: SampledBRDF, out: Path, source) -> ExportReport:
     meta = {"cosine": "none (f_r)", "symmetries": json.dumps(symmetries, sort_keys=True) if isinstance(
         symmetries, dict) else str(symmetries), "source": str(source) if not isinstance(source, SampledBRDF)
         else "in-memory dataset", "material": str(data.attrs.get("material", "")),
-        "grid": str(data.attrs.get("grid", "")), "software": f"gonio {_software_version()}"}
+        "grid": str(data.attrs.get("grid", "")), "software": f"gonio {software_version()}"}
     path = write_csv(out, angles, value, data.stddev, channels=channels, metadata=meta)
     finite = np.isfinite(value).all(axis=1)
     return ExportReport("csv", [path], len(angles), int(finite.sum()), 0, int((~finite).sum()),

@@ -1,0 +1,75 @@
+"""Every registry of gonio and its built-in entries: the one place each name is written.
+
+Each registry (a :class:`gonio.registry.Registry`) maps a name users write to where its implementation
+lives (a ``"module:attr"`` path, imported only when used), a one-line summary for help text, and the
+facts that validation and help need without importing it. CLI choices, help text and config validation
+read these; a plugin adds to them without editing gonio (docs/EXTENDING.md). This module imports only
+:mod:`gonio.registry` (the standard library): ``gonio <command> --help`` reads it in microseconds.
+
+================  ===================================================  =====================================
+registry          target                                               extra
+================  ===================================================  =====================================
+DESIGNS           a :class:`gonio.kinematics.base.Kinematics`           -
+                  subclass (it owns its ``axis_names``)
+AXIS_DRIVERS,     the driver's pydantic config model (``driver``       -
+LIGHT_DRIVERS,    Literal of the name); its ``build`` makes the
+DETECTOR_DRIVERS  device (:mod:`gonio.device_config`)
+BUS_DRIVERS       the bus's config model; its ``open`` makes the bus  -
+SIM_DETECTORS     a builder of the simulated detector                  -
+                  (:mod:`gonio.sim.detectors`)
+EXPORT_FORMATS    ``write(job, out) -> ExportReport``                  ``file_name`` (in a campaign folder),
+                  (:mod:`gonio.export`)                                ``folder`` (writes a folder)
+PLOT_KINDS        a :class:`gonio.plot.PlotKind`                        -
+GRID_KINDS        a :class:`gonio.plan.grids.GridKind`                  ``options`` (tuple), ``size``
+                                                                       (``"step"`` or ``"stride"``)
+GRID_OPTIONS      - (documentation of each GRID option)                -
+ORDERS            ``order(inputs) -> permutation``                      ``lattice``: needs lines of a lattice
+                  (:class:`gonio.plan.build.OrderInputs`)
+================  ===================================================  =====================================
+"""
+
+from __future__ import annotations
+
+from gonio.registry import Registry
+
+__all__ = ["GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
+
+# -- grids (GRID strings: gonio plan --help lists them from here) ---------------------------------------
+GRID_KINDS = Registry("grid kind")
+GRID_KINDS.add("iso", "gonio.plan.grids:ISO",
+               "θi, θo in {0, S, 2S, ...} <= theta_max; Δφ = φo − φi in {0, S, ...} < 360°, measured with "
+               "φi = 0, φo = Δφ (an isotropic sample)",
+               size="step", options=("step", "theta_max", "reciprocity", "mirror", "isotropy", "order"))
+GRID_KINDS.add("full", "gonio.plan.grids:FULL",
+               "θi, φi, θo, φo on the same S-degree lattice (an anisotropic sample)",
+               size="step", options=("step", "theta_max", "reciprocity", "isotropy", "order"))
+GRID_KINDS.add("merl", "gonio.plan.grids:MERL",
+               "centres of every K-th MERL bin along θh, θd and φd, with φh = 0 (an isotropic sample)",
+               size="stride", options=("stride", "theta_max", "reciprocity", "isotropy", "order"))
+
+GRID_OPTIONS = Registry("grid option")
+GRID_OPTIONS.add("step", None, "S degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ + 180° stay on the "
+                 "grid); required")
+GRID_OPTIONS.add("stride", None, "K, an integer from 1 to 90; required")
+GRID_OPTIONS.add("theta_max", None, "degrees in (0, 90]; default: the config's kinematics.theta_max_deg")
+GRID_OPTIONS.add("reciprocity", None, "true|false, default true: measure one pose of each Helmholtz pair "
+                 "(ωi, ωo) ~ (ωo, ωi)")
+GRID_OPTIONS.add("mirror", None, "true|false, default false: also identify Δφ with −Δφ (a sample symmetric "
+                 "about its plane of incidence)")
+GRID_OPTIONS.add("isotropy", None, "the isotropy the kind assumes (true for iso and merl, false for full): "
+                 "accepted for clarity, it changes nothing; the other value is refused")
+GRID_OPTIONS.add("order", None, "the order the poses are measured in, default auto (the orders below)")
+
+#: Orders of a GRID's ``order`` option: ``order(inputs)`` (:class:`gonio.plan.build.OrderInputs`) returns
+#: a permutation of the poses. ``auto`` is resolved by the grid kind (:class:`gonio.plan.grids.GridKind`);
+#: ``fly`` plans the serpentine, whose lines a fly campaign sweeps (``lattice``: grids with lines only).
+ORDERS = Registry("order")
+ORDERS.add("auto", None, "serpentine sweeps (full; iso unless the tour is estimated quicker, up to "
+           "10,000 poses), a tour (merl)")
+ORDERS.add("serpentine", "gonio.plan.build:order_serpentine",
+           "sweep the grid's innermost loop back and forth, cut where sweeping is cheapest")
+ORDERS.add("raster", "gonio.plan.build:order_raster", "the grid's loops in their natural order")
+ORDERS.add("tour", "gonio.plan.build:order_tour",
+           "the shortest tour found through the poses (merl: up to 50,000 poses)")
+ORDERS.add("fly", "gonio.plan.build:order_serpentine",
+           "the serpentine's poses read while one axis sweeps each line (iso and full)", lattice=True)
