@@ -17,8 +17,11 @@ DETECTOR_DRIVERS  device (:mod:`gonio.device_config`)
 BUS_DRIVERS       the bus's config model; its ``open`` makes the bus  -
 SIM_DETECTORS     a builder of the simulated detector                  -
                   (:mod:`gonio.sim.detectors`)
-EXPORT_FORMATS    ``write(job, out) -> ExportReport``                  ``file_name`` (in a campaign folder),
-                  (:mod:`gonio.export`)                                ``folder`` (writes a folder)
+EXPORT_FORMATS    ``export(job, out) -> ExportReport``                 ``file_name``: its name in a campaign
+                  (:class:`gonio.export.ExportJob`)                    folder (``gonio simulate --export``,
+                                                                       unambiguous: ``.bsdf`` and ``.dat``
+                                                                       each name two formats); ``folder``:
+                                                                       it writes a folder
 PLOT_KINDS        a :class:`gonio.plot.PlotKind`                        -
 GRID_KINDS        a :class:`gonio.plan.grids.GridKind`                  ``options`` (tuple), ``size``
                                                                        (``"step"`` or ``"stride"``)
@@ -32,7 +35,25 @@ from __future__ import annotations
 
 from gonio.registry import Registry
 
-__all__ = ["GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
+__all__ = ["EXPORT_FORMATS", "GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
+
+# -- export formats (gonio export --format, gonio simulate --export) ---------------------------------------
+EXPORT_FORMATS = Registry("export format")
+EXPORT_FORMATS.add("merl", "gonio.export:export_merl",
+                   "MERL .binary (f_r on the 90 x 90 x 180 half/difference bins; -1 where there is no data)",
+                   file_name="brdf.merl.binary")
+EXPORT_FORMATS.add("bsdf", "gonio.export:export_bsdf", "Mitsuba 3 / pbrt-v4 measured-BSDF tensor file, RGB",
+                   file_name="brdf.rgb.tensor.bsdf")
+EXPORT_FORMATS.add("bsdf-spectral", "gonio.export:export_bsdf_spectral",
+                   "the tensor file with spectra (360-830 nm) from R, G, B",
+                   file_name="brdf.spectral.tensor.bsdf")
+EXPORT_FORMATS.add("radiance", "gonio.export:export_radiance",
+                   "a folder of PAB-Opto files, one per incidence (CIE-Y), for Radiance's pabopto2bsdf",
+                   file_name="brdf.pabopto", folder=True)
+EXPORT_FORMATS.add("csv", "gonio.export:export_csv", "the measured samples, one row each",
+                   file_name="brdf.samples.csv")
+EXPORT_FORMATS.add("h5", "gonio.export:export_h5", "the sampled dataset itself (brdf.h5 layout)",
+                   file_name="brdf.copy.h5")
 
 # -- grids (GRID strings: gonio plan --help lists them from here) ---------------------------------------
 GRID_KINDS = Registry("grid kind")

@@ -9,6 +9,7 @@ lists in the help come from :mod:`gonio.registries`. So ``gonio --version`` and 
 from __future__ import annotations
 
 from gonio.cli.common import ReferenceFormatter, add_force, command, seed_type
+from gonio.registries import EXPORT_FORMATS
 
 __all__ = ["add_campaign_parsers", "add_result_parsers", "add_hardware_parsers", "grid_help"]
 
@@ -43,7 +44,7 @@ def add_campaign_parsers(sub, fmt) -> None:
     ss.add_argument("--quiet", action="store_true", help="no progress output")
     ss.add_argument("--export", default=None, metavar="FORMATS",
                     help="exports written into the campaign folder once it is finished, comma-separated: "
-                         "merl, bsdf, bsdf-spectral, radiance, csv, h5")
+                         + ", ".join(EXPORT_FORMATS.names()) + " (gonio export --help says what each is)")
     ss.set_defaults(func=command("gonio.cli.campaigns:cmd_simulate"))
     st = sub.add_parser("status", formatter_class=fmt,
                         help="a campaign's state, progress, ETA and last fault, from its folder (read-only, "
@@ -96,13 +97,14 @@ def add_result_parsers(sub, fmt) -> None:
     sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")
     add_force(sf)
     sf.set_defaults(func=command("gonio.cli.results:cmd_fit"))
-    se = sub.add_parser("export", formatter_class=fmt,
+    folders = [e.name for e in EXPORT_FORMATS.entries() if e.extra.get("folder")]
+    se = sub.add_parser("export", formatter_class=ReferenceFormatter,
+                        epilog="FORMAT is one of:\n" + EXPORT_FORMATS.help(),
                         help="export a finished campaign's BRDF to a renderer's or a tool's file format")
     se.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
-    se.add_argument("--format", required=True, metavar="FORMAT",
-                    help="merl, bsdf (Mitsuba 3 / pbrt-v4 tensor, RGB), bsdf-spectral, radiance (a folder of "
-                         "PAB-Opto files), csv, h5")
-    se.add_argument("--out", required=True, metavar="FILE", help="output file (a folder for radiance)")
+    se.add_argument("--format", required=True, metavar="FORMAT", help="the format (below)")
+    se.add_argument("--out", required=True, metavar="FILE",
+                    help="output file (a folder for " + (", ".join(folders) or "none") + ")")
     add_force(se)
     se.set_defaults(func=command("gonio.cli.results:cmd_export"))
     sg = sub.add_parser("plot", formatter_class=fmt,

@@ -59,10 +59,11 @@ def export_formats(text: str | None) -> list[str]:
 
 def write_exports(folder: Path, formats: list[str], out: _Out) -> None:
     """``gonio simulate --export``: each format under its unambiguous name in the campaign folder."""
-    from gonio.export import EXPORT_NAMES, export
+    from gonio.export import export
+    from gonio.registries import EXPORT_FORMATS
 
     for fmt in formats:
-        out(f"export {export(folder, fmt, folder / EXPORT_NAMES[fmt])}")
+        out(f"export {export(folder, fmt, folder / EXPORT_FORMATS[fmt].extra['file_name'])}")
 
 
 def finished_campaign(folder: Path) -> Path:
@@ -97,12 +98,13 @@ def finished_campaign(folder: Path) -> Path:
 def cmd_export(args) -> int:
     """Export a finished campaign; the report (cells from data, interpolated, empty) on stdout."""
     from gonio.export import export, parse_formats
+    from gonio.registries import EXPORT_FORMATS
 
     fmt = parse_formats(args.format, "--format")
     if len(fmt) != 1:
         raise UsageError(f"--format: one format per export, got {args.format!r}")
     source = finished_campaign(Path(args.dir))
-    out = _writable_out(args.out, folder=fmt[0] == "radiance", force=args.force)
+    out = _writable_out(args.out, folder=EXPORT_FORMATS[fmt[0]].extra.get("folder", False), force=args.force)
     report = export(source, fmt[0], out)
     print(report)
     for note in report.notes:
