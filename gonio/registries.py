@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from gonio.registry import Registry
 
-__all__ = ["EXPORT_FORMATS", "GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
+__all__ = ["EXPORT_FORMATS", "PLOT_KINDS", "GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
 
 # -- export formats (gonio export --format, gonio simulate --export) ---------------------------------------
 EXPORT_FORMATS = Registry("export format")
@@ -54,6 +54,15 @@ EXPORT_FORMATS.add("csv", "gonio.export:export_csv", "the measured samples, one 
                    file_name="brdf.samples.csv")
 EXPORT_FORMATS.add("h5", "gonio.export:export_h5", "the sampled dataset itself (brdf.h5 layout)",
                    file_name="brdf.copy.h5")
+
+# -- plot kinds (gonio plot --kind) ----------------------------------------------------------------------
+PLOT_KINDS = Registry("plot kind")
+PLOT_KINDS.add("polar", "gonio.plot:POLAR", "in-plane f_r for several θi")
+PLOT_KINDS.add("hemisphere", "gonio.plot:HEMISPHERE", "f_r over ωo for one ωi (--theta-i, --phi-i)")
+PLOT_KINDS.add("merl", "gonio.plot:MERL", "f_r over (θh, θd) at φd = 90°: the usual image of MERL-style data")
+PLOT_KINDS.add("reciprocity", "gonio.plot:RECIPROCITY",
+               "residual map of f(ωi, ωo) against f(ωo, ωi) (campaigns measured with reciprocity=false)")
+PLOT_KINDS.add("albedo", "gonio.plot:ALBEDO", "directional albedo against θi")
 
 # -- grids (GRID strings: gonio plan --help lists them from here) ---------------------------------------
 GRID_KINDS = Registry("grid kind")

@@ -9,7 +9,7 @@ lists in the help come from :mod:`gonio.registries`. So ``gonio --version`` and 
 from __future__ import annotations
 
 from gonio.cli.common import ReferenceFormatter, add_force, command, seed_type
-from gonio.registries import EXPORT_FORMATS
+from gonio.registries import EXPORT_FORMATS, PLOT_KINDS
 
 __all__ = ["add_campaign_parsers", "add_result_parsers", "add_hardware_parsers", "grid_help"]
 
@@ -107,14 +107,12 @@ def add_result_parsers(sub, fmt) -> None:
                     help="output file (a folder for " + (", ".join(folders) or "none") + ")")
     add_force(se)
     se.set_defaults(func=command("gonio.cli.results:cmd_export"))
-    sg = sub.add_parser("plot", formatter_class=fmt,
+    sg = sub.add_parser("plot", formatter_class=ReferenceFormatter,
+                        epilog="KIND is one of:\n" + PLOT_KINDS.help(),
                         help="draw a finished campaign's BRDF (a PNG/PDF figure, or the slice's float "
                              "values as EXR)")
     sg.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
-    sg.add_argument("--kind", required=True, metavar="KIND",
-                    help="polar (in-plane f_r for several θi), hemisphere (f_r over ωo for one ωi), merl "
-                         "((θh, θd) image), reciprocity (residual map; campaigns measured with "
-                         "reciprocity=false), albedo (directional albedo against θi)")
+    sg.add_argument("--kind", required=True, metavar="KIND", help="the kind of plot (below)")
     sg.add_argument("--out", required=True, metavar="FILE", help="FILE.png, FILE.pdf or FILE.exr")
     sg.add_argument("--theta-i", type=float, default=30.0, help="θi of the hemisphere plot, degrees")
     sg.add_argument("--phi-i", type=float, default=0.0, help="φi (plane of incidence), degrees")

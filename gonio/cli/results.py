@@ -115,11 +115,12 @@ def cmd_export(args) -> int:
 # -- gonio plot -----------------------------------------------------------------------------------
 def cmd_plot(args) -> int:
     """Draw a finished campaign; the file written (and any caveat) on stdout."""
-    from gonio.plot import KINDS, SUFFIXES, plot
+    from gonio.plot import SUFFIXES, plot
+    from gonio.registries import PLOT_KINDS
 
     _not_empty(args.out)
-    if args.kind not in KINDS:
-        raise UsageError(f"--kind: {args.kind!r} is unknown; allowed: {', '.join(KINDS)}")
+    if args.kind not in PLOT_KINDS:
+        raise UsageError(f"--kind: {args.kind!r} is unknown; allowed: {', '.join(PLOT_KINDS.names())}")
     if Path(args.out).suffix.lower() not in SUFFIXES:
         raise UsageError(f"--out: {args.out} must end in {', '.join(SUFFIXES)} (the suffix picks the format)")
     if not (np.isfinite(args.theta_i) and 0.0 <= args.theta_i < 90.0):
