@@ -19,9 +19,9 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-__all__ = ["ConfigError", "GonioConfig", "load_config", "DEFAULT_CONFIG", "DESIGN_AXES", "CONFIG_DIR",
+__all__ = ["ConfigError", "GonioConfig", "load_config", "DEFAULT_CONFIG", "design_axes", "CONFIG_DIR",
            "packaged_configs", "resolve_config", "relocate",
            "BUS_LOCATION_FIELDS", "REFERENCE_METHODS"]
 
@@ -29,11 +29,14 @@ __all__ = ["ConfigError", "GonioConfig", "load_config", "DEFAULT_CONFIG", "DESIG
 CONFIG_DIR = Path(str(files("gonio.configs")))
 DEFAULT_CONFIG = CONFIG_DIR / "sim.toml"
 
-#: The axes each kinematic design drives, in the order of axis arrays everywhere (columns of (N, 4)).
-DESIGN_AXES: dict[str, tuple[str, ...]] = {
-    "two-arm": ("light_azimuth", "light_tilt", "detector_azimuth", "detector_tilt"),
-    "sample-stage": ("sample_rotation", "sample_tilt", "detector_azimuth", "detector_tilt"),
-}
+
+
+def design_axes(design: str) -> tuple[str, ...]:
+    """The axes a gantry design drives, in the order of axis arrays everywhere: what its kinematics
+    declares (:data:`gonio.registries.DESIGNS`). ValueError naming the designs for an unknown one."""
+    from gonio.registries import DESIGNS
+
+    return tuple(DESIGNS.check(design, "design").load().axis_names)
 
 
 class ConfigError(ValueError):
@@ -51,12 +54,22 @@ DETECTOR_DRIVERS = ("sim", "serial")
 
 
 class KinematicsConfig(_Strict):
-    design: Literal["two-arm", "sample-stage"]
+    #: A name of :data:`gonio.registries.DESIGNS` (two-arm, sample-stage, or a plugin's).
+    design: str
     theta_max_deg: float = Field(80.0, gt=0.0, le=90.0)
     #: The light arm hides the detector when ωi and ωo are closer than this.
     clearance_deg: float = Field(5.0, ge=0.0, lt=90.0)
     #: Two parts of the gantry closer than this collide (design-specific; see gonio.kinematics).
     arm_collision_deg: float = Field(10.0, ge=0.0, lt=180.0)
+
+    @field_validator("design")
+    @classmethod
+    def _known_design(cls, design: str) -> str:
+        from gonio.registries import DESIGNS
+
+        if design not in DESIGNS:
+            raise ValueError(f"'{design}' is not a gantry design; allowed: {', '.join(DESIGNS.names())}")
+        return design
 
 
 # -- buses: where devices are reached (each port or host:port written once) -------------------------
@@ -623,7 +636,7 @@ class GonioConfig(_Strict):
 
     @model_validator(mode="after")
     def _axes_match_design(self):
-        want = DESIGN_AXES[self.kinematics.design]
+        want = design_axes(self.kinematics.design)
         missing = [a for a in want if a not in self.axes]
         extra = [a for a in self.axes if a not in want and a != self.target.axis]
         if missing or extra:
@@ -690,7 +703,7 @@ class GonioConfig(_Strict):
 
     @property
     def axis_names(self) -> tuple[str, ...]:
-        return DESIGN_AXES[self.kinematics.design]
+        return design_axes(self.kinematics.design)
 
     def drivers(self) -> set[str]:
         """The device drivers this config uses."""

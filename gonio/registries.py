@@ -10,7 +10,7 @@ read these; a plugin adds to them without editing gonio (docs/EXTENDING.md). Thi
 registry          target                                               extra
 ================  ===================================================  =====================================
 DESIGNS           a :class:`gonio.kinematics.base.Kinematics`           -
-                  subclass (it owns its ``axis_names``)
+                  subclass (it declares its ``axis_names``)
 AXIS_DRIVERS,     the driver's pydantic config model (``driver``       -
 LIGHT_DRIVERS,    Literal of the name); its ``build`` makes the
 DETECTOR_DRIVERS  device (:mod:`gonio.device_config`)
@@ -35,7 +35,14 @@ from __future__ import annotations
 
 from gonio.registry import Registry
 
-__all__ = ["EXPORT_FORMATS", "PLOT_KINDS", "GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
+__all__ = ["DESIGNS", "EXPORT_FORMATS", "PLOT_KINDS", "GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
+
+# -- gantry designs (config [kinematics] design) -----------------------------------------------------------
+DESIGNS = Registry("gantry design")
+DESIGNS.add("two-arm", "gonio.kinematics.two_arm:TwoArm",
+            "two arms on carriages of one ring around a fixed sample")
+DESIGNS.add("sample-stage", "gonio.kinematics.sample_stage:SampleStage",
+            "a fixed lamp; the sample turned and tilted under a detector arm")
 
 # -- export formats (gonio export --format, gonio simulate --export) ---------------------------------------
 EXPORT_FORMATS = Registry("export format")

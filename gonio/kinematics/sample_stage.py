@@ -110,7 +110,8 @@ class SampleStage(Kinematics):
     [[0.0, 30.0, 0.0, 60.0]]
     """
 
-    design = "sample-stage"
+    #: The axes this design drives, in the order of every axis array.
+    axis_names = ("sample_rotation", "sample_tilt", "detector_azimuth", "detector_tilt")
 
     def __init__(self, cfg: GonioConfig):
         super().__init__(cfg)

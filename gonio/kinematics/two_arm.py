@@ -92,7 +92,8 @@ class TwoArm(Kinematics):
     [[0.0, 30.0, 180.0, 45.0]]
     """
 
-    design = "two-arm"
+    #: The axes this design drives, in the order of every axis array.
+    axis_names = ("light_azimuth", "light_tilt", "detector_azimuth", "detector_tilt")
 
     def __init__(self, cfg: GonioConfig):
         super().__init__(cfg)
