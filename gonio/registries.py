@@ -11,12 +11,11 @@ registry          target                                               extra
 ================  ===================================================  =====================================
 DESIGNS           a :class:`gonio.kinematics.base.Kinematics`           -
                   subclass (it declares its ``axis_names``)
-AXIS_DRIVERS,     the driver's pydantic config model (``driver``       -
-LIGHT_DRIVERS,    Literal of the name); its ``build`` makes the
+AXIS_DRIVERS,     the driver's pydantic config model (its ``driver``   -
+LIGHT_DRIVERS,    a Literal of the name); its ``build`` makes the
 DETECTOR_DRIVERS  device (:mod:`gonio.device_config`)
 BUS_DRIVERS       the bus's config model; its ``open`` makes the bus  -
-SIM_DETECTORS     a builder of the simulated detector                  -
-                  (:mod:`gonio.sim.detectors`)
+SIM_DETECTORS     a :class:`gonio.sim.detectors.SimDetectorKind`       -
 EXPORT_FORMATS    ``export(job, out) -> ExportReport``                 ``file_name``: its name in a campaign
                   (:class:`gonio.export.ExportJob`)                    folder (``gonio simulate --export``,
                                                                        unambiguous: ``.bsdf`` and ``.dat``
@@ -35,7 +34,8 @@ from __future__ import annotations
 
 from gonio.registry import Registry
 
-__all__ = ["DESIGNS", "EXPORT_FORMATS", "PLOT_KINDS", "GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
+__all__ = ["DESIGNS", "AXIS_DRIVERS", "LIGHT_DRIVERS", "DETECTOR_DRIVERS", "BUS_DRIVERS", "SIM_DETECTORS",
+           "EXPORT_FORMATS", "PLOT_KINDS", "GRID_KINDS", "GRID_OPTIONS", "ORDERS"]
 
 # -- gantry designs (config [kinematics] design) -----------------------------------------------------------
 DESIGNS = Registry("gantry design")
@@ -43,6 +43,37 @@ DESIGNS.add("two-arm", "gonio.kinematics.two_arm:TwoArm",
             "two arms on carriages of one ring around a fixed sample")
 DESIGNS.add("sample-stage", "gonio.kinematics.sample_stage:SampleStage",
             "a fixed lamp; the sample turned and tilted under a detector arm")
+
+# -- device drivers (config driver = ...): each entry's target is the driver's config model --------------
+AXIS_DRIVERS = Registry("axis driver")
+AXIS_DRIVERS.add("sim", "gonio.sim.config:SimAxisConfig", "a simulated axis on the gantry's clock")
+AXIS_DRIVERS.add("dynamixel", "gonio.drivers.dynamixel.config:DynamixelAxisConfig",
+                 "a Dynamixel X-series servo (XM430, XL430) on a dynamixel bus")
+AXIS_DRIVERS.add("modbus", "gonio.drivers.modbus.config:ModbusAxisConfig",
+                 "a motor controller on a modbus bus, its registers described by a profile")
+LIGHT_DRIVERS = Registry("light driver")
+LIGHT_DRIVERS.add("sim", "gonio.sim.config:SimLightConfig", "a simulated lamp ([light.sim])")
+LIGHT_DRIVERS.add("serial", "gonio.drivers.serial.config:SerialLightConfig",
+                  "a lamp or current source on a serial (or VISA) line, speaking a profile's dialect")
+DETECTOR_DRIVERS = Registry("detector driver")
+DETECTOR_DRIVERS.add("sim", "gonio.sim.config:SimDetectorConfig",
+                     "a simulated detector of the kind [detector.sim] names (SIM_DETECTORS)")
+DETECTOR_DRIVERS.add("serial", "gonio.drivers.serial.config:SerialDetectorConfig",
+                     "a power meter or spectrometer on a serial (or VISA) line, speaking a profile's dialect")
+BUS_DRIVERS = Registry("bus driver")
+BUS_DRIVERS.add("dynamixel", "gonio.drivers.dynamixel.config:DynamixelBusConfig",
+                "a Dynamixel Protocol 2.0 bus on one serial port")
+BUS_DRIVERS.add("modbus", "gonio.drivers.modbus.config:ModbusBusConfig", "a Modbus TCP gateway or RTU line")
+BUS_DRIVERS.add("serial", "gonio.drivers.serial.config:SerialBusConfig",
+                "a serial port, pyserial URL or VISA resource of one line instrument")
+
+# -- simulated detectors ([detector.sim] kind, gonio simulate --detector) -------------------------------
+SIM_DETECTORS = Registry("simulated detector")
+SIM_DETECTORS.add("photodiode", "gonio.sim.detectors:PHOTODIODE", "an RGB photodiode (the default)")
+SIM_DETECTORS.add("spectrometer", "gonio.sim.detectors:SPECTROMETER",
+                  "bands of [detector.sim.spectrometer] (spectral materials)")
+SIM_DETECTORS.add("camera", "gonio.sim.detectors:CAMERA",
+                  "frames ([detector.sim.camera]) reduced to the sample's mean radiance")
 
 # -- export formats (gonio export --format, gonio simulate --export) ---------------------------------------
 EXPORT_FORMATS = Registry("export format")

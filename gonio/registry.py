@@ -30,7 +30,8 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-__all__ = ["Entry", "Registry", "PluginError", "load_plugins", "PLUGIN_GROUP", "PLUGIN_ENV"]
+__all__ = ["Entry", "Registry", "PluginError", "load_plugins", "lazy_attributes", "PLUGIN_GROUP",
+           "PLUGIN_ENV"]
 
 #: The entry-point group an installed plugin package declares its module in.
 PLUGIN_GROUP = "gonio.plugins"
@@ -161,6 +162,21 @@ class Registry:
 
     def __repr__(self) -> str:
         return f"Registry({self.kind!r}: {', '.join(self._entries)})"
+
+
+def lazy_attributes(package: str, exports: Mapping[str, str]):
+    """A module ``__getattr__`` (PEP 562) for ``package``: each name of ``exports`` is imported from the
+    submodule it maps to when first asked for, so importing the package (or a light submodule of it, such
+    as a driver's config model) does not import its heavy ones.
+
+    >>> lazy_attributes("json", {"JSONDecoder": "decoder"})("JSONDecoder").__name__
+    'JSONDecoder'
+    """
+    def __getattr__(name: str):
+        if name not in exports:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        return getattr(importlib.import_module(f"{package}.{exports[name]}"), name)
+    return __getattr__
 
 
 _lock = threading.RLock()

@@ -41,8 +41,7 @@ def cmd_emulate(args) -> int:
             tmp.replace(target)
             print(f"config: {target}", flush=True)
         print(f"emulating '{cfg.name}' (material {material.spec}); SIGINT or SIGTERM stops", flush=True)
-        fresh = [n for n, a in cfg.axes.items()
-                 if a.driver != "sim" and (a.reference or a.reference_method) != "none"]
+        fresh = [n for n, a in cfg.axes.items() if not a.simulated and a.reference_method != "none"]
         if fresh:  # powered up as hardware is: the positions of these are unknown until referenced
             print(f"powered up unreferenced: {', '.join(fresh)}; run `gonio gantry reference --config "
                   f"{target or 'FILE'}` before moving them", flush=True)

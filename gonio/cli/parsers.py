@@ -9,7 +9,7 @@ lists in the help come from :mod:`gonio.registries`. So ``gonio --version`` and 
 from __future__ import annotations
 
 from gonio.cli.common import ReferenceFormatter, add_force, command, seed_type
-from gonio.registries import EXPORT_FORMATS, PLOT_KINDS
+from gonio.registries import EXPORT_FORMATS, PLOT_KINDS, SIM_DETECTORS
 
 __all__ = ["add_campaign_parsers", "add_result_parsers", "add_hardware_parsers", "grid_help"]
 
@@ -35,10 +35,9 @@ def add_campaign_parsers(sub, fmt) -> None:
                     help="gantry config: a TOML file or a shipped config's name (default: sim)")
     ss.add_argument("--seed", type=seed_type, default=0,
                     help="seed of the simulated detector's random numbers")
-    ss.add_argument("--detector", choices=("photodiode", "spectrometer", "camera"), default=None,
-                    help="the simulated detector (default: the config's [detector.sim] kind, photodiode): "
-                         "RGB photodiode, spectrometer (bands of [detector.sim.spectrometer], spectral "
-                         "materials) or camera (frames reduced to the sample's mean radiance)")
+    ss.add_argument("--detector", choices=SIM_DETECTORS.names(), default=None,
+                    help="the simulated detector (default: the config's [detector.sim] kind): "
+                         + "; ".join(f"{e.name}: {e.summary}" for e in SIM_DETECTORS.entries()))
     ss.add_argument("--clear-fault", action="store_true",
                     help="clear the campaign's latched fault (after fixing its cause) and resume")
     ss.add_argument("--quiet", action="store_true", help="no progress output")
