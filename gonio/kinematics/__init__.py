@@ -8,7 +8,8 @@ reports unreachable poses with the codes of :data:`REASONS`.
 
 from __future__ import annotations
 
-from gonio.config import GonioConfig
+from typing import TYPE_CHECKING
+
 from gonio.kinematics.base import (
     ARM_COLLISION,
     BEYOND_THETA_MAX,
@@ -21,6 +22,9 @@ from gonio.kinematics.base import (
 from gonio.kinematics.sample_stage import SampleStage
 from gonio.kinematics.two_arm import TwoArm
 from gonio.registries import DESIGNS
+
+if TYPE_CHECKING:  # type hints only: a design plugin is imported while gonio.config is
+    from gonio.config import GonioConfig
 
 __all__ = [
     "REASONS",

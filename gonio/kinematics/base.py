@@ -15,11 +15,15 @@ row is accepted as N = 1. Sample-frame angles are radians; axis positions are de
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from gonio.config import GonioConfig
 from gonio.geometry import sph_to_vec, vec_to_sph
 from gonio.motion.trapezoid import move_time
+
+if TYPE_CHECKING:  # type hints only: a design plugin is imported while gonio.config is
+    from gonio.config import GonioConfig
 
 __all__ = [
     "REASONS",

@@ -46,10 +46,10 @@ detector falls outside that range is reported out of reach even if another rotat
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gonio.config import GonioConfig
 from gonio.geometry import sph_to_vec, vec_to_sph
 from gonio.kinematics.base import (
     DEG_TOL,
@@ -63,6 +63,9 @@ from gonio.kinematics.base import (
 )
 from gonio.kinematics.sweep import lipschitz_min
 from gonio.kinematics.two_arm import arm_branches
+
+if TYPE_CHECKING:  # type hints only: a design plugin is imported while gonio.config is
+    from gonio.config import GonioConfig
 
 __all__ = ["SampleStage", "SUPPORT_LAB"]
 
