@@ -8,7 +8,10 @@ least of the runs, and each command's median over the baseline's.
 
 Target (issue 21): ``gonio --version`` and ``gonio <command> --help`` at most 0.3 s of CPU.
 
-Run: .venv/bin/python tools/bench_startup.py [--repeat 7] [--commands "--version" "plan --help" ...]
+Run: .venv/bin/python tools/bench_startup.py [--repeat 7] [--commands "plan --help" "config list" ...]
+(a command that starts with a dash is written after a space, `" --version"`, so that it is not taken for
+an option of this tool). ``config list`` and ``plan --grid ...`` do their work: what a command that loads a
+config, and one that plans, costs beyond its start.
 """
 
 from __future__ import annotations
@@ -22,7 +25,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-DEFAULT_COMMANDS = ("--version", "--help", "plan --help", "simulate --help")
+DEFAULT_COMMANDS = ("--version", "--help", "plan --help", "simulate --help", "export --help", "plot --help",
+                    "gantry --help", "serve --help", "config list", "plan --grid iso:step=30")
 
 
 def gonio_command() -> list[str]:
@@ -59,11 +63,12 @@ def main() -> None:
     load = os.getloadavg()[0]
     print(f"Python {sys.version.split()[0]}, {os.cpu_count()} CPUs, load average {load:.2f}; "
           f"{args.repeat} runs each")
-    print("| command | CPU s, median (least) | x `python -c pass` | target <= 0.3 s |")
+    print("| command | CPU s, median (least) | x `python -c pass` | --version, --help: target <= 0.3 s |")
     print("|---|---|---|---|")
     for name, values in times.items():
         med = statistics.median(values)
-        verdict = "" if name.startswith("python") else ("meets" if med <= 0.3 else "MISSES")
+        targeted = name == "gonio --version" or name.endswith("--help")  # the others do their work
+        verdict = "" if not targeted else ("meets" if med <= 0.3 else "MISSES")
         print(f"| `{name}` | {med:.3f} ({min(values):.3f}) | {med / base:.1f}x | {verdict} |")
 
 
