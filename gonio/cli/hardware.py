@@ -62,7 +62,7 @@ def cmd_gantry(args) -> int:
 
     cfg = load_config(args.config)
     refuse_emulated_placeholders(cfg, args.config)
-    gantry = build_gantry(cfg, "lambert:albedo=0.5" if cfg.detector.driver == "sim" else None)
+    gantry = build_gantry(cfg, "lambert:albedo=0.5" if cfg.detector.simulated else None)
     kin = gantry.kinematics
     angles = [args.theta_i, args.phi_i, args.theta_o, args.phi_o] if args.action == "move" else []
     axes_arg = None
