@@ -18,11 +18,11 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
 
+from gonio import software_version
 from gonio.calibrate import calibrate
 from gonio.config import GonioConfig, parse_config
 from gonio.dataset import BRDF_NAME, campaign_dataset, write_brdf
@@ -36,13 +36,6 @@ __all__ = ["Campaign", "CampaignLock", "create_campaign", "open_campaign", "run_
            "journal_instruments"]
 
 LOCK_NAME = "campaign.lock"
-
-
-def software_version() -> str:
-    try:
-        return version("gonio")
-    except PackageNotFoundError:  # running from a source tree that was never installed
-        return "0+unknown"
 
 
 def config_snapshot(cfg: GonioConfig) -> dict:

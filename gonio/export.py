@@ -5,6 +5,10 @@
 :class:`ExportReport`: how many cells came from the data as measured, how many were interpolated through
 :mod:`gonio.brdf`, how many are empty (no support: below the horizon, beyond the measured range, gaps).
 
+The formats are the registry :data:`gonio.registries.EXPORT_FORMATS`: each entry's target is a function
+``write(job, out) -> ExportReport`` of an :class:`ExportJob` (the data, opened as the format needs it);
+a plugin adds a format with one module (docs/EXTENDING.md). The built-in ones:
+
 ======================  =====================================================================================
 format                  what is written
 ======================  =====================================================================================
@@ -28,11 +32,11 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
 
+from gonio import software_version
 from gonio.brdf import MeasuredBRDF, Reason, open_brdf
 from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf, write_brdf
 from gonio.formats import atomic_path
@@ -42,15 +46,11 @@ from gonio.formats.radiance import LUMINANCE_WEIGHTS, write_pabopto
 from gonio.formats.rgl import build_measured
 from gonio.formats.tensor import write_tensor
 from gonio.geometry import from_half_diff, merl_bin_centres, merl_unindex
+from gonio.registries import EXPORT_FORMATS
 
-__all__ = ["export", "ExportReport", "FORMATS", "EXPORT_NAMES", "parse_formats"]
+__all__ = ["export", "ExportReport", "ExportJob", "parse_formats", "export_merl", "export_bsdf",
+           "export_bsdf_spectral", "export_radiance", "export_csv", "export_h5", "tally", "SPECTRAL_NM"]
 
-FORMATS = ("merl", "bsdf", "bsdf-spectral", "radiance", "csv", "h5")
-#: File (folder for radiance) names of exports written into a campaign folder (``gonio simulate
-#: --export``): unambiguous, since ``.bsdf`` and ``.dat`` each name two unrelated formats.
-EXPORT_NAMES = {"merl": "brdf.merl.binary", "bsdf": "brdf.rgb.tensor.bsdf",
-                "bsdf-spectral": "brdf.spectral.tensor.bsdf", "radiance": "brdf.pabopto",
-                "csv": "brdf.samples.csv", "h5": "brdf.copy.h5"}
 #: Wavelengths of ``bsdf-spectral`` files, nm.
 SPECTRAL_NM = tuple(float(x) for x in range(360, 831, 10))
 
@@ -98,30 +98,76 @@ def parse_formats(text: str, field: str = "--export") -> list[str]:
         Naming ``field``, the unknown format and the allowed ones.
     """
     names = [t.strip() for t in text.split(",") if t.strip()]
+    allowed = ", ".join(EXPORT_FORMATS.names())
     if not names:
-        raise ValueError(f"{field}: give one or more formats separated by commas; allowed: "
-                         f"{', '.join(FORMATS)}")
+        raise ValueError(f"{field}: give one or more formats separated by commas; allowed: {allowed}")
     for name in names:
-        if name not in FORMATS:
-            raise ValueError(f"{field}: format {name!r} is unknown; allowed: {', '.join(FORMATS)}")
+        if name not in EXPORT_FORMATS:
+            raise ValueError(f"{field}: format {name!r} is unknown; allowed: {allowed}")
     return list(dict.fromkeys(names))
 
 
-def _software_version() -> str:
-    try:
-        return version("gonio")
-    except PackageNotFoundError:
-        return "0+unknown"
+class ExportJob:
+    """What an export format writes from: the data as given, opened the way the format asks for it.
 
+    Attributes
+    ----------
+    format : str
+        The format's name (what its :class:`ExportReport` says).
+    source : str, Path, SampledBRDF or MeasuredBRDF
+        As given to :func:`export`.
+    method : str
+        Interpolation of :func:`gonio.brdf.open_brdf` (``brdf``).
+    theta_step_deg : float
+        Spacing of θ slices, degrees (> 0).
+    resolution : int
+        N of N × N tables (>= 4).
+    """
 
-def _metadata(brdf: MeasuredBRDF, source, cosine: str) -> dict:
-    a = brdf.attrs
-    return {"units": "sr^-1", "cosine": cosine, "angles": "degrees; theta from +z, phi from the sample's +x",
-            "symmetries": json.dumps(brdf.symmetries, sort_keys=True),
-            "source": "in-memory dataset" if isinstance(source, SampledBRDF | MeasuredBRDF) else str(source),
-            "material": str(a.get("material", "")), "grid": str(a.get("grid", "")),
-            "gantry": str(a.get("gantry", "")), "interpolation": f"{brdf.domain}/{brdf.method} (gonio.brdf)",
-            "software": f"gonio {_software_version()}"}
+    def __init__(self, fmt: str, source, *, method: str = "auto", theta_step_deg: float = 5.0,
+                 resolution: int = 32):
+        self.format, self.source, self.method = fmt, source, method
+        self.theta_step_deg, self.resolution = float(theta_step_deg), int(resolution)
+        self._brdf = source if isinstance(source, MeasuredBRDF) else None
+        self._data = source if isinstance(source, SampledBRDF) else None
+
+    @property
+    def data(self) -> SampledBRDF:
+        """The measured samples (read on first use); ValueError for an open MeasuredBRDF, which has none."""
+        if self._data is None:
+            if isinstance(self.source, MeasuredBRDF):
+                raise ValueError(f"export format {self.format!r} needs the sampled data (a campaign folder, "
+                                 "a brdf.h5 or a SampledBRDF), not an open MeasuredBRDF")
+            self._data = read_brdf(_h5_path(self.source))
+        return self._data
+
+    @property
+    def has_data(self) -> bool:
+        """Whether the samples are at hand (anything but an open MeasuredBRDF)."""
+        return not isinstance(self.source, MeasuredBRDF)
+
+    @property
+    def brdf(self) -> MeasuredBRDF:
+        """The measured BRDF to evaluate anywhere (opened with ``method`` on first use)."""
+        if self._brdf is None:
+            self._brdf = open_brdf(self.data, method=self.method)
+        return self._brdf
+
+    def metadata(self, cosine: str) -> dict:
+        """Header fields a file format carries: units, the cosine convention, symmetries, source, ..."""
+        brdf, a = self.brdf, self.brdf.attrs
+        return {"units": "sr^-1", "cosine": cosine,
+                "angles": "degrees; theta from +z, phi from the sample's +x",
+                "symmetries": json.dumps(brdf.symmetries, sort_keys=True), "source": self.source_name(),
+                "material": str(a.get("material", "")), "grid": str(a.get("grid", "")),
+                "gantry": str(a.get("gantry", "")),
+                "interpolation": f"{brdf.domain}/{brdf.method} (gonio.brdf)",
+                "software": f"gonio {software_version()}"}
+
+    def source_name(self) -> str:
+        """How the source is named in a file's header."""
+        return "in-memory dataset" if isinstance(self.source, SampledBRDF | MeasuredBRDF) \
+            else str(self.source)
 
 
 def export(source, fmt: str, out, *, method: str = "auto", theta_step_deg: float = 5.0,
@@ -133,7 +179,7 @@ def export(source, fmt: str, out, *, method: str = "auto", theta_step_deg: float
     source : str, Path, SampledBRDF or MeasuredBRDF
         A campaign folder, a ``brdf.h5``, data already read, or an open BRDF.
     fmt : str
-        One of :data:`FORMATS`.
+        A name of :data:`gonio.registries.EXPORT_FORMATS`.
     out : str or Path
         Output file (a folder, created if needed, for ``radiance``). Its folder must exist.
     method : {"auto", "grid", "scattered"}
@@ -147,31 +193,16 @@ def export(source, fmt: str, out, *, method: str = "auto", theta_step_deg: float
     -------
     ExportReport
     """
-    if fmt not in FORMATS:
-        raise ValueError(f"export format {fmt!r} is unknown; allowed: {', '.join(FORMATS)}")
+    if fmt not in EXPORT_FORMATS:
+        raise ValueError(f"export format {fmt!r} is unknown; allowed: {', '.join(EXPORT_FORMATS.names())}")
     if not theta_step_deg > 0:
         raise ValueError(f"theta_step_deg: must be > 0 degrees, got {theta_step_deg}")
     if int(resolution) < 4:
         raise ValueError(f"resolution: must be an integer >= 4, got {resolution}")
     start = time.perf_counter()
-    out = Path(out)
-    if isinstance(source, MeasuredBRDF):
-        brdf, data = source, None
-    else:
-        data = source if isinstance(source, SampledBRDF) else read_brdf(_h5_path(source))
-        brdf = open_brdf(data, method=method) if fmt not in ("csv", "h5") else None
-    if fmt == "merl":
-        report = _merl(brdf, out)
-    elif fmt in ("bsdf", "bsdf-spectral"):
-        bridge = _Bridge(data) if data is not None and brdf.method == "grid" else None
-        report = _bsdf(brdf, out, fmt, source, theta_step_deg, int(resolution), bridge)
-    elif fmt == "radiance":
-        report = _radiance(brdf, out, source, theta_step_deg)
-    else:
-        if data is None:
-            raise ValueError(f"export format {fmt!r} needs the sampled data (a campaign folder, a brdf.h5 "
-                             "or a SampledBRDF), not an open MeasuredBRDF")
-        report = _csv(data, out, source) if fmt == "csv" else _h5(data, out, source)
+    job = ExportJob(fmt, source, method=method, theta_step_deg=theta_step_deg, resolution=resolution)
+    report = EXPORT_FORMATS.load(fmt)(job, Path(out))
+    report.format = fmt
     report.seconds = time.perf_counter() - start
     return report
 
@@ -181,24 +212,28 @@ def _h5_path(source) -> Path:
     return path / BRDF_NAME if path.is_dir() else path
 
 
-def _tally(report: ExportReport, ev) -> None:
+def tally(report: ExportReport, ev) -> None:
+    """Count the cells of one evaluation ``ev`` (:meth:`gonio.brdf.MeasuredBRDF.eval`) as from data,
+    interpolated or empty."""
     ok = ev.reason == Reason.OK
     report.from_data += int(np.count_nonzero(ok & ev.exact))
     report.interpolated += int(np.count_nonzero(ok & ~ev.exact))
     report.empty += int(np.count_nonzero(~ok))
 
 
-def _merl(brdf: MeasuredBRDF, out: Path) -> ExportReport:
+def export_merl(job: ExportJob, out: Path) -> ExportReport:
+    """MERL ``.binary``."""
+    brdf = job.brdf
     if len(brdf.channels) != 3:
         raise ValueError(f"merl: the format holds R, G, B; the dataset has channels {brdf.channels}")
     ih, id_, ip = merl_unindex(np.arange(MERL_BINS))
     th, td, pd = merl_bin_centres(ih, id_, ip)
     wi, wo = from_half_diff(th, 0.0, td, pd)
     ev = brdf.eval(wi, wo)
-    report = ExportReport("merl", cells=MERL_BINS,
+    report = ExportReport(job.format, cells=MERL_BINS,
                           notes=["f_r in sr^-1, no cosine; stored = f_r * 1500/(1, 1.15, 1.66); -1 = no data",
                                  "MERL files carry no metadata"])
-    _tally(report, ev)
+    tally(report, ev)
     report.paths.append(write_merl(out, ev.value.T))
     return report
 
@@ -221,12 +256,24 @@ class _Bridge:
         return self.brdf.eval(wi, wo)
 
 
-def _bsdf(brdf, out, fmt, source, step, resolution, bridge) -> ExportReport:
+def export_bsdf(job: ExportJob, out: Path) -> ExportReport:
+    """The Mitsuba 3 / pbrt-v4 measured-BSDF tensor file, RGB."""
+    return _bsdf(job, out, spectral=False)
+
+
+def export_bsdf_spectral(job: ExportJob, out: Path) -> ExportReport:
+    """The tensor file with spectra from R, G, B (:data:`SPECTRAL_NM`)."""
+    return _bsdf(job, out, spectral=True)
+
+
+def _bsdf(job: ExportJob, out: Path, spectral: bool) -> ExportReport:
     """The tensor file. The format has no "no data" value (a 0 is black to a renderer), and every real
     campaign has gaps: the gantry's occlusion clearance leaves retro-reflection unmeasured, and a lattice
     answers NO_DATA in every cell that touches a missing node. So where the lattice has a gap, ``bridge``
     (the scattered engine of :mod:`gonio.brdf` on the same samples, which answers only within the local
     sample spacing) fills in, and the report counts those cells."""
+    brdf, fmt = job.brdf, job.format
+    bridge = _Bridge(job.data) if job.has_data and brdf.method == "grid" else None
     if len(brdf.channels) != 3:
         raise ValueError(f"{fmt}: written from R, G, B; the dataset has channels {brdf.channels}")
     report = ExportReport(fmt)
@@ -245,16 +292,15 @@ def _bsdf(brdf, out, fmt, source, step, resolution, bridge) -> ExportReport:
                 bridged[0] += int(ok.sum()) if count else 0
         return value
 
-    meta = _metadata(brdf, source, "values are f_r*cos(theta_o)*4*sigma(wi)/D(m), jacobian=1 (Mitsuba 3 "
-                                   "'measured' convention)")
+    meta = job.metadata("values are f_r*cos(theta_o)*4*sigma(wi)/D(m), jacobian=1 (Mitsuba 3 "
+                        "'measured' convention)")
     meta["ndf"] = "estimated from retro-reflection by fixed-point iteration (gonio.formats.rgl)"
     if bridge is not None:
         meta["gaps"] = "cells in gaps of the lattice filled by the scattered engine (gonio.brdf)"
     phi = (0.0,) if brdf.symmetries["isotropy"] else tuple(np.linspace(-180.0, 180.0, 25))
     fields, counts = build_measured(lambda wi, wo: values(wi, wo, True),
-                                    theta_i_deg=_theta_slices(brdf, step), phi_i_deg=phi,
-                                    resolution=resolution,
-                                    spectral_nm=SPECTRAL_NM if fmt == "bsdf-spectral" else None,
+                                    theta_i_deg=_theta_slices(brdf, job.theta_step_deg), phi_i_deg=phi,
+                                    resolution=job.resolution, spectral_nm=SPECTRAL_NM if spectral else None,
                                     description=meta, retro_fr=lambda w: values(w, w, False))
     # Only the value grid counts (the retro-reflection probes of the NDF estimate are not cells).
     report.cells = counts["points"]
@@ -268,7 +314,8 @@ def _bsdf(brdf, out, fmt, source, step, resolution, bridge) -> ExportReport:
     return report
 
 
-def _radiance(brdf, out: Path, source, step) -> ExportReport:
+def export_radiance(job: ExportJob, out: Path) -> ExportReport:
+    """A folder of PAB-Opto files, one per incidence."""
     if not out.parent.is_dir():
         raise ValueError(f"output {str(out)!r}: folder {str(out.parent)!r} does not exist")
     if out.exists() and not out.is_dir():
@@ -278,7 +325,7 @@ def _radiance(brdf, out: Path, source, step) -> ExportReport:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     try:
-        report = _radiance_files(brdf, tmp, source, step)
+        report = _radiance_files(job, tmp)
         old = out.with_name(f".{out.name}.{os.getpid()}.old")
         if out.exists():
             out.rename(old)
@@ -290,8 +337,9 @@ def _radiance(brdf, out: Path, source, step) -> ExportReport:
     return report
 
 
-def _radiance_files(brdf, out: Path, source, step) -> ExportReport:
-    meta = _metadata(brdf, source, "none: BRDF (f_r); a DSF would include cos(theta_o)")
+def _radiance_files(job: ExportJob, out: Path) -> ExportReport:
+    brdf, step = job.brdf, job.theta_step_deg
+    meta = job.metadata("none: BRDF (f_r); a DSF would include cos(theta_o)")
     top = min(brdf.theta_max_deg, 89.0)
     thetas = np.arange(0.0, top + 1e-9, step)
     phis = np.arange(0.0, 360.0 - 1e-9, step)
@@ -314,10 +362,10 @@ def _radiance_files(brdf, out: Path, source, step) -> ExportReport:
 
         def luminance(v):
             return v @ weights if weights is not None else v[:, 0]
-    report = ExportReport("radiance", notes=[note, meta["cosine"]])
+    report = ExportReport(job.format, notes=[note, meta["cosine"]])
     for t, p in incidences:
         ev = brdf.eval_deg(t, p, to, po)
-        _tally(report, ev)
+        tally(report, ev)
         y = luminance(ev.value)
         name = out / f"incidence_t{t:05.1f}_p{p:05.1f}.pabopto.dat"
         report.paths.append(write_pabopto(name, t, p, to, po, y, sample_name=meta["material"] or "gonio",
@@ -326,7 +374,9 @@ def _radiance_files(brdf, out: Path, source, step) -> ExportReport:
     return report
 
 
-def _csv(data: SampledBRDF, out: Path, source) -> ExportReport:
+def export_csv(job: ExportJob, out: Path) -> ExportReport:
+    """The measured samples, one row each."""
+    data = job.data
     angles = np.stack([np.asarray(a, dtype=np.float64).ravel() for a in
                        (data.theta_i, data.phi_i, data.theta_o, data.phi_o)], axis=1)
     value = np.asarray(data.value, dtype=np.float64).reshape(len(angles), -1)
@@ -335,20 +385,23 @@ def _csv(data: SampledBRDF, out: Path, source) -> ExportReport:
         [f"c{i}" for i in range(value.shape[1])]
     symmetries = data.attrs.get("symmetries", {})
     meta = {"cosine": "none (f_r)", "symmetries": json.dumps(symmetries, sort_keys=True) if isinstance(
-        symmetries, dict) else str(symmetries), "source": str(source) if not isinstance(source, SampledBRDF)
-        else "in-memory dataset", "material": str(data.attrs.get("material", "")),
-        "grid": str(data.attrs.get("grid", "")), "software": f"gonio {_software_version()}"}
+        symmetries, dict) else str(symmetries), "source": job.source_name(),
+        "material": str(data.attrs.get("material", "")),
+        "grid": str(data.attrs.get("grid", "")), "software": f"gonio {software_version()}"}
     path = write_csv(out, angles, value, data.stddev, channels=channels, metadata=meta)
     finite = np.isfinite(value).all(axis=1)
-    return ExportReport("csv", [path], len(angles), int(finite.sum()), 0, int((~finite).sum()),
+    return ExportReport(job.format, [path], len(angles), int(finite.sum()), 0, int((~finite).sum()),
                         notes=["one row per measured sample; f_r in sr^-1, no cosine"])
 
 
-def _h5(data: SampledBRDF, out: Path, source) -> ExportReport:
+def export_h5(job: ExportJob, out: Path) -> ExportReport:
+    """The sampled dataset itself (a copy of ``brdf.h5``, or the dataset written)."""
+    data = job.data
     n = int(np.asarray(data.theta_i).size)
-    if not isinstance(source, SampledBRDF):
+    if not isinstance(job.source, SampledBRDF):
         with atomic_path(out) as tmp:
-            shutil.copyfile(_h5_path(source), tmp)
+            shutil.copyfile(_h5_path(job.source), tmp)
     else:
         write_brdf(out, data)
-    return ExportReport("h5", [out], n, n, 0, 0, notes=["the sampled dataset (brdf.h5 layout) as it is"])
+    return ExportReport(job.format, [out], n, n, 0, 0,
+                        notes=["the sampled dataset (brdf.h5 layout) as it is"])

@@ -1,8 +1,9 @@
 """Pictures of a measured BRDF (``gonio plot``): PNG or PDF figures (matplotlib) and EXR float images.
 
 ``plot(source, kind, out)`` opens a campaign folder or ``brdf.h5`` through :mod:`gonio.brdf` and draws
-one of :data:`KINDS`; an ``.exr`` ``out`` gets the float values of the same slice instead of a figure
-(pixel mapping in :mod:`gonio.slices`, repeated in the EXR header):
+one of the kinds of :data:`gonio.registries.PLOT_KINDS` (each a :class:`PlotKind`); an ``.exr`` ``out``
+gets the float values of the same slice instead of a figure (pixel mapping in :mod:`gonio.slices`,
+repeated in the EXR header). The built-in kinds:
 
 - ``polar``: in-plane f_r for several θi on polar axes (normal up, specular side right), the interpolant
   as lines and the measured samples of that plane as points with ±1σ error bars; log radius when the
@@ -20,6 +21,7 @@ EXR files hold every channel.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,6 +30,7 @@ import numpy as np
 from gonio.brdf import MeasuredBRDF, open_brdf
 from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
 from gonio.formats import atomic_path
+from gonio.registries import PLOT_KINDS
 from gonio.slices import (
     LUMA,
     Slice,
@@ -40,13 +43,32 @@ from gonio.slices import (
     write_exr,
 )
 
-__all__ = ["plot", "KINDS", "SUFFIXES", "PlotReport"]
+__all__ = ["plot", "PlotKind", "SUFFIXES", "PlotReport", "POLAR", "HEMISPHERE", "MERL", "RECIPROCITY",
+           "ALBEDO"]
 
-KINDS = ("polar", "hemisphere", "merl", "reciprocity", "albedo")
 SUFFIXES = (".png", ".pdf", ".exr")
 # Values spanning more than this ratio get a logarithmic axis.
 _LOG_RATIO = 30.0
 _NAN_COLOUR = "#d9d9d9"
+
+
+@dataclass(frozen=True)
+class PlotKind:
+    """A kind of plot (the target of a :data:`gonio.registries.PLOT_KINDS` entry).
+
+    Attributes
+    ----------
+    slice : callable
+        ``slice(b, data, theta_i_deg, phi_i_deg) -> Slice``: the values the plot shows
+        (:mod:`gonio.slices`), from the open BRDF ``b`` (:class:`~gonio.brdf.MeasuredBRDF`) and its samples
+        ``data``; an ``.exr`` output holds exactly these.
+    draw : callable
+        ``draw(b, data, slice, title, report) -> matplotlib.figure.Figure``: the figure of a ``.png`` or
+        ``.pdf`` output; it may add notes and what it shows to ``report`` (:class:`PlotReport`).
+    """
+
+    slice: Callable
+    draw: Callable
 
 
 @dataclass
@@ -74,7 +96,7 @@ def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float 
     source : str, Path or SampledBRDF
         A campaign folder, its ``brdf.h5``, or data already read.
     kind : str
-        One of :data:`KINDS`.
+        A name of :data:`gonio.registries.PLOT_KINDS`.
     out : str or Path
         ``.png``, ``.pdf`` (a figure) or ``.exr`` (the slice's float values); its folder must exist.
     theta_i_deg, phi_i_deg : float
@@ -85,8 +107,9 @@ def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float 
     -------
     PlotReport
     """
-    if kind not in KINDS:
-        raise ValueError(f"plot kind {kind!r} is unknown; allowed: {', '.join(KINDS)}")
+    if kind not in PLOT_KINDS:
+        raise ValueError(f"plot kind {kind!r} is unknown; allowed: {', '.join(PLOT_KINDS.names())}")
+    how: PlotKind = PLOT_KINDS.load(kind)
     out = Path(out)
     if out.suffix.lower() not in SUFFIXES:
         raise ValueError(f"output {str(out)!r}: the suffix picks the format; allowed: {', '.join(SUFFIXES)}")
@@ -96,14 +119,14 @@ def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float 
         raise ValueError(f"phi_i_deg: must be a finite number of degrees, got {phi_i_deg}")
     data, name = _read(source)
     b = open_brdf(data)
-    s = _slice(b, data, kind, theta_i_deg, phi_i_deg)
+    s = how.slice(b, data, theta_i_deg, phi_i_deg)
     meta = {"campaign": name, "material": _what(b), "grid": str(b.attrs.get("grid", "")),
             "units": s.quantity, "cosine": "none"}
     report = PlotReport(kind, out, s)
     if out.suffix.lower() == ".exr":
         write_exr(out, s, meta)
         return report
-    fig = _DRAW[kind](b, data, s, _title(name, b), report)
+    fig = how.draw(b, data, s, _title(name, b), report)
     with atomic_path(out) as tmp:
         fig.savefig(tmp, format=out.suffix.lower()[1:], dpi=150, bbox_inches="tight")
     return report
@@ -161,15 +184,7 @@ def _incidences(b: MeasuredBRDF, data: SampledBRDF, most: int = 6) -> np.ndarray
     return values
 
 
-def _slice(b, data, kind, theta_i_deg, phi_i_deg) -> Slice:
-    if kind == "polar":
-        return polar_slice(b, _incidences(b, data), phi_i_deg)
-    if kind == "hemisphere":
-        return hemisphere_slice(b, theta_i_deg, phi_i_deg)
-    if kind == "merl":
-        return merl_slice(b)
-    if kind == "reciprocity":
-        return reciprocity_slice(b, phi_i_deg)
+def _albedo_slice(b, data, theta_i_deg, phi_i_deg) -> Slice:
     top = min(b.theta_max_deg, 89.0)
     return albedo_slice(b, np.linspace(0.0, top, max(2, int(round(top / 2.5)) + 1)), phi_i_deg)
 
@@ -443,5 +458,8 @@ def _runs(x: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
     return out
 
 
-_DRAW = {"polar": _draw_polar, "hemisphere": _draw_hemisphere, "merl": _draw_merl,
-         "reciprocity": _draw_reciprocity, "albedo": _draw_albedo}
+POLAR = PlotKind(lambda b, data, ti, pi: polar_slice(b, _incidences(b, data), pi), _draw_polar)
+HEMISPHERE = PlotKind(lambda b, data, ti, pi: hemisphere_slice(b, ti, pi), _draw_hemisphere)
+MERL = PlotKind(lambda b, data, ti, pi: merl_slice(b), _draw_merl)
+RECIPROCITY = PlotKind(lambda b, data, ti, pi: reciprocity_slice(b, pi), _draw_reciprocity)
+ALBEDO = PlotKind(_albedo_slice, _draw_albedo)

@@ -19,38 +19,63 @@ from gonio.sim.axis import SimAxis
 from gonio.sim.detector import TARGETS, SimDetector
 from gonio.sim.light import SimLight
 
-__all__ = ["SimGantry", "sim_detector"]
+__all__ = ["SimGantry", "sim_detector", "detector_beside", "reference_material", "ReadBack", "LampView"]
 
 
 def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: Clock, seed: int = 0,
                  track_motion: bool = False):
-    """The simulated detector ``[detector.sim] kind`` names: the RGB photodiode
-    (:class:`~gonio.sim.detector.SimDetector`), the spectrometer
-    (:class:`~gonio.sim.detector_spectral.SpectrometerDetector`, spectral materials) or the camera
-    (:class:`~gonio.sim.detector_camera.CameraDetector`), with the white standard a Lambertian of
-    ``reference.albedo``.
+    """The simulated detector ``[detector.sim] kind`` names (:data:`gonio.registries.SIM_DETECTORS`: the
+    RGB photodiode :class:`~gonio.sim.detector.SimDetector`, the spectrometer
+    :class:`~gonio.sim.detector_spectral.SpectrometerDetector` of spectral materials, the camera
+    :class:`~gonio.sim.detector_camera.CameraDetector`, or a plugin's), with the white standard a
+    Lambertian of ``reference.albedo``.
 
     ``light`` has ``radiance()`` and ``half_angle_deg``; ``axes`` have ``true_position_deg()``.
-    ``track_motion``: the photodiode and the spectrometer integrate along the axes' read-backs at the
-    start and the end of each reading (real axes: :class:`~gonio.sim.detector.SimDetector`).
+    ``track_motion``: the detector integrates along the axes' read-backs at the start and the end of each
+    reading (real axes: :class:`~gonio.sim.detector.SimDetector`).
     """
-    kind = cfg.detector.sim.kind
+    from gonio.registries import SIM_DETECTORS
+
     sample = _materials.load(material) if isinstance(material, str) else material
-    if kind == "spectrometer":
-        from gonio.sim.detector_spectral import SpectrometerDetector, spectral_material
+    return SIM_DETECTORS.load(cfg.detector.sim.kind).build(cfg, sample, light=light, axes=axes,
+                                                           kinematics=kinematics, clock=clock, seed=seed,
+                                                           track_motion=track_motion)
 
-        return SpectrometerDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics,
-                                    materials={"sample": spectral_material(sample),
-                                               "reference": reference_material(cfg, spectral=True)},
-                                    clock=clock, seed=seed, track_motion=track_motion)
-    materials = {"sample": sample, "reference": reference_material(cfg)}
-    if kind == "camera":
-        from gonio.sim.detector_camera import CameraDetector, camera_settings
 
-        return CameraDetector(cfg.detector, camera_settings(cfg.detector, cfg.light), light=light, axes=axes,
-                              kinematics=kinematics, materials=materials, clock=clock, seed=seed)
-    return SimDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics, materials=materials,
-                       clock=clock, seed=seed, track_motion=track_motion)
+class ReadBack:
+    """A real axis seen by a simulated detector: the position it reports is the pose rendered."""
+
+    def __init__(self, axis):
+        self.axis = axis
+
+    def true_position_deg(self) -> float:
+        return self.axis.position_deg()
+
+
+class LampView:
+    """A real lamp seen by a simulated detector: ``[light.sim]`` radiance while its output is on."""
+
+    def __init__(self, lamp, sim_cfg):
+        self.lamp = lamp
+        self.half_angle_deg = float(sim_cfg.half_angle_deg)
+        self.radiance_on = float(sim_cfg.radiance)
+
+    def radiance(self) -> float:
+        return self.radiance_on if self.lamp.is_on() else 0.0
+
+
+def detector_beside(cfg: GonioConfig, material, *, light, axes, kinematics, clock: Clock, seed: int = 0):
+    """The simulated detector of ``cfg`` in a gantry whose axes and lamp may be real (a dry run): a real
+    axis is seen at the position it reports, a real lamp lit with the ``[light.sim]`` radiance while it is
+    on, and with real axes each reading integrates along the line between the positions read at its start
+    and at its end (a reading taken while a servo sweeps is blurred as a real one is)."""
+    if material is None:
+        raise ValueError("the simulated detector needs a material to render, e.g. 'lambert:albedo=0.5'")
+    views = {n: a if isinstance(a, SimAxis) else ReadBack(a) for n, a in axes.items()}
+    lamp = light if isinstance(light, SimLight) else LampView(light, cfg.light.sim)
+    real = any(isinstance(v, ReadBack) for v in views.values())
+    return sim_detector(cfg, material, light=lamp, axes=views, kinematics=kinematics, clock=clock, seed=seed,
+                        track_motion=real)
 
 
 def reference_material(cfg: GonioConfig, spectral: bool = False):

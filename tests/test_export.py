@@ -9,11 +9,12 @@ import pytest
 from brdf_samples import sampled
 
 from gonio.brdf import open_brdf
-from gonio.export import FORMATS, export
+from gonio.export import export
 from gonio.formats.csv import read_csv
 from gonio.formats.radiance import read_pabopto
 from gonio.formats.tensor import read_tensor
 from gonio.geometry import sph_to_vec
+from gonio.registries import EXPORT_FORMATS
 from gonio.sim.materials import load
 
 SPEC = "ggx:alpha=0.4,metal=copper,rho_d=0.1,rho_s=0.9"
@@ -82,7 +83,7 @@ def test_merl_round_trip_from_an_iso_campaign(data, tmp_path):
 
 
 def test_errors_name_the_field(data, tmp_path):
-    with pytest.raises(ValueError, match="allowed: " + ", ".join(FORMATS)):
+    with pytest.raises(ValueError, match="allowed: " + ", ".join(EXPORT_FORMATS.names())):
         export(data, "exr", tmp_path / "x")
     with pytest.raises(ValueError, match="does not exist"):
         export(data, "csv", tmp_path / "no" / "x.csv")

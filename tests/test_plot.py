@@ -7,7 +7,8 @@ from brdf_samples import sampled
 from gonio.brdf import Reason, open_brdf
 from gonio.cli import main
 from gonio.geometry import from_half_diff
-from gonio.plot import KINDS, plot
+from gonio.plot import plot
+from gonio.registries import PLOT_KINDS
 
 SPEC = "ggx:alpha=0.15,metal=copper,rho_d=0.2,rho_s=0.8"
 
@@ -43,7 +44,7 @@ def _centres(n):
     return (np.arange(n) + 0.5) / n
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", PLOT_KINDS.names())
 def test_every_kind_renders_a_png_that_is_not_blank(campaign, tmp_path, kind, capsys):
     from matplotlib.image import imread
 

@@ -129,9 +129,10 @@ def main() -> None:
         ev, dt, cpu = _timed(lambda brdf=brdf: brdf.eval(q_wi, q_wo))
         print(f"f_r queries ({name}, {brdf.domain}, {n} random pairs): {n / dt:,.0f} per second wall, "
               f"{n / cpu:,.0f} per CPU second ({np.mean(ev.reason == Reason.OK):.0%} supported; {_now()})")
-    from gonio.plot import KINDS, plot
+    from gonio.plot import plot
+    from gonio.registries import PLOT_KINDS
 
-    for kind in KINDS:
+    for kind in PLOT_KINDS:
         if kind == "reciprocity":
             continue  # needs a campaign without the reciprocity shortcut; same cost as merl
         _, wall, _ = _timed(lambda kind=kind: plot(iso, kind, out / f"{kind}.png"))

@@ -1,15 +1,15 @@
 """Modbus motor controllers (pymodbus), table-driven: every address, word order, unit, command and status
 bit comes from a TOML profile (``profiles/*.toml``: generic, Oriental Motor AZ direct data operation,
-Leadshine PR mode)."""
+Leadshine PR mode); :mod:`.config` holds the driver's config models (``driver = "modbus"``)."""
 
-from gonio.drivers.modbus.axis import (
-    ModbusAlarmError,
-    ModbusAxis,
-    ModbusCommError,
-    ModbusExceptionError,
-    make_client,
-)
-from gonio.drivers.modbus.profile import PROFILES, MotorProfile, Register, load_profile, parse_profile
+from gonio.registry import lazy_attributes
 
-__all__ = ["ModbusAlarmError", "ModbusAxis", "ModbusCommError", "ModbusExceptionError", "make_client",
-           "PROFILES", "MotorProfile", "Register", "load_profile", "parse_profile"]
+#: Each public name -> the submodule it lives in (imported when the name is first used: the driver's
+#: config model, gonio.config reads at every config load, must not import the driver's library).
+_EXPORTS = {
+    "ModbusAlarmError": "axis", "ModbusAxis": "axis", "ModbusCommError": "axis",
+    "ModbusExceptionError": "axis", "make_client": "axis", "PROFILES": "profile", "MotorProfile": "profile",
+    "Register": "profile", "load_profile": "profile", "parse_profile": "profile",
+}
+__all__ = list(_EXPORTS)
+__getattr__ = lazy_attributes(__name__, _EXPORTS)

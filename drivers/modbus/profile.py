@@ -35,7 +35,9 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["Register", "Command", "MotorProfile", "load_profile", "PROFILES"]
+from gonio.registry import Registry
+
+__all__ = ["Register", "Command", "MotorProfile", "load_profile", "axis_class", "FAMILIES", "PROFILES"]
 
 _TYPES = {"u16": (1, False), "s16": (1, True), "u32": (2, False), "s32": (2, True)}
 _REQUIRED = ("target_position", "velocity", "acceleration", "deceleration", "actual_position", "status",
@@ -45,8 +47,19 @@ _SECONDARY_KEYS = ("word_order", "steps_per_rev", "velocity_unit", "accel_unit",
                    "stop", "alarm_reset", "span_read", "write_read", "origin", "absolute")
 #: The most registers one Read Holding Registers may ask for (Modbus application protocol, 6.3).
 MAX_READ_WORDS = 125
-#: Shipped profiles, by name.
+#: Families of controllers, by the name an axis's ``profile`` gives: each entry's target is the axis class
+#: that drives it (:class:`~gonio.drivers.modbus.axis.ModbusAxis`, or a subclass with the family's own
+#: behaviour) and its ``profile`` extra the register map (a TOML file). A plugin adds a family with its
+#: module and its profile (docs/EXTENDING.md).
+FAMILIES = Registry("modbus family")
+#: The shipped families (their profiles are ``profiles/NAME.toml``), driven by ModbusAxis as it is.
 PROFILES = ("generic", "oriental_az_direct", "leadshine_pr")
+for _name, _summary in zip(PROFILES, ("a plain register map for controllers configured by hand",
+                                      "Oriental Motor AZ series, direct data operation",
+                                      "Leadshine servo drives, PR (path) mode"), strict=True):
+    FAMILIES.add(_name, "gonio.drivers.modbus.axis:ModbusAxis", _summary,
+                 profile=resources.files("gonio.drivers.modbus").joinpath(f"profiles/{_name}.toml"))
+del _name, _summary
 
 
 @dataclass(frozen=True)
@@ -261,12 +274,22 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
 
 
 def load_profile(name_or_path: str | Path) -> MotorProfile:
-    """A shipped profile by name (see :data:`PROFILES`) or a TOML file by path."""
-    if str(name_or_path) in PROFILES:
-        text = resources.files("gonio.drivers.modbus").joinpath(f"profiles/{name_or_path}.toml").read_text()
+    """The profile of a family by name (:data:`FAMILIES`) or a TOML file by path."""
+    if str(name_or_path) in FAMILIES:
+        text = FAMILIES[str(name_or_path)].extra["profile"].read_text()
         return parse_profile(tomllib.loads(text), str(name_or_path))
     path = Path(name_or_path)
     if not path.is_file():
         raise ValueError(f"modbus profile {str(name_or_path)!r} is neither one of "
-                         f"{', '.join(PROFILES)} nor a file")
+                         f"{', '.join(FAMILIES.names())} nor a file")
     return parse_profile(tomllib.loads(path.read_text()), str(path))
+
+
+def axis_class(name_or_path: str | Path):
+    """The axis class that drives a family (:data:`FAMILIES`); a profile given by path is driven by
+    :class:`~gonio.drivers.modbus.axis.ModbusAxis`."""
+    if str(name_or_path) in FAMILIES:
+        return FAMILIES.load(str(name_or_path))
+    from gonio.drivers.modbus.axis import ModbusAxis
+
+    return ModbusAxis

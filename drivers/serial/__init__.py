@@ -1,11 +1,16 @@
 """Line instruments (pyserial, or PyVISA for VISA resource strings): a light source and detectors, each
 speaking the dialect and commands of a TOML profile (``profiles/*.toml``: acknowledging, thorlabs-pm100,
-scpi-current-source)."""
+scpi-current-source); :mod:`.config` holds the driver's config models (``driver = "serial"``)."""
 
-from gonio.drivers.serial.instruments import SerialLightSource, SerialPowerMeter, SerialSpectrometer
-from gonio.drivers.serial.line import InstrumentCommError, InstrumentError, LineInstrument
-from gonio.drivers.serial.profile import DEFAULT_PROFILE, PROFILES, InstrumentProfile, load_profile
+from gonio.registry import lazy_attributes
 
-__all__ = ["SerialLightSource", "SerialPowerMeter", "SerialSpectrometer", "InstrumentCommError",
-           "InstrumentError", "LineInstrument", "DEFAULT_PROFILE", "PROFILES", "InstrumentProfile",
-           "load_profile"]
+#: Each public name -> the submodule it lives in (imported when the name is first used: the driver's
+#: config model, gonio.config reads at every config load, must not import the driver's library).
+_EXPORTS = {
+    "SerialLightSource": "instruments", "SerialPowerMeter": "instruments",
+    "SerialSpectrometer": "instruments", "InstrumentCommError": "line", "InstrumentError": "line",
+    "LineInstrument": "line", "DEFAULT_PROFILE": "profile", "PROFILES": "profile",
+    "InstrumentProfile": "profile", "load_profile": "profile",
+}
+__all__ = list(_EXPORTS)
+__getattr__ = lazy_attributes(__name__, _EXPORTS)

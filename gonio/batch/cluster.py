@@ -7,12 +7,10 @@ import os
 import re
 from collections.abc import Callable, Iterable
 
-__all__ = ["WORKER_WAIT_S", "MAX_WORKERS", "connect", "bounded_map", "dashboard_link"]
+__all__ = ["WORKER_WAIT_S", "connect", "bounded_map", "dashboard_link"]
 
 #: How long a client of an existing scheduler waits for a first worker to join.
 WORKER_WAIT_S = 30.0
-#: The most local workers (a local cluster runs one process each).
-MAX_WORKERS = 256
 _ADDRESS = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+$")
 
 

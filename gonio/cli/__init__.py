@@ -1,13 +1,15 @@
 """The ``gonio`` command line: one subcommand per job, grouped by what they work on.
 
+- :mod:`gonio.cli.parsers`: every subcommand's arguments and help (choices from :mod:`gonio.registries`);
 - :mod:`gonio.cli.campaigns`: ``plan``, ``config``, ``simulate``, ``run``, ``status``;
 - :mod:`gonio.cli.results`: ``fit``, ``export``, ``plot``, ``report`` (a finished campaign);
 - :mod:`gonio.cli.hardware`: ``emulate``, ``gantry``;
 - :mod:`gonio.daemon.commands`: ``serve`` and its clients.
 
-A user's mistake (a bad GRID, MATERIAL, config key, path or seed) is one line on stderr naming the field
-or path and what is allowed, exit code 2, and nothing written. ``--debug`` shows the traceback of an
-unexpected error.
+A command's module is imported only when it runs, so ``gonio --version`` and ``gonio <command> --help``
+start fast (tools/bench_startup.py). A user's mistake (a bad GRID, MATERIAL, config key, path or seed) is
+one line on stderr naming the field or path and what is allowed, exit code 2, and nothing written.
+``--debug`` shows the traceback of an unexpected error.
 """
 
 from __future__ import annotations
@@ -18,59 +20,84 @@ import sys
 from pathlib import Path
 
 from gonio.cli.common import (
+    DefaultsFormatter,
     Interrupted,
     UsageError,
-    _DefaultsFormatter,
-    _in_main_thread,
-    _install_startup_handlers,
-    _seed,
-    _user_error,
+    in_main_thread,
+    install_startup_handlers,
+    seed_type,
+    user_error,
 )
-from gonio.config import ConfigError
 
 __all__ = ["main", "build_parser"]
 
 
+class _Version(argparse.Action):
+    """``--version``: the installed version, looked up only when asked for."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from gonio import software_version
+
+        print(f"gonio {software_version()}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
-    from gonio.campaign import software_version
-
-    fmt = _DefaultsFormatter
-    p = argparse.ArgumentParser(prog="gonio", formatter_class=fmt,
-                                description="Control and acquisition for gonio-reflectometers.")
-    p.add_argument("--version", action="version", version=f"gonio {software_version()}")
-    p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    from gonio.cli import batch, campaigns, hardware, results
-
-    campaigns.add_parsers(sub, fmt)
-    batch.add_parsers(sub, fmt)
-    results.add_parsers(sub, fmt)
-    hardware.add_parsers(sub, fmt)
-
-    # The daemon and its clients: gonio serve, submit, queue, watch, pause, resume, abort, halt, fetch
-    # (their cmd_* functions live in gonio.daemon.commands).
+    from gonio.cli.parsers import (
+        add_batch_parsers,
+        add_campaign_parsers,
+        add_hardware_parsers,
+        add_result_parsers,
+    )
     from gonio.daemon.commands import add_parsers as add_daemon_parsers
 
-    add_daemon_parsers(sub, fmt, _seed)
+    fmt = DefaultsFormatter
+    p = argparse.ArgumentParser(prog="gonio", formatter_class=fmt,
+                                description="Control and acquisition for gonio-reflectometers.")
+    p.add_argument("--version", action=_Version, help="show the version and exit")
+    p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    add_campaign_parsers(sub, fmt)
+    add_batch_parsers(sub, fmt)
+    add_result_parsers(sub, fmt)
+    add_hardware_parsers(sub, fmt)
+    # The daemon and its clients: gonio serve, submit, queue, watch, pause, resume, abort, halt, fetch
+    # (their cmd_* functions live in gonio.daemon.commands).
+    add_daemon_parsers(sub, fmt, seed_type)
+    p.commands = tuple(sub.choices)  # every subcommand's name (tests, shell completion)
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    from gonio.calibrate import CalibrationError
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """What a command reports as one line (exit 2): evaluated only when a command raised, so that the
+    journal's module is not imported before a command needs it."""
     from gonio.store import JournalError
 
-    parser = build_parser()
+    # ConfigError and CalibrationError are ValueErrors.
+    return UsageError, JournalError, ValueError, OSError
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gonio.registry import PluginError
+
+    try:
+        parser = build_parser()
+    except PluginError as err:  # a plugin that cannot be imported: one line, before any command runs
+        print(f"gonio: {err}", file=sys.stderr)
+        return 2
     args = parser.parse_args(argv)
-    main_thread = _in_main_thread()
+    main_thread = in_main_thread()
     previous = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) if main_thread else None
-    _install_startup_handlers()
+    install_startup_handlers()
     try:
         return args.func(args)
-    except (ConfigError, UsageError, JournalError, CalibrationError, ValueError, OSError) as err:
+    except _user_errors() as err:
         if args.debug:
             raise
-        print(f"gonio {args.command}: {_user_error(err)}", file=sys.stderr)
+        print(f"gonio {args.command}: {user_error(err)}", file=sys.stderr)
         return 2
     except Interrupted as err:
         out = getattr(args, "out", None)

@@ -5,34 +5,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from gonio.cli.common import Interrupted, UsageError, _Out, _seed, creatable_folder
+from gonio.cli.common import Interrupted, Out, UsageError, creatable_folder
 
 
-def _workers(text: str) -> int:
-    import argparse
-
-    from gonio.batch.cluster import MAX_WORKERS
-
-    try:
-        n = int(text)
-    except ValueError:
-        n = None
-    if n is None or not 1 <= n <= MAX_WORKERS:
-        raise argparse.ArgumentTypeError(f"must be an integer from 1 to {MAX_WORKERS}, got {text!r}")
-    return n
-
-
-def add_cluster_arguments(parser) -> None:
-    """``--workers N | --scheduler ADDRESS``: where a batch's tasks run."""
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_workers, default=None,
-                       help="local worker processes (default: the CPU count)")
-    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help="an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (its workers need this "
-                            "gonio version)")
-
-
-def connected(args, out: _Out, what: str):
+def connected(args, out: Out, what: str):
     """The Dask client of ``--workers``/``--scheduler`` (see :func:`gonio.batch.cluster.connect`), with
     the line that says where the work runs."""
     from gonio.batch.cluster import connect, dashboard_link
@@ -65,7 +41,7 @@ def cmd_batch(args) -> int:
     from gonio.config import load_config
     from gonio.plan import parse_grid
 
-    out = _Out(args.quiet)
+    out = Out(args.quiet)
     store = _check_out(args.out)
     materials = read_materials(args.materials)
     try:
@@ -99,7 +75,7 @@ def cmd_batch(args) -> int:
     return 1 if summary.failed else 0
 
 
-def _run(args, out: _Out, materials, grid, cfg, client, threads, store):
+def _run(args, out: Out, materials, grid, cfg, client, threads, store):
     from gonio.batch import run_batch
 
     if args.quiet or not out.console.is_terminal:
@@ -112,23 +88,3 @@ def _run(args, out: _Out, materials, grid, cfg, client, threads, store):
         task = progress.add_task("materials", total=len(materials))
         return run_batch(materials, grid=grid, seed=args.seed, cfg=cfg, out=store, client=client,
                          threads=threads, on_row=lambda i, row: progress.advance(task))
-
-
-def add_parsers(sub, fmt) -> None:
-    """``gonio batch``."""
-    sb = sub.add_parser("batch", formatter_class=fmt,
-                        help="simulate many materials on Dask into one xarray/Zarr store")
-    sb.add_argument("materials", metavar="MATERIALS",
-                    help="a file of MATERIAL lines, or one MATERIAL whose options may span values: "
-                         "key=A..BxN (N values from A to B) or key=a|b (each), e.g. "
-                         "'ggx:alpha=0.02..0.5x20,metal=gold|copper' (40 materials)")
-    sb.add_argument("--grid", required=True,
-                    help="GRID of every campaign, e.g. iso:step=15 (gonio plan --help)")
-    sb.add_argument("--out", required=True, help="the store, a folder, e.g. batch.zarr (a store of the same "
-                    "batch is continued: only the missing materials run)")
-    sb.add_argument("--seed", type=_seed, default=0, help="seed of every campaign's simulated detector")
-    sb.add_argument("--config", default=None,
-                    help="gantry config with a simulated detector (default: sim)")
-    add_cluster_arguments(sb)
-    sb.add_argument("--quiet", action="store_true", help="no progress output")
-    sb.set_defaults(func=cmd_batch)

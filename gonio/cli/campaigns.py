@@ -18,21 +18,19 @@ import numpy as np
 from gonio.cli.common import (
     Eta,
     UsageError,
-    _hms,
-    _in_main_thread,
-    _install_startup_handlers,
-    _lock_holder,
-    _not_empty,
-    _Out,
-    _ReferenceFormatter,
-    _seed,
     creatable_folder,
     planning,
     refuse_emulated_placeholders,
 )
-from gonio.cli.results import _export_formats, _write_exports
+from gonio.cli.common import Out as _Out
+from gonio.cli.common import hms as _hms
+from gonio.cli.common import in_main_thread as _in_main_thread
+from gonio.cli.common import install_startup_handlers as _install_startup_handlers
+from gonio.cli.common import lock_holder as _lock_holder
+from gonio.cli.common import not_empty as _not_empty
+from gonio.cli.results import export_formats as _export_formats
+from gonio.cli.results import write_exports as _write_exports
 from gonio.config import load_config
-from gonio.jit import BACKENDS
 
 #: Seconds between progress lines when stderr is not a terminal (logs, CI, a daemon's journal).
 PLAIN_PROGRESS_EVERY_S = 5.0
@@ -533,73 +531,3 @@ def _check_referenced(cfg, material) -> None:
     manual.close_axes(axes)
     if missing:
         raise UsageError(refusal(missing))
-
-
-def add_parsers(sub, fmt) -> None:
-    """This module's subcommands."""
-    from gonio.plan.grids import grid_help
-
-    sp = sub.add_parser("plan", formatter_class=_ReferenceFormatter, epilog=grid_help(),
-                        help="count and time a plan without moving anything")
-    sp.add_argument("--grid", required=True, help="GRID, e.g. iso:step=5, full:step=15, merl:stride=4 "
-                    "(every kind and option below)")
-    sp.add_argument("--config", default=None,
-                    help="gantry config: a TOML file or a shipped config's name (default: sim)")
-    sp.add_argument("--json", action="store_true", help="one JSON object instead of the report")
-    sp.set_defaults(func=cmd_plan)
-    ss = sub.add_parser("simulate", formatter_class=fmt, help="run a whole campaign on the simulated gantry")
-    ss.add_argument("material",
-                    help="MATERIAL, e.g. lambert:albedo=0.8 or cook-torrance:d=beckmann,m=0.2,metal=gold "
-                         "(every model, key and range: gonio materials)")
-    ss.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10 (every kind and option: gonio "
-                    "plan --help)")
-    ss.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
-    ss.add_argument("--config", default=None,
-                    help="gantry config: a TOML file or a shipped config's name (default: sim)")
-    ss.add_argument("--seed", type=_seed, default=0, help="seed of the simulated detector's random numbers")
-    ss.add_argument("--detector", choices=("photodiode", "spectrometer", "camera"), default=None,
-                    help="the simulated detector (default: the config's [detector.sim] kind, photodiode): "
-                         "RGB photodiode, spectrometer (bands of [detector.sim.spectrometer], spectral "
-                         "materials) or camera (frames reduced to the sample's mean radiance)")
-    ss.add_argument("--backend", choices=BACKENDS, default=None,
-                    help="Dr.Jit backend of the simulation (default: $GONIO_BACKEND, else cuda when a CUDA "
-                         "device is present, else llvm; the config's [detector.sim] backend, where set, "
-                         "wins for the detector)")
-    ss.add_argument("--clear-fault", action="store_true",
-                    help="clear the campaign's latched fault (after fixing its cause) and resume")
-    ss.add_argument("--quiet", action="store_true", help="no progress output")
-    ss.add_argument("--export", default=None, metavar="FORMATS",
-                    help="exports written into the campaign folder once it is finished, comma-separated: "
-                         "merl, bsdf, bsdf-spectral, radiance, csv, h5")
-    ss.set_defaults(func=cmd_simulate)
-    st = sub.add_parser("status", formatter_class=fmt,
-                        help="a campaign's state, progress, ETA and last fault, from its folder (read-only, "
-                             "safe while it runs) or from the daemon")
-    st.add_argument("dir", metavar="DIR|ID", help="campaign folder, or the id of a campaign of the daemon "
-                    "(e.g. c00001)")
-    st.add_argument("--url", default=None, help="ask this daemon about campaign ID (default for an ID: "
-                    "GONIO_URL, else http://127.0.0.1:8765)")
-    st.add_argument("--json", action="store_true", help="one JSON object")
-    st.set_defaults(func=cmd_status)
-    sm = sub.add_parser("materials", formatter_class=fmt,
-                        help="the material models of MATERIAL strings: keys, ranges, defaults and rules")
-    sm.add_argument("name", nargs="?", default=None, help="one model (default: every model)")
-    sm.set_defaults(func=cmd_materials)
-    sc = sub.add_parser("config", formatter_class=fmt, help="list or print the shipped gantry configs")
-    sc.add_argument("action", choices=["list", "show"])
-    sc.add_argument("name", nargs="?", help="config name (for show) or a path")
-    sc.set_defaults(func=cmd_config)
-    sr = sub.add_parser("run", formatter_class=fmt,
-                        help="run a whole campaign on the configured (real, emulated or mixed) gantry")
-    sr.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
-    sr.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
-    sr.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
-    sr.add_argument("--sample", required=True, help="name of the sample measured")
-    sr.add_argument("--material", default=None,
-                    help="MATERIAL a simulated detector renders (dry runs: config detector driver 'sim')")
-    sr.add_argument("--seed", type=_seed, default=0, help="seed of simulated devices' random numbers")
-    sr.add_argument("--clear-fault", action="store_true",
-                    help="clear the campaign's latched fault (after fixing its cause) and resume")
-    sr.add_argument("--quiet", action="store_true", help="no progress output")
-    sr.set_defaults(func=cmd_run)
-

@@ -22,7 +22,7 @@ class Interrupted(BaseException):
         self.signum = signum
 
 
-def _hms(seconds: float) -> str:
+def hms(seconds: float) -> str:
     s = int(round(seconds))
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
@@ -60,10 +60,10 @@ class Eta:
 
     @staticmethod
     def text(seconds: float | None) -> str:
-        return "?" if seconds is None else _hms(seconds)
+        return "?" if seconds is None else hms(seconds)
 
 
-def _seed(text: str) -> int:
+def seed_type(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -73,7 +73,7 @@ def _seed(text: str) -> int:
     return value
 
 
-class _Out:
+class Out:
     """Messages to stderr: rich styles on a terminal, never rich markup (paths may hold ``[...]``)."""
 
     def __init__(self, quiet: bool = False):
@@ -86,7 +86,7 @@ class _Out:
         self.console.print(message, style=style, markup=False)
 
 
-def _not_empty(text: str, what: str = "file") -> str:
+def not_empty(text: str, what: str = "file") -> str:
     """--out as typed; an empty one is refused (it would name the current folder)."""
     if not text.strip():
         raise UsageError(f"--out: empty; give a {what} name")
@@ -94,7 +94,7 @@ def _not_empty(text: str, what: str = "file") -> str:
 
 
 @contextlib.contextmanager
-def planning(out: _Out, what: str, show: bool):
+def planning(out: Out, what: str, show: bool):
     """A spinner with the time spent while ``what`` is planned (it may take a minute), on a terminal
     only (``show``: neither --quiet nor --json); it disappears once the plan is made."""
     if not (show and out.console.is_terminal):
@@ -120,10 +120,10 @@ def creatable_folder(out: Path) -> Path:
     return out
 
 
-def _writable_out(text: str, *, folder: bool = False, force: bool = False) -> Path:
+def writable_out(text: str, *, folder: bool = False, force: bool = False) -> Path:
     """--out checked before any work: not empty, its folder exists and takes a file; an existing file
     (or, with ``folder``, a folder of files) is replaced only with ``force`` (``--force``)."""
-    out = Path(_not_empty(text, "folder" if folder else "file"))
+    out = Path(not_empty(text, "folder" if folder else "file"))
     parent = out.parent if str(out.parent) else Path(".")
     if not parent.is_dir():
         raise UsageError(f"--out: folder {parent} does not exist; create it or choose another path")
@@ -141,6 +141,22 @@ def _writable_out(text: str, *, folder: bool = False, force: bool = False) -> Pa
         raise UsageError(f"--out: {out} cannot be written ({err.strerror or err}); choose another path") \
             from None
     return out
+
+
+class command:  # noqa: N801 (used as a function: ``set_defaults(func=command("module:attr"))``)
+    """A subcommand's function named by ``"module:attr"``, imported only when the command runs: building
+    the parser (and ``--help``, ``--version``) imports nothing a command uses."""
+
+    def __init__(self, target: str):
+        self.target = target
+
+    def __call__(self, args) -> int:
+        from gonio.registry import Entry
+
+        return Entry(self.target, self.target).load()(args)
+
+    def __repr__(self) -> str:
+        return f"command({self.target!r})"
 
 
 def add_force(parser) -> None:
@@ -166,7 +182,7 @@ def refuse_emulated_placeholders(cfg, config: str | None) -> None:
 
 
 # -- the parser -----------------------------------------------------------------------------------
-class _DefaultsFormatter(argparse.HelpFormatter):
+class DefaultsFormatter(argparse.HelpFormatter):
     """Help that shows each option's default where it has a meaningful one (not for flags, required
     options, or where the text already says it)."""
 
@@ -179,13 +195,13 @@ class _DefaultsFormatter(argparse.HelpFormatter):
         return f"{text} (default: {default})"
 
 
-class _ReferenceFormatter(_DefaultsFormatter, argparse.RawDescriptionHelpFormatter):
-    """As :class:`_DefaultsFormatter`, with the epilog (a reference generated from a registry) kept as it
+class ReferenceFormatter(DefaultsFormatter, argparse.RawDescriptionHelpFormatter):
+    """As :class:`DefaultsFormatter`, with the epilog (a reference generated from a registry) kept as it
     is laid out."""
 
 
 # -- gonio status ---------------------------------------------------------------------------------
-def _lock_holder(folder: Path) -> int | None:
+def lock_holder(folder: Path) -> int | None:
     """The pid holding the campaign's lock (running it now), or None."""
     import fcntl
 
@@ -207,7 +223,7 @@ def _lock_holder(folder: Path) -> int | None:
         os.close(fd)
 
 
-def _user_error(err: BaseException) -> str:
+def user_error(err: BaseException) -> str:
     if isinstance(err, OSError) and err.filename is not None:
         return f"{err.filename}: {err.strerror or err}"
     return str(err)
@@ -217,14 +233,14 @@ def _raise_interrupted(signum, frame):
     raise Interrupted(signum)
 
 
-def _in_main_thread() -> bool:
+def in_main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _install_startup_handlers() -> None:
+def install_startup_handlers() -> None:
     """Before and after a campaign runs, SIGINT and SIGTERM end the command cleanly (no traceback).
     Signal handlers belong to the main thread; called from another (a test, an embedding), nothing."""
-    if _in_main_thread():
+    if in_main_thread():
         signal.signal(signal.SIGINT, _raise_interrupted)
         signal.signal(signal.SIGTERM, _raise_interrupted)
 

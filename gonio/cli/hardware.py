@@ -11,12 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.cli.common import (
-    UsageError,
-    _in_main_thread,
-    _seed,
-    refuse_emulated_placeholders,
-)
+from gonio.cli.common import UsageError, refuse_emulated_placeholders
+from gonio.cli.common import in_main_thread as _in_main_thread
 from gonio.config import load_config
 
 
@@ -45,8 +41,7 @@ def cmd_emulate(args) -> int:
             tmp.replace(target)
             print(f"config: {target}", flush=True)
         print(f"emulating '{cfg.name}' (material {material.spec}); SIGINT or SIGTERM stops", flush=True)
-        fresh = [n for n, a in cfg.axes.items()
-                 if a.driver != "sim" and (a.reference or a.reference_method) != "none"]
+        fresh = [n for n, a in cfg.axes.items() if not a.simulated and a.reference_method != "none"]
         if fresh:  # powered up as hardware is: the positions of these are unknown until referenced
             print(f"powered up unreferenced: {', '.join(fresh)}; run `gonio gantry reference --config "
                   f"{target or 'FILE'}` before moving them", flush=True)
@@ -67,7 +62,7 @@ def cmd_gantry(args) -> int:
 
     cfg = load_config(args.config)
     refuse_emulated_placeholders(cfg, args.config)
-    gantry = build_gantry(cfg, "lambert:albedo=0.5" if cfg.detector.driver == "sim" else None)
+    gantry = build_gantry(cfg, "lambert:albedo=0.5" if cfg.detector.simulated else None)
     kin = gantry.kinematics
     angles = [args.theta_i, args.phi_i, args.theta_o, args.phi_o] if args.action == "move" else []
     axes_arg = None
@@ -169,33 +164,3 @@ def cmd_gantry(args) -> int:
         return 1
     finally:
         manual.close_axes(axes)
-
-
-def add_parsers(sub, fmt) -> None:
-    """This module's subcommands."""
-    se = sub.add_parser("emulate", formatter_class=fmt,
-                        help="run the emulated devices of a config until SIGINT/SIGTERM (they power up as "
-                             "hardware does: `gonio gantry reference` first)")
-    se.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
-    se.add_argument("--material", default="lambert:albedo=0.5", help="MATERIAL the emulated detector sees")
-    se.add_argument("--seed", type=_seed, default=0, help="seed of the emulated detector's readings")
-    se.add_argument("--write-config", default=None, metavar="PATH",
-                    help="write the config with the emulators' ptys and urls to PATH (removed at exit)")
-    se.add_argument("--any-port", action="store_true",
-                    help="serve Modbus TCP on free loopback ports, not the ports the config names")
-    se.set_defaults(func=cmd_emulate)
-    sg = sub.add_parser("gantry", formatter_class=fmt, help="manual control of the configured gantry")
-    sg.add_argument("action", choices=["status", "home", "move", "jog", "stop", "reboot", "reference"],
-                    help="status: read only, writes nothing; reference: find where the axes are after "
-                         "power-up (each axis's configured method); home/move/jog are refused until then")
-    sg.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
-    sg.add_argument("--theta-i", type=float, default=None, help="move: θi (°)")
-    sg.add_argument("--phi-i", type=float, default=None, help="move: φi (°)")
-    sg.add_argument("--theta-o", type=float, default=None, help="move: θo (°)")
-    sg.add_argument("--phi-o", type=float, default=None, help="move: φo (°)")
-    sg.add_argument("--axes", default=None, help="move: axis positions a,b,c,d (°) in the design's order")
-    sg.add_argument("--axis", default=None, help="jog: the axis; reboot, reference: only this axis")
-    sg.add_argument("--by", type=float, default=None, help="jog: degrees to move by (signed)")
-    sg.add_argument("--json", action="store_true", help="status: one JSON object")
-    sg.set_defaults(func=cmd_gantry)
-

@@ -8,15 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.cli.common import (
-    UsageError,
-    _lock_holder,
-    _not_empty,
-    _Out,
-    _writable_out,
-    add_force,
-)
-from gonio.jit import BACKENDS
+from gonio.cli.common import Out as _Out
+from gonio.cli.common import UsageError
+from gonio.cli.common import lock_holder as _lock_holder
+from gonio.cli.common import not_empty as _not_empty
+from gonio.cli.common import writable_out as _writable_out
 
 
 def cmd_fit(args) -> int:
@@ -107,18 +103,19 @@ def _fit_many(args, source: Path) -> int:
 
 
 # -- gonio export ---------------------------------------------------------------------------------
-def _export_formats(text: str | None) -> list[str]:
+def export_formats(text: str | None) -> list[str]:
     from gonio.export import parse_formats
 
     return parse_formats(text) if text is not None else []
 
 
-def _write_exports(folder: Path, formats: list[str], out: _Out) -> None:
+def write_exports(folder: Path, formats: list[str], out: _Out) -> None:
     """``gonio simulate --export``: each format under its unambiguous name in the campaign folder."""
-    from gonio.export import EXPORT_NAMES, export
+    from gonio.export import export
+    from gonio.registries import EXPORT_FORMATS
 
     for fmt in formats:
-        out(f"export {export(folder, fmt, folder / EXPORT_NAMES[fmt])}")
+        out(f"export {export(folder, fmt, folder / EXPORT_FORMATS[fmt].extra['file_name'])}")
 
 
 def finished_campaign(folder: Path) -> Path:
@@ -153,12 +150,13 @@ def finished_campaign(folder: Path) -> Path:
 def cmd_export(args) -> int:
     """Export a finished campaign; the report (cells from data, interpolated, empty) on stdout."""
     from gonio.export import export, parse_formats
+    from gonio.registries import EXPORT_FORMATS
 
     fmt = parse_formats(args.format, "--format")
     if len(fmt) != 1:
         raise UsageError(f"--format: one format per export, got {args.format!r}")
     source = finished_campaign(Path(args.dir))
-    out = _writable_out(args.out, folder=fmt[0] == "radiance", force=args.force)
+    out = _writable_out(args.out, folder=EXPORT_FORMATS[fmt[0]].extra.get("folder", False), force=args.force)
     report = export(source, fmt[0], out)
     print(report)
     for note in report.notes:
@@ -169,11 +167,12 @@ def cmd_export(args) -> int:
 # -- gonio plot -----------------------------------------------------------------------------------
 def cmd_plot(args) -> int:
     """Draw a finished campaign; the file written (and any caveat) on stdout."""
-    from gonio.plot import KINDS, SUFFIXES, plot
+    from gonio.plot import SUFFIXES, plot
+    from gonio.registries import PLOT_KINDS
 
     _not_empty(args.out)
-    if args.kind not in KINDS:
-        raise UsageError(f"--kind: {args.kind!r} is unknown; allowed: {', '.join(KINDS)}")
+    if args.kind not in PLOT_KINDS:
+        raise UsageError(f"--kind: {args.kind!r} is unknown; allowed: {', '.join(PLOT_KINDS.names())}")
     if Path(args.out).suffix.lower() not in SUFFIXES:
         raise UsageError(f"--out: {args.out} must end in {', '.join(SUFFIXES)} (the suffix picks the format)")
     if not (np.isfinite(args.theta_i) and 0.0 <= args.theta_i < 90.0):
@@ -205,67 +204,3 @@ def cmd_report(args) -> int:
     for level, topic, text in rep.verdicts:
         print(f"  {LEVELS[level]:<4}  {topic}: {text}")
     return 0
-
-
-def add_parsers(sub, fmt) -> None:
-    """This module's subcommands."""
-    sf = sub.add_parser("fit", formatter_class=fmt,
-                        help="fit a reflectance model to a finished campaign's measured samples")
-    sf.add_argument("dir", metavar="SOURCE", help="finished campaign folder (or its brdf.h5); or a batch "
-                    "store (gonio batch) or a folder of finished campaigns: each fitted, one CSV table")
-    sf.add_argument("--model", required=True,
-                    help="a material model, fitted with every key the material has, rho_d included: "
-                         "lambert, phong, modified-phong, blinn-phong, normalized-blinn-phong, ward, "
-                         "cook-torrance, ggx; NAME-lobe: the lobe alone (rho_d held at 0); ':key=value,...' "
-                         "holds keys fixed or picks the form (d=blinn, fresnel=dielectric, metal=gold), "
-                         "':anisotropic' for ward/ggx")
-    sf.add_argument("--channels", default=None, help="channels to fit, e.g. R,G,B or G (default: all)")
-    sf.add_argument("--loss", default="auto", choices=["auto", "chi2", "cos"],
-                    help="chi2: weighted by the measured stddev; cos: cos θi cos θo (f_model − f); auto: "
-                         "chi2 when the data have stddevs")
-    sf.add_argument("--starts", type=int, default=4, help="number of starts; the best fit wins")
-    sf.add_argument("--backend", choices=BACKENDS, default=None,
-                    help="Dr.Jit backend of the model evaluations (default: $GONIO_BACKEND, else cuda when a "
-                         "CUDA device is present, else llvm)")
-    sf.add_argument("--out", metavar="FIT.json", default=None,
-                    help="write parameters, uncertainties, loss and residual statistics as JSON (many "
-                         "sources: the CSV table; default: stdout)")
-    from gonio.cli.batch import add_cluster_arguments
-
-    add_cluster_arguments(sf)
-    sf.add_argument("--quiet", action="store_true", help="only the MATERIAL string")
-    add_force(sf)
-    sf.set_defaults(func=cmd_fit)
-    se = sub.add_parser("export", formatter_class=fmt,
-                        help="export a finished campaign's BRDF to a renderer's or a tool's file format")
-    se.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
-    se.add_argument("--format", required=True, metavar="FORMAT",
-                    help="merl, bsdf (Mitsuba 3 / pbrt-v4 tensor, RGB), bsdf-spectral, radiance (a folder of "
-                         "PAB-Opto files), csv, h5")
-    se.add_argument("--out", required=True, metavar="FILE", help="output file (a folder for radiance)")
-    add_force(se)
-    se.set_defaults(func=cmd_export)
-    sg = sub.add_parser("plot", formatter_class=fmt,
-                        help="draw a finished campaign's BRDF (a PNG/PDF figure, or the slice's float "
-                             "values as EXR)")
-    sg.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
-    sg.add_argument("--kind", required=True, metavar="KIND",
-                    help="polar (in-plane f_r for several θi), hemisphere (f_r over ωo for one ωi), merl "
-                         "((θh, θd) image), reciprocity (residual map; campaigns measured with "
-                         "reciprocity=false), albedo (directional albedo against θi)")
-    sg.add_argument("--out", required=True, metavar="FILE", help="FILE.png, FILE.pdf or FILE.exr")
-    sg.add_argument("--theta-i", type=float, default=30.0, help="θi of the hemisphere plot, degrees")
-    sg.add_argument("--phi-i", type=float, default=0.0, help="φi (plane of incidence), degrees")
-    add_force(sg)
-    sg.set_defaults(func=cmd_plot)
-    sq = sub.add_parser("report", formatter_class=fmt,
-                        help="a finished campaign's report as one self-contained HTML page: the campaign, "
-                             "its calibration, data checks, and several models fitted side by side")
-    sq.add_argument("dir", metavar="CAMPAIGN_DIR", help="finished campaign folder")
-    sq.add_argument("--out", required=True, metavar="REPORT.html", help="the page to write")
-    sq.add_argument("--models", default=None, metavar="MODELS",
-                    help="comma-separated fit MODELs as for gonio fit (default: lambert, ward, "
-                         "cook-torrance, ggx: gonio.report.DEFAULT_MODELS)")
-    add_force(sq)
-    sq.set_defaults(func=cmd_report)
-

@@ -1,13 +1,15 @@
 """Kinematics: sample-frame directions (θi, φi, θo, φo) <-> axis positions, for real gantry designs.
 
-``make_kinematics(cfg)`` builds the design the config names; every design has the interface of
+``make_kinematics(cfg)`` builds the design the config names (the registry
+:data:`gonio.registries.DESIGNS`: a plugin adds one, docs/EXTENDING.md); every design has the interface of
 :class:`~gonio.kinematics.base.Kinematics` (solutions, inverse, forward, directions, feasibility) and
 reports unreachable poses with the codes of :data:`REASONS`.
 """
 
 from __future__ import annotations
 
-from gonio.config import GonioConfig
+from typing import TYPE_CHECKING
+
 from gonio.kinematics.base import (
     ARM_COLLISION,
     BEYOND_THETA_MAX,
@@ -19,6 +21,10 @@ from gonio.kinematics.base import (
 )
 from gonio.kinematics.sample_stage import SampleStage
 from gonio.kinematics.two_arm import TwoArm
+from gonio.registries import DESIGNS
+
+if TYPE_CHECKING:  # type hints only: a design plugin is imported while gonio.config is
+    from gonio.config import GonioConfig
 
 __all__ = [
     "REASONS",
@@ -34,8 +40,6 @@ __all__ = [
     "make_kinematics",
 ]
 
-#: The registry of designs: ``kinematics.design`` in the config -> class.
-DESIGNS: dict[str, type[Kinematics]] = {TwoArm.design: TwoArm, SampleStage.design: SampleStage}
 
 
 def make_kinematics(cfg: GonioConfig) -> Kinematics:
@@ -44,7 +48,7 @@ def make_kinematics(cfg: GonioConfig) -> Kinematics:
     Raises
     ------
     ValueError
-        When the design is not one of ``DESIGNS`` (the config model already rejects that on load).
+        When the design is not one of :data:`DESIGNS` (the config model already rejects that on load).
 
     Examples
     --------
@@ -52,7 +56,4 @@ def make_kinematics(cfg: GonioConfig) -> Kinematics:
     >>> make_kinematics(load_config()).axis_names
     ('light_azimuth', 'light_tilt', 'detector_azimuth', 'detector_tilt')
     """
-    design = cfg.kinematics.design
-    if design not in DESIGNS:
-        raise ValueError(f"kinematics.design: '{design}' is not one of {', '.join(DESIGNS)}")
-    return DESIGNS[design](cfg)
+    return DESIGNS.check(cfg.kinematics.design, "kinematics.design").load()(cfg)

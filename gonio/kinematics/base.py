@@ -15,11 +15,15 @@ row is accepted as N = 1. Sample-frame angles are radians; axis positions are de
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from gonio.config import DESIGN_AXES, GonioConfig
 from gonio.geometry import sph_to_vec, vec_to_sph
 from gonio.motion.trapezoid import move_time
+
+if TYPE_CHECKING:  # type hints only: a design plugin is imported while gonio.config is
+    from gonio.config import GonioConfig
 
 __all__ = [
     "REASONS",
@@ -132,9 +136,10 @@ class Kinematics:
     Attributes
     ----------
     design : str
-        ``"two-arm"`` or ``"sample-stage"``.
+        The name the design is registered under (:data:`gonio.registries.DESIGNS`), from the config.
     axis_names : tuple of str
-        ``gonio.config.DESIGN_AXES[design]``: the columns of every (N, n_axes) array.
+        The axes the design drives (a class attribute each design declares): the columns of every
+        (N, n_axes) array, and the ``[axes.NAME]`` sections its config must have.
     limits_deg : ndarray, shape (n_axes, 2)
         [min, max] of each axis, degrees.
     velocity_deg_s, accel_deg_s2, home_deg : ndarray, shape (n_axes,)
@@ -145,15 +150,16 @@ class Kinematics:
         S, the number of inverse-kinematics branches enumerated per pose.
     """
 
-    design: str = ""
+    axis_names: tuple[str, ...] = ()
 
     def __init__(self, cfg: GonioConfig):
-        if cfg.kinematics.design != self.design:
-            raise ValueError(
-                f"kinematics.design: {type(self).__name__} drives design '{self.design}', "
-                f"the config asks for '{cfg.kinematics.design}'"
-            )
-        self.axis_names: tuple[str, ...] = DESIGN_AXES[self.design]
+        from gonio.registries import DESIGNS
+
+        design = cfg.kinematics.design
+        if design not in DESIGNS or DESIGNS.load(design) is not type(self):
+            raise ValueError(f"kinematics.design: {type(self).__name__} is not the kinematics of design "
+                             f"'{design}'")
+        self.design = design
         axes = [cfg.axes[name] for name in self.axis_names]
         self.limits_deg = _frozen([[a.min_deg, a.max_deg] for a in axes])
         self.velocity_deg_s = _frozen([a.max_velocity_deg_s for a in axes])

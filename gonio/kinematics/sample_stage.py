@@ -46,10 +46,10 @@ detector falls outside that range is reported out of reach even if another rotat
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gonio.config import GonioConfig
 from gonio.geometry import sph_to_vec, vec_to_sph
 from gonio.kinematics.base import (
     DEG_TOL,
@@ -63,6 +63,9 @@ from gonio.kinematics.base import (
 )
 from gonio.kinematics.sweep import lipschitz_min
 from gonio.kinematics.two_arm import arm_branches
+
+if TYPE_CHECKING:  # type hints only: a design plugin is imported while gonio.config is
+    from gonio.config import GonioConfig
 
 __all__ = ["SampleStage", "SUPPORT_LAB"]
 
@@ -110,7 +113,8 @@ class SampleStage(Kinematics):
     [[0.0, 30.0, 0.0, 60.0]]
     """
 
-    design = "sample-stage"
+    #: The axes this design drives, in the order of every axis array.
+    axis_names = ("sample_rotation", "sample_tilt", "detector_azimuth", "detector_tilt")
 
     def __init__(self, cfg: GonioConfig):
         super().__init__(cfg)

@@ -31,10 +31,10 @@ arms are at θ = 0, two branches are offered
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gonio.config import GonioConfig
 from gonio.kinematics.base import (
     DEG_TOL,
     POLE_EPS,
@@ -46,6 +46,9 @@ from gonio.kinematics.base import (
     wrap_360,
 )
 from gonio.kinematics.sweep import difference_range, difference_range_scalar
+
+if TYPE_CHECKING:  # type hints only: a design plugin is imported while gonio.config is
+    from gonio.config import GonioConfig
 
 __all__ = ["TwoArm", "arm_branches"]
 
@@ -92,7 +95,8 @@ class TwoArm(Kinematics):
     [[0.0, 30.0, 180.0, 45.0]]
     """
 
-    design = "two-arm"
+    #: The axes this design drives, in the order of every axis array.
+    axis_names = ("light_azimuth", "light_tilt", "detector_azimuth", "detector_tilt")
 
     def __init__(self, cfg: GonioConfig):
         super().__init__(cfg)

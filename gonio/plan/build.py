@@ -57,11 +57,13 @@ from gonio.motion.order import (
 from gonio.motion.refine import refine_order
 from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
 from gonio.plan.checkpoints import cut_runs, overdue_runs
-from gonio.plan.grids import GridSpec, class_members, enumerate_grid, parse_grid
+from gonio.plan.grids import GridKind, GridSpec, class_members, enumerate_grid, grid_kind, parse_grid
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, run_starts, schedule_runs
 from gonio.plan.transit import colliding_runs, secure_branches, step_targets, via_points
+from gonio.registries import ORDERS
 
-__all__ = ["Plan", "build_plan", "TOUR_MAX_POSES", "AUTO_TOUR_MAX_POSES", "REASON_CAUSES"]
+__all__ = ["Plan", "build_plan", "OrderInputs", "order_raster", "order_serpentine", "order_tour",
+           "TOUR_MAX_POSES", "AUTO_TOUR_MAX_POSES", "REASON_CAUSES"]
 
 #: Largest pose set ordered by a tour (nearest neighbour is O(N) scans in the worst case).
 TOUR_MAX_POSES = 50_000
@@ -204,7 +206,8 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None, *, _tour_seed: int | None 
         from gonio.kinematics import make_kinematics
 
         kin = make_kinematics(cfg)
-    if spec.order == "auto" and spec.kind == "iso":
+    kind = grid_kind(spec.kind)
+    if spec.order == "auto" and kind.auto == "quicker":
         first = build_plan(spec.spelled(order="serpentine"), cfg, kin)
         if first.theta_i.size > AUTO_TOUR_MAX_POSES:
             return first
@@ -230,21 +233,24 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None, *, _tour_seed: int | None 
                          "(axes.<name>.home_deg)")
     ref_first = reachable[int(np.argmin(metric.time(home, reachable)))].copy()
 
-    order = _resolve_order(spec, n)
-    if order == "tour":
-        seeds = _tour_seeds(kin, angles, np.vstack([home, reachable]), metric)
-        trials = min(len(seeds), TOUR_SEED_TRIALS if n <= TOUR_SEED_TRIALS_MAX_POSES else 1)
-        if _tour_seed is None and trials > 1:
-            plans = [build_plan(grid, cfg, kin, _tour_seed=0, _bound=_bound)]
-            bound = plans[0].timing["lower_bound"]  # the same pose set, whatever the order
-            plans += [build_plan(grid, cfg, kin, _tour_seed=i, _bound=bound) for i in range(1, trials)]
-            return min(plans, key=lambda p: p.estimated_s)
-        perm = _tour_order(kin, angles, *seeds[_tour_seed or 0], ref_first, home, metric)
-    elif order == "raster":
-        perm = raster_order(loops)
+    order = _resolve_order(spec, kind, n)
+    inputs = OrderInputs(spec=spec, kin=kin, angles=tuple(angles), loops=loops, start=ref_first, home=home,
+                         metric=metric, run_length=min(cfg.reference.poses_per_run(n), CUT_RUN_LENGTH),
+                         seeds=np.vstack([home, reachable]))
+    candidates = ORDERS[order].load()(inputs)
+    if callable(candidates):
+        candidates = [candidates]
+    if isinstance(candidates, np.ndarray):
+        perm = candidates
+    elif _tour_seed is None and len(candidates) > 1:
+        # Several candidate orders: each planned through, the quickest kept (the lower bound holds for
+        # every order of the same poses, so it is computed once).
+        plans = [build_plan(grid, cfg, kin, _tour_seed=0, _bound=_bound)]
+        bound = plans[0].timing["lower_bound"]
+        plans += [build_plan(grid, cfg, kin, _tour_seed=i, _bound=bound) for i in range(1, len(candidates))]
+        return min(plans, key=lambda p: p.estimated_s)
     else:
-        perm = serpentine_order(_cut_loops(spec, kin, angles, loops, ref_first, metric,
-                                           min(cfg.reference.poses_per_run(n), CUT_RUN_LENGTH)))
+        perm = np.asarray(candidates[_tour_seed or 0](), dtype=np.int64)
     angles = tuple(a[perm] for a in angles)
 
     every = cfg.reference.poses_per_run(n)
@@ -392,31 +398,83 @@ def _best_reference(kin, options: np.ndarray, angles, starts: np.ndarray, home: 
 
 def _cut_loops(spec: GridSpec, kin, angles, loops: np.ndarray, start: np.ndarray, metric: MoveMetric,
                every: int) -> np.ndarray:
-    """Loop indices for the serpentine: the inner azimuth loop cut (and maybe split into arcs) where
-    sweeping it is cheapest (:func:`gonio.motion.cut.serpentine_loops`).
-
-    Full grids loop over θi, θo, Δφ and, innermost, φi (with φo = φi + Δφ).
-    """
-    if spec.kind == "merl":
+    """Loop indices for the serpentine: the inner azimuth loop of the grid kind's rows
+    (:attr:`~gonio.plan.grids.GridKind.rows`) cut (and maybe split into arcs) where sweeping it is
+    cheapest (:func:`gonio.motion.cut.serpentine_loops`)."""
+    rows = grid_kind(spec.kind).rows
+    if rows is None:  # scattered points: no azimuth row to cut
         return loops
-    period = round(360.0 / spec.step_deg)
-    loops = loops.copy()
-    if spec.kind == "full":
-        # Rows turn the whole configuration about the normal (φi and φo together, Δφ fixed): one
-        # rotation stage on a sample-stage gantry, both carriages in step on a two-arm one, which then
-        # never meet inside a row.
-        a_i, p_i, a_o, p_o = loops.T
-        loops = np.stack([a_i, a_o, (p_o - p_i) % period, p_i], axis=1)
+    loops, period = rows(spec, loops.copy())
     return serpentine_loops(kin, angles, loops, period, start, metric, run_length=every)
 
 
-def _resolve_order(spec: GridSpec, n: int) -> str:
+@dataclass(frozen=True)
+class OrderInputs:
+    """What an order (a :data:`gonio.registries.ORDERS` entry's target) sees of the reachable poses.
+
+    An order is ``order(inputs)`` returning a permutation of the poses (int array of shape (P,)), or a
+    list of candidates, each a function of no argument that returns one: :func:`build_plan` plans each
+    and keeps the quickest.
+
+    Attributes
+    ----------
+    spec : GridSpec
+    kin : Kinematics
+    angles : tuple of 4 ndarray (P,)
+        θi, φi, θo, φo of the poses, radians.
+    loops : ndarray of int64 (P, L)
+        Each pose's indices in the grid's natural loops, outer first (:class:`~gonio.plan.grids.GridPoses`).
+    start : ndarray (n_axes,)
+        Where the order starts and ends: the reference pose's branch nearest home, degrees.
+    home : ndarray (n_axes,)
+    metric : MoveMetric
+        Move times between axis positions.
+    run_length : int
+        Poses between checkpoints (a serpentine chooses its cuts for runs this long).
+    seeds : ndarray (K, n_axes)
+        Home and the reference branches reachable from it: where a tour may seed its branches.
+    """
+
+    spec: GridSpec
+    kin: object
+    angles: tuple
+    loops: np.ndarray
+    start: np.ndarray
+    home: np.ndarray
+    metric: MoveMetric
+    run_length: int
+    seeds: np.ndarray
+
+
+def order_raster(x: OrderInputs) -> np.ndarray:
+    """The grid's loops in their natural order."""
+    return raster_order(x.loops)
+
+
+def order_serpentine(x: OrderInputs) -> np.ndarray:
+    """The innermost loop swept back and forth, cut where sweeping is cheapest."""
+    return serpentine_order(_cut_loops(x.spec, x.kin, x.angles, x.loops, x.start, x.metric, x.run_length))
+
+
+def order_tour(x: OrderInputs) -> list:
+    """A tour through the poses for each of the most promising branch sets (:func:`_tour_seeds`), at most
+    :data:`TOUR_SEED_TRIALS` of them."""
+    from functools import partial
+
+    n = x.angles[0].size
+    seeds = _tour_seeds(x.kin, x.angles, x.seeds, x.metric)
+    trials = min(len(seeds), TOUR_SEED_TRIALS if n <= TOUR_SEED_TRIALS_MAX_POSES else 1)
+    return [partial(_tour_order, x.kin, x.angles, *seeds[i], x.start, x.home, x.metric)
+            for i in range(max(trials, 1))]
+
+
+def _resolve_order(spec: GridSpec, kind: GridKind, n: int) -> str:
     if spec.order == "tour" and n > TOUR_MAX_POSES:
         raise ValueError(f"grid '{spec.kind}': option 'order=tour' handles at most {TOUR_MAX_POSES:,} "
                          f"poses, this grid has {n:,}; use order=serpentine")
     if spec.order != "auto":
         return spec.order
-    if spec.kind == "merl" and n <= TOUR_MAX_POSES:
+    if kind.auto == "tour" and n <= TOUR_MAX_POSES:
         return "tour"
     return "serpentine"
 

@@ -2,8 +2,9 @@
 
 Grammar: ``KIND:OPTION=VALUE[,OPTION=VALUE...]``, spaces ignored, each option at most once. The kinds
 (``iso``, ``full``, ``merl``), the poses each measures and the options each takes are the registry
-:data:`GRID_KINDS`; what each option takes, its default and what it does, :data:`GRID_OPTIONS`
-(:func:`grid_help` writes both out: ``gonio plan --help``).
+:data:`gonio.registries.GRID_KINDS` (each entry's target a :class:`GridKind` of this module, or of a
+plugin); what each option takes, its default and what it does, :data:`gonio.registries.GRID_OPTIONS`
+(``gonio plan --help`` writes both out).
 
 Count stages, in order (each the number of poses left after it): ``grid`` (the raw lattice), then
 ``pole_collapse`` (iso, full: one azimuth where θ = 0), ``reciprocity`` (when on), ``mirror`` (iso, when
@@ -13,46 +14,19 @@ For merl the raw lattice spans φd over [0, 2π) (both members of each pair), so
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from gonio.geometry import MERL_SHAPE, from_half_diff, merl_bin_centres, vec_to_sph
+from gonio.registries import GRID_KINDS, ORDERS
 
-__all__ = ["GridSpec", "GridPoses", "parse_grid", "enumerate_grid", "pose_bound", "check_pose_bound",
-           "class_members", "KINDS", "ORDERS", "MAX_POSES", "GRID_KINDS", "GRID_OPTIONS", "grid_help"]
+__all__ = ["GridSpec", "GridPoses", "GridKind", "parse_grid", "enumerate_grid", "pose_bound",
+           "check_pose_bound", "class_members", "grid_kind", "MAX_POSES", "ISO", "FULL", "MERL"]
 
-ORDERS = ("auto", "serpentine", "raster", "tour", "fly")
 #: A plan holds at most this many poses (memory and time stay within a workstation's reach).
 MAX_POSES = 3_000_000
-
-#: The registry of grid kinds: the poses each measures and the options it takes (the parser accepts
-#: exactly these; ``gonio plan --help`` lists them from here).
-GRID_KINDS = {
-    "iso": ("θi, θo in {0, S, 2S, ...} <= theta_max; Δφ = φo − φi in {0, S, ...} < 360°, measured with "
-            "φi = 0, φo = Δφ (an isotropic sample)",
-            ("step", "theta_max", "reciprocity", "mirror", "isotropy", "order")),
-    "full": ("θi, φi, θo, φo on the same S-degree lattice (an anisotropic sample)",
-             ("step", "theta_max", "reciprocity", "isotropy", "order")),
-    "merl": ("centres of every K-th MERL bin along θh, θd and φd, with φh = 0 (an isotropic sample)",
-             ("stride", "theta_max", "reciprocity", "isotropy", "order")),
-}
-#: The registry of grid options: what each takes, its default and what it does.
-GRID_OPTIONS = {
-    "step": "S degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ + 180° stay on the grid); required",
-    "stride": "K, an integer from 1 to 90; required",
-    "theta_max": "degrees in (0, 90]; default: the config's kinematics.theta_max_deg",
-    "reciprocity": "true|false, default true: measure one pose of each Helmholtz pair (ωi, ωo) ~ (ωo, ωi)",
-    "mirror": "true|false, default false: also identify Δφ with −Δφ (a sample symmetric about its "
-              "plane of incidence)",
-    "isotropy": "true for iso and merl, false for full: states the assumption the kind already makes "
-                "(accepted for clarity, it changes nothing; the other value is refused)",
-    "order": f"{'|'.join(ORDERS)}, default auto: serpentine sweeps (full; iso unless the tour is "
-             "estimated quicker, up to 10,000 poses), a tour (merl), raster, or fly: the serpentine's poses "
-             "read while one axis sweeps each line (iso and full)",
-}
-KINDS = tuple(GRID_KINDS)
-_OPTIONS = {kind: options for kind, (_, options) in GRID_KINDS.items()}
 _BOOLS = {"true": True, "false": False}
 # Tolerance on "step divides 360" and on θ <= theta_max for values that come from decimal degrees.
 _DIV_TOL = 1e-9
@@ -66,7 +40,7 @@ class GridSpec:
     Attributes
     ----------
     kind : str
-        ``"iso"``, ``"full"`` or ``"merl"``.
+        A name of :data:`gonio.registries.GRID_KINDS` (``"iso"``, ``"full"``, ``"merl"``, ...).
     step_deg : float or None
         Lattice step in degrees (iso, full).
     stride : int or None
@@ -76,7 +50,7 @@ class GridSpec:
     reciprocity, mirror : bool
         Which shortcuts are on.
     order : str
-        ``"auto"``, ``"serpentine"``, ``"raster"`` or ``"tour"``.
+        A name of :data:`gonio.registries.ORDERS` (``"auto"``, ``"serpentine"``, ``"raster"``, ...).
     """
 
     kind: str
@@ -90,7 +64,7 @@ class GridSpec:
     @property
     def isotropy(self) -> bool:
         """True for iso and merl grids (measured assuming an isotropic sample)."""
-        return self.kind != "full"
+        return grid_kind(self.kind).isotropic
 
     @property
     def normalized(self) -> str:
@@ -101,11 +75,11 @@ class GridSpec:
     def spelled(self, theta_max_deg: float | None = None, order: str | None = None) -> str:
         """:attr:`normalized`, with ``theta_max`` and ``order`` resolved to the values a plan used."""
         tmax = self.theta_max_deg if theta_max_deg is None else theta_max_deg
-        parts = [f"step={_num(self.step_deg)}"] if self.kind != "merl" else [f"stride={self.stride}"]
+        parts = [f"step={_num(self.step_deg)}"] if self.stride is None else [f"stride={self.stride}"]
         if tmax is not None:
             parts.append(f"theta_max={_num(tmax)}")
         parts.append(f"reciprocity={str(self.reciprocity).lower()}")
-        if self.kind == "iso":
+        if "mirror" in _options(self.kind):
             parts.append(f"mirror={str(self.mirror).lower()}")
         parts.append(f"order={order or self.order}")
         return f"{self.kind}:" + ",".join(parts)
@@ -134,23 +108,48 @@ class GridPoses:
     counts: dict[str, int]
 
 
-def grid_help() -> str:
-    """Every grid kind and option of the registries, as text (``gonio plan --help``).
+@dataclass(frozen=True)
+class GridKind:
+    """What a grid kind measures and what the planner asks of it (the target of a
+    :data:`gonio.registries.GRID_KINDS` entry; the entry's ``options`` and ``size`` say what its GRID
+    string takes).
 
-    >>> "isotropy" in grid_help() and "merl:stride=K" in grid_help()
-    True
+    Attributes
+    ----------
+    enumerate : callable
+        ``enumerate(spec, theta_max_deg) -> GridPoses``: the poses after the symmetry shortcuts.
+    bound : callable
+        ``bound(spec, theta_max_deg) -> int``: the poses it keeps, counted from its parameters alone (an
+        upper bound where the exact count needs the poses), so that a huge grid is refused at once.
+    isotropic : bool
+        Measured assuming an isotropic sample (the ``isotropy`` option must say so).
+    members : callable, optional
+        ``members(spec, theta_i, phi_i, theta_o, phi_o)``: the other poses the shortcuts identify with
+        each pose (:func:`class_members`); default: the Helmholtz partner when reciprocity is on.
+    rows : callable, optional
+        ``rows(spec, loops) -> (loops, period)``: the loops a serpentine sweeps, the innermost an azimuth
+        of ``period`` steps around the turn, for a lattice whose lines a sweep can follow (fly scans,
+        cut serpentines); None: scattered points, whose loops are taken as they are.
+    auto : str
+        What ``order=auto`` plans: ``"serpentine"``, ``"tour"``, or ``"quicker"`` (both, keeping the
+        quicker, up to ``AUTO_TOUR_MAX_POSES`` poses: :mod:`gonio.plan.build`).
     """
-    import textwrap
 
-    lines = ["GRID is KIND:OPTION=VALUE,... with KIND one of:"]
-    for kind, (poses, options) in GRID_KINDS.items():
-        size = "stride=K" if "stride" in options else "step=S"
-        lines += textwrap.wrap(f"{kind}:{size}  {poses}; options: {', '.join(options)}", 100,
-                               initial_indent="  ", subsequent_indent="      ")
-    lines.append("options:")
-    for option, text in GRID_OPTIONS.items():
-        lines += textwrap.wrap(f"{option}: {text}", 100, initial_indent="  ", subsequent_indent="      ")
-    return "\n".join(lines)
+    enumerate: Callable
+    bound: Callable
+    isotropic: bool
+    members: Callable | None = None
+    rows: Callable | None = None
+    auto: str = "serpentine"
+
+
+def grid_kind(name: str) -> GridKind:
+    """The :class:`GridKind` registered as ``name`` (ValueError naming the allowed kinds)."""
+    return GRID_KINDS.check(name, "grid kind").load()
+
+
+def _options(kind: str) -> tuple[str, ...]:
+    return tuple(GRID_KINDS[kind].extra["options"])
 
 
 def parse_grid(grid: str) -> GridSpec:
@@ -167,14 +166,15 @@ def parse_grid(grid: str) -> GridSpec:
     >>> parse_grid("iso:step=5,mirror=true").normalized
     'iso:step=5,reciprocity=true,mirror=true,order=auto'
     """
+    kinds = GRID_KINDS.names()
     if not isinstance(grid, str) or not grid.strip():
-        raise ValueError(f"grid: expected 'KIND:OPTION=VALUE,...' with KIND one of {', '.join(KINDS)}; "
+        raise ValueError(f"grid: expected 'KIND:OPTION=VALUE,...' with KIND one of {', '.join(kinds)}; "
                          f"got {grid!r}")
     text = "".join(grid.split())
     kind, _, rest = text.partition(":")
-    if kind not in KINDS:
-        raise ValueError(f"grid kind '{kind}' is unknown; allowed: {', '.join(KINDS)}")
-    allowed = _OPTIONS[kind]
+    if kind not in kinds:
+        raise ValueError(f"grid kind '{kind}' is unknown; allowed: {', '.join(kinds)}")
+    allowed = _options(kind)
     raw: dict[str, str] = {}
     for item in filter(None, rest.split(",")):
         key, eq, value = item.partition("=")
@@ -186,12 +186,12 @@ def parse_grid(grid: str) -> GridSpec:
             raise ValueError(f"grid '{kind}': option '{key}' given twice")
         raw[key] = value
     fields: dict[str, object] = {"kind": kind}
-    if kind == "merl":
+    if GRID_KINDS[kind].extra["size"] == "stride":
         if "stride" not in raw:
-            raise ValueError("grid 'merl': option 'stride' is required (an integer from 1 to 90)")
+            raise ValueError(f"grid '{kind}': option 'stride' is required (an integer from 1 to 90)")
         stride = _parse_number(kind, "stride", raw["stride"])
         if stride != int(stride) or not 1 <= stride <= 90:
-            raise ValueError(f"grid 'merl': option 'stride' must be an integer from 1 to 90, got "
+            raise ValueError(f"grid '{kind}': option 'stride' must be an integer from 1 to 90, got "
                              f"{raw['stride']}")
         fields["stride"] = int(stride)
     else:
@@ -217,19 +217,21 @@ def parse_grid(grid: str) -> GridSpec:
             fields[key] = _parse_bool(kind, key, raw[key])
     if "isotropy" in raw:
         iso = _parse_bool(kind, "isotropy", raw["isotropy"])
-        if iso != (kind != "full"):
+        isotropic = grid_kind(kind).isotropic
+        if iso != isotropic:
             raise ValueError(
-                "grid 'full': option 'isotropy' must be false (use 'iso' for isotropic samples)"
-                if kind == "full" else
+                f"grid '{kind}': option 'isotropy' must be false (use 'iso' for isotropic samples)"
+                if not isotropic else
                 f"grid '{kind}': option 'isotropy' must be true ('{kind}' grids assume an isotropic "
                 "sample; use 'full' for anisotropic ones)")
     if "order" in raw:
-        if raw["order"] not in ORDERS:
-            raise ValueError(f"grid '{kind}': option 'order' must be one of {', '.join(ORDERS)}, got "
+        orders = ORDERS.names()
+        if raw["order"] not in orders:
+            raise ValueError(f"grid '{kind}': option 'order' must be one of {', '.join(orders)}, got "
                              f"'{raw['order']}'")
-        if raw["order"] == "fly" and kind == "merl":
-            raise ValueError("grid 'merl': option 'order=fly' needs lines of a lattice to sweep; use an iso "
-                             "or full grid")
+        if ORDERS[raw["order"]].extra.get("lattice") and grid_kind(kind).rows is None:
+            raise ValueError(f"grid '{kind}': option 'order={raw['order']}' needs lines of a lattice to "
+                             "sweep; use an iso or full grid")
         fields["order"] = raw["order"]
     return GridSpec(**fields)
 
@@ -243,11 +245,7 @@ def enumerate_grid(spec: GridSpec, theta_max_deg: float) -> GridPoses:
         When the grid would hold more than :data:`MAX_POSES` poses.
     """
     check_pose_bound(spec, theta_max_deg)
-    if spec.kind == "iso":
-        return _iso(spec, theta_max_deg)
-    if spec.kind == "full":
-        return _full(spec, theta_max_deg)
-    return _merl(spec, theta_max_deg)
+    return grid_kind(spec.kind).enumerate(spec, theta_max_deg)
 
 
 def pose_bound(spec: GridSpec, theta_max_deg: float) -> int:
@@ -264,16 +262,7 @@ def pose_bound(spec: GridSpec, theta_max_deg: float) -> int:
     """
     if not 0.0 < theta_max_deg <= 90.0:
         raise ValueError(f"theta_max_deg: must be > 0 and <= 90 degrees, got {theta_max_deg}")
-    if spec.kind == "merl":
-        k = spec.stride
-        nh, nd, nphi = MERL_SHAPE
-        return -(-nh // k) * -(-nd // k) * -(-nphi // k) * (1 if spec.reciprocity else 2)
-    n = _theta_count(spec.step_deg, theta_max_deg)
-    turns = round(360.0 / spec.step_deg)
-    if spec.kind == "iso":
-        return _iso_size(n, turns, spec.reciprocity, spec.mirror)
-    nd = 1 + (n - 1) * turns   # directions, the pole once
-    return nd * (nd + 1) // 2 if spec.reciprocity else nd * nd
+    return int(grid_kind(spec.kind).bound(spec, theta_max_deg))
 
 
 def class_members(spec: GridSpec, theta_i, phi_i, theta_o, phi_o) -> list[tuple[np.ndarray, ...]]:
@@ -288,20 +277,24 @@ def class_members(spec: GridSpec, theta_i, phi_i, theta_o, phi_o) -> list[tuple[
         One tuple of (P,) arrays per alternative member; empty when no shortcut is on.
     """
     ti, pi_, to, po = (np.asarray(a, dtype=np.float64) for a in (theta_i, phi_i, theta_o, phi_o))
+    members = grid_kind(spec.kind).members
+    if members is not None:
+        return members(spec, ti, pi_, to, po)
+    return [(to, po, ti, pi_)] if spec.reciprocity else []
+
+
+def _iso_members(spec: GridSpec, ti, pi_, to, po) -> list[tuple[np.ndarray, ...]]:
     two_pi = 2.0 * np.pi
     out: list[tuple[np.ndarray, ...]] = []
-    if spec.kind == "iso":
-        dphi = np.mod(po - pi_, two_pi)
-        neg = np.mod(-dphi, two_pi)
-        zero = np.zeros_like(ti)
-        if spec.reciprocity:
-            out.append((to, zero, ti, _pole(ti, neg)))
-        if spec.mirror:
-            out.append((ti, zero, to, _pole(to, neg)))
-        if spec.reciprocity and spec.mirror:
-            out.append((to, zero, ti, _pole(ti, dphi)))
-    elif spec.reciprocity:
-        out.append((to, po, ti, pi_))
+    dphi = np.mod(po - pi_, two_pi)
+    neg = np.mod(-dphi, two_pi)
+    zero = np.zeros_like(ti)
+    if spec.reciprocity:
+        out.append((to, zero, ti, _pole(ti, neg)))
+    if spec.mirror:
+        out.append((ti, zero, to, _pole(to, neg)))
+    if spec.reciprocity and spec.mirror:
+        out.append((to, zero, ti, _pole(ti, dphi)))
     return out
 
 
@@ -378,6 +371,42 @@ def _merl(spec: GridSpec, theta_max_deg: float) -> GridPoses:
     return GridPoses(theta_i[keep], phi_i[keep], theta_o[keep], phi_o[keep], loops, counts)
 
 
+def _iso_bound(spec: GridSpec, theta_max_deg: float) -> int:
+    n = _theta_count(spec.step_deg, theta_max_deg)
+    return _iso_size(n, round(360.0 / spec.step_deg), spec.reciprocity, spec.mirror)
+
+
+def _full_bound(spec: GridSpec, theta_max_deg: float) -> int:
+    n = _theta_count(spec.step_deg, theta_max_deg)
+    nd = 1 + (n - 1) * round(360.0 / spec.step_deg)   # directions, the pole once
+    return nd * (nd + 1) // 2 if spec.reciprocity else nd * nd
+
+
+def _merl_bound(spec: GridSpec, theta_max_deg: float) -> int:
+    k = spec.stride
+    nh, nd, nphi = MERL_SHAPE
+    return -(-nh // k) * -(-nd // k) * -(-nphi // k) * (1 if spec.reciprocity else 2)
+
+
+def _iso_rows(spec: GridSpec, loops: np.ndarray) -> tuple[np.ndarray, int]:
+    return loops, round(360.0 / spec.step_deg)
+
+
+def _full_rows(spec: GridSpec, loops: np.ndarray) -> tuple[np.ndarray, int]:
+    """Full grids loop over θi, θo, Δφ and, innermost, φi (with φo = φi + Δφ): rows turn the whole
+    configuration about the normal (φi and φo together, Δφ fixed): one rotation stage on a
+    sample-stage gantry, both carriages in step on a two-arm one, which then never meet inside a row."""
+    period = round(360.0 / spec.step_deg)
+    a_i, p_i, a_o, p_o = loops.T
+    return np.stack([a_i, a_o, (p_o - p_i) % period, p_i], axis=1), period
+
+
+ISO = GridKind(enumerate=_iso, bound=_iso_bound, isotropic=True, members=_iso_members, rows=_iso_rows,
+               auto="quicker")
+FULL = GridKind(enumerate=_full, bound=_full_bound, isotropic=False, rows=_full_rows)
+MERL = GridKind(enumerate=_merl, bound=_merl_bound, isotropic=True, auto="tour")
+
+
 def _iso_size(n: int, turns: int, reciprocity: bool, mirror: bool) -> int:
     """Poses an iso grid keeps, counted without building it (to refuse huge grids up front)."""
     arc = turns // 2 + 1 if mirror else turns  # Δφ values kept off the pole
@@ -396,8 +425,8 @@ def check_pose_bound(spec: GridSpec, theta_max_deg: float, limit: int = MAX_POSE
     """ValueError naming the option to change when :func:`pose_bound` exceeds ``limit``."""
     n = pose_bound(spec, theta_max_deg)
     if n > limit:
-        opt = "stride" if spec.kind == "merl" else "step"
-        at_most = "up to " if spec.kind == "merl" else ""
+        opt = "stride" if spec.stride is not None else "step"
+        at_most = "" if spec.stride is None else "up to "
         raise ValueError(f"grid '{spec.kind}': {at_most}{n:,} poses exceed the {limit:,} {holder}; use a "
                          f"larger '{opt}' or a smaller 'theta_max'")
 

@@ -7,11 +7,12 @@ import pytest
 from brdf_samples import sampled
 
 from gonio.cli import main
-from gonio.export import EXPORT_NAMES, export
+from gonio.export import export
 from gonio.formats.merl import read_merl
 from gonio.formats.rgl import eval_measured
 from gonio.formats.tensor import read_tensor
 from gonio.geometry import from_half_diff, merl_bin_centres, merl_unindex
+from gonio.registries import EXPORT_FORMATS
 
 GGX = "ggx:alpha=0.35,fresnel=conductor,eta=0.2/0.9/1.1,k=3.9/2.4/2.2"
 GRID = "iso:step=15"
@@ -58,6 +59,6 @@ def test_a_measured_material_measured_again_exports_the_same(tmp_path, fmt, sour
     # the same grid measured (noise-free) on the original material, exported the same way
     reference = export(sampled(GGX, GRID, theta_max_deg=THETA_MAX), fmt, tmp_path / f"reference.{fmt}")
     compare = _compare_bsdf if fmt == "bsdf" else _compare_merl
-    err = compare(folder / EXPORT_NAMES[fmt], reference.paths[0])
+    err = compare(folder / EXPORT_FORMATS[fmt].extra["file_name"], reference.paths[0])
     print(f"{fmt}: weighted L1 of the re-measured export against the reference export: {np.max(err):.4f}")
     assert np.max(err) < tolerance

@@ -18,7 +18,7 @@ from gonio.config import DEFAULT_CONFIG, load_config
 from gonio.geometry import sph_to_vec
 from gonio.kinematics import make_kinematics
 from gonio.plan import STEP_POSE, build_plan
-from gonio.plan.grids import ORDERS
+from gonio.registries import ORDERS
 
 CONFIG_DIR = DEFAULT_CONFIG.parent
 

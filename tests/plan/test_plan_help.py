@@ -7,7 +7,7 @@ import pytest
 
 from gonio.cli import main
 from gonio.plan import parse_grid
-from gonio.plan.grids import GRID_KINDS, GRID_OPTIONS
+from gonio.registries import GRID_KINDS, GRID_OPTIONS, ORDERS
 
 VALUES = {"step": "30", "stride": "30", "theta_max": "60", "reciprocity": "false", "mirror": "true",
           "order": "serpentine"}
@@ -17,16 +17,18 @@ def test_plan_help_lists_every_kind_and_option(capsys):
     with pytest.raises(SystemExit):
         main(["plan", "--help"])
     text = capsys.readouterr().out
-    for kind, (_, options) in GRID_KINDS.items():
-        assert f"\n  {kind}:" in text and ", ".join(options) in " ".join(text.split())
+    for kind in GRID_KINDS.entries():
+        assert f"\n  {kind.name}:" in text and ", ".join(kind.extra["options"]) in " ".join(text.split())
     for option in GRID_OPTIONS:
         assert f"\n  {option}: " in text
+    for order in ORDERS:
+        assert f"\n  {order} " in text
     assert "isotropy" in text
 
 
 @pytest.mark.parametrize("kind", list(GRID_KINDS))
 def test_the_parser_takes_exactly_the_options_the_registry_lists(kind):
-    options = GRID_KINDS[kind][1]
+    options = GRID_KINDS[kind].extra["options"]
     size = "stride=30" if "stride" in options else "step=30"
     for option in GRID_OPTIONS:
         value = VALUES.get(option, "true" if kind != "full" else "false")
