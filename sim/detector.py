@@ -348,6 +348,17 @@ class SimDetector:
                  "stderr_integration": integration_se, "stderr_sensor": sensor_se}
         return Reading(signal=mean, stderr=stderr, exposure_s=exposure_s, frames=int(frames), extra=extra)
 
+    def read_on_the_fly(self, exposure_s: float, *, key: tuple[int, int] | None = None) -> Reading:
+        """One frame of ``exposure_s`` s while the axes may move (:class:`gonio.protocols.ReadsOnTheFly`):
+        it integrates from the request, along the axes' motion where it tracks it."""
+        return self.measure(exposure_s, 1, key=key)
+
+    def describe(self) -> dict:
+        """What this detector is, for the journal (:class:`gonio.protocols.Describes`)."""
+        return {"name": self.name, "driver": "sim", "identity": f"simulated {self.cfg.sim.kind}",
+                "firmware": None, "units": "signal", "settings": {"channels": list(self.channels),
+                                                                  "seed": self._seed}}
+
     # -- simulation-only ----------------------------------------------------------------------------
     @property
     def target(self) -> str:

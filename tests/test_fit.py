@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 from drjit.llvm.ad import Array3f64, Float64
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.cli import main
 from gonio.config import load_config, parse_config
 from gonio.fit import FitData, fit, parse_model
 from gonio.fit.models import FIT_MODELS
 from gonio.fit.solve import Problem
 from gonio.geometry import sph_to_vec
+from gonio.lifecycle import run_campaign
 from gonio.plan import build_plan
 from gonio.sim.materials import load
 from gonio.wiring import build_gantry

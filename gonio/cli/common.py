@@ -175,24 +175,9 @@ class _ReferenceFormatter(_DefaultsFormatter, argparse.RawDescriptionHelpFormatt
 # -- gonio status ---------------------------------------------------------------------------------
 def _lock_holder(folder: Path) -> int | None:
     """The pid holding the campaign's lock (running it now), or None."""
-    import fcntl
+    from gonio.campaign import CampaignLock
 
-    from gonio.campaign import LOCK_NAME
-
-    path = folder / LOCK_NAME
-    if not path.exists():
-        return None
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except BlockingIOError:
-        text = os.read(fd, 64).decode(errors="replace").strip()
-        return int(text) if text.isdigit() else -1
-    else:
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return None
-    finally:
-        os.close(fd)
+    return CampaignLock.holder(folder)
 
 
 def _user_error(err: BaseException) -> str:
