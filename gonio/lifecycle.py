@@ -1,5 +1,6 @@
 """The campaign lifecycle: one way to check a request, open or create, compare, resume, run, finish and
-look at a campaign, for the CLI (``gonio simulate``, ``gonio run``), the daemon and batch runs alike.
+look at a campaign, for the CLI (``gonio simulate``, ``gonio run``), the daemon and scripts alike (the
+benchmarks in ``tools/``, ``examples/``; batch runs are to build on it).
 
 Free of CLI and daemon concerns (no flags, no HTTP, no signals): errors are :class:`RequestError`
 (naming the request's field) and :class:`CampaignMismatch` (naming the field that differs from the
