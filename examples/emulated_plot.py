@@ -14,8 +14,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.config import load_config
+from gonio.lifecycle import run_campaign
 from gonio.plot import plot
 from gonio.runner import State
 from gonio.sim.emulators.gantry import EmulatedGantry

@@ -12,9 +12,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from gonio.campaign import create_campaign, open_campaign, run_campaign
+from gonio.campaign import create_campaign, open_campaign
 from gonio.config import load_config
 from gonio.export import export
+from gonio.lifecycle import run_campaign
 from gonio.store import JOURNAL_NAME
 from gonio.wiring import build_gantry
 

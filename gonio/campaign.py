@@ -1,8 +1,10 @@
 """A campaign folder: the journal, the plan it holds, and the sampled BRDF made from it.
 
-``create_campaign`` plans and journals a campaign (no hardware touched); ``run_campaign`` runs it (or
-resumes it) on a gantry and, once every step is measured, writes ``brdf.h5``. The CLI and the daemon
-both go through here.
+``create_campaign`` plans and journals a campaign (no hardware touched), its *kind* recorded in the
+journal (``stop-and-go`` or ``fly``: which unit source the engine runs, :mod:`gonio.units`);
+``finish_campaign`` writes ``brdf.h5`` from a journal whose every step is measured. Running, resuming
+and the rules a request passes are the campaign lifecycle's (:mod:`gonio.lifecycle`), which the CLI and
+the daemon both go through.
 
 A folder is run by one process at a time: :class:`CampaignLock` holds an exclusive ``flock`` on
 ``campaign.lock`` for as long as the campaign is open for writing (the kernel releases it when the
@@ -11,12 +13,12 @@ process dies, however it dies).
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import hashlib
 import json
 import os
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,14 +28,16 @@ from gonio import software_version
 from gonio.calibrate import calibrate
 from gonio.config import GonioConfig, parse_config
 from gonio.dataset import BRDF_NAME, campaign_dataset, write_brdf
+from gonio.gantry import describe_devices
 from gonio.plan import STEP_POSE, STEP_REFERENCE, Plan, build_plan, parse_grid
-from gonio.protocols import Describes, Gantry
-from gonio.runner import Runner, State
+from gonio.plan.fly import FlyPlan
+from gonio.protocols import Gantry
 from gonio.store import JOURNAL_NAME, Journal, JournalError
+from gonio.units import FLY, KINDS, STOP_AND_GO
 
-__all__ = ["Campaign", "CampaignLock", "create_campaign", "open_campaign", "run_campaign",
-           "software_version", "config_hash", "config_snapshot", "compare_campaign", "LOCK_NAME",
-           "journal_instruments"]
+__all__ = ["Campaign", "CampaignLock", "Planned", "plan_campaign", "create_campaign", "open_campaign",
+           "finish_campaign", "software_version", "config_hash", "config_snapshot", "compare_campaign",
+           "LOCK_NAME", "journal_devices", "kind_of", "gantry_state"]
 
 LOCK_NAME = "campaign.lock"
 
@@ -95,6 +99,31 @@ class CampaignLock:
             os.close(self._fd)
             self._fd = None
 
+    @staticmethod
+    def holder(folder: str | Path) -> int | None:
+        """The pid of the process holding ``folder``'s lock (running its campaign now; -1 when it wrote
+        none), or None."""
+        path = Path(folder) / LOCK_NAME
+        if not path.exists():
+            return None
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            text = os.read(fd, 64).decode(errors="replace").strip()
+            return int(text) if text.isdigit() else -1
+        else:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            return None
+        finally:
+            os.close(fd)
+
+
+def kind_of(meta: dict) -> str:
+    """A journal's campaign kind: the one recorded at creation; a journal from before kinds were recorded
+    is ``fly`` when it holds a fly summary (``create_fly_campaign`` wrote one), else ``stop-and-go``."""
+    return meta.get("kind") or (FLY if "fly" in meta else STOP_AND_GO)
+
 
 @dataclass
 class Campaign:
@@ -106,6 +135,11 @@ class Campaign:
     @property
     def meta(self) -> dict:
         return self.journal.meta()
+
+    @property
+    def kind(self) -> str:
+        """``stop-and-go`` or ``fly`` (:func:`kind_of`): which unit source the engine runs."""
+        return kind_of(self.meta)
 
     def close(self) -> None:
         self.journal.close()
@@ -136,19 +170,67 @@ def _steps_of(plan: Plan, cfg: GonioConfig) -> dict:
             "theta_o_deg": angles[:, 2], "phi_o_deg": angles[:, 3], "axes_deg": axes}
 
 
-def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material: str, seed: int = 0,
-                    plan: Plan | None = None, write_hook=None, sample: str | None = None) -> Campaign:
+@dataclass(frozen=True)
+class Planned:
+    """A campaign planned and not yet journaled: its kind, its stop-and-go plan and, for a fly campaign,
+    its fly plan (:func:`plan_campaign`)."""
+
+    kind: str
+    plan: Plan
+    fly: FlyPlan | None = None
+
+    @property
+    def steps(self) -> int:
+        """How many steps its journal will hold (readings with their darks and references)."""
+        if self.fly is None:
+            return len(self.plan.step_kind)
+        from gonio.plan.fly import fly_step_table
+
+        return len(fly_step_table(self.fly)[0])
+
+
+def plan_campaign(grid: str, cfg: GonioConfig) -> Planned:
+    """Plan ``grid`` on the gantry ``cfg``; the kind follows the grid (``order=fly``: a fly campaign).
+    ValueError (naming the field) for a grid the planner refuses."""
+    if parse_grid(grid).order == "fly":
+        from gonio.fly.plans import fly_plans
+
+        plan, fp = fly_plans(grid, cfg)
+        return Planned(FLY, plan, fp)
+    return Planned(STOP_AND_GO, build_plan(grid, cfg))
+
+
+def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material: str | None, seed: int = 0,
+                    plan: Plan | None = None, write_hook=None, sample: str | None = None,
+                    planned: Planned | None = None) -> Campaign:
     """Plan the campaign and journal it in ``folder`` (created; must not hold a campaign already).
 
     Everything is validated and planned before anything is written; the journal then appears whole or
     not at all (:meth:`gonio.store.Journal.create`). ``material`` is the simulated material's spec
-    (normalized by the caller), ``sample`` the name of a real sample.
+    (normalized by the caller), ``sample`` the name of a real sample. ``planned`` (or ``plan``, a
+    stop-and-go plan): what :func:`plan_campaign` gave for this grid and config, when the caller has it.
+
+    The journal's meta records the campaign's ``kind``; a fly campaign's has ``estimated_s`` and
+    ``lower_bound_s`` those of the fly plan, ``stop_and_go_estimated_s`` beside them and ``fly`` its
+    summary, and its steps are the fly plan's readings in order (:func:`gonio.plan.fly.fly_step_table`).
     """
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed: must be an integer >= 0, got {seed!r}")
     folder = Path(folder)
-    plan = plan if plan is not None else build_plan(grid, cfg)
-    meta = {
+    if planned is None:
+        planned = Planned(STOP_AND_GO, plan) if plan is not None else plan_campaign(grid, cfg)
+    if planned.kind not in KINDS:
+        raise ValueError(f"kind: {planned.kind!r} is not a campaign kind; known: {', '.join(KINDS)}")
+    plan, extra = planned.plan, {}
+    if planned.fly is not None:
+        from gonio.plan.fly import fly_step_table, fly_summary
+
+        fp = planned.fly
+        kind, pose = fly_step_table(fp)
+        extra = {"fly": fly_summary(fp), "stop_and_go_estimated_s": float(plan.estimated_s)}
+        plan = dataclasses.replace(plan, step_kind=kind, step_pose=pose, estimated_s=fp.estimated_s,
+                                   lower_bound_s=fp.lower_bound_s)
+    meta = {"kind": planned.kind, **extra,
         "grid": plan.grid, "grid_requested": parse_grid(grid).normalized, "material": material,
         "sample": sample, "seed": int(seed), "symmetries": plan.symmetries,
         "counts": plan.counts, "infeasible": plan.infeasible, "poses": int(len(plan.theta_i)),
@@ -251,61 +333,23 @@ def gantry_state(c: Campaign) -> tuple[np.ndarray, float] | None:
     return c.journal.last_known_axes()
 
 
-def journal_instruments(journal, gantry: Gantry) -> None:
-    """What the light and the detector say they are (:class:`gonio.protocols.Describes`: profile, its
-    SHA-256, the identity read at connect), journaled at each run: the meta key ``instruments`` holds
-    the latest, an ``instruments`` event each run's (a meter swapped between two runs shows there)."""
-    described = {d.name: d.describe() for d in (gantry.light, gantry.detector) if isinstance(d, Describes)}
+def journal_devices(journal, gantry: Gantry) -> None:
+    """What every device says it is (:func:`gonio.gantry.describe_devices`: identity, firmware, units,
+    settings), journaled at each run once connected: the meta key ``devices`` holds the latest, a
+    ``devices`` event each run's (a servo or a meter swapped between two runs shows there). The
+    instruments that speak through a profile (the light and the detector: its name, SHA-256 and the
+    identity read at connect) are also under ``instruments``, with an ``instruments`` event."""
+    described = describe_devices(gantry)
     if not described:
         return
-    journal.set_meta("instruments", described)
-    journal.log_event("instruments", message="; ".join(
-        f"{name}: {d.get('profile')} {d.get('identity')!r}" for name, d in described.items()))
-
-
-def _check_references(c: Campaign, gantry: Gantry) -> None:
-    """Journal each axis's reference; refuse (a fault event, not latched: nothing moved) to run while an
-    axis is not referenced (:mod:`gonio.reference`)."""
-    from gonio.protocols import NotReferencedFault
-    from gonio.reference import journal_references, refusal, unreferenced
-
-    axes = getattr(gantry, "all_axes", gantry.axes)
-    campaign_s = c.journal.campaign_clock()[0]
-    journal_references(c.journal, axes, campaign_s)
-    missing = unreferenced(axes)
-    if missing:
-        c.journal.log_event("fault", message=f"not started: {refusal(missing)}", campaign_s=campaign_s)
-        raise NotReferencedFault(missing[0], refusal(missing))
-
-
-def run_campaign(c: Campaign, gantry: Gantry,
-                 on_step: Callable[[Runner, int], None] | None = None,
-                 on_runner: Callable[[Runner], None] | None = None,
-                 clear_fault: bool = False) -> tuple[State, Runner]:
-    """Run (or resume) ``c`` on ``gantry``; writes ``brdf.h5`` when the campaign is done. A fly campaign
-    (made by :func:`gonio.fly.create_fly_campaign`) runs its sweeps on the gantry's axes
-    (:mod:`gonio.fly.hardware`; a ValueError, before anything moves, when its sweeping axes cannot).
-
-    ``on_runner(runner)`` is called once the runner exists and before it starts (signal handlers, the
-    daemon). ``clear_fault`` is the operator's explicit clearing of a latched fault.
-    """
-    runner = Runner(gantry, c.journal, c.cfg, on_step=on_step)
-    units = None
-    if "fly" in c.meta:  # made by create_fly_campaign: one unit per sweep and checkpoint (gonio.fly.hardware)
-        from gonio.fly.hardware import fly_units
-
-        units = fly_units(runner, c)
-    if on_runner is not None:
-        on_runner(runner)
-    gantry.connect()
-    try:
-        journal_instruments(c.journal, gantry)
-        _check_references(c, gantry)
-        if clear_fault and runner.state == State.FAULTED:
-            runner.clear_fault()
-        state = runner.run(units)
-    finally:
-        gantry.close()
-    if state == State.DONE:
-        finish_campaign(c)
-    return state, runner
+    journal.set_meta("devices", described)
+    journal.log_event("devices", message="; ".join(
+        f"{name}: {d.get('driver')} {d.get('identity')!r}"
+        + (f" firmware {d['firmware']}" if d.get("firmware") is not None else "")
+        for name, d in described.items()))
+    instruments = {name: d for name, d in described.items()
+                   if name in (gantry.light.name, gantry.detector.name) and "profile" in d}
+    if instruments:
+        journal.set_meta("instruments", instruments)
+        journal.log_event("instruments", message="; ".join(
+            f"{name}: {d.get('profile')} {d.get('identity')!r}" for name, d in instruments.items()))

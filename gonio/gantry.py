@@ -21,32 +21,71 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from typing import Protocol, runtime_checkable
+from dataclasses import dataclass
 
 import numpy as np
 
-from gonio.protocols import Axis, Clock, Detector, DeviceFault, LightSource, Referencing
+from gonio.protocols import (
+    Axis,
+    BatchedAxes,
+    ChecksTarget,
+    Clock,
+    CountsLink,
+    Describes,
+    Detector,
+    DeviceFault,
+    FliesAxes,
+    Flyable,
+    Gantry,
+    HoldsAtGoal,
+    JoinsGroup,
+    KeepsAlive,
+    LightSource,
+    ReadsOnTheFly,
+    ReadsState,
+    Referencing,
+    RendersFly,
+    ReportsLink,
+    ReportsWarnings,
+    SharesConnection,
+    SwitchesTarget,
+    TimesRoundTrip,
+    Warns,
+)
 
-__all__ = ["AssembledGantry", "TargetChanger", "TARGETS"]
+__all__ = ["AssembledGantry", "TargetChanger", "TARGETS", "Abilities", "abilities", "describe_devices"]
 
 
-@runtime_checkable
-class _Counts(Protocol):
-    def link_stats(self) -> dict: ...
+@dataclass(frozen=True)
+class Abilities:
+    """What a gantry declares it can do beyond :class:`gonio.protocols.Gantry` (each field the gantry
+    itself where it satisfies that ability protocol, else None), asked once: :func:`abilities`."""
+
+    batched: BatchedAxes | None
+    keep_alive: KeepsAlive | None
+    flies: FliesAxes | None
+    renders_fly: RendersFly | None
+    warnings: ReportsWarnings | None
+    link: ReportsLink | None
+    reads_on_the_fly: bool
 
 
-@runtime_checkable
-class _Warns(Protocol):
-    def warnings(self) -> list[str]: ...
+def abilities(gantry: Gantry) -> Abilities:
+    """The declared abilities of ``gantry`` (see :mod:`gonio.protocols`): the one place core code asks
+    a gantry what it can do. The engine asks once per run, the fly checks once per campaign."""
+    def ask(protocol):
+        return gantry if isinstance(gantry, protocol) else None
+
+    return Abilities(batched=ask(BatchedAxes), keep_alive=ask(KeepsAlive), flies=ask(FliesAxes),
+                     renders_fly=ask(RendersFly), warnings=ask(ReportsWarnings), link=ask(ReportsLink),
+                     reads_on_the_fly=isinstance(gantry.detector, ReadsOnTheFly))
 
 
-@runtime_checkable
-class _HoldsAtGoal(Protocol):
-    """An axis stopped by a goal at its present position (a servo): the goal is read first, so the
-    gantry can check it before it is written."""
-
-    def stop_goal(self): ...
-    def hold(self, goal) -> None: ...
+def describe_devices(gantry: Gantry) -> dict[str, dict]:
+    """What every device of ``gantry`` says it is (:class:`gonio.protocols.Describes`), by name: the
+    axes (the changer's too), the light and the detector."""
+    devices = [*gantry.all_axes.values(), gantry.light, gantry.detector]
+    return {d.name: d.describe() for d in devices if isinstance(d, Describes)}
 
 #: What can be under the beam.
 TARGETS = ("sample", "reference")
@@ -138,7 +177,7 @@ class AssembledGantry:
             raise ValueError(f"axes: must be exactly {', '.join(kinematics.axis_names)}"
                              + (f"; missing: {', '.join(missing)}" if missing else "")
                              + (f"; unknown: {', '.join(extra)}" if extra else ""))
-        if changer is None and not hasattr(detector, "set_target"):
+        if changer is None and not isinstance(detector, SwitchesTarget):
             raise ValueError(f"detector '{detector.name}': a real detector needs a target changer axis to "
                              "put the white standard under the beam")
         self.name = name
@@ -164,7 +203,17 @@ class AssembledGantry:
         #: watchdog; None without one.
         self.feed_s: float | None = None
         self._last_read = 0.0
-        self._warners: list | None = None  # the axes that report hardware warnings
+        # What each device declared it can do (gonio.protocols), asked once here.
+        every = self.all_axes
+        self._renders_target = isinstance(detector, SwitchesTarget)
+        self._checks = {n for n, a in self.axes.items() if isinstance(a, ChecksTarget)}
+        self._flyable = {n for n, a in self.axes.items() if isinstance(a, Flyable)}
+        self._warners = [(n, a) for n, a in every.items() if isinstance(a, Warns)]
+        self._counters = [(n, a) for n, a in every.items() if isinstance(a, CountsLink)]
+        self._holders = {n for n, a in every.items() if isinstance(a, HoldsAtGoal)}
+        axes = list(self.axes.values())
+        self._state_readers = {i for i, a in enumerate(axes) if isinstance(a, ReadsState)}
+        self._timed = {i for i, a in enumerate(axes) if isinstance(a, TimesRoundTrip)}
 
     @property
     def all_axes(self) -> dict[str, Axis]:
@@ -193,24 +242,25 @@ class AssembledGantry:
         self._batch()
 
     def _batch(self) -> None:
-        from gonio.drivers.dynamixel import DynamixelAxis, DynamixelGroup
-
+        """Group the axes that declare :class:`~gonio.protocols.JoinsGroup` by bus, and the others by
+        the connection they share (:class:`~gonio.protocols.SharesConnection`)."""
         names = list(self.axes)
-        by_bus: dict[int, list[str]] = {}
+        by_bus: dict[object, list[str]] = {}
         self._singles = []
         for i, (name, axis) in enumerate(self.axes.items()):
-            if isinstance(axis, DynamixelAxis):
-                by_bus.setdefault(id(axis.bus), []).append(name)
+            if isinstance(axis, JoinsGroup):
+                by_bus.setdefault(axis.group_key(), []).append(name)
             else:
                 self._singles.append(i)
-        self._groups = [(DynamixelGroup([self.axes[n] for n in group]), [names.index(n) for n in group])
-                        for group in by_bus.values()]
+        self._groups = [(self.axes[group[0]].make_group([self.axes[n] for n in group]),
+                         [names.index(n) for n in group]) for group in by_bus.values()]
         axes = list(self.axes.values())
         links: dict[int, list[int]] = {}
         for i in self._singles:
-            links.setdefault(id(getattr(axes[i], "client", axes[i])), []).append(i)
+            link = axes[i].client if isinstance(axes[i], SharesConnection) else axes[i]
+            links.setdefault(id(link), []).append(i)
         self._links = list(links.values())
-        dogs = [a.watchdog_units * 0.02 for g, _ in self._groups for a in g.axes.values() if a.watchdog_units]
+        dogs = [g.watchdog_s for g, _ in self._groups if g.watchdog_s]
         self.feed_s = min(dogs) / 2 if dogs else None
 
     def close(self) -> None:
@@ -235,7 +285,7 @@ class AssembledGantry:
             raise ValueError(f"target: {target!r} is not one of {', '.join(repr(t) for t in TARGETS)}")
         if self.changer is not None:
             self.changer.put(target, self.clock)
-        if hasattr(self.detector, "set_target"):
+        if self._renders_target:
             self.detector.set_target(target)
         self.target = target
 
@@ -243,8 +293,6 @@ class AssembledGantry:
     def drain_warnings(self) -> list[tuple[str, str]]:
         """(axis, message) of the hardware warnings the axes saw since the last call: conditions their
         controllers report but do not act on (the axis went on)."""
-        if self._warners is None:  # asked once: a runtime protocol check costs ~15 µs an axis
-            self._warners = [(n, a) for n, a in self.all_axes.items() if isinstance(a, _Warns)]
         out = []
         for name, axis in self._warners:
             out += [(name, w) for w in axis.warnings()]
@@ -255,9 +303,7 @@ class AssembledGantry:
         request; positions read again because implausible) and the transactions that failed, or None
         when there was nothing."""
         parts, links = [], {}
-        for name, axis in self.all_axes.items():
-            if not isinstance(axis, _Counts):
-                continue
+        for name, axis in self._counters:
             stats = axis.link_stats()
             if stats.get("implausible"):
                 parts.append(f"{name}: {stats['implausible']} implausible position(s) read again")
@@ -277,11 +323,9 @@ class AssembledGantry:
         unknown = [n for n in targets if n not in self.axes]
         if unknown:
             raise ValueError(f"axes: unknown {', '.join(unknown)}; known: {', '.join(self.axes)}")
-        for name, t in targets.items():  # Dynamixel: check_target; Modbus: steps_for (both raise)
-            axis = self.axes[name]
-            check = getattr(axis, "check_target", None) or getattr(axis, "steps_for", None)
-            if check is not None:
-                check(t)
+        for name, t in targets.items():
+            if name in self._checks:
+                self.axes[name].check_target(t)
         for group, _ in self._groups:
             mine = {n: float(t) for n, t in targets.items() if n in group.axes}
             if mine:
@@ -328,22 +372,25 @@ class AssembledGantry:
         ValueError
             ``name`` is unknown, or its driver cannot sweep (the message names it and why).
         """
-        axis = self.axes.get(name)
-        if axis is None:
+        if name not in self.axes:
             raise ValueError(f"axes: unknown {name}; known: {', '.join(self.axes)}")
-        sweep = getattr(axis, "sweep", None)
-        if sweep is None:
+        if not self.can_sweep(name):
             raise ValueError(f"axes.{name}: its driver cannot sweep at a set velocity (on-the-fly "
                              "scanning needs a Dynamixel servo)")
-        out = sweep(float(target_deg), float(velocity_deg_s), float(accel_deg_s2))
+        axis = self.axes[name]
+        out = axis.prepare(float(velocity_deg_s), float(accel_deg_s2))
+        axis.kickoff(float(target_deg))
         self._last_read = self.clock.now()
         return out
 
+    def can_sweep(self, name: str) -> bool:
+        """Whether axis ``name`` declares it sweeps at a set velocity (:class:`gonio.protocols.Flyable`)."""
+        return name in self._flyable
+
     def end_sweep(self, name: str) -> None:
         """Restore axis ``name``'s campaign profile after :meth:`sweep`."""
-        restore = getattr(self.axes[name], "restore_profile", None)
-        if restore is not None:
-            restore()
+        if name in self._flyable:
+            self.axes[name].complete()
 
     def positions(self) -> np.ndarray:
         """Positions (°) of the kinematics' axes, in their order: one Sync Read per Dynamixel bus (a
@@ -364,7 +411,7 @@ class AssembledGantry:
         if self.concurrent:
             return True
         axes = list(self.axes.values())
-        return sum(getattr(axes[i], "round_trip_s", None) or 0.0 for i in singles) > CONCURRENT_ABOVE_S
+        return sum(axes[i].round_trip_s or 0.0 for i in singles if i in self._timed) > CONCURRENT_ABOVE_S
 
     def _each_link(self, fn: Callable[[int], object], singles: list[int] | None = None) -> dict[int, object]:
         """``fn(i)`` for each axis index of ``singles`` (default: every single axis), by index. The axes
@@ -410,8 +457,7 @@ class AssembledGantry:
             return None, True
         axes = list(self.axes.values())
         if self._threads(self._singles):  # every connection at once: one round trip, two where apart
-            states = self._each_link(lambda i: axes[i].read_state()
-                                     if getattr(axes[i], "read_state", None) is not None
+            states = self._each_link(lambda i: axes[i].read_state() if i in self._state_readers
                                      else (axes[i].position_deg(), axes[i].is_moving()))
             for i, (p, m) in states.items():
                 pos[i], moving[i] = p, m
@@ -419,7 +465,7 @@ class AssembledGantry:
         apart = []
         for i in self._singles:
             a = axes[i]
-            if getattr(a, "state_in_one_read", False):
+            if i in self._state_readers and a.state_in_one_read:
                 pos[i], m = a.read_state()
             else:
                 m = a.is_moving()
@@ -466,7 +512,7 @@ class AssembledGantry:
             if name in grouped:
                 continue
             try:
-                if isinstance(axis, _HoldsAtGoal):
+                if name in self._holders:
                     found = axis.stop_goal()
                     if found is not None:
                         planned[name] = (found[0], found[1], None)

@@ -18,7 +18,7 @@ import numpy as np
 from gonio.kinematics.base import REASONS
 from gonio.motion.safe import check_targets, safe_path
 from gonio.motion.trapezoid import move_time
-from gonio.protocols import DeviceFault
+from gonio.protocols import DeviceFault, Referencing
 
 __all__ = ["axis_report", "pose_targets", "plan_move", "arrived", "drive", "connect_axes", "close_axes"]
 
@@ -29,7 +29,7 @@ def connect_axes(gantry, keep_faulted: bool = False, readonly: bool = False) -> 
     ``keep_faulted``: an axis whose connect reports its latched fault (a Modbus alarm) stays in the
     result, so that it can be looked at, stopped and rebooted. ``readonly``: the axes only read (no
     torque, no goal, no watchdog, not even when they are closed)."""
-    axes = dict(getattr(gantry, "all_axes", gantry.axes))
+    axes = dict(gantry.all_axes)
     done = []
     try:
         for axis in axes.values():
@@ -54,9 +54,10 @@ def close_axes(axes) -> None:
 
 
 def axis_report(axis) -> dict:
-    """One axis's target and read-back position, in degrees and in device units where it has them, and
-    whether it is referenced (None: it never needs to be). Reads only."""
-    from gonio.protocols import DeviceFault, Referencing
+    """One axis's target and read-back position, in degrees and in device units where it has them
+    (:class:`~gonio.protocols.ReportsDeviceUnits`), and whether it is referenced (None: it never needs
+    to be). Reads only."""
+    from gonio.protocols import ReportsDeviceUnits
 
     moving, note = None, None
     try:
@@ -69,14 +70,8 @@ def axis_report(axis) -> dict:
            "referenced": None}
     if isinstance(axis, Referencing) and axis.reference_method != "none":
         out["referenced"] = axis.referenced()
-    if hasattr(axis, "goal_ticks"):  # a Dynamixel servo: ticks
-        goal, present = axis.goal_ticks(), axis.present_ticks()
-        out.update(units="ticks", target_units=goal, position_units=present,
-                   target_deg=axis.deg_of_ticks(goal))
-    elif hasattr(axis, "goal_steps"):  # a Modbus controller: steps
-        goal, present = axis.goal_steps(), axis.present_steps()
-        out.update(units="steps", target_units=goal, position_units=present,
-                   target_deg=axis.deg_of_steps(goal))
+    if isinstance(axis, ReportsDeviceUnits):  # servo ticks, motor steps
+        out.update(axis.device_units())
     return out
 
 

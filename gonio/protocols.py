@@ -3,6 +3,15 @@
 Real drivers (``gonio.drivers``) and simulated devices (``gonio.sim``) satisfy the same protocols; the
 config decides which one runs. No I/O in constructors: ``connect()`` is explicit. Angles are degrees
 (axis positions are device quantities at the user boundary); times are seconds.
+
+Beside the protocols every device satisfies (:class:`Axis`, :class:`LightSource`, :class:`Detector`,
+:class:`Gantry`, :class:`Clock`), a device *declares* what else it can do by satisfying an ability
+protocol (as ophyd-async's ``Movable``, ``Flyable``): a servo that sweeps at a set velocity
+(:class:`Flyable`), a detector that reads while the axes move (:class:`ReadsOnTheFly`), a gantry that
+moves and reads its axes in batches (:class:`BatchedAxes`). Core code asks for an ability once, where
+the gantry is assembled (:func:`gonio.gantry.abilities`, :class:`gonio.gantry.AssembledGantry`), with
+``isinstance`` against these runtime-checkable protocols, never with ``getattr``/``hasattr`` or a
+driver's class.
 """
 
 from __future__ import annotations
@@ -33,7 +42,12 @@ class NotReferencedFault(DeviceFault):
 
 @runtime_checkable
 class Clock(Protocol):
-    """Time source. The simulated gantry runs on a virtual clock; hardware on the wall clock."""
+    """Time source. The simulated gantry runs on a virtual clock; hardware on the wall clock.
+
+    ``real_time``: time goes on while no process runs the gantry (the wall clock): the engine adds that
+    downtime to the campaign clock, so a lamp's drift stays on the right scale."""
+
+    real_time: bool
 
     def now(self) -> float: ...
     def sleep(self, seconds: float) -> None: ...
@@ -111,19 +125,22 @@ class Detector(Protocol):
 
 @runtime_checkable
 class Describes(Protocol):
-    """A device that says what it is (an instrument: its profile and the identity it reported at
-    connect), for the campaign's journal."""
+    """A device that says what it is, for the campaign's journal (:func:`gonio.campaign.journal_devices`):
+    ``name``, ``driver``, its identity (a servo's model and firmware, an instrument's ``*IDN?`` reply,
+    read at connect), ``units`` and the settings it runs with."""
 
     def describe(self) -> dict: ...
 
 
 @runtime_checkable
 class Gantry(Protocol):
-    """Kinematics + axes + light + detector + clock, wired from a config."""
+    """Kinematics + axes + light + detector + clock, wired from a config. ``all_axes``: the kinematics'
+    axes and any other (a sample changer's), by name."""
 
     name: str
     kinematics: object  # gonio.kinematics.Kinematics
     axes: dict[str, Axis]
+    all_axes: dict[str, Axis]
     light: LightSource
     detector: Detector
     clock: Clock
@@ -137,3 +154,222 @@ class Gantry(Protocol):
 
         Parking is not the gantry's job: the runner plans a collision-free path home
         (:func:`gonio.motion.safe.safe_path`) and moves it like any other step."""
+
+
+# -- abilities of axes ------------------------------------------------------------------------------------
+@runtime_checkable
+class ChecksTarget(Protocol):
+    """An axis that checks a target without moving (limits, a latched fault, its reference), so a gantry
+    refuses a batch of moves before any axis is commanded."""
+
+    def check_target(self, target_deg: float) -> object:
+        """The target in device units; raises ValueError (beyond a limit) or DeviceFault."""
+
+
+@runtime_checkable
+class Flyable(Protocol):
+    """An axis that sweeps to a target at a velocity and acceleration set per move (a fly sweep), in the
+    manner of ophyd-async's flyers: :meth:`prepare`, :meth:`kickoff`, :meth:`complete`."""
+
+    def prepare(self, velocity_deg_s: float, accel_deg_s2: float) -> tuple[float, float]:
+        """Check the sweep's profile (nothing written); the (velocity, acceleration) it will run at, as
+        the device quantises them. ValueError outside what it can be given."""
+    def kickoff(self, target_deg: float) -> None:
+        """Start the prepared sweep toward ``target_deg``; returns at once."""
+    def complete(self) -> None:
+        """After the sweep: the campaign's own profile back (nothing when it was not replaced)."""
+
+
+@runtime_checkable
+class ReadsState(Protocol):
+    """An axis whose position and moving flag come from one transaction (``state_in_one_read``) or two."""
+
+    state_in_one_read: bool
+
+    def read_state(self) -> tuple[float, bool]: ...
+
+
+@runtime_checkable
+class SharesConnection(Protocol):
+    """An axis reached through a connection other axes may share (a Modbus client: one transaction at a
+    time), so a gantry asks the axes of one connection in turn."""
+
+    client: object
+
+
+@runtime_checkable
+class TimesRoundTrip(Protocol):
+    """An axis that knows the shortest round trip of its link (s; None before the first)."""
+
+    round_trip_s: float | None
+
+
+@runtime_checkable
+class Warns(Protocol):
+    """An axis whose controller reports conditions it does not act on (a low input voltage)."""
+
+    def warnings(self) -> list[str]:
+        """The warnings seen since the last call."""
+
+
+@runtime_checkable
+class CountsLink(Protocol):
+    """An axis that counts what its link could not trust (``link``, ``discarded``, ``failed``,
+    ``implausible``)."""
+
+    def link_stats(self) -> dict: ...
+
+
+@runtime_checkable
+class HoldsAtGoal(Protocol):
+    """An axis stopped by a goal at its present position (a servo): the goal is read first, so the
+    gantry can check it before it is written."""
+
+    def stop_goal(self): ...
+    def hold(self, goal) -> None: ...
+
+
+@runtime_checkable
+class AxisGroup(Protocol):
+    """Axes of one bus moved and read in one transaction each (a Dynamixel Sync Write / Sync Read)."""
+
+    axes: dict
+    armed: bool
+    #: The shortest bus watchdog of its axes (s), or None without one.
+    watchdog_s: float | None
+
+    def move_to(self, targets) -> None: ...
+    def read(self) -> dict: ...
+    def read_stamped(self, clock) -> tuple[float, dict]: ...
+    def stop_goals(self) -> dict: ...
+    def write_goals(self, goals) -> None: ...
+
+
+@runtime_checkable
+class JoinsGroup(Protocol):
+    """An axis moved and read with the others of its bus as one :class:`AxisGroup`."""
+
+    def group_key(self) -> object:
+        """Axes with equal keys share a bus (one group)."""
+    def make_group(self, axes: list) -> AxisGroup:
+        """The group of ``axes`` (this one among them, all of one key)."""
+
+
+@runtime_checkable
+class ReportsDeviceUnits(Protocol):
+    """An axis with positions in device units (servo ticks, motor steps), for a manual report."""
+
+    def device_units(self) -> dict:
+        """``units`` (its name), ``target_units``, ``position_units`` and ``target_deg``."""
+
+
+@runtime_checkable
+class ReferencesIndex(Protocol):
+    """Referencing at an index: the axis stands at a known angle within half a turn."""
+
+    def reference_index(self, reference_deg: float) -> float: ...
+
+
+@runtime_checkable
+class SeeksStop(Protocol):
+    """Referencing on a hard stop: a slow approach until it stalls there."""
+
+    def seek_start(self, toward: int, velocity_deg_s: float, accel_deg_s2: float, current_a: float,
+                   travel_deg: float): ...
+    def seek_state(self): ...
+    def seek_end(self, reference_deg: float) -> float: ...
+    def seek_abort(self) -> None: ...
+
+
+@runtime_checkable
+class ReferencesOrigin(Protocol):
+    """Referencing by the controller's own return-to-origin operation."""
+
+    def reference_origin(self, timeout_s: float, poll_s: float) -> None: ...
+
+
+@runtime_checkable
+class Follows(Protocol):
+    """An axis that can move along a seeking one, its position unknown (a servo on a shared ring)."""
+
+    def follow_start(self, toward: int, velocity_deg_s: float, accel_deg_s2: float, travel_deg: float): ...
+    def follow_stop(self): ...
+    def seek_state(self): ...
+
+
+# -- abilities of detectors -------------------------------------------------------------------------------
+@runtime_checkable
+class SwitchesTarget(Protocol):
+    """A detector that renders the white standard itself (a simulated one): told what is under the beam,
+    no changer axis needed."""
+
+    def set_target(self, target: str) -> None: ...
+
+
+@runtime_checkable
+class ReadsOnTheFly(Protocol):
+    """A detector that reads while the axes sweep: a reading integrates from its request for the
+    exposure asked (a photodiode, a power meter, a spectrometer read on request; not a camera's frame)."""
+
+    def read_on_the_fly(self, exposure_s: float, *, key: tuple[int, int] | None = None) -> Reading:
+        """One frame of ``exposure_s`` s, keyed as :meth:`Detector.measure`."""
+
+
+# -- abilities of gantries --------------------------------------------------------------------------------
+@runtime_checkable
+class BatchedAxes(Protocol):
+    """A gantry that moves and reads the kinematics' axes in batches (one transaction per bus)."""
+
+    def positions(self) -> np.ndarray: ...
+    def move_axes(self, targets) -> None:
+        """Start moving the named axes (name -> °); every target is checked before any is commanded."""
+    def poll_axes(self) -> tuple[np.ndarray | None, bool]:
+        """One look while waiting for a move: (positions, False) once every axis is still, else
+        (None, True)."""
+
+
+@runtime_checkable
+class KeepsAlive(Protocol):
+    """A gantry whose axes must hear from gonio while they move (an armed bus watchdog): ``keep_alive``
+    between slices of a wait, ``feed_s`` the longest quiet spell allowed (None: no watchdog)."""
+
+    feed_s: float | None
+
+    def keep_alive(self) -> None: ...
+
+
+@runtime_checkable
+class FliesAxes(Protocol):
+    """A gantry that sweeps its :class:`Flyable` axes and reads them stamped on its clock (fly scanning
+    on hardware: :mod:`gonio.fly.hardware`)."""
+
+    def can_sweep(self, name: str) -> bool: ...
+    def sweep(self, name: str, target_deg: float, velocity_deg_s: float,
+              accel_deg_s2: float) -> tuple[float, float]: ...
+    def end_sweep(self, name: str) -> None: ...
+    def stamped_positions(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+@runtime_checkable
+class RendersFly(Protocol):
+    """A gantry that renders a fly campaign's readings itself, nothing moving (the simulated gantry:
+    :mod:`gonio.sim.fly`)."""
+
+    def fly_refusal(self) -> str | None:
+        """Why it cannot render a fly campaign (one line naming the setting), or None."""
+    def fly_readings(self, fp, item) -> list:
+        """The measurements of one entry of :func:`gonio.plan.fly.fly_steps` of the fly plan ``fp``."""
+
+
+@runtime_checkable
+class ReportsWarnings(Protocol):
+    """A gantry that collects its devices' hardware warnings (the engine journals them)."""
+
+    def drain_warnings(self) -> list[tuple[str, str]]: ...
+
+
+@runtime_checkable
+class ReportsLink(Protocol):
+    """A gantry that says in one line what its drivers could not trust (the engine journals it)."""
+
+    def link_report(self) -> str | None: ...

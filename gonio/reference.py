@@ -28,23 +28,18 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from typing import Protocol, runtime_checkable
 
-from gonio.protocols import DeviceFault, Referencing
+from gonio.protocols import DeviceFault, Follows, ReferencesIndex, ReferencesOrigin, Referencing, SeeksStop
 
-__all__ = ["unreferenced", "refusal", "reference_axes", "references", "journal_references", "STALL_S"]
+__all__ = ["unreferenced", "refusal", "reference_axes", "references", "journal_references", "STALL_S",
+           "METHODS"]
 
 #: Seconds an approach that slowed down must then stand still to count as stalled against its stop.
 STALL_S = 0.3
 
 
-@runtime_checkable
-class _Follows(Protocol):
-    """An axis that can move along a seeking one, position unknown (a Dynamixel servo)."""
-
-    def follow_start(self, toward: int, velocity_deg_s: float, accel_deg_s2: float, travel_deg: float): ...
-    def follow_stop(self): ...
-    def seek_state(self): ...
+#: The ability protocol each reference method needs of its axis.
+METHODS = {"index": ReferencesIndex, "hard_stop": SeeksStop, "origin": ReferencesOrigin}
 
 
 def _referencing(axes: Mapping) -> dict:
@@ -102,7 +97,7 @@ def reference_axes(gantry, cfg, names: list[str] | None = None, *,
         A method failed (no stall within the time the travel needs, a stall away from the stop, a
         controller that does not report the origin set); the axis stays unreferenced.
     """
-    axes = dict(getattr(gantry, "all_axes", gantry.axes))
+    axes = dict(gantry.all_axes)
     todo = _referencing(axes)
     names = list(todo) if names is None else names
     found = {}
@@ -111,15 +106,18 @@ def reference_axes(gantry, cfg, names: list[str] | None = None, *,
         if axis is None:
             continue
         method, a = axis.reference_method, cfg.axes[name]
+        ability = METHODS.get(method)
+        if ability is None:  # pragma: no cover - the config allows no other
+            raise ValueError(f"axes.{name}.reference: unknown method {method!r}")
+        if not isinstance(axis, ability):
+            raise DeviceFault(name, f"reference method '{method}': its driver cannot reference that way")
         if method == "index":
             found[name] = axis.reference_index(a.reference_at_deg)
         elif method == "hard_stop":
             found[name] = _hard_stop(gantry, cfg, name, out)
-        elif method == "origin":
+        else:  # origin
             axis.reference_origin(cfg.runner.move_timeout_s, cfg.runner.poll_s)
             found[name] = 0.0
-        else:  # pragma: no cover - the config allows no other
-            raise ValueError(f"axes.{name}.reference: unknown method {method!r}")
         out(f"{name}: referenced ({method}" + (f", {found[name]:+.2f}° from {a.reference_at_deg:g}°)"
                                                if method != "origin" else ")"))
     return found
@@ -131,7 +129,7 @@ def _hard_stop(gantry, cfg, name: str, out) -> float:
     a, axis, rc = cfg.axes[name], axes[name], cfg.runner
     partners = [axes[p] for p in gantry.kinematics.coupled_axes(name)]
     for p in partners:
-        if not isinstance(p, _Follows):
+        if not isinstance(p, Follows):
             raise DeviceFault(name, f"a hard-stop reference moves it without a planned path, so '{p.name}' "
                               "must follow it, which its driver cannot")
     toward, speed, accel = a.reference_toward, a.reference_speed_deg_s, a.max_accel_deg_s2

@@ -1,17 +1,29 @@
-"""The runner: executes a journaled plan on a gantry, one committed step at a time.
+"""The engine: runs a journaled campaign's units on a gantry, one committed unit at a time.
 
-An explicit state machine (``TRANSITIONS``) guards every change of state. For each step: check every
-target against the limits and plan a collision-free path to it from where the axes stand
-(:func:`gonio.motion.safe.safe_path`), move leg by leg (only the axes whose target changed), wait in
-slices of ``poll_s`` so that a halt acts mid-move, verify the positions, settle, measure, commit.
+One engine runs every kind of campaign: its units come from a source chosen by the campaign's kind
+(:mod:`gonio.units`: stop-and-go steps, fly sweeps; adaptive rounds to come) and move the gantry
+through the public motion executor (:class:`gonio.executor.MotionExecutor`: goto, wait, settle,
+arrive, stop). The engine itself is the state machine: an explicit table (``TRANSITIONS``) guards every
+change of state; units are measured, retried on transient faults, committed in one transaction each;
+faults latch; operator requests act between units.
+
+Operator requests (pause, resume, abort, halt) come from any thread through the engine's command queue
+(:meth:`Runner.request`): each is decided under the engine's lock against the state it finds, then either
+acted on at once (an abort of a paused campaign, the halt's stop of every axis) or queued for the
+engine's thread, which takes the queue at each unit boundary (and, for requests made before a run
+starts, when it starts).
 
 Stops, and what each leaves behind:
 
 ``pause`` (any thread; SIGINT/SIGTERM in the CLI)
-    Finishes the step in flight, then parks along a safe path; ``paused``. Resume continues.
+    Finishes the unit in flight, then parks along a safe path; ``paused``. Resume continues. A pause
+    requested before a run starts acts before its first unit.
+``resume``
+    A pause not acted on yet (``pausing``) is withdrawn: the run goes on. A stopped campaign resumes by
+    running again (:meth:`Runner.run`, :func:`gonio.lifecycle.run_campaign`).
 ``abort``
-    At the next step boundary: parks, ``aborted`` (final). A paused, halted or faulted campaign aborts
-    at once and nothing moves.
+    At the next unit boundary: parks, ``aborted`` (final). A paused, halted or faulted campaign aborts
+    at once and nothing moves; one not started yet aborts when it starts, before anything moves.
 ``halt`` (emergency stop, any thread)
     Every axis is stopped at once, mid-move too; nothing further is commanded and nothing is parked;
     ``halted``. Resume continues from the step in flight.
@@ -23,8 +35,8 @@ fault
     (:meth:`Runner.clear_fault`, ``--clear-fault``); only then does the campaign run again.
 
 Transient faults (a time-out, a corrupt reply, a small position error) are retried up to
-``runner.retries`` times, after waiting until every axis is still. The runner never sees bytes: it
-talks to the gantry through the protocols in :mod:`gonio.protocols`.
+``runner.retries`` times (the whole unit again), after waiting until every axis is still. The engine
+never sees bytes: it talks to the gantry through the protocols in :mod:`gonio.protocols`.
 
 Time: ``campaign_s`` continues across resumes: each run starts where the journal's clock left off (plus
 the downtime, when the gantry's clock is the wall clock), so the drift correction never sees time go
@@ -36,20 +48,17 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from enum import StrEnum
 
-import numpy as np
-
 from gonio.config import GonioConfig
-from gonio.motion.safe import check_targets, safe_path
-from gonio.motion.trapezoid import move_time
-from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
+from gonio.executor import Halted, MotionExecutor, MotionFault
 from gonio.protocols import DeviceFault, Gantry
-from gonio.store import Journal, Measurement
+from gonio.store import Journal
+from gonio.units import StepReader, Unit, stop_and_go_units
 
-__all__ = ["Runner", "State", "TRANSITIONS", "TransitionError", "Unit"]
+__all__ = ["Runner", "State", "TRANSITIONS", "TransitionError", "Command"]
 
 log = logging.getLogger(__name__)
 
@@ -65,11 +74,13 @@ class State(StrEnum):
     FAULTED = "faulted"
 
 
-#: from-state -> the states it may go to. ``faulted`` runs again only once the fault is cleared.
+#: from-state -> the states it may go to. ``faulted`` runs again only once the fault is cleared; a
+#: ``pausing`` run goes back to ``running`` when the pause is withdrawn before it acted.
 TRANSITIONS: dict[State, frozenset[State]] = {
     State.IDLE: frozenset({State.RUNNING, State.ABORTED}),
     State.RUNNING: frozenset({State.PAUSING, State.DONE, State.ABORTED, State.FAULTED, State.HALTED}),
-    State.PAUSING: frozenset({State.PAUSED, State.DONE, State.ABORTED, State.FAULTED, State.HALTED}),
+    State.PAUSING: frozenset({State.RUNNING, State.PAUSED, State.DONE, State.ABORTED, State.FAULTED,
+                              State.HALTED}),
     State.PAUSED: frozenset({State.RUNNING, State.ABORTED, State.HALTED}),   # halted: while it parks
     State.HALTED: frozenset({State.RUNNING, State.ABORTED}),
     State.FAULTED: frozenset({State.RUNNING, State.ABORTED}),
@@ -78,47 +89,37 @@ TRANSITIONS: dict[State, frozenset[State]] = {
 }
 
 
+class Command(StrEnum):
+    """An operator's request to the engine (:meth:`Runner.request`)."""
+
+    PAUSE = "pause"
+    RESUME = "resume"
+    ABORT = "abort"
+    HALT = "halt"
+
+
+#: States in which requests wait in the queue for the engine's thread (not started yet, or running).
+_QUEUED_IN = frozenset({State.IDLE, State.RUNNING, State.PAUSING})
+#: States a stopped run can be aborted from at once (its thread acts on nothing any more).
+_ABORT_AT_ONCE = frozenset({State.PAUSED, State.FAULTED, State.HALTED})
+
+
 class TransitionError(RuntimeError):
     pass
 
 
-@dataclass(frozen=True)
-class Unit:
-    """What the runner measures and commits whole: one step (stop-and-go), or a fly campaign's sweep or
-    checkpoint (:mod:`gonio.fly.hardware`), committed in one transaction so that a crash loses at most
-    the unit in flight.
+class Runner:
+    """The engine: runs the campaign held in ``journal`` on ``gantry``.
+
+    ``on_step(runner, step)`` is called after each committed unit with its last step (progress bars, the
+    daemon's event stream, and tests that pause or abort at a precise step).
 
     Attributes
     ----------
-    first, count : int
-        Its steps: ``first`` .. ``first + count - 1``.
-    measure : callable
-        ``measure(attempt) -> list[Measurement]`` (attempt from 1), one per step in order; may raise a
-        :class:`~gonio.protocols.DeviceFault` (transient ones are retried after the axes are still).
-    """
-
-    first: int
-    count: int
-    measure: Callable[[int], list[Measurement]]
-
-
-class _Halted(Exception):
-    """Raised inside the runner's thread when a halt was requested; never leaves :meth:`Runner.run`."""
-
-
-class _Fault(Exception):
-    """A fault that stops the campaign and latches (not a device's transient hiccup)."""
-
-    def __init__(self, device: str, message: str):
-        super().__init__(f"{device}: {message}")
-        self.device = device
-
-
-class Runner:
-    """Runs the campaign held in ``journal`` on ``gantry``.
-
-    ``on_step(runner, step)`` is called after each committed step (progress bars, the daemon's event
-    stream, and tests that pause or abort at a precise step).
+    executor : MotionExecutor
+        The public motion API the units use (goto, wait, settle, arrive, stop, positions).
+    reader : StepReader
+        Stop-and-go readings of the journal's steps (a stop-and-go step; a fly campaign's checkpoint).
     """
 
     def __init__(self, gantry: Gantry, journal: Journal, cfg: GonioConfig,
@@ -129,27 +130,12 @@ class Runner:
         self.on_step = on_step
         self._state = State.IDLE
         self._lock = threading.Lock()
-        # Held while axes are being commanded: a halt waits for a batch of commands to be sent, then
-        # stops every axis; no batch starts once the halt flag is set.
-        self._command_lock = threading.RLock()
-        self._pause = threading.Event()
-        self._abort = threading.Event()
-        self._halt = threading.Event()
+        self._commands: deque[Command] = deque()   # requests waiting for the engine's thread
         self.fault: str | None = None
         self.stop_reason: str = ""
-        self._steps = journal.steps()
-        kin = gantry.kinematics
-        self._kin = kin
-        self._vmax = np.asarray(kin.velocity_deg_s, float)
-        self._amax = np.asarray(kin.accel_deg_s2, float)
-        self._axes = [gantry.axes[n] for n in kin.axis_names]
-        self._home = np.asarray(kin.home_deg, float)
         self._offset_s = 0.0  # campaign clock − gantry clock
-        # (positions, clock) of the last committed reading: where the next step's path starts
-        self._rest: tuple[np.ndarray, float] | None = None
-        # The target the axes last arrived at (within position_tolerance_deg; set by _arrive, cleared by
-        # every command), or None
-        self._arrived: np.ndarray | None = None
+        self.executor = MotionExecutor(gantry, cfg.runner, on_event=self._record)
+        self.reader = StepReader(gantry, self.executor, journal.steps(), cfg.detector, self.campaign_s)
         latched = journal.latched_fault()
         if latched is not None:
             self._state = State.FAULTED
@@ -166,6 +152,9 @@ class Runner:
         # simulation) has offset 0.0 and gives its own readings bit for bit.
         return self.gantry.clock.now() + self._offset_s
 
+    def _record(self, kind: str, message: str) -> None:
+        self.journal.log_event(kind, message=message, campaign_s=self.campaign_s())
+
     def _to(self, new: State, message: str = "") -> None:
         with self._lock:
             old = self._state
@@ -176,46 +165,101 @@ class Runner:
                                campaign_s=self.campaign_s())
         log.info("campaign %s -> %s %s", old, new, message)
 
-    def request_pause(self, reason: str = "pause requested") -> None:
-        """Pause at the next step boundary, then park (from any thread).
+    # -- operator requests: the command queue ----------------------------------------------------
+    def request(self, command: Command | str, reason: str = "") -> bool:
+        """An operator's request, from any thread: ``pause``, ``resume``, ``abort`` or ``halt`` (see the
+        module docstring). Each is decided under the engine's lock against the state it finds; True
+        when it took effect or waits in the queue, False when there was nothing to do (a pause of a
+        stopped campaign, a resume of a pause already under way)."""
+        command = Command(command)
+        handler = {Command.PAUSE: self._on_pause, Command.RESUME: self._on_resume,
+                   Command.ABORT: self._on_abort, Command.HALT: self._on_halt}[command]
+        return handler(reason or f"{command} requested")
 
-        The request is journaled before the runner's thread is told, so the journal never shows the
-        park (or the paused state) before the pause that caused it."""
+    def request_pause(self, reason: str = "pause requested") -> bool:
+        """:meth:`request` ``pause``: at the next unit boundary, then park."""
+        return self.request(Command.PAUSE, reason)
+
+    def request_resume(self, reason: str = "resume requested") -> bool:
+        """:meth:`request` ``resume``: withdraw a pause that has not acted yet."""
+        return self.request(Command.RESUME, reason)
+
+    def request_abort(self, reason: str = "abort requested") -> bool:
+        """:meth:`request` ``abort``: at the next unit boundary (parks); a paused, halted or faulted
+        campaign at once, and nothing moves."""
+        return self.request(Command.ABORT, reason)
+
+    def request_halt(self, reason: str = "halt requested") -> bool:
+        """:meth:`request` ``halt``: every axis stops now, mid-move too (from the caller's thread);
+        nothing is parked. The engine's thread notices within one ``poll_s`` slice and ends the run
+        ``halted``."""
+        return self.request(Command.HALT, reason)
+
+    def _on_pause(self, reason: str) -> bool:
+        # The request is journaled before the engine's thread can see it, so the journal never shows the
+        # park (or the paused state) before the pause that caused it.
         with self._lock:
-            pausing = self._state == State.RUNNING
-            if pausing:
+            state = self._state
+            if state == State.RUNNING:
                 self._state = State.PAUSING
-        if pausing:
+        if state not in (State.IDLE, State.RUNNING):
+            return False   # pausing already, or stopped
+        if state == State.RUNNING:
             self.journal.log_event("pause", state=str(State.PAUSING), message=reason,
                                    campaign_s=self.campaign_s())
-        self._pause.set()
+        with self._lock:
+            self._commands.append(Command.PAUSE)
+        return True
 
-    def request_abort(self) -> None:
-        """Abort at the next step boundary and park; a paused, halted, faulted or idle campaign aborts at
-        once and nothing moves."""
-        self._abort.set()
-        if self._state in (State.PAUSED, State.FAULTED, State.IDLE, State.HALTED):
-            self._to(State.ABORTED, "abort requested")
+    def _on_resume(self, reason: str) -> bool:
+        with self._lock:
+            if Command.PAUSE not in self._commands:
+                return False   # no pause waits: running, or the pause acts already (run again after it)
+            self._commands = deque(c for c in self._commands if c != Command.PAUSE)
+            withdrawn = self._state == State.PAUSING
+            if withdrawn:
+                self._state = State.RUNNING
+        if withdrawn:
+            self.journal.log_event("resume", state=str(State.RUNNING), message=reason,
+                                   campaign_s=self.campaign_s())
+        return True
 
-    def request_halt(self, reason: str = "halt requested") -> None:
-        """Emergency stop (from any thread): every axis stops now, mid-move too; nothing is parked.
+    def _on_abort(self, reason: str) -> bool:
+        with self._lock:
+            state = self._state
+            if state in _QUEUED_IN:
+                self._commands.append(Command.ABORT)
+                return True
+        if state in _ABORT_AT_ONCE:
+            self._to(State.ABORTED, reason)
+            return True
+        return False
 
-        The runner's thread notices within one ``poll_s`` slice and ends the run ``halted``.
-        """
-        self._halt.set()
-        with self._command_lock:
-            try:
-                self.gantry.stop()
-            except Exception as err:  # the halt stands; a failing stop is recorded beside it
-                self.journal.log_event("fault", message=f"stop failed during halt: {err}",
-                                       campaign_s=self.campaign_s())
+    def _on_halt(self, reason: str) -> bool:
+        with self._lock:
+            started = self._state != State.IDLE
+            if self._state in _QUEUED_IN:
+                self._commands.append(Command.HALT)   # not started yet: it starts halted, nothing moves
+        if started:
+            err = self.executor.halt()
+            if err is not None:  # the halt stands; a failing stop is recorded beside it
+                self._record("fault", f"stop failed during halt: {err}")
         self.journal.log_event("halt", message=reason, campaign_s=self.campaign_s())
+        return True
+
+    def _take(self) -> set[Command]:
+        """The queued requests, taken (the engine's thread, at a unit boundary)."""
+        with self._lock:
+            taken = set(self._commands)
+            self._commands.clear()
+        return taken
 
     def clear_fault(self, operator_note: str = "cleared by the operator") -> None:
         """Clear a latched fault: the devices' own latches (reboot, alarm reset) and the journal's."""
         if self._state not in (State.FAULTED, State.IDLE):
             raise TransitionError(f"runner: campaign is {self._state}; there is no fault to clear")
-        for axis in self._axes:
+        for name in self.gantry.kinematics.axis_names:
+            axis = self.gantry.axes[name]
             if axis.fault() is not None:
                 axis.clear_fault()
         if self.journal.latched_fault() is not None:
@@ -226,19 +270,16 @@ class Runner:
 
     # -- running ---------------------------------------------------------------------------------
     def run(self, units: Iterable[Unit] | None = None) -> State:
-        """Run (or resume) from the first step the journal has no measurement for.
+        """Run (or resume) the campaign's units not yet in the journal.
 
-        ``units`` (default: one per step, stop-and-go) are measured and committed whole, in order; the
-        units whose first step the journal holds are skipped (a fly campaign's sweeps).
+        ``units`` (default: one per step, stop-and-go: :func:`gonio.units.stop_and_go_units`) are
+        measured and committed whole, in order; the units whose first step the journal holds are
+        skipped (a fly campaign's sweeps).
 
         Returns the state it stopped in: done, paused, halted, aborted or faulted. A campaign whose
         fault is latched returns ``faulted`` at once without touching the gantry. A pause halted while it
         parks ends ``halted``.
         """
-        self._run(units)
-        return self._state
-
-    def _run(self, units: Iterable[Unit] | None) -> State:
         if self._state in (State.DONE, State.ABORTED):
             raise TransitionError(f"runner: campaign is {self._state}; nothing to run")
         latched = self.journal.latched_fault()
@@ -247,46 +288,58 @@ class Runner:
             self._state = State.FAULTED
             return self._state
         self.journal.note_unclean_stop()   # the last run was killed mid-way: the journal says so first
-        self._pause.clear()
-        self._rest = None
-        self._arrived = None
-        self._halt.clear()
-        self._start_clock()
+        try:
+            self._run(units)
+        finally:
+            self._settle_requests()
+        return self._state
+
+    def _settle_requests(self) -> None:
+        """After a run: an abort it never reached (it stopped first: paused, halted, faulted) acts now;
+        the other requests ended with the run."""
+        taken = self._take()
+        if Command.ABORT in taken and self._state in _ABORT_AT_ONCE:
+            self._to(State.ABORTED, "abort requested")
+
+    def _run(self, units: Iterable[Unit] | None) -> None:
         step = self.journal.next_step()
         n = self.journal.step_count()
+        # Requests made before the run started: an abort or a halt ends it before anything moves.
+        with self._lock:
+            early = set(self._commands) & {Command.ABORT, Command.HALT}
+            if early:
+                self._commands.clear()
+        self._start_clock()
+        if Command.ABORT in early:
+            self._to(State.ABORTED, f"aborted before step {step}, before it started")
+            return
+        self.executor.begin()
         self._to(State.RUNNING, f"{'resume' if step > 0 else 'start'} at step {step}")
+        if Command.HALT in early:
+            self._to(State.HALTED, f"halted before step {step}")
+            return
         self.fault = None
         park = True
         try:
             self.gantry.light.set_on(True)
             self.gantry.set_target("sample")
-            if units is None:
-                units = (Unit(s, 1, lambda attempt, s=s: [self._measure_step(s, attempt)])
-                         for s in range(step, n))
-            else:
-                done = set(self.journal.done_steps().tolist())
-                units = [u for u in units if u.first not in done]
-            for unit in units:
+            done = set(self.journal.done_steps().tolist())
+            for unit in (stop_and_go_units(self) if units is None else units):
+                if unit.first in done:
+                    continue
                 step = unit.first
-                if self._abort.is_set():
-                    self._to(State.ABORTED, f"aborted before step {step}")
-                    return self._state
-                if self._pause.is_set():
-                    self._to(State.PAUSED, f"paused before step {step}")
-                    return self._state
+                if self._stopped_at(step):
+                    return
                 self._run_unit(unit)
                 if self.on_step is not None:
                     self.on_step(self, unit.first + unit.count - 1)
-            self._to(State.DONE, f"{n} steps measured")
-            return self._state
-        except _Halted:
+            self._to(State.DONE, f"{n} steps measured")   # a request after the last unit comes too late
+        except Halted:
             park = False
             self._to(State.HALTED, f"halted during step {step}")
-            return self._state
-        except _Fault as err:
+        except MotionFault as err:
             park = False
             self._fail(str(err), [err.device])
-            return self._state
         except KeyboardInterrupt:
             # Not through the CLI's handlers (a library user's Ctrl-C): stop everything where it is.
             park = False
@@ -300,15 +353,36 @@ class Runner:
         finally:
             self._finish(park)
 
+    def _stopped_at(self, step: int) -> bool:
+        """At a unit boundary (before ``step``): act on the queued requests; True when the run stops."""
+        taken = self._take()
+        if Command.ABORT in taken:
+            self._to(State.ABORTED, f"aborted before step {step}")
+            return True
+        if Command.HALT in taken:
+            raise Halted   # requested as the run started, before the executor could be told
+        self.executor.check_halt()
+        if Command.PAUSE in taken:
+            with self._lock:
+                early = self._state == State.RUNNING   # requested before the run started
+                if early:
+                    self._state = State.PAUSING
+            if early:
+                self.journal.log_event("pause", state=str(State.PAUSING), campaign_s=self.campaign_s(),
+                                       message="pause requested before the run started")
+            self._to(State.PAUSED, f"paused before step {step}")
+            return True
+        return False
+
     def _start_clock(self) -> None:
         base, last_wall = self.journal.campaign_clock()
-        if getattr(self.gantry.clock, "real_time", False) and last_wall is not None:
+        if self.gantry.clock.real_time and last_wall is not None:
             base += max(0.0, time.time() - last_wall)  # a lamp drifts while nobody runs the gantry
         self._offset_s = base - self.gantry.clock.now()
 
     def _fail(self, reason: str, devices: list[str]) -> None:
         self.fault = reason
-        self._stop_all()
+        self.executor.stop()
         self.journal.latch_fault(reason, devices)
         self.journal.log_event("fault", message=reason, campaign_s=self.campaign_s())
         if self._state in (State.RUNNING, State.PAUSING):
@@ -316,38 +390,39 @@ class Runner:
 
     def _journal_warnings(self, step: int | None = None) -> None:
         """Hardware warnings the devices reported (they went on: a warning, not a fault)."""
-        drain = getattr(self.gantry, "drain_warnings", None)
-        if drain is not None:
-            for device, message in drain():
+        reports = self.executor.abilities.warnings
+        if reports is not None:
+            for device, message in reports.drain_warnings():
                 self.journal.log_event("warning", step=step, message=f"{device}: {message}",
                                        campaign_s=self.campaign_s())
 
     def _finish(self, park: bool) -> None:
         """Light off; park along a safe path after done, pause and abort; record where the axes stand,
         the hardware warnings and what the drivers could not trust on the way."""
+        ex = self.executor
         try:
             self.gantry.light.set_on(False)
         except Exception as err:
             self.journal.log_event("fault", message=f"light off failed: {err}", campaign_s=self.campaign_s())
         try:
             if park:
-                self._goto(self._home)
+                ex.goto(ex.home_deg)
             self.journal.log_event("park" if park else "stopped", message="axes home" if park else
                                    "axes left where they stopped", campaign_s=self.campaign_s(),
-                                   axes_deg=self._positions())
-        except _Halted:
+                                   axes_deg=ex.positions())
+        except Halted:
             # A halt (a second Ctrl-C) while parking: the axes stop where they are, as a halt says. The
             # campaign is halted, not paused, unless it had finished or been aborted.
             self.journal.log_event("stopped", message="halted while parking: axes left where they stopped",
-                                   campaign_s=self.campaign_s(), axes_deg=self._positions())
+                                   campaign_s=self.campaign_s(), axes_deg=ex.positions())
             if self._state == State.PAUSED:
                 self._to(State.HALTED, "halted while parking")
         except Exception as err:
             reason = str(err) or type(err).__name__
             self.journal.log_event("fault", message=f"park failed: {reason}", campaign_s=self.campaign_s())
         self._journal_warnings()
-        report = getattr(self.gantry, "link_report", None)
-        line = report() if report is not None else None
+        link = ex.abilities.link
+        line = link.link_report() if link is not None else None
         if line:
             self.journal.log_event("link", message=line, campaign_s=self.campaign_s())
 
@@ -361,223 +436,20 @@ class Runner:
                 ms = unit.measure(attempt)
             except DeviceFault as err:
                 if not err.transient:
-                    raise _Fault(err.device, str(err).removeprefix(f"{err.device}: ")) from None
-                self._stop_all()
+                    raise MotionFault(err.device, str(err).removeprefix(f"{err.device}: ")) from None
+                self.executor.stop()
                 if attempt > retries:
-                    raise _Fault(err.device, f"step {step}: {str(err).removeprefix(f'{err.device}: ')} "
-                                 f"(gave up after {retries} retries)") from None
+                    raise MotionFault(err.device, f"step {step}: {str(err).removeprefix(f'{err.device}: ')} "
+                                      f"(gave up after {retries} retries)") from None
                 self.journal.log_event("retry", step=step, campaign_s=self.campaign_s(),
                                        message=f"step {step}, attempt {attempt}: {err}; retrying")
                 continue
-            if self._halt.is_set():
-                raise _Halted  # the reading is whole, but a halt means nothing more is committed
+            self.executor.check_halt()  # the reading is whole, but a halt means nothing more is committed
             if unit.count == 1:
                 self.journal.commit_measurement(ms[0])
-                self._rest = (ms[0].actual_deg, self.gantry.clock.now())
+                self.executor.note_rest(ms[0].actual_deg)
             else:  # a sweep: the axes stand at its run-down's end, not where its readings were
                 self.journal.commit_measurements(ms)
             self._journal_warnings(step)
             return
         raise AssertionError("unreachable")  # pragma: no cover
-
-    def _measure_step(self, step: int, attempt: int) -> Measurement:
-        s = self._steps
-        kind = int(s["kind"][step])
-        g = self.gantry
-        det = self.cfg.detector
-        key = (step, attempt)
-        if kind == STEP_DARK:
-            commanded = self._positions()
-            g.light.set_on(False)
-            try:
-                reading = g.detector.measure(det.exposure_s, det.frames, key=key)
-            finally:
-                g.light.set_on(True)
-        else:
-            commanded = s["axes_deg"][step]
-            self._goto(commanded)
-            self._wait(self.cfg.runner.settle_s)
-            if kind == STEP_REFERENCE:
-                g.set_target("reference")
-                try:
-                    reading = g.detector.measure(det.exposure_s, det.frames, key=key)
-                finally:
-                    g.set_target("sample")
-            else:
-                reading = g.detector.measure(det.exposure_s, det.frames, key=key)
-            self._check_lit(step)
-        actual = self._positions()
-        ti, pi_, to, po = self._kin.forward(actual[None, :])
-        angles = np.degrees([ti[0], pi_[0], to[0], po[0]])
-        return Measurement(
-            step=step, kind=kind, pose=int(s["pose"][step]), commanded_deg=np.asarray(commanded, float),
-            actual_deg=actual, angles_deg=angles, clock_s=g.clock.now(), campaign_s=self.campaign_s(),
-            exposure_s=reading.exposure_s, frames=reading.frames, signal=reading.signal,
-            stderr=reading.stderr, attempts=attempt, extra=reading.extra)
-
-    def _check_lit(self, step: int) -> None:
-        """A lit reading counts only if the lamp is still on after it: one switched off or power-cycled
-        during the step (a source comes back with its output off) gave a dark reading. The lamp is
-        switched on again and the step measured again (a transient fault: a retry in the journal)."""
-        light = self.gantry.light
-        if not light.is_on():
-            light.set_on(True)
-            raise DeviceFault(light.name, f"output found off after the reading of step {step} (switched off "
-                              "or power-cycled); switched on again", transient=True)
-
-    # -- motion ----------------------------------------------------------------------------------
-    def _positions(self) -> np.ndarray:
-        read = getattr(self.gantry, "positions", None)  # batched: one read per bus (AssembledGantry)
-        if read is not None:
-            return read()
-        return np.array([a.position_deg() for a in self._axes], dtype=float)
-
-    def _start_positions(self) -> np.ndarray:
-        """Where the axes stand before a move: the positions the last committed reading read, when
-        nothing was commanded since and no more than ``poll_s`` passed (one read of every axis fewer
-        per step on real buses); otherwise read now.
-
-        When every axis is within ``position_tolerance_deg`` of the last target it arrived at, that
-        target is returned instead: the axes are there as far as the arrival check can tell, and the
-        path then starts where the planner certified it. A read-back a few encoder ticks from a pose
-        planned exactly at a clearance (a free azimuth stepped aside to arm_collision_deg) would
-        otherwise count as a start inside the forbidden zone, from which no path is clear; and axes
-        whose target does not change are not commanded again."""
-        rest, self._rest = self._rest, None
-        if rest is not None and self.gantry.clock.now() - rest[1] <= self.cfg.runner.poll_s:
-            actual = rest[0].copy()
-        else:
-            actual = self._positions()
-        there = self._arrived
-        if there is not None and np.all(np.abs(actual - there) <= self.cfg.runner.position_tolerance_deg):
-            return there.copy()
-        return actual
-
-    def _poll(self) -> tuple[np.ndarray | None, bool]:
-        """(positions, whether any axis moves): one batched read where the gantry offers it; else the
-        axes are asked one by one, and positions come later."""
-        poll = getattr(self.gantry, "poll_axes", None)
-        if poll is None:
-            return None, any(a.is_moving() for a in self._axes)
-        return poll()
-
-    def _goto(self, target: np.ndarray) -> None:
-        """Move to ``target`` along a collision-free path, leg by leg; every target is checked against
-        the limits and the sweep check before any axis is commanded."""
-        target = np.asarray(target, dtype=float)
-        try:
-            check_targets(self._kin, target)
-            start = self._start_positions()
-            path = safe_path(self._kin, start, target)
-        except ValueError as err:
-            raise _Fault("gantry", str(err)) from None
-        for leg in path:
-            self._move_leg(start, leg)
-            start = leg
-
-    def _command(self, send: Callable[[], object]) -> object:
-        """``send()`` (commands to the axes) under the command lock, unless a halt was requested; if it
-        fails, every axis stops (none may go on toward a half-made pose)."""
-        with self._command_lock:
-            if self._halt.is_set():
-                raise _Halted
-            self._arrived = None  # the axes leave where they arrived; _arrive records the new target
-            try:
-                return send()
-            except BaseException:
-                self._stop_all()
-                raise
-
-    def _move_leg(self, start: np.ndarray, target: np.ndarray) -> None:
-        moved = target != start
-
-        def send():
-            move = getattr(self.gantry, "move_axes", None)  # batched: one write per bus
-            if move is not None:
-                move({n: float(t) for n, t, m in zip(self._kin.axis_names, target, moved, strict=True) if m})
-            else:
-                for axis, t, m in zip(self._axes, target, moved, strict=True):
-                    if m:
-                        axis.move_to(float(t))
-
-        self._command(send)
-        expected = float(np.max(move_time(target - start, self._vmax, self._amax), initial=0.0))
-        self._arrive(start, target, expected)
-
-    def _arrive(self, start: np.ndarray, target: np.ndarray, expected: float) -> None:
-        """Wait for a commanded move from ``start`` to ``target`` (``expected`` s) to end, then check
-        every axis arrived: a fault where one stopped short, a transient fault where one is a little off."""
-        rc = self.cfg.runner
-        # Wait the time the profile needs in short slices (a halt acts within one), then poll.
-        expected = max(float(expected), 0.0)
-        self._wait(min(expected, rc.move_timeout_s))
-        waited = expected
-        actual, moving = self._poll()
-        while moving:
-            if waited >= rc.move_timeout_s:
-                self._stop_all()
-                raise DeviceFault("gantry", f"axes did not arrive within move_timeout_s={rc.move_timeout_s}",
-                                  transient=True)
-            self._wait(rc.poll_s)
-            waited += rc.poll_s
-            actual, moving = self._poll()
-        if self._halt.is_set():
-            raise _Halted
-        if actual is None:
-            actual = self._positions()
-        err = np.abs(actual - target)
-        bad = np.flatnonzero(err > rc.position_tolerance_deg)
-        if bad.size:
-            i = int(bad[0])
-            name = self._axes[i].name
-            lo, hi = sorted((start[i], target[i]))
-            if lo + rc.position_tolerance_deg < actual[i] < hi - rc.position_tolerance_deg:
-                # Between start and target: stopped by someone else, or blocked. Never retried blindly.
-                raise _Fault(name, f"stopped at {actual[i]:.4f}°, {err[i]:.4f}° short of its target "
-                             f"{target[i]:.4f}° (stopped by another client, or blocked): inspect the "
-                             "gantry, then clear the fault to resume")
-            raise DeviceFault(name, f"position {actual[i]:.4f}° is {err[i]:.4f}° from target "
-                              f"{target[i]:.4f}° (position_tolerance_deg={rc.position_tolerance_deg})",
-                              transient=True)
-        self._arrived = np.array(target, dtype=float)
-
-    def _wait(self, seconds: float) -> None:
-        """Sleep ``seconds`` on the gantry clock in slices of ``poll_s``, raising at a halt; between
-        slices a gantry with ``keep_alive`` reads its axes when an armed bus watchdog needs to hear."""
-        poll = self.cfg.runner.poll_s
-        clock = self.gantry.clock
-        keep_alive = getattr(self.gantry, "keep_alive", None)
-        start = clock.now()
-        end = start + seconds  # the instant the slowest axis arrives, computed as the axis computes it
-        k = 0
-        while clock.now() < end:
-            if self._halt.is_set():
-                raise _Halted
-            k += 1
-            clock.sleep_until(min(start + k * poll, end))
-            if keep_alive is not None:
-                keep_alive()
-        if self._halt.is_set():
-            raise _Halted
-
-    def _stop_all(self) -> None:
-        """Stop every axis, then wait (bounded) until all are still, so nothing is commanded mid-brake."""
-        rc = self.cfg.runner
-        with self._command_lock:
-            try:
-                self.gantry.stop()
-            except Exception as err:
-                self.journal.log_event("fault", message=f"stop failed: {err}", campaign_s=self.campaign_s())
-                return
-        waited = 0.0
-        clock = self.gantry.clock
-        while waited < rc.move_timeout_s:
-            try:
-                if not any(a.is_moving() for a in self._axes):
-                    return
-            except DeviceFault:
-                return  # an axis that cannot be asked cannot be waited for; the fault says why
-            clock.sleep(rc.poll_s)
-            waited += rc.poll_s
-        self.journal.log_event("fault", message=f"axes still moving {rc.move_timeout_s} s after stop",
-                               campaign_s=self.campaign_s())

@@ -145,6 +145,15 @@ class SimAxis:
         rest = self._settle_point(start)
         self._motion: _Move | _Brake = _Brake(clock.now(), rest, 0.0, cfg.max_accel_deg_s2, rest)
 
+    def describe(self) -> dict:
+        """What this axis is, for the journal (:class:`gonio.protocols.Describes`)."""
+        c = self.cfg
+        return {"name": self.name, "driver": "sim", "identity": "simulated servo", "firmware": None,
+                "units": "deg", "settings": {"limits_deg": list(self.limits_deg),
+                                             "velocity_deg_s": float(c.max_velocity_deg_s),
+                                             "accel_deg_s2": float(c.max_accel_deg_s2),
+                                             "resolution_deg": float(c.sim.resolution_deg)}}
+
     # -- connection -------------------------------------------------------------------------------
     def connect(self, readonly: bool = False) -> None:
         """Open the (simulated) link; clears a latched hardware fault, as a power cycle would. A simulated

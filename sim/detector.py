@@ -307,6 +307,17 @@ class SimDetector:
                                   "reading": first + k, "key": keys[k], "moving": False})
                 for k in range(p)]
 
+    def read_on_the_fly(self, exposure_s: float, *, key: tuple[int, int] | None = None) -> Reading:
+        """One frame of ``exposure_s`` s while the axes may move (:class:`gonio.protocols.ReadsOnTheFly`):
+        it integrates from the request, along the axes' motion where it tracks it."""
+        return self.measure(exposure_s, 1, key=key)
+
+    def describe(self) -> dict:
+        """What this detector is, for the journal (:class:`gonio.protocols.Describes`)."""
+        return {"name": self.name, "driver": "sim", "identity": f"simulated {self.cfg.sim.kind}",
+                "firmware": None, "units": "signal", "settings": {"channels": list(self.channels),
+                                                                  "seed": self._seed}}
+
     # -- simulation-only ----------------------------------------------------------------------------
     @property
     def target(self) -> str:

@@ -128,6 +128,11 @@ class CameraDetector:
     set_target = SimDetector.set_target
     actual_axes_deg = SimDetector.actual_axes_deg
 
+    def describe(self) -> dict:
+        """What this detector is, for the journal (:class:`gonio.protocols.Describes`)."""
+        return {"name": self.name, "driver": "sim", "identity": "simulated camera", "firmware": None,
+                "units": "signal", "settings": {"channels": list(self.channels)}}
+
     def pose_deg(self) -> tuple[float, float, float, float]:
         """(θi, φi, θo, φo) in degrees at the axes' actual positions."""
         wi, wo = self._kinematics.directions(self.actual_axes_deg()[None, :])

@@ -134,7 +134,8 @@ class SimGantry:
     """
 
     def __init__(self, name: str, kinematics, axes: Mapping[str, SimAxis], light: SimLight,
-                 detector: SimDetector, clock: Clock):
+                 detector: SimDetector, clock: Clock, *, cfg: GonioConfig | None = None, material=None,
+                 seed: int = 0):
         missing = [a for a in kinematics.axis_names if a not in axes]
         extra = [a for a in axes if a not in kinematics.axis_names]
         if missing or extra:
@@ -149,6 +150,15 @@ class SimGantry:
         self.light = light
         self.detector = detector
         self.clock = clock
+        # What a fly campaign's readings are rendered from (:meth:`fly_readings`): the config, the sample
+        # and the seed the detector was made with.
+        self._fly = (cfg, material, int(seed))
+        self._fly_sim = None
+
+    @property
+    def all_axes(self) -> dict[str, SimAxis]:
+        """The kinematics' axes (a simulated gantry has no changer)."""
+        return dict(self.axes)
 
     @classmethod
     def from_config(cls, cfg: GonioConfig, material, *, seed: int = 0, clock: Clock | None = None,
@@ -182,7 +192,7 @@ class SimGantry:
         light = SimLight(cfg.light, clock)
         detector = sim_detector(cfg, material, light=light, axes=axes, kinematics=kinematics, clock=clock,
                                 seed=seed)
-        return cls(cfg.name, kinematics, axes, light, detector, clock)
+        return cls(cfg.name, kinematics, axes, light, detector, clock, cfg=cfg, material=material, seed=seed)
 
     # -- the Gantry protocol ------------------------------------------------------------------------
     def connect(self) -> None:
@@ -219,6 +229,30 @@ class SimGantry:
         Safe from any thread: each axis's motion is one attribute replaced at once."""
         for axis in self.axes.values():
             axis.stop()
+
+    # -- fly campaigns: rendered, nothing moves (gonio.protocols.RendersFly) ------------------------------
+    def fly_refusal(self) -> str | None:
+        """Why this gantry cannot render a fly campaign (:mod:`gonio.sim.fly` simulates the photodiode),
+        or None."""
+        cfg = self._fly[0]
+        if cfg is None:
+            return "the simulated gantry was built without its config (SimGantry.from_config renders fly)"
+        if cfg.detector.sim.kind != "photodiode":
+            return (f"detector.sim.kind: '{cfg.detector.sim.kind}' cannot be simulated on the fly; "
+                    "order=fly simulates the photodiode of a simulated gantry only ([detector.sim] kind = "
+                    "'photodiode')")
+        return None
+
+    def fly_readings(self, fp, item) -> list:
+        """The measurements of one entry of :func:`gonio.plan.fly.fly_steps` (a sweep, or a checkpoint's
+        dark and reference), rendered by :class:`gonio.sim.fly.FlySimulator`: bit for bit the same
+        whenever it is asked (its random numbers are keyed by the item's first step)."""
+        if self._fly_sim is None:
+            from gonio.sim.fly import FlySimulator
+
+            cfg, material, seed = self._fly
+            self._fly_sim = FlySimulator(cfg, material, seed=seed, kin=self.kinematics)
+        return self._fly_sim.item(fp, item)
 
     # -- simulation-only ----------------------------------------------------------------------------
     def wait_until_still(self) -> None:

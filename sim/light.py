@@ -51,6 +51,12 @@ class SimLight:
         self._connected = False
         self._on = False
 
+    def describe(self) -> dict:
+        """What this lamp is, for the journal (:class:`gonio.protocols.Describes`)."""
+        return {"name": self.name, "driver": "sim", "identity": "simulated lamp", "firmware": None,
+                "units": "radiance", "settings": {"radiance": float(self.cfg.sim.radiance),
+                                                  "half_angle_deg": self.half_angle_deg}}
+
     def connect(self) -> None:
         """Open the (simulated) link with the shutter closed; a no-op when connected."""
         if self._connected:

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from gonio.calibrate import calibrate
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.colour import bands_to_rgb, material_rgb
 from gonio.config import ConfigError, load_config, parse_config
 from gonio.dataset import read_brdf
 from gonio.geometry import sph_to_vec
+from gonio.lifecycle import run_campaign
 from gonio.plan import STEP_REFERENCE
 from gonio.runner import State
 from gonio.sim.detector_spectral import spectral_material

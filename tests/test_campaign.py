@@ -4,9 +4,10 @@ import h5py
 import numpy as np
 import pytest
 
-from gonio.campaign import create_campaign, open_campaign, run_campaign
+from gonio.campaign import create_campaign, open_campaign
 from gonio.config import load_config
 from gonio.geometry import sph_to_vec
+from gonio.lifecycle import run_campaign
 from gonio.runner import State
 from gonio.sim.materials import load
 from gonio.wiring import build_gantry

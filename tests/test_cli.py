@@ -66,8 +66,9 @@ class Crash(BaseException):
 
 
 def test_simulate_resumes_a_crashed_campaign_and_refuses_another(tmp_path, capsys):
-    from gonio.campaign import create_campaign, open_campaign, run_campaign
+    from gonio.campaign import create_campaign, open_campaign
     from gonio.config import load_config
+    from gonio.lifecycle import run_campaign
     from gonio.wiring import build_gantry
 
     out = tmp_path / "run"

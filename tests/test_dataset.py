@@ -17,8 +17,9 @@ SPEC = "ggx:alpha=0.3,metal=gold"
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
-    from gonio.campaign import create_campaign, run_campaign
+    from gonio.campaign import create_campaign
     from gonio.config import load_config
+    from gonio.lifecycle import run_campaign
     from gonio.runner import State
     from gonio.wiring import build_gantry
 

@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gonio.campaign import create_campaign, gantry_state, open_campaign, run_campaign
+from gonio.campaign import create_campaign, gantry_state, open_campaign
 from gonio.cli import main
 from gonio.config import ConfigError, load_config, parse_config, with_sim_detector
 from gonio.dataset import read_brdf
 from gonio.frames import region_mean
 from gonio.geometry import sph_to_vec
+from gonio.lifecycle import run_campaign
 from gonio.protocols import DeviceFault
 from gonio.runner import State
 from gonio.sim.detector_camera import CameraDetector

@@ -92,8 +92,9 @@ def test_errors_name_the_field(data, tmp_path):
 
 @pytest.mark.slow
 def test_a_real_simulated_campaign_exports(tmp_path):
-    from gonio.campaign import create_campaign, run_campaign
+    from gonio.campaign import create_campaign
     from gonio.config import load_config
+    from gonio.lifecycle import run_campaign
     from gonio.wiring import build_gantry
 
     spec = "ggx:alpha=0.4,metal=gold"

@@ -13,8 +13,9 @@ from collections.abc import Callable
 import pytest
 
 from gonio import manual
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.config import load_config, parse_config
+from gonio.lifecycle import run_campaign
 from gonio.reference import reference_axes
 from gonio.runner import State
 from gonio.sim.emulators.dxl_packet import Inst

@@ -6,7 +6,7 @@ import drjit as dr
 import numpy as np
 import pytest
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.cli import main
 from gonio.config import load_config, parse_config
 from gonio.fit import FitData, fit, parse_model
@@ -14,6 +14,7 @@ from gonio.fit.models import FIT_MODELS, MATERIAL_MODELS
 from gonio.fit.solve import Problem
 from gonio.geometry import sph_to_vec
 from gonio.jit import array_types
+from gonio.lifecycle import run_campaign
 from gonio.plan import build_plan
 from gonio.sim.materials import load
 from gonio.wiring import build_gantry

@@ -15,8 +15,9 @@ SPEC = "ggx:alpha=0.15,metal=copper,rho_d=0.2,rho_s=0.8"
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
-    from gonio.campaign import create_campaign, run_campaign
+    from gonio.campaign import create_campaign
     from gonio.config import load_config
+    from gonio.lifecycle import run_campaign
     from gonio.wiring import build_gantry
 
     folder = tmp_path_factory.mktemp("plot") / "copper"
@@ -177,8 +178,9 @@ def _true_albedo(spec, theta_i_deg):
 def test_the_albedo_plot_reads_a_lambertian_right_and_says_where_the_peak_went_unmeasured(campaign, tmp_path):
     """A Lambertian 0.5 read 0.47 (only the measured part of the hemisphere, without saying so on the
     curve), and the copper's albedo fell below θi = 15° with nothing on the figure saying why."""
-    from gonio.campaign import create_campaign, run_campaign
+    from gonio.campaign import create_campaign
     from gonio.config import load_config
+    from gonio.lifecycle import run_campaign
     from gonio.wiring import build_gantry
 
     folder = tmp_path / "lambert"

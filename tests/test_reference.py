@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 
 from gonio import manual
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.cli import main
 from gonio.clock import WallClock
 from gonio.config import load_config, parse_config
 from gonio.drivers.modbus import ModbusAxis, make_client
+from gonio.lifecycle import run_campaign
 from gonio.protocols import DeviceFault, NotReferencedFault
 from gonio.reference import reference_axes, unreferenced
 from gonio.sim.emulators.dxl_packet import Inst, PacketReader

@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.campaign import create_campaign, finish_campaign, open_campaign, run_campaign
+from gonio.campaign import create_campaign, finish_campaign, open_campaign
 from gonio.cli import main
 from gonio.config import load_config, parse_config
+from gonio.lifecycle import run_campaign
 from gonio.plan.schedule import STEP_POSE, STEP_REFERENCE
 from gonio.report import build_report, report
 from gonio.report.checks import NOISE_UNDERSTATED

@@ -13,10 +13,11 @@ import time
 import numpy as np
 import pytest
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.clock import WallClock
 from gonio.config import load_config, parse_config
 from gonio.dataset import read_brdf
+from gonio.lifecycle import run_campaign
 from gonio.motion.trapezoid import move_time
 from gonio.runner import State
 from gonio.sim.emulators.dxl_packet import Inst

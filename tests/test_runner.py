@@ -211,7 +211,7 @@ def test_hardware_fault_stops_leaves_axes_and_stays_latched_across_a_restart(tmp
 
 def test_limit_violation_in_a_journal_faults_before_any_axis_moves(tmp_path, cfg):
     c, g, r = _setup(tmp_path, cfg)
-    r._steps["axes_deg"][3, 1] = 97.0  # a corrupted plan: light_tilt beyond its limit
+    r.reader.steps["axes_deg"][3, 1] = 97.0  # a corrupted plan: light_tilt beyond its limit
     positions = {}
 
     def on_step(runner, step):
@@ -359,18 +359,18 @@ def test_pause_parks_along_a_collision_free_path_home(tmp_path, cfg):
     legs = []
     real = safe_path
 
-    import gonio.runner as runner_module
+    import gonio.executor as executor_module
 
     def spy(kin, start, target):
         path = real(kin, start, target)
         legs.append((np.array(start), np.array(target), path))
         return path
 
-    runner_module.safe_path = spy
+    executor_module.safe_path = spy
     try:
         assert r.run() == State.PAUSED
     finally:
-        runner_module.safe_path = real
+        executor_module.safe_path = real
     start, target, path = legs[-1]
     np.testing.assert_array_equal(target, g.kinematics.home_deg)
     clear, _ = g.kinematics.sweep_clearance(np.vstack([start, path[:-1]]), path)
@@ -421,3 +421,62 @@ def test_encoder_counts_beside_a_clearance_do_not_block_the_next_move(tmp_path, 
     assert np.any(np.abs(gap - g.kinematics.arm_collision_deg) < 1e-9)  # a pose right at the clearance
     r = Runner(g, c.journal, cfg)
     assert r.run() == State.DONE, r.fault
+
+
+# -- the command queue: requests before a run starts, a pause withdrawn, each decided under the lock ---------
+def test_a_pause_requested_before_the_run_starts_acts_before_its_first_unit(tmp_path, cfg):
+    c, g, r = _setup(tmp_path, cfg)
+    assert r.request_pause("held by the operator") is True
+    assert r.state == State.IDLE            # queued: the engine's thread acts on it when it runs
+    assert r.run() == State.PAUSED
+    assert c.journal.done_count() == 0
+    assert [e["state"] for e in _events(c, "state")] == ["running", "paused"]
+    assert len(_events(c, "pause")) == 1
+    assert r.run() == State.DONE           # nothing is left in the queue: the next run runs
+
+
+def test_an_abort_or_a_halt_before_the_run_starts_ends_it_before_anything_moves(tmp_path, cfg):
+    c, g, r = _setup(tmp_path, cfg)
+    moved = []
+    for axis in g.axes.values():
+        axis.move_to = lambda t, a=axis: moved.append(a.name)
+    r.request_abort()
+    assert r.state == State.IDLE
+    assert r.run() == State.ABORTED
+    assert c.journal.done_count() == 0 and moved == [] and not g.light.is_on()
+    assert _events(c, "park") == [] and [e["state"] for e in _events(c, "state")] == ["aborted"]
+    c2 = create_campaign(tmp_path / "c2", cfg, grid=GRID, material="lambert:albedo=0.5", seed=1)
+    r2 = Runner(g, c2.journal, cfg)
+    r2.request_halt("halt before the start")
+    assert r2.run() == State.HALTED
+    assert c2.journal.done_count() == 0 and moved == []
+    assert [e["state"] for e in _events(c2, "state")] == ["running", "halted"]
+
+
+def test_a_pause_withdrawn_before_it_acts_lets_the_run_go_on(tmp_path, cfg):
+    def on_step(runner, step):
+        if step == 2:
+            assert runner.request_pause() and runner.state == State.PAUSING
+            assert runner.request_resume("changed my mind") and runner.state == State.RUNNING
+
+    c, g, r = _setup(tmp_path, cfg, on_step=on_step)
+    assert r.run() == State.DONE
+    assert [e["state"] for e in _events(c, "state")] == ["running", "done"]
+    assert len(_events(c, "pause")) == 1 and len(_events(c, "resume")) == 1
+    assert r.request_resume() is False     # nothing to withdraw
+
+
+def test_an_abort_while_a_paused_run_parks_aborts_it(tmp_path, cfg):
+    """The daemon's abort of a campaign whose engine had already paused and is parking: it is decided
+    under the engine's lock against the state it finds (paused: at once), not lost."""
+    c, g, r = _setup(tmp_path, cfg, on_step=lambda run, s: s == 1 and run.request_pause())
+    real = g.light.set_on
+
+    def light(on):
+        real(on)
+        if not on and r.state == State.PAUSED:   # the park is next: an abort arrives now
+            assert r.request_abort() is True
+
+    g.light.set_on = light
+    assert r.run() == State.ABORTED
+    assert [e["state"] for e in _events(c, "state")] == ["running", "paused", "aborted"]

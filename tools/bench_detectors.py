@@ -22,8 +22,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.config import load_config, with_sim_detector
+from gonio.lifecycle import run_campaign
 from gonio.sim.camera import SimCamera
 from gonio.sim.detector_camera import CameraDetector
 from gonio.store import Journal

@@ -248,10 +248,11 @@ def _campaign(twin, grid, per_axis, watchdog, modbus):
 
     import gonio.drivers.modbus.axis
     import gonio.runner
-    from gonio.campaign import create_campaign, run_campaign
+    from gonio.campaign import create_campaign
     from gonio.config import GonioConfig, load_config
     from gonio.drivers.serial.line import LineInstrument
     from gonio.gantry import AssembledGantry
+    from gonio.lifecycle import run_campaign
     from gonio.sim.emulators.gantry import EmulatedGantry
     from gonio.sim.emulators.link import SyncedVirtualClock
     from gonio.store import Journal

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.config import load_config
 from gonio.dataset import read_brdf
-from gonio.fly import create_fly_campaign
+from gonio.lifecycle import run_campaign
 from gonio.plan.report import hms
 from gonio.runner import State
 from gonio.sim.emulators.gantry import EmulatedGantry
@@ -42,8 +42,7 @@ def _campaign(folder: Path, grid: str, fly: bool) -> dict:
     clock = SyncedVirtualClock()
     with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         cfg = emu.config()
-        create = create_fly_campaign if fly else create_campaign
-        c = create(folder, cfg, grid=grid, material=None, sample="gold")
+        c = create_campaign(folder, cfg, grid=grid, material=None, sample="gold")
         reads, spent = [0, 0], [0.0, 0.0]   # stamped Sync Reads, detector reads: count, wall s
         gantry = build_gantry(cfg, clock=clock)
         stamped, measure = gantry.stamped_positions, gantry.detector.measure

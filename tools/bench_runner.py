@@ -95,7 +95,7 @@ def _time(gantry, cfg, steps, folder):
 
 
 def main() -> None:
-    import gonio.runner as runner_module
+    import gonio.executor as executor_module
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--grid", default="iso:step=3")
@@ -105,13 +105,13 @@ def main() -> None:
     steps, n = _steps(cfg, args.grid)
     with tempfile.TemporaryDirectory() as d:
         dt = _time(_InstantGantry(cfg), cfg, steps, d)
-    real = runner_module.safe_path
-    runner_module.safe_path = lambda kin, start, target: np.asarray(target, float)[None, :]
+    real = executor_module.safe_path
+    executor_module.safe_path = lambda kin, start, target: np.asarray(target, float)[None, :]
     try:
         with tempfile.TemporaryDirectory() as d:
             dt_direct = _time(_InstantGantry(cfg), cfg, steps, d)
     finally:
-        runner_module.safe_path = real
+        executor_module.safe_path = real
     print(f"runner + journal overhead, {args.grid}: {n} poses ({len(steps['kind'])} steps) in {dt:.2f} s = "
           f"{1e3 * dt / n:.3f} ms per pose (target < 0.5 ms); without the swept-path check "
           f"{1e3 * dt_direct / n:.3f} ms per pose, so the check costs {1e3 * (dt - dt_direct) / n:.3f} ms")

@@ -203,7 +203,9 @@ class DynamixelAxis:
         self._marker_ok = True  # the servo keeps a marker (False: its RAM items there are refused)
         # The profile registers hold a sweep's velocity and acceleration, not the campaign's.
         self._profile_dirty = False
+        self._prepared: tuple[int, int] | None = None   # a fly sweep's profile units, until kickoff
         self.model_name: str | None = None
+        self.firmware_version: int | None = None
         # (Realtime Tick, start, end on the clock) of the last accepted read; whether the tick runs (a
         # servo whose tick never moves is held to its positions only).
         self._tick: tuple[int, float, float] | None = None
@@ -274,7 +276,7 @@ class DynamixelAxis:
         t, b, i = self.table, self.bus, self.dxl_id
         b.connect()
         try:
-            model = b.ping(i)
+            model, self.firmware_version = b.identify(i)
             if model not in t.model_numbers:
                 raise DynamixelError(self.name, f"servo {i} is model {model}, not a {t.family} "
                                      f"({', '.join(map(str, t.model_numbers))})", dxl_id=i)
@@ -716,31 +718,55 @@ class DynamixelAxis:
                 if self._check_alert():
                     raise self._hardware_error()
 
-    def sweep(self, target_deg: float, velocity_deg_s: float, accel_deg_s2: float) -> tuple[float, float]:
-        """Start a move to ``target_deg`` at ``velocity_deg_s`` and ``accel_deg_s2`` (a fly sweep): the
-        profile is written in whole units, the watchdog armed, the goal written; returns at once.
+    def prepare(self, velocity_deg_s: float, accel_deg_s2: float) -> tuple[float, float]:
+        """Check a fly sweep's profile and keep it for :meth:`kickoff` (nothing is written).
 
         Returns
         -------
         (float, float)
-            The velocity (°/s) and acceleration (°/s²) the servo runs at: the asked ones quantised to
-            its profile units. The campaign's profile stays replaced until :meth:`restore_profile`
-            (or the next :meth:`move_to`).
+            The velocity (°/s) and acceleration (°/s²) the servo will run at: the asked ones quantised
+            to its profile units.
 
         Raises
         ------
         ValueError
-            The target is outside the limits, or the velocity or acceleration outside what the servo
-            can be given (nothing is written).
-        DynamixelHardwareError
-            A hardware error is latched (nothing is written), or latched on the way.
+            The velocity or acceleration is outside what the servo can be given.
         """
-        goal = self.check_target(target_deg)
         v_units = self._velocity_units(velocity_deg_s)
         a_units = self._accel_units(accel_deg_s2)
         v, a = self.velocity_deg_s_of(v_units), self.accel_deg_s2_of(a_units)
         self.guard.raise_limits(v, a)
-        self._write_goal(goal, (v_units, a_units))
+        self._prepared = (v_units, a_units)
+        return v, a
+
+    def kickoff(self, target_deg: float) -> None:
+        """Start the sweep :meth:`prepare` set toward ``target_deg``: the profile written in whole units,
+        the watchdog armed, the goal written; returns at once. The campaign's profile stays replaced
+        until :meth:`complete` (or the next :meth:`move_to`).
+
+        Raises
+        ------
+        ValueError
+            The target is outside the limits, or no sweep was prepared (nothing is written).
+        DynamixelHardwareError
+            A hardware error is latched (nothing is written), or latched on the way.
+        """
+        goal = self.check_target(target_deg)
+        if self._prepared is None:
+            raise ValueError(f"axis '{self.name}': kickoff without a prepared sweep (prepare first)")
+        profile, self._prepared = self._prepared, None
+        self._write_goal(goal, profile)
+
+    def complete(self) -> None:
+        """After a sweep: the campaign's profile written back (see :meth:`restore_profile`)."""
+        self.restore_profile()
+
+    def sweep(self, target_deg: float, velocity_deg_s: float, accel_deg_s2: float) -> tuple[float, float]:
+        """:meth:`prepare` then :meth:`kickoff` (the target checked first: nothing is written when either
+        is refused); the (velocity, acceleration) the servo runs at."""
+        self.check_target(target_deg)
+        v, a = self.prepare(velocity_deg_s, accel_deg_s2)
+        self.kickoff(target_deg)
         return v, a
 
     def restore_profile(self) -> None:
@@ -920,6 +946,41 @@ class DynamixelAxis:
             found = self.stop_goal()
             if found is not None:
                 self.bus.write(self.dxl_id, self.table["goal_position"], found[0])
+
+    # -- declared abilities (gonio.protocols) ----------------------------------------------------------------
+    @property
+    def watchdog_s(self) -> float:
+        """The bus watchdog armed while the servo moves (s; 0: none)."""
+        return self.watchdog_units * _WATCHDOG_UNIT_S
+
+    def group_key(self) -> int:
+        """Axes of one bus are moved and read together (:class:`JoinsGroup`)."""
+        return id(self.bus)
+
+    def make_group(self, axes: list):
+        """The :class:`~gonio.drivers.dynamixel.group.DynamixelGroup` of ``axes`` (one bus)."""
+        from gonio.drivers.dynamixel.group import DynamixelGroup
+
+        return DynamixelGroup(axes)
+
+    def device_units(self) -> dict:
+        """Goal and Present Position in ticks, the goal in degrees (:class:`ReportsDeviceUnits`)."""
+        goal, present = self.goal_ticks(), self.present_ticks()
+        return {"units": "ticks", "target_units": goal, "position_units": present,
+                "target_deg": self.deg_of_ticks(goal)}
+
+    def describe(self) -> dict:
+        """What this servo is (model and firmware from its Ping at connect), its units and settings."""
+        return {"name": self.name, "driver": "dynamixel", "identity": self.model_name,
+                "firmware": self.firmware_version, "units": "ticks", "bus": self.bus.name,
+                "settings": {"id": self.dxl_id, "family": self.table.family,
+                             "operating_mode": self.operating_mode, "gear_ratio": self.gear_ratio,
+                             "direction": self.direction, "homing_offset_ticks": self.homing_offset_ticks,
+                             "limits_deg": list(self.limits_deg),
+                             "velocity_deg_s": self.velocity_deg_s_of(self.profile_velocity),
+                             "accel_deg_s2": self.accel_deg_s2_of(self.profile_acceleration),
+                             "watchdog_s": self.watchdog_s,
+                             "reference_method": self.reference_method}}
 
     # -- extras ---------------------------------------------------------------------------------------------
     def set_torque(self, on: bool) -> None:

@@ -331,8 +331,12 @@ class DynamixelBus:
     # -- instructions -----------------------------------------------------------------------------------
     def ping(self, dxl_id: int) -> int:
         """The model number of servo ``dxl_id``."""
+        return self.identify(dxl_id)[0]
+
+    def identify(self, dxl_id: int) -> tuple[int, int]:
+        """(model number, firmware version) of servo ``dxl_id``: both are in its reply to a Ping."""
         data = self._call(f"ping {dxl_id}", dxl_id, lambda: self._txrx(dxl_id, sdk.INST_PING, (), 3))
-        return int.from_bytes(data[:2], "little")
+        return int.from_bytes(data[:2], "little"), int(data[2])
 
     def read(self, dxl_id: int, field: Field, room: tuple[int, int] = (0, 0)) -> int:
         """Read one field (decoded: signed fields sign-extended); ``room`` as for :meth:`read_block`."""

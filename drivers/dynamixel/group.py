@@ -46,6 +46,12 @@ class DynamixelGroup:
         self._room = (min(r[0] for r in rooms), min(r[1] for r in rooms))
 
     @property
+    def watchdog_s(self) -> float | None:
+        """The shortest bus watchdog of the group's servos (s), or None when none has one."""
+        dogs = [a.watchdog_s for a in self.axes.values() if a.watchdog_s]
+        return min(dogs) if dogs else None
+
+    @property
     def armed(self) -> bool:
         """Whether any servo of the group has its bus watchdog armed (a move is under way)."""
         return any(a.armed for a in self.axes.values())

@@ -337,6 +337,11 @@ class ModbusAxis:
                                   f"{timeout_s:g} s (status {status:#06x})", transient=True)
 
     # -- the Axis protocol ------------------------------------------------------------------------------
+    def check_target(self, target_deg: float) -> int:
+        """The target position (steps) for ``target_deg``; ValueError outside ``limits_deg`` (nothing is
+        written: a gantry checks a batch of moves with it first)."""
+        return self.steps_for(target_deg)
+
     def steps_for(self, target_deg: float) -> int:
         lo, hi = self.limits_deg
         t = float(target_deg)
@@ -429,6 +434,23 @@ class ModbusAxis:
     def present_steps(self) -> int:
         """The controller's actual position (steps, unchecked: for reports)."""
         return self._read_value("actual_position")
+
+    def device_units(self) -> dict:
+        """Target and actual position in steps, the target in degrees (for a manual report)."""
+        goal, present = self.goal_steps(), self.present_steps()
+        return {"units": "steps", "target_units": goal, "position_units": present,
+                "target_deg": self.deg_of_steps(goal)}
+
+    def describe(self) -> dict:
+        """What this axis is (its controller's profile and unit), its units and settings."""
+        return {"name": self.name, "driver": "modbus",
+                "identity": f"{self.profile.name} unit {self.device_id}", "firmware": None, "units": "steps",
+                "link": self._where(),
+                "settings": {"profile": self.profile.name, "device_id": self.device_id,
+                             "gear_ratio": self.gear_ratio, "direction": self.direction,
+                             "zero_steps": self.zero_steps, "limits_deg": list(self.limits_deg),
+                             "velocity_value": self.velocity_value, "accel_value": self.accel_value,
+                             "reference_method": self.reference_method}}
 
     def is_moving(self) -> bool:
         return bool(self._check_status(self._read("status")[0]) >> self.profile.moving_bit & 1)

@@ -141,6 +141,11 @@ class SerialPowerMeter(LineInstrument):
     def _read(self, line: str, wait_s: float) -> np.ndarray:
         return np.array([self.query_number(line, wait_s=wait_s)])
 
+    def read_on_the_fly(self, exposure_s: float, *, key=None) -> Reading:
+        """One reading of ``exposure_s`` s while the axes may move (:class:`gonio.protocols.ReadsOnTheFly`):
+        the meter integrates from its request."""
+        return self.measure(exposure_s, 1, key=key)
+
     def measure(self, exposure_s: float, frames: int = 1, *, key=None) -> Reading:
         """Mean and standard error over ``frames`` readings of ``exposure_s`` s each."""
         self._check(exposure_s, frames)

@@ -154,8 +154,9 @@ class LineInstrument:
 
     def describe(self) -> dict:
         """What this instrument is, for the campaign's journal: profile, its hash, identity, port."""
-        return {"name": self.name, "profile": self.profile.name, "profile_source": self.profile.source,
-                "profile_sha256": self.profile.sha256, "identity": self.identity, "port": self.port}
+        return {"name": self.name, "driver": "serial", "profile": self.profile.name,
+                "profile_source": self.profile.source, "profile_sha256": self.profile.sha256,
+                "identity": self.identity, "port": self.port}
 
     def _drop(self) -> None:
         if self._t is not None:

@@ -23,7 +23,7 @@ import numpy as np
 
 from gonio.batch.store import DONE, BatchStore, Row, row_data
 
-__all__ = ["BatchSummary", "simulate_row", "run_batch", "batch_attrs", "check_store"]
+__all__ = ["BatchSummary", "simulate_row", "run_batch", "plan_batch", "batch_attrs", "check_store"]
 
 
 @dataclass(frozen=True)
@@ -36,36 +36,34 @@ class BatchSummary:
     failed: list
 
 
-def simulate_row(material: str, grid: str, seed: int, cfg, threads: int | None = None, plan=None) -> Row:
+def simulate_row(material: str, grid: str, seed: int, cfg, threads: int | None = None, planned=None) -> Row:
     """The :class:`~gonio.batch.store.Row` of ``gonio simulate MATERIAL --grid GRID --seed SEED`` on
-    ``cfg``'s simulated gantry (a Dask task; ``threads`` caps Dr.Jit's thread pool in this worker;
-    ``plan``: the grid's plan on ``cfg``, made once for the whole batch, else planned here). A failure
-    is returned as a row with its ``error``, never raised."""
+    ``cfg``'s simulated gantry, through the campaign lifecycle (:mod:`gonio.lifecycle`) in a temporary
+    folder (a Dask task; ``threads`` caps Dr.Jit's thread pool in this worker; ``planned``: the grid's
+    plan on ``cfg``, made once for the whole batch, else planned here). A failure is returned as a row
+    with its ``error``, never raised."""
     try:
         if threads is not None:
             import drjit as dr
 
             if dr.thread_count() != threads:
                 dr.set_thread_count(threads)
-        from gonio.campaign import create_campaign, gantry_state, run_campaign
         from gonio.dataset import BRDF_NAME, read_brdf
-        from gonio.sim.materials import load
-        from gonio.wiring import build_gantry
+        from gonio.lifecycle import Request, campaign_gantry, check_request, open_or_create, run_campaign
 
-        mat = load(material)
+        request = Request(grid, material=material, seed=seed)
+        mat = check_request(cfg, request)
         with tempfile.TemporaryDirectory(prefix="gonio-batch-") as d:
-            c = create_campaign(Path(d) / "c", cfg, grid=grid, material=mat.spec, seed=seed, plan=plan)
+            folder = Path(d) / "c"
+            c, _ = open_or_create(folder, cfg, request, spec=mat.spec,
+                                  plan=(lambda: planned) if planned is not None else None)
             try:
-                gantry = build_gantry(c.cfg, mat, seed=c.meta["seed"], state=gantry_state(c))
-                try:
-                    state, _ = run_campaign(c, gantry)
-                finally:
-                    gantry.close()
+                state, _ = run_campaign(c, campaign_gantry(c, mat))
             finally:
                 c.close()
             if state != "done":
                 return Row({}, {}, error=f"the campaign ended {state}, not done")
-            return row_data(read_brdf(Path(d) / "c" / BRDF_NAME))
+            return row_data(read_brdf(folder / BRDF_NAME))
     except Exception as e:      # recorded in the store; the batch goes on
         return Row({}, {}, error=f"{type(e).__name__}: {e}")
 
@@ -95,7 +93,8 @@ def check_store(store: BatchStore, attrs: dict, materials: list[str]) -> str | N
 
 
 def run_batch(materials: list[str], *, grid: str, seed: int, cfg, out: Path, client,
-              threads: int | None = None, on_row: Callable[[int, Row], None] | None = None) -> BatchSummary:
+              threads: int | None = None, on_row: Callable[[int, Row], None] | None = None,
+              planned=None) -> BatchSummary:
     """Run every material of the batch not yet done in the store at ``out`` on the Dask ``client``.
 
     Parameters
@@ -110,6 +109,8 @@ def run_batch(materials: list[str], *, grid: str, seed: int, cfg, out: Path, cli
         Dr.Jit threads per task (1 on a local cluster of one-thread workers).
     on_row : callable, optional
         Called with the material's index and its row after each row is written.
+    planned : gonio.campaign.Planned, optional
+        The grid planned on ``cfg`` (:func:`plan_batch`), when the caller planned it already.
     """
     from gonio.campaign import LockHeld, pid_lock
 
@@ -122,12 +123,21 @@ def run_batch(materials: list[str], *, grid: str, seed: int, cfg, out: Path, cli
         raise ValueError(f"--out: another gonio batch (pid {held.holder}) is writing {out}; wait for it, or "
                          "stop it first") from None
     try:
-        return _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs)
+        return _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs, planned)
     finally:
         os.close(lock)
 
 
-def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs) -> BatchSummary:
+def plan_batch(materials: list[str], grid: str, seed: int, cfg):
+    """The plan every campaign of the batch shares (one grid, one config): planning a tour costs more
+    than simulating a material on a coarse grid, so it is made once. RequestError (``grid``) where the
+    planner refuses the grid."""
+    from gonio.lifecycle import Request, plan_request
+
+    return plan_request(cfg, Request(grid, material=materials[0], seed=seed))
+
+
+def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs, planned) -> BatchSummary:
     from gonio.batch.cluster import bounded_map
 
     store = None
@@ -161,11 +171,9 @@ def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs) -> Bat
 
     if not todo:
         return BatchSummary(out, 0, done_before, [])
-    from gonio.plan import build_plan
-
-    # Every campaign of the batch has the same plan (one grid, one config): planned once, here, and sent
-    # to each worker once (planning a tour costs more than simulating a material on a coarse grid).
-    plan = client.scatter(build_plan(grid, cfg), broadcast=True)
+    if planned is None:
+        planned = plan_batch(materials, grid, seed, cfg)
+    plan = client.scatter(planned, broadcast=True)      # sent to each worker once
     key = hashlib.sha256(json.dumps(attrs, sort_keys=True).encode()).hexdigest()[:12]
     tasks = ((i, (materials[i], grid, seed, cfg, threads, plan)) for i in todo)
     bounded_map(client, simulate_row, tasks, take, key)

@@ -56,9 +56,17 @@ def cmd_batch(args) -> int:
         raise UsageError(f"--config: the detector of config '{cfg.name}' is '{cfg.detector.driver}'; a batch "
                          "simulates, so it needs a simulated detector (driver 'sim')")
     n = len(materials)
+    from gonio.batch.run import plan_batch
+    from gonio.lifecycle import RequestError
+
+    try:
+        planned = plan_batch(materials, args.grid, args.seed, cfg)
+    except RequestError as err:
+        flag = {"grid": "--grid", "gantry": "--config", "material": "MATERIALS"}.get(err.field, err.field)
+        raise UsageError(f"{flag}: {err}") from None
     client, cluster, threads = connected(args, out, f"batch of {n} material{'s' * (n != 1)}")
     try:
-        summary = _run(args, out, materials, args.grid, cfg, client, threads, store)
+        summary = _run(args, out, materials, args.grid, cfg, client, threads, store, planned)
     except Interrupted as err:
         print(f"gonio batch: interrupted ({err}); {store} keeps every row written: run the same command to "
               "do the rest", file=sys.stderr)
@@ -75,16 +83,16 @@ def cmd_batch(args) -> int:
     return 1 if summary.failed else 0
 
 
-def _run(args, out: Out, materials, grid, cfg, client, threads, store):
+def _run(args, out: Out, materials, grid, cfg, client, threads, store, planned):
     from gonio.batch import run_batch
 
     if args.quiet or not out.console.is_terminal:
         return run_batch(materials, grid=grid, seed=args.seed, cfg=cfg, out=store, client=client,
-                         threads=threads)
+                         threads=threads, planned=planned)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                   console=out.console) as progress:
         task = progress.add_task("materials", total=len(materials))
         return run_batch(materials, grid=grid, seed=args.seed, cfg=cfg, out=store, client=client,
-                         threads=threads, on_row=lambda i, row: progress.advance(task))
+                         threads=threads, on_row=lambda i, row: progress.advance(task), planned=planned)

@@ -26,7 +26,6 @@ from gonio.cli.common import Out as _Out
 from gonio.cli.common import hms as _hms
 from gonio.cli.common import in_main_thread as _in_main_thread
 from gonio.cli.common import install_startup_handlers as _install_startup_handlers
-from gonio.cli.common import lock_holder as _lock_holder
 from gonio.cli.common import not_empty as _not_empty
 from gonio.cli.results import export_formats as _export_formats
 from gonio.cli.results import write_exports as _write_exports
@@ -60,62 +59,9 @@ def cmd_plan(args) -> int:
     return 0
 
 
-def _checked_fly_plans(args, cfg):
-    """gonio run with order=fly: the plans, once the config's sweeping axes are found to be Dynamixel
-    servos and its detector to read on request (:func:`gonio.fly.hardware.checked_fly_plans`); one
-    line naming what cannot."""
-    from gonio.fly.hardware import checked_fly_plans
-
-    try:
-        return checked_fly_plans(args.grid, cfg)
-    except ValueError as err:
-        raise UsageError(f"--config: {err}") from None
-
-
-def _fly_command(args, cfg, material, exports) -> int:
-    """gonio simulate with order=fly (:mod:`gonio.fly`): create or resume the fly campaign in --out, one
-    journal transaction per sweep; Ctrl-C loses at most the sweep in flight."""
-    from gonio.campaign import compare_campaign, open_campaign
-    from gonio.dataset import BRDF_NAME
-    from gonio.fly import create_fly_campaign, run_fly_campaign
-    from gonio.sim.fly import FlySimulator
-    from gonio.store import JOURNAL_NAME
-
-    if cfg.detector.driver != "sim" or cfg.detector.sim.kind != "photodiode":
-        raise UsageError("--grid: order=fly simulates the photodiode of a simulated gantry only "
-                         "([detector] driver = 'sim', [detector.sim] kind = 'photodiode')")
-    out = _Out(args.quiet)
-    folder = _check_out(args.out)
-    if (folder / JOURNAL_NAME).exists():
-        c = open_campaign(folder)
-        diff = compare_campaign(c.meta, material=material.spec, grid=args.grid, seed=args.seed, cfg=cfg)
-        if diff is not None:
-            c.close()
-            raise UsageError(f"--out: {folder} holds another campaign ({diff}); repeat the original "
-                             "command to resume it, or choose another --out")
-        out(f"resuming the fly campaign in {folder} at step {c.journal.next_step()}")
-    else:
-        with planning(out, args.grid, not args.quiet):
-            c = _created(create_fly_campaign, folder, cfg, grid=args.grid, material=material.spec,
-                         seed=args.seed)
-    meta = c.meta
-    out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']} in {meta['fly']['lines']} sweeps, "
-        f"estimated {_hms(meta['estimated_s'])} of gantry time (bound {_hms(meta['lower_bound_s'])}; "
-        f"stop-and-go {_hms(meta['stop_and_go_estimated_s'])})")
-    t0 = time.perf_counter()
-    try:
-        run_fly_campaign(c, FlySimulator(c.cfg, material, seed=int(meta["seed"])))
-    except KeyboardInterrupt:
-        out(f"interrupted: {c.journal.done_count()} readings of whole sweeps are kept; run the same command "
-            "to resume from the next sweep")
-        return 130
-    finally:
-        c.close()
-    out(f"fly campaign done in {time.perf_counter() - t0:.1f} s of wall time: wrote {folder / BRDF_NAME} "
-        f"and {folder / JOURNAL_NAME}")
-    out(_model_check(folder, material))
-    _write_exports(folder, exports, out)
-    return 0
+def _request_error(err, flags: dict[str, str]) -> UsageError:
+    """A :class:`gonio.lifecycle.RequestError` as one line naming the command's flag for its field."""
+    return UsageError(f"{flags.get(err.field, err.field)}: {err}")
 
 
 # -- gonio materials -------------------------------------------------------------------------------
@@ -239,87 +185,96 @@ def cmd_simulate(args) -> int:
 
 
 def _simulate(args) -> int:
+    from gonio.lifecycle import Request, RequestError, check_request
     from gonio.plan import parse_grid
-    from gonio.sim.materials import load as load_material
 
     # Everything the user typed is validated before anything is written.
-    material = load_material(args.material)
-    fly = parse_grid(args.grid).order == "fly"
+    request = Request(args.grid, material=args.material, seed=args.seed)
+    parse_grid(args.grid)
     exports = _export_formats(args.export)
     cfg = load_config(args.config)
     if args.detector is not None:
         from gonio.config import with_sim_detector
 
         cfg = with_sim_detector(cfg, args.detector)
-    if fly:
-        return _fly_command(args, cfg, material, exports)
-    if cfg.detector.driver == "sim" and cfg.detector.sim.kind == "spectrometer":
-        from gonio.sim.detector_spectral import spectral_material
+    try:
+        material = check_request(cfg, request)
+    except RequestError as err:
+        raise _request_error(err, _SIMULATE_FLAGS) from None
+    return _campaign_command(args, cfg, request, material=material, model_check=True, exports=exports,
+                             flags=_SIMULATE_FLAGS)
 
-        spectral_material(material)  # a material with no spectrum is refused before anything is written
-    return _campaign_command(args, cfg, material=material, sample=None, model_check=True, exports=exports)
+
+#: The flag of each request field, per command (:func:`_request_error`).
+_SIMULATE_FLAGS = {"material": "MATERIAL", "grid": "--grid", "gantry": "--config"}
+_RUN_FLAGS = {"material": "--material", "sample": "--sample", "grid": "--grid", "gantry": "--config"}
 
 
-def _campaign_command(args, cfg, *, material, sample: str | None, model_check: bool, exports=(),
-                      relocate_buses: bool = False, fly_plans=None, gantry=None) -> int:
-    """Create or resume the campaign in ``args.out`` and run it on the gantry ``cfg`` wires (``gonio
-    simulate`` and ``gonio run``): progress, signals, latched faults, ``--clear-fault``, brdf.h5.
-    ``fly_plans``: an order=fly campaign's plans (:func:`gonio.fly.create_fly_campaign`), one sweep
-    per unit.
+def _campaign_command(args, cfg, request, *, material, model_check: bool, exports=(), flags=_RUN_FLAGS,
+                      relocate_buses: bool = False, planned=None, gantry=None) -> int:
+    """Create or resume the campaign of ``request`` in ``args.out`` and run it on the gantry ``cfg``
+    wires (``gonio simulate`` and ``gonio run``) through the campaign lifecycle (:mod:`gonio.lifecycle`):
+    progress, signals, latched faults, ``--clear-fault``, brdf.h5. ``planned``: the new campaign's plans
+    when the caller made them already (``gonio run`` checks a fly campaign's gantry before connecting).
 
     ``relocate_buses``: a resumed campaign's devices are reached where ``cfg``'s buses say now (a
     re-plugged adapter, a restarted emulator); every other setting must match the campaign's.
     ``gantry``: a new campaign's gantry, already connected (:func:`_connected_gantry`)."""
-    from gonio.campaign import compare_campaign, create_campaign, gantry_state, open_campaign, run_campaign
-    from gonio.config import relocate
     from gonio.dataset import BRDF_NAME
+    from gonio.lifecycle import (
+        CampaignMismatch,
+        RequestError,
+        campaign_gantry,
+        is_complete,
+        open_or_create,
+        plan_request,
+        run_campaign,
+    )
     from gonio.protocols import DeviceFault
     from gonio.runner import State
     from gonio.store import JOURNAL_NAME
-    from gonio.wiring import build_gantry
 
     out = _Out(args.quiet)
     folder = _check_out(args.out)
     spec = material.spec if material is not None else None
-    if (folder / JOURNAL_NAME).exists():
-        c = open_campaign(folder)
-        now = relocate(cfg, c.cfg) if relocate_buses else cfg
-        diff = compare_campaign(c.meta, material=spec, grid=args.grid, seed=args.seed, cfg=now, sample=sample)
-        if diff is not None:
-            c.close()
-            raise UsageError(f"--out: {folder} holds another campaign ({diff}); repeat the original "
-                             "command to resume it, or choose another --out")
-        if c.journal.next_step() == c.journal.step_count() and (folder / BRDF_NAME).exists():
+
+    def plan():
+        if planned is not None:
+            return planned
+        with planning(out, args.grid, not args.quiet):
+            try:
+                return plan_request(cfg, request, material)
+            except RequestError as err:
+                raise _request_error(err, flags) from None
+
+    try:
+        c, created = _created(open_or_create, folder, cfg, request, spec=spec, plan=plan,
+                              relocate_buses=relocate_buses)
+    except CampaignMismatch as err:
+        if gantry is not None:
+            gantry.close()
+        raise UsageError(f"--out: {folder} holds another campaign ({err.difference}); repeat the original "
+                         "command to resume it, or choose another --out") from None
+    except BaseException:
+        if gantry is not None:
+            gantry.close()
+        raise
+    if not created:
+        if is_complete(c):
             out(f"the campaign in {folder} is complete: {folder / BRDF_NAME}")
             c.close()
             _write_exports(folder, exports, out)
             return 0
         out(f"resuming the campaign in {folder} at step {c.journal.next_step()}")
-    else:
-        if fly_plans is not None:
-            from functools import partial
-
-            from gonio.fly import create_fly_campaign
-
-            create_campaign = partial(create_fly_campaign, plans=fly_plans)
-        try:
-            with planning(out, args.grid, not args.quiet):
-                c = _created(create_campaign, folder, cfg, grid=args.grid, material=spec, seed=args.seed,
-                             sample=sample)
-        except BaseException:
-            if gantry is not None:
-                gantry.close()
-            raise
     meta = c.meta
     n_steps = c.journal.step_count()
     try:
         if gantry is None:
-            gantry = build_gantry(relocate(c.cfg, cfg) if relocate_buses else c.cfg, material,
-                                  seed=meta["seed"], state=gantry_state(c))
+            gantry = campaign_gantry(c, material, buses_from=cfg if relocate_buses else None)
     except BaseException:
         c.close()
         raise
-    sweeps = f" in {meta['fly']['lines']} sweeps" if "fly" in meta else ""
+    sweeps = f" in {meta['fly']['lines']} sweeps" if c.kind == "fly" else ""
     out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']}{sweeps} ({n_steps} steps with dark and "
         f"white-reference readings), estimated {_hms(meta['estimated_s'])} of gantry time (lower bound "
         f"{_hms(meta['lower_bound_s'])})")
@@ -391,39 +346,20 @@ def _campaign_command(args, cfg, *, material, sample: str | None, model_check: b
 
 
 def campaign_status(folder: Path) -> dict:
-    """A campaign's state, progress, ETA and last fault, read from its journal (read-only)."""
-    from gonio.store import JOURNAL_NAME, Journal
+    """A campaign's state, progress, ETA and last fault, read from its journal (read-only):
+    :func:`gonio.lifecycle.status`, its state in words (who runs it; interrupted: how to resume)."""
+    from gonio.lifecycle import status
 
-    if not folder.is_dir():
-        raise UsageError(f"{folder}: no such folder")
-    if not (folder / JOURNAL_NAME).is_file():
-        raise UsageError(f"{folder}: not a campaign folder (no {JOURNAL_NAME})")
-    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
     try:
-        meta = j.meta()
-        total = j.step_count()
-        done = j.done_count()
-        state_event = j.last_event("state")
-        latched = j.latched_fault()
-        fault_event = j.last_event("fault")
-        campaign_s, last_wall = j.campaign_clock()
-    finally:
-        j.close()
-    pid = _lock_holder(folder)
-    state = state_event["state"] if state_event else "created"
-    if pid is not None and state in ("running", "pausing"):
-        state = f"{state} (pid {pid})"
-    elif state in ("running", "pausing"):
-        state = "interrupted (no process is running it: run the same command to resume)"
-    remaining = meta["estimated_s"] * (total - done) / total if total else 0.0
-    return {
-        "folder": str(folder), "state": state, "steps_done": done, "steps": total, "poses": meta["poses"],
-        "grid": meta["grid"], "material": meta.get("material"), "sample": meta.get("sample"),
-        "gantry": meta["gantry"], "seed": meta["seed"], "campaign_s": campaign_s,
-        "estimated_remaining_s": remaining, "last_update_unix": last_wall,
-        "latched_fault": latched["reason"] if latched else None,
-        "last_fault": fault_event["message"] if fault_event else None,
-    }
+        st = status(folder)
+    except FileNotFoundError as err:
+        raise UsageError(str(err)) from None
+    pid = st.pop("pid")
+    if st["state"] in ("running", "pausing"):
+        st["state"] = f"{st['state']} (pid {pid})"
+    elif st["state"] == "interrupted":
+        st["state"] = "interrupted (no process is running it: run the same command to resume)"
+    return st
 
 
 def cmd_status(args) -> int:
@@ -481,24 +417,30 @@ class GantryUnreachable(RuntimeError):
 
 
 def cmd_run(args) -> int:
+    from gonio.lifecycle import Request, RequestError, check_request, plan_request
     from gonio.plan import parse_grid
-    from gonio.sim.materials import load as load_material
     from gonio.store import JOURNAL_NAME
 
-    material = load_material(args.material) if args.material else None
     fly = parse_grid(args.grid).order == "fly"
     cfg = load_config(args.config)
     refuse_emulated_placeholders(cfg, args.config)
     if not args.sample.strip():
         raise UsageError("--sample: give the name of the sample measured (not empty)")
-    if cfg.detector.driver == "sim" and material is None:
-        raise UsageError(f"--material: the detector of config '{cfg.name}' is simulated ('sim'): give the "
-                         "MATERIAL it renders, e.g. --material lambert:albedo=0.5")
+    request = Request(args.grid, material=args.material, sample=args.sample, seed=args.seed)
+    try:
+        material = check_request(cfg, request)
+    except RequestError as err:
+        raise _request_error(err, _RUN_FLAGS) from None
     folder = _check_out(args.out)
-    # order=fly: what sweeps is known once the lines are planned; a gantry that cannot fly them is
-    # refused before anything is connected or written.
-    with planning(_Out(args.quiet), args.grid, fly and not args.quiet):
-        plans = _checked_fly_plans(args, cfg) if fly else None
+    planned = None
+    if fly and not (folder / JOURNAL_NAME).exists():
+        # order=fly: what sweeps is known once the lines are planned; a gantry that cannot fly them is
+        # refused before anything is connected or written.
+        with planning(_Out(args.quiet), args.grid, not args.quiet):
+            try:
+                planned = plan_request(cfg, request, material)
+            except RequestError as err:
+                raise _request_error(err, _RUN_FLAGS) from None
     _check_referenced(cfg, material)
     gantry = None
     if not (folder / JOURNAL_NAME).exists():
@@ -507,8 +449,8 @@ def cmd_run(args) -> int:
         except GantryUnreachable as err:
             _Out()(str(err), style="red")
             return 1
-    return _campaign_command(args, cfg, material=material, sample=args.sample, model_check=False,
-                             relocate_buses=True, fly_plans=plans, gantry=gantry)
+    return _campaign_command(args, cfg, request, material=material, model_check=False,
+                             relocate_buses=True, planned=planned, gantry=gantry)
 
 
 def _check_referenced(cfg, material) -> None:

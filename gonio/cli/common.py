@@ -203,24 +203,9 @@ class ReferenceFormatter(DefaultsFormatter, argparse.RawDescriptionHelpFormatter
 # -- gonio status ---------------------------------------------------------------------------------
 def lock_holder(folder: Path) -> int | None:
     """The pid holding the campaign's lock (running it now), or None."""
-    import fcntl
+    from gonio.campaign import CampaignLock
 
-    from gonio.campaign import LOCK_NAME
-
-    path = folder / LOCK_NAME
-    if not path.exists():
-        return None
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except BlockingIOError:
-        text = os.read(fd, 64).decode(errors="replace").strip()
-        return int(text) if text.isdigit() else -1
-    else:
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return None
-    finally:
-        os.close(fd)
+    return CampaignLock.holder(folder)
 
 
 def user_error(err: BaseException) -> str:

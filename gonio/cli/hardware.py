@@ -86,7 +86,7 @@ def cmd_gantry(args) -> int:
         from gonio.protocols import Referencing
 
         methods = {n: a.reference_method if isinstance(a, Referencing) else "none"
-                   for n, a in getattr(gantry, "all_axes", gantry.axes).items()}
+                   for n, a in gantry.all_axes.items()}
         if args.axis not in methods:
             raise UsageError(f"--axis: {args.axis!r} is not one of {', '.join(methods)}")
         if methods[args.axis] == "none":

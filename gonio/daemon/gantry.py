@@ -100,7 +100,7 @@ class GantryOwner:
 
     def _idle_locked(self, readonly: bool):
         if self._gantry is not None and self._readonly and not readonly:
-            close_axes(getattr(self._gantry, "all_axes", self._gantry.axes))
+            close_axes(self._gantry.all_axes)
             self._gantry = None
         if self._gantry is None:
             from gonio.wiring import build_gantry
@@ -123,7 +123,7 @@ class GantryOwner:
             if self._gantry is not None:
                 try:
                     if self._readonly:
-                        close_axes(getattr(self._gantry, "all_axes", self._gantry.axes))
+                        close_axes(self._gantry.all_axes)
                     else:
                         self._gantry.close()
                 finally:
@@ -138,7 +138,7 @@ class GantryOwner:
     def unreferenced(self) -> list[str]:
         """The axes not referenced, looked at read-only (a submitted campaign is refused while any)."""
         g = self._idle(readonly=True)
-        return unreferenced(getattr(g, "all_axes", g.axes))
+        return unreferenced(g.all_axes)
 
     def halt(self) -> None:
         """Stop every axis of the idle gantry now, mid-move too (never waits for a lock)."""

@@ -23,9 +23,14 @@ A fault the runner cannot journal (a full disk) is kept in ``daemon.json`` (the 
 reserve file, ``DATA/.reserve``, to write it) and journaled as ``unclean-stop`` at the next start, as is
 every run a crash cut short (:meth:`gonio.store.Journal.note_unclean_stop`).
 
-Pause, abort and halt are requests to the runner from request handlers' threads
-(:meth:`gonio.runner.Runner.request_pause` and friends); the runner acts at its next step boundary
-(halt: within one ``poll_s`` slice, mid-move too).
+Pause, resume, abort and halt are requests to the engine from request handlers' threads, through its
+command queue (:meth:`gonio.runner.Runner.request`); the engine acts at its next unit boundary (halt:
+within one ``poll_s`` slice, mid-move too). Requests that come while the worker is starting a campaign
+reach its engine before it runs (they act before anything moves). A campaign's state is the explicit
+table of :mod:`gonio.daemon.states`, derived from its engine's state while the worker runs it, from its
+journal and the operator's intent otherwise. Campaigns are run through the campaign lifecycle
+(:mod:`gonio.lifecycle`), whatever their kind (stop-and-go or fly, on a configured gantry or the
+simulated one).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ import time
 import uuid
 from pathlib import Path
 
-from gonio.campaign import LockHeld, gantry_state, open_campaign, run_campaign
+from gonio.campaign import LockHeld, gantry_state, open_campaign
 from gonio.config import GonioConfig
 from gonio.daemon.pacing import PacedClock
 from gonio.daemon.records import (
@@ -52,6 +57,7 @@ from gonio.daemon.records import (
     Record,
     is_disk_full,
 )
+from gonio.daemon.states import CampaignView, campaign_state
 from gonio.dataset import BRDF_NAME
 from gonio.runner import Runner, State
 from gonio.sim.materials.library import MaterialsFolder
@@ -70,8 +76,6 @@ INCOMING = ".incoming"
 #: Bytes kept in DATA/.reserve, freed to record a fault when the disk is full.
 RESERVE_BYTES = 1 << 20
 _ANY_ID = re.compile(r"^c([0-9]{5})")
-#: What a stopped runner's campaign is called while it parks and leaves the worker.
-_SETTLING = {State.DONE: "finishing", State.PAUSED: "pausing", State.ABORTED: "aborting"}
 
 
 class CampaignQueue:
@@ -306,21 +310,19 @@ class CampaignQueue:
             j.close()
 
     def state(self, rec: Record, journal: Journal | None = None) -> str:
-        """creating, queued, starting, running, pausing, paused, aborting, finishing, halted, faulted, done,
-        aborted or failed (pausing, aborting and finishing: the runner stopped, the gantry still parks)."""
+        """The campaign's state (:func:`gonio.daemon.states.campaign_state`): from its engine's while
+        the worker runs it (and has not begun to let it go), else from its journal and the operator's
+        intent."""
         if rec.final is not None:
             return rec.final
         with self._cond:
             # A finishing campaign's state comes from its journal, like a waiting one's.
             if self.current is rec and not self.finishing:
                 runner = self.runner
-                if runner is None or runner.state == State.IDLE:
-                    return "starting"
-                # A runner that stopped still parks (and a done one writes brdf.h5) before the campaign
-                # leaves the worker: paused, aborted and done are said once that is over.
-                return _SETTLING.get(runner.state, str(runner.state))
+                return campaign_state(CampaignView(in_worker=True,
+                                                   engine=runner.state if runner is not None else None))
         if not (rec.folder / JOURNAL_NAME).is_file():
-            return "failed" if rec.error else "creating"
+            return campaign_state(CampaignView(journal=False, error=rec.error is not None))
         j = journal or self.journal(rec)
         try:
             e = j.last_event("state")
@@ -328,17 +330,12 @@ class CampaignQueue:
         finally:
             if journal is None:
                 j.close()
-        last = e["state"] if e else None
-        if last == "aborted" or (last == "done" and (rec.folder / BRDF_NAME).is_file()):
-            rec.final = last
-            return last
-        if rec.intent == "run":
-            return "faulted" if latched is not None and not rec.clear_fault else "queued"
-        if rec.error:
-            return "failed"
-        if latched is not None:
-            return "faulted"
-        return last if last in ("halted", "faulted") else "paused"
+        state = campaign_state(CampaignView(last=e["state"] if e else None, latched=latched is not None,
+                                            brdf=(rec.folder / BRDF_NAME).is_file(), intent=rec.intent,
+                                            clear_fault=rec.clear_fault, error=rec.error is not None))
+        if state in ("done", "aborted"):
+            rec.final = state
+        return state
 
     def status(self, rec: Record) -> dict:
         """State, progress, ETA and last fault of one campaign.
@@ -429,10 +426,13 @@ class CampaignQueue:
                                "clear_fault=true")
             if self.current is rec and state in ("running", "starting"):
                 return
+            withdrawn = (self.current is rec and state == "pausing" and self.runner is not None
+                         and self.runner.request_resume("resume requested through the API"))
             rec.intent, rec.clear_fault, rec.halt_pending, rec.error = "run", clear_fault, False, None
             self._save(rec)
             self._cond.notify_all()
-        log.info("campaign %s: resume requested%s", cid, " (clearing the fault)" if clear_fault else "")
+        log.info("campaign %s: resume requested%s%s", cid, " (clearing the fault)" if clear_fault else "",
+                 " (the pause withdrawn)" if withdrawn else "")
 
     def abort(self, cid: str) -> None:
         rec = self.get(cid)
@@ -448,11 +448,11 @@ class CampaignQueue:
                     # it as the campaign leaves): wait for either, so the reply tells the outcome.
                     self._cond.wait_for(lambda: self.current is not rec or self.runner is not None,
                                         timeout=ABORT_WAIT_S)
-                # An idle runner is about to run (and run() would refuse an aborted one): its first
-                # step boundary acts on abort_pending.
-                if self.current is rec and self.runner is not None and self.runner.state != State.IDLE:
-                    self.runner.request_abort()
-                    if self.runner.state not in (State.RUNNING, State.PAUSING):   # stopped: it parks
+                # An engine not started yet aborts when it starts, before anything moves; a running one
+                # at its next unit boundary; a stopped one at once (it still parks).
+                if self.current is rec and self.runner is not None:
+                    self.runner.request_abort("abort requested through the API")
+                    if self.runner.state not in (State.RUNNING, State.PAUSING):
                         self._cond.wait_for(lambda: self.current is not rec, timeout=ABORT_WAIT_S)
             else:
                 self._mark_aborted(rec, state)
@@ -554,7 +554,7 @@ class CampaignQueue:
                     self._cond.notify_all()
 
     def _run(self, rec: Record) -> None:
-        from gonio.wiring import build_gantry
+        from gonio.lifecycle import campaign_gantry, run_campaign
 
         if self.before_run is not None:
             self.before_run()
@@ -565,7 +565,7 @@ class CampaignQueue:
             clock = (PacedClock(state[1] if state else 0.0, self.pace) if c.cfg.drivers() == {"sim"}
                      else self.clock)
             material = self.materials.load(meta["material"]) if meta.get("material") else None
-            gantry = build_gantry(c.cfg, material, seed=meta["seed"], state=state, clock=clock)
+            gantry = campaign_gantry(c, material, clock=clock)
             if c.journal.note_unclean_stop(rec.unclean) or rec.unclean:
                 rec.unclean = None
                 self._save(rec)
@@ -577,18 +577,18 @@ class CampaignQueue:
                 with self._cond:
                     self.runner = runner
                     self._cond.notify_all()
-                if rec.intent == "hold":  # paused or aborted between the pick and now
-                    runner.request_pause("pause requested through the API")
+                # Requests that came while the worker was starting reach the engine before it runs.
+                reason = "through the API"
+                if rec.halt_pending:
+                    runner.request_halt(f"halt requested {reason}")
+                if rec.abort_pending:
+                    runner.request_abort(f"abort requested {reason}")
+                if rec.intent == "hold" or self._stopping.is_set():
+                    runner.request_pause(f"pause requested {reason}" if rec.intent == "hold"
+                                         else "daemon stopping")
 
             def on_step(runner: Runner, step: int) -> None:
                 rec.live = (step + 1, runner.campaign_s(), time.time())
-                # Requests that came while the runner was starting (run() clears its flags) act here.
-                if runner.state in (State.RUNNING, State.PAUSING) and rec.halt_pending:
-                    runner.request_halt("halt requested through the API")
-                elif runner.state in (State.RUNNING, State.PAUSING) and rec.abort_pending:
-                    runner.request_abort()
-                elif runner.state == State.RUNNING and (rec.intent == "hold" or self._stopping.is_set()):
-                    runner.request_pause("pause requested" if rec.intent == "hold" else "daemon stopping")
 
             log.info("campaign %s: %s at step %d", rec.id,
                      "resuming" if c.journal.done_count() else "starting", c.journal.next_step())

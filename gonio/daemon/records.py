@@ -149,82 +149,44 @@ def precheck_request(cfg: GonioConfig, req: dict, materials) -> None:
 def prepare_campaign(cfg: GonioConfig, req: dict, materials, folder: Path) -> str | None:
     """Validate ``req`` (:func:`validate_request`), plan it and create its journal in ``folder`` (the
     planner's process does this); the material's normalized spec, or None."""
-    spec, cfg, plan = validate_request(cfg, req, materials)
-    args = dict(grid=req["grid"], material=spec, seed=int(req.get("seed", 0)), sample=req.get("sample"))
-    if isinstance(plan, tuple):   # order=fly: one unit per sweep (gonio.fly.hardware)
-        from gonio.fly.campaign import create_fly_campaign
+    from gonio.campaign import create_campaign
 
-        c = create_fly_campaign(folder, cfg, plans=plan, **args)
-    else:
-        from gonio.campaign import create_campaign
-
-        c = create_campaign(folder, cfg, plan=plan, **args)
+    spec, cfg, planned = validate_request(cfg, req, materials)
+    c = create_campaign(folder, cfg, grid=req["grid"], material=spec, seed=int(req.get("seed", 0)),
+                        sample=req.get("sample"), planned=planned)
     c.close()
     return spec
 
 
 def validate_request(cfg: GonioConfig, req: dict, materials):
-    """Check a campaign request against the daemon's gantry; (material spec or None, cfg, plan), the
-    plan a (stop-and-go plan, fly plan) pair for ``order=fly``.
+    """Check a campaign request against the daemon's gantry by the lifecycle's request rules
+    (:func:`gonio.lifecycle.check_request`, :func:`gonio.lifecycle.plan_request`) and plan it;
+    (material spec or None, cfg, :class:`gonio.campaign.Planned`). A fly campaign (``order=fly``) is
+    planned once the gantry's devices declare they can fly it, on a configured gantry or the simulated
+    one.
 
-    Raises :class:`FieldError` naming the field at fault. Measured materials (``bsdf:NAME``,
-    ``merl:NAME``) are names in the daemon's materials folder (``materials``, a
-    :class:`gonio.sim.materials.library.MaterialsFolder`): no request may name a path on the daemon's
-    machine.
+    Raises :class:`FieldError` naming the field at fault (``grid`` where the gantry cannot do what the
+    grid asks). Measured materials (``bsdf:NAME``, ``merl:NAME``) are names in the daemon's materials
+    folder (``materials``, a :class:`gonio.sim.materials.library.MaterialsFolder`, whose ``load``
+    refuses paths): no request may name a path on the daemon's machine.
     """
-    from gonio.plan import build_plan, parse_grid
+    from gonio.lifecycle import Request, RequestError, check_request, plan_request
 
     precheck_request(cfg, req, materials)
-    material, sample = req.get("material"), req.get("sample")
-    simulated = cfg.detector.driver == "sim"
-    spec = None
-    if simulated:
-        if not material:
-            raise FieldError("material", "required: the simulated detector renders a MATERIAL, e.g. "
-                             "'lambert:albedo=0.5'")
-        try:
-            spec = materials.load(material).spec
-        except (ValueError, KeyError) as err:
-            raise FieldError("material", str(err)) from None
-    else:
-        if material:
-            raise FieldError("material", f"gantry '{cfg.name}' has a real detector: name the sample "
-                             "('sample'), not a material")
-        if not sample:
-            raise FieldError("sample", f"required on gantry '{cfg.name}' (a real detector): the name of the "
-                             "sample measured")
-    fly = parse_grid(req["grid"]).order == "fly"   # spelled right: precheck_request parsed it
+    request = Request(req["grid"], material=req.get("material"), sample=req.get("sample"),
+                      seed=int(req.get("seed", 0)))
+    try:
+        material = check_request(cfg, request, materials.load)
+    except RequestError as err:
+        raise FieldError(err.field, str(err)) from None
     cfg = _with_detector(cfg, req.get("detector"))
-    if fly:
-        return spec, cfg, _fly_plans(cfg, req["grid"])
     try:
-        plan = build_plan(req["grid"], cfg)
-    except ValueError as err:
-        raise FieldError("grid", str(err)) from None
-    _check_steps(cfg, plan, len(plan.step_kind))
-    return spec, cfg, plan
-
-
-def _fly_plans(cfg: GonioConfig, grid: str):
-    """A request with ``order=fly``: (plan, fly plan) for a gantry that can fly it (its sweeping axes
-    Dynamixel servos, its detector read on request: :func:`gonio.fly.hardware.check_fly_gantry`)."""
-    from gonio.fly.hardware import checked_fly_plans
-    from gonio.plan.fly import fly_step_table
-
-    if cfg.drivers() == {"sim"}:
-        raise FieldError("grid", f"order=fly on the simulated gantry '{cfg.name}': the daemon flies "
-                         "configured gantries (Dynamixel sweeping axes); simulate a fly campaign with "
-                         "'gonio simulate MATERIAL --grid GRID,order=fly --out DIR'")
-    try:
-        plan, fp = checked_fly_plans(grid, cfg)
-    except ValueError as err:
-        raise FieldError("grid", str(err)) from None
-    _check_steps(cfg, plan, len(fly_step_table(fp)[0]))
-    return plan, fp
-
-
-def _check_steps(cfg: GonioConfig, plan, steps: int) -> None:
+        planned = plan_request(cfg, request, material)
+    except RequestError as err:
+        raise FieldError("grid" if err.field == "gantry" else err.field, str(err)) from None
+    steps = planned.steps
     if steps > MAX_STEPS:
         raise FieldError("grid", f"{steps} steps; the daemon accepts at most {MAX_STEPS} per campaign")
     if steps == 0:
-        raise FieldError("grid", f"no pose of {plan.grid} can be measured on gantry '{cfg.name}'")
+        raise FieldError("grid", f"no pose of {planned.plan.grid} can be measured on gantry '{cfg.name}'")
+    return (material.spec if material is not None else None), cfg, planned

@@ -1,7 +1,8 @@
-"""On-the-fly campaigns: planned in :mod:`gonio.plan.fly`, journaled one sweep per transaction here
-(:mod:`gonio.fly.campaign`); the simulated gantry's readings come from :mod:`gonio.sim.fly`, a configured
-gantry's (Dynamixel sweeping axes, through the runner) from :mod:`gonio.fly.hardware`."""
+"""On-the-fly campaigns: planned in :mod:`gonio.plan.fly` (:mod:`gonio.fly.plans`: the plans of an
+``order=fly`` grid), journaled as campaigns of kind ``fly`` (:func:`gonio.campaign.create_campaign`), run
+by the engine one sweep per unit (:mod:`gonio.fly.units`): rendered by the simulated gantry
+(:mod:`gonio.sim.fly`), or swept on a configured gantry's axes (:mod:`gonio.fly.hardware`)."""
 
-from gonio.fly.campaign import create_fly_campaign, fly_plan_of, run_fly_campaign
+from gonio.fly.plans import fly_plan_of, fly_plans
 
-__all__ = ["create_fly_campaign", "run_fly_campaign", "fly_plan_of"]
+__all__ = ["fly_plan_of", "fly_plans"]

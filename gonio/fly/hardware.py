@@ -1,21 +1,24 @@
-"""On-the-fly scanning on a configured gantry whose sweeping axes are Dynamixel servos.
+"""On-the-fly scanning on a configured gantry whose sweeping axes fly (:class:`gonio.protocols.Flyable`:
+Dynamixel servos).
 
-:func:`fly_units` turns a journaled fly campaign (:mod:`gonio.fly.campaign`) into the units the
-:class:`~gonio.runner.Runner` measures and commits whole: one per checkpoint (its dark and white
-reference, read stop-and-go by the runner's own step code), one per line. The runner does the rest as
-for a stop-and-go campaign: light, target, pause and abort between units, halt within a wait slice,
-transient faults retried after the axes are still (the whole sweep again), other faults stop every
-axis and latch, the park. A sweep is one journal transaction: a crash or a fault loses at most the
+:func:`gonio.fly.units.fly_units` turns a journaled fly campaign into the units the engine
+(:class:`~gonio.runner.Runner`) measures and commits whole: one per checkpoint (its dark and white
+reference, read stop-and-go by the engine's :class:`~gonio.units.StepReader`), one per line, read here
+through the engine's public motion executor (:class:`~gonio.executor.MotionExecutor`). The engine does
+the rest as for a stop-and-go campaign: light, target, pause and abort between units, halt within a
+wait slice, transient faults retried after the axes are still (the whole sweep again), other faults stop
+every axis and latch, the park. A sweep is one journal transaction: a crash or a fault loses at most the
 sweep in flight, and a resumed campaign starts from the first sweep with no reading (the sweep in
 flight is done again from its start).
 
 A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
 
-1. the axes go to the line's start along a collision-free path and settle (the runner's moves: the
+1. the axes go to the line's start along a collision-free path and settle (the executor's moves: the
    run-up, sweep and run-down were checked against the limits and the swept path when planned);
 2. the sweeping axis gets the line's velocity and acceleration and its goal at the line's far end
-   (:meth:`gonio.gantry.AssembledGantry.sweep`; the servo quantises the profile, so the speed it runs
-   at differs from the plan's a little: the pair it runs at is journaled);
+   (:meth:`gonio.gantry.AssembledGantry.sweep`: the axis's ``prepare`` and ``kickoff``; the servo
+   quantises the profile, so the speed it runs at differs from the plan's a little: the pair it runs at
+   is journaled);
 3. each reading starts when the axis will pass its pose at the reading's mid-time: the time is
    predicted from the latest timestamped axis read (:meth:`~gonio.gantry.AssembledGantry.stamped_positions`,
    one Sync Read per bus stamped on the gantry clock) at the servo's quantised speed, and axes are read
@@ -30,9 +33,9 @@ A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
    interpolated linearly in time between the reads around it, and their forward kinematics give the
    sample's (θi, φi, θo, φo): the direction at the mean position of the exposure (on a
    constant-velocity sweep the mean position is the mid-time one);
-5. after the last reading the axis runs down to the line's end; the runner's arrival check faults
-   an axis that stopped short; the campaign's profile is written back (before any later move if it
-   could not be then).
+5. after the last reading the axis runs down to the line's end; the executor's arrival check faults
+   an axis that stopped short; the campaign's profile is written back (``complete``; before any later
+   move if it could not be then).
 
 A serial photodiode answers one request at a time, so the reads are taken between its sub-reads and
 between readings rather than beside them: the dead time of one Sync Read (~1 ms at 1 Mbit/s) per
@@ -45,23 +48,21 @@ errors) and the motion blur from the quadratic through the sub-reads
 (:func:`gonio.fly.blur.motion_blur`, as on the simulated gantry): the bias of the exposure's mean
 against the value at its mid-time direction. Where the detector states no noise, the fitted curvature
 also carries the sub-reads' noise, so the blur term is then conservative (it counts that noise too).
-A reading at rest (a checkpoint, a pose read stop-and-go) is the runner's stop-and-go reading.
+A reading at rest (a checkpoint, a pose read stop-and-go) is the engine's stop-and-go reading.
 """
 
 from __future__ import annotations
 
 import math
-from functools import partial
 
 import numpy as np
 
 from gonio.fly.blur import motion_blur
-from gonio.plan.fly import _TOL, FlyLine, FlyPlan, fly_steps
+from gonio.plan.fly import FLY_TOL_DEG, FlyLine
 from gonio.plan.schedule import STEP_POSE
-from gonio.runner import Runner, Unit
 from gonio.store import Measurement
 
-__all__ = ["FlySweeper", "fly_units", "check_fly_gantry", "checked_fly_plans", "READ_S", "SUBREADS"]
+__all__ = ["FlySweeper", "on_limits", "READ_S", "SUBREADS"]
 
 #: Seconds between timestamped axis reads while waiting for a reading's start.
 READ_S = 0.005
@@ -69,149 +70,87 @@ READ_S = 0.005
 SUBREADS = 4
 
 
-def check_fly_gantry(cfg, fp: FlyPlan) -> None:
-    """Whether the gantry ``cfg`` can fly the plan ``fp``: every axis that sweeps a line is a Dynamixel
-    servo (its profile velocity is set per sweep and its position sync-read with timestamps), and the
-    detector reads on request (a serial power meter or spectrometer, a simulated photodiode or
-    spectrometer).
-
-    Raises
-    ------
-    ValueError
-        Naming the first axis (or the detector) that cannot, and why.
-    """
-    from gonio.kinematics import make_kinematics
-
-    names = make_kinematics(cfg).axis_names
-    for axis in sorted({ln.axis for ln in fp.lines if ln.moving}):
-        name = names[axis]
-        driver = cfg.axes[name].driver
-        if driver != "dynamixel":
-            lines = sum(ln.axis == axis for ln in fp.lines)
-            plural = "s" if lines != 1 else ""
-            raise ValueError(f"axes.{name}: driver '{driver}' cannot sweep a line of order=fly (it would "
-                             f"sweep {lines} line{plural}; fly scanning on hardware needs Dynamixel servos, "
-                             "whose velocity is set per sweep and whose positions are sync-read with "
-                             "timestamps); use order=auto for this gantry")
-    det = cfg.detector
-    if det.driver == "sim" and det.sim.kind == "camera":
-        raise ValueError("detector.sim.kind: 'camera' cannot read while the axes sweep (a frame per "
-                         "reading); order=fly needs a photodiode, power meter or spectrometer")
-
-
-def checked_fly_plans(grid: str, cfg):
-    """The plans of ``grid`` (``order=fly``; :func:`gonio.fly.campaign.fly_plans`) for the gantry
-    ``cfg``, once :func:`check_fly_gantry` found that it can fly them; a ValueError naming what cannot
-    (``gonio run`` and the daemon refuse with it before anything is written)."""
-    from gonio.fly.campaign import fly_plans
-
-    plans = fly_plans(grid, cfg)
-    check_fly_gantry(cfg, plans[1])
-    return plans
-
-
-def fly_units(runner: Runner, c) -> list[Unit]:
-    """The units of the fly campaign ``c`` (:class:`gonio.campaign.Campaign`) for ``runner.run``: one
-    per checkpoint (dark and white reference, stop-and-go) and one per line, in campaign order.
-
-    Raises
-    ------
-    ValueError
-        The journal's fly plan cannot be rebuilt (:func:`gonio.fly.campaign.fly_plan_of`) or the gantry
-        cannot fly it (:func:`check_fly_gantry`).
-    """
-    from gonio.fly.campaign import fly_plan_of
-
-    fp = fly_plan_of(c)
-    check_fly_gantry(c.cfg, fp)
-    sweeper = FlySweeper(runner)
-    units = []
-    for kind, k, step in fly_steps(fp):
-        if kind == "checkpoint":
-            units.append(Unit(step, 2, partial(_checkpoint, runner, step)))
-        else:
-            units.append(Unit(step, fp.lines[k].n, partial(sweeper.sweep, fp.lines[k], step)))
-    return units
-
-
-def _on_limits(kin, axes_deg: np.ndarray) -> np.ndarray:
+def on_limits(kin, axes_deg: np.ndarray) -> np.ndarray:
     """A line's rest position with the planner's rounding at a limit taken off: the planner lets a run-up
-    end within its tolerance (``_TOL``, 1e-6°) beyond a limit, which a driver refuses; further than
-    that is left for the driver to refuse."""
+    end within its tolerance (``FLY_TOL_DEG``, 1e-6°) beyond a limit, which a driver refuses; further
+    than that is left for the driver to refuse."""
     lo, hi = np.asarray(kin.limits_deg, dtype=np.float64).T
     out = np.asarray(axes_deg, dtype=np.float64).copy()
-    near = ((out < lo) & (out >= lo - _TOL)) | ((out > hi) & (out <= hi + _TOL))
+    near = ((out < lo) & (out >= lo - FLY_TOL_DEG)) | ((out > hi) & (out <= hi + FLY_TOL_DEG))
     out[near] = np.clip(out, lo, hi)[near]
     return out
 
 
-def _checkpoint(runner: Runner, step: int, attempt: int) -> list[Measurement]:
-    return [runner._measure_step(step, attempt), runner._measure_step(step + 1, attempt)]
-
-
 class FlySweeper:
-    """Reads the lines of a fly campaign on the runner's gantry (see the module docstring).
+    """Reads the lines of a fly campaign on the engine's gantry (see the module docstring).
 
     Parameters
     ----------
-    runner : Runner
-        Its gantry (an :class:`~gonio.gantry.AssembledGantry`: ``sweep``, ``stamped_positions``),
-        moves, waits and stop-and-go readings are used.
+    engine : Runner
+        Its gantry (one that flies its axes: :class:`gonio.protocols.FliesAxes`, an
+        :class:`~gonio.gantry.AssembledGantry`), motion executor, stop-and-go reader and campaign clock.
     read_s : float
         Seconds between stamped axis reads while waiting for a reading to start.
     subreads : int
         Sub-reads per reading, >= 3 (the blur's quadratic).
     """
 
-    def __init__(self, runner: Runner, *, read_s: float = READ_S, subreads: int = SUBREADS):
+    def __init__(self, engine, *, read_s: float = READ_S, subreads: int = SUBREADS):
         if not (math.isfinite(read_s) and read_s > 0):
             raise ValueError(f"read_s: must be > 0 s, got {read_s!r}")
         if not isinstance(subreads, int) or subreads < 3:
             raise ValueError(f"subreads: must be an integer >= 3, got {subreads!r}")
-        self.runner = runner
+        self.engine = engine
+        self.executor = engine.executor
+        self.flies = self.executor.abilities.flies
+        if self.flies is None:
+            raise ValueError("the gantry cannot sweep its axes (on-the-fly scanning needs Dynamixel servos)")
+        keep = self.executor.abilities.keep_alive
+        self.feed_s = keep.feed_s if keep is not None else None
         self.read_s = float(read_s)
         self.subreads = subreads
         self._gaps: list[float] = []   # the latest dead times between sub-reads, over sweeps
 
     def sweep(self, line: FlyLine, step: int, attempt: int) -> list[Measurement]:
         """The readings of ``line`` (steps from ``step``), attempt ``attempt`` (from 1)."""
-        r = self.runner
+        ex, flies = self.executor, self.flies
         if not line.moving:  # a pose read stop-and-go
-            return [r._measure_step(step, attempt)]
-        g, kin = r.gantry, r._kin
+            return [self.engine.reader.read(step, attempt)]
+        kin, clock = ex.kinematics, ex.gantry.clock
         name = kin.axis_names[line.axis]
-        start, end = _on_limits(kin, line.start_deg), _on_limits(kin, line.end_deg)
-        r._goto(start)
-        r._wait(r.cfg.runner.settle_s)
+        start, end = on_limits(kin, line.start_deg), on_limits(kin, line.end_deg)
+        ex.goto(start)
+        ex.settle()
         reads: list[tuple[np.ndarray, np.ndarray]] = []
-        v, a = r._command(lambda: g.sweep(name, float(end[line.axis]), line.speed_deg_s, line.accel_deg_s2))
-        t_go = g.clock.now()
+        v, a = ex.command(lambda: flies.sweep(name, float(end[line.axis]), line.speed_deg_s,
+                                              line.accel_deg_s2))
+        t_go = clock.now()
         try:
             out = self._readings(line, step, attempt, v, reads)
-            # The run-down: the axis arrives at the line's end (the runner faults one that stopped short).
-            r._arrive(start, end, max(t_go + line.duration_s - g.clock.now(), 0.0))
+            # The run-down: the axis arrives at the line's end (the executor faults one that stopped short).
+            ex.arrive(start, end, max(t_go + line.duration_s - clock.now(), 0.0))
         except BaseException:
             try:
-                g.end_sweep(name)
+                flies.end_sweep(name)
             except Exception:  # noqa: S110 - the first failure is the one to report; the next move restores
                 pass
             raise
-        g.end_sweep(name)
+        flies.end_sweep(name)
         for m in out:
             m.extra.update({"speed_deg_s": v, "accel_deg_s2": a, "planned_speed_deg_s": line.speed_deg_s})
         return out
 
     def _look(self, reads) -> tuple[float, float]:
-        t, x = self.runner.gantry.stamped_positions()
+        t, x = self.flies.stamped_positions()
         reads.append((t, x))
         return t, x
 
     def _readings(self, line: FlyLine, step: int, attempt: int, v: float, reads) -> list[Measurement]:
-        r = self.runner
-        g, kin, clock = r.gantry, r._kin, r.gantry.clock
+        ex = self.executor
+        g, kin, clock = ex.gantry, ex.kinematics, ex.gantry.clock
         ax, e = line.axis, line.exposure_s
         sign = math.copysign(1.0, line.step_deg)
-        feed = getattr(g, "feed_s", None)
+        feed = self.feed_s
         m = max(self.subreads, math.ceil(e / feed) if feed else 0)
         planned = line.readings_deg()
         self._look(reads)
@@ -227,9 +166,9 @@ class FlySweeper:
                 wait = start - clock.now()
                 if wait <= self.read_s:
                     if wait > 0:
-                        r._wait(wait)
+                        ex.wait(wait)
                     break
-                r._wait(self.read_s)
+                ex.wait(self.read_s)
                 self._look(reads)
             subs, var, mids = [], [], []
             for k in range(m):
@@ -237,7 +176,7 @@ class FlySweeper:
                 if k:
                     gaps.append(t0 - mids[-1] - 0.5 * e / m)
                     del gaps[:-64]
-                reading = g.detector.measure(e / m, 1, key=(step + j, (attempt - 1) * m + k))
+                reading = g.detector.read_on_the_fly(e / m, key=(step + j, (attempt - 1) * m + k))
                 t1 = clock.now()
                 self._look(reads)
                 subs.append(reading.signal)
@@ -247,7 +186,7 @@ class FlySweeper:
             spans.append((float(np.mean(mids)), e))
             signals.append(np.asarray(subs, dtype=np.float64))
             variances.append(np.asarray(var))
-            ends.append((t1, r.campaign_s() - (clock.now() - t1)))
+            ends.append((t1, self.engine.campaign_s() - (clock.now() - t1)))
         subs = np.stack(signals)                                        # (n, M, C)
         noise_var = np.stack(variances)
         blur = motion_blur(subs, noise_var)                             # (n, C)

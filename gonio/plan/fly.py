@@ -56,8 +56,8 @@ from gonio.motion.safe import path_time, safe_path
 from gonio.motion.trapezoid import move_time
 from gonio.plan.schedule import STEP_REFERENCE, schedule_runs
 
-__all__ = ["FLY_DUTY", "FlyLine", "FlyPlan", "fly_plan", "fly_summary", "fly_steps", "fly_step_table",
-           "line_lengths"]
+__all__ = ["FLY_DUTY", "FLY_TOL_DEG", "FlyLine", "FlyPlan", "fly_plan", "fly_summary", "fly_steps",
+           "fly_step_table", "line_lengths"]
 
 #: Exposure / time between readings at the axis's top speed: the axis travels this fraction of a grid
 #: step during one exposure.
@@ -68,7 +68,7 @@ _SPEED_LADDER = (1.0, 0.7, 0.5, 0.35, 0.25, 0.18, 0.12, 0.08, 0.05)
 _FAST = tuple(f for f in _SPEED_LADDER if f >= 0.5)
 _TRIMMED = "stop-and-go: the end pose of a line with no room for its run-up or run-down"
 #: Degrees: two positions closer than this on an axis count as equal; steps equal within it are equal.
-_TOL = 1e-6
+FLY_TOL_DEG = 1e-6
 #: Above this many lines the entry bound searches a k-d tree instead of every pair (same values).
 _PAIRWISE_MAX_LINES = 200
 #: Lines per block of the pairwise bound (memory of the (block, lines, 4, n_axes) temporaries).
@@ -230,7 +230,7 @@ def _runs(axes: np.ndarray) -> list[tuple[int, int, int, float]]:
     (i, j, axis, step); single poses have axis -1."""
     n = axes.shape[0]
     d = np.diff(axes, axis=0)
-    moving = np.abs(d) > _TOL
+    moving = np.abs(d) > FLY_TOL_DEG
     one = moving.sum(axis=1) == 1
     ax = np.where(one, np.argmax(moving, axis=1), -1)
     step = np.where(one, d[np.arange(n - 1), np.maximum(ax, 0)], 0.0)
@@ -238,7 +238,7 @@ def _runs(axes: np.ndarray) -> list[tuple[int, int, int, float]]:
     while i < n:
         j = i + 1
         if i < n - 1 and ax[i] >= 0:
-            while j < n - 1 and ax[j] == ax[i] and abs(step[j] - step[i]) <= _TOL:
+            while j < n - 1 and ax[j] == ax[i] and abs(step[j] - step[i]) <= FLY_TOL_DEG:
                 j += 1
             j += 1
             runs.append((i, j, int(ax[i]), float(step[i])))
@@ -306,15 +306,16 @@ def _fit(kin, axes, i, j, axis, step, exposure_s, ladder):
         line = FlyLine(np.arange(i, j, dtype=np.int64), axis, pts[0].copy(), step, frac * v_max, a,
                        exposure_s)
         s, e = line.start_deg, line.end_deg
-        if not (lo - _TOL <= s[axis] <= hi + _TOL and lo - _TOL <= e[axis] <= hi + _TOL):
+        tol = FLY_TOL_DEG
+        if not (lo - tol <= s[axis] <= hi + tol and lo - tol <= e[axis] <= hi + tol):
             continue
         if kin.sweep_clear_one(s, e)[0]:
             note = "" if frac == 1.0 else (f"slower ({100 * frac:.0f} % of top speed): the run-up or "
                                            "run-down reaches a limit or collides")
             return _noted(line, note), (False, False)
     s, e = line.start_deg, line.end_deg
-    ok_s = lo - _TOL <= s[axis] <= hi + _TOL and kin.sweep_clear_one(s, pts[0])[0]
-    ok_e = lo - _TOL <= e[axis] <= hi + _TOL and kin.sweep_clear_one(pts[-1], e)[0]
+    ok_s = lo - FLY_TOL_DEG <= s[axis] <= hi + FLY_TOL_DEG and kin.sweep_clear_one(s, pts[0])[0]
+    ok_e = lo - FLY_TOL_DEG <= e[axis] <= hi + FLY_TOL_DEG and kin.sweep_clear_one(pts[-1], e)[0]
     return None, (not ok_s, not ok_e)
 
 
@@ -356,7 +357,7 @@ def fly_plan(plan, cfg, kin=None) -> FlyPlan:
 
     lines: list[FlyLine] = []
     for i, j, axis, step in _runs(axes):
-        if axis < 0 or abs(abs(step) - spec.step_deg) > _TOL:   # not a step along a line of the grid
+        if axis < 0 or abs(abs(step) - spec.step_deg) > FLY_TOL_DEG:   # not a step along a line of the grid
             lines.extend(_still(axes, k, "") for k in range(i, j))
             continue
         exposure = FLY_DUTY * abs(step) / float(kin.velocity_deg_s[axis])

@@ -10,9 +10,10 @@ import pytest
 import xarray as xr
 
 from gonio.batch import DONE, FAILED, MISSING, BatchStore, open_store, read_materials, run_batch
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.config import load_config
 from gonio.dataset import read_brdf
+from gonio.lifecycle import run_campaign
 from gonio.sim.materials import load
 from gonio.wiring import build_gantry
 

@@ -1,8 +1,8 @@
 """Fly campaigns through the daemon: on a configured gantry (the emulated Dynamixel twin, the emulators'
-synced virtual clock) a request with ``order=fly`` is journaled as a fly campaign and flown sweep by
-sweep through the runner, as ``gonio run`` does, with the operator's pause, halt and resume acting
-between (or, a halt, within) sweeps; where it cannot fly, the request is refused naming the grid, and
-nothing is queued."""
+synced virtual clock) or the simulated one, a request with ``order=fly`` is journaled as a fly campaign
+and flown sweep by sweep through the engine, as ``gonio run`` and ``gonio simulate`` do, with the
+operator's pause, halt, resume and abort acting between (or, a halt, within) sweeps; where it cannot fly,
+the request is refused naming the grid, and nothing is queued."""
 
 from __future__ import annotations
 
@@ -48,12 +48,14 @@ def test_the_daemon_flies_a_campaign_on_the_dynamixel_twin(serve, tmp_path):
 
 
 def test_a_fly_request_the_gantry_cannot_fly_is_refused_naming_the_grid(serve, tmp_path):
-    # The simulated gantry: the daemon points at gonio simulate.
-    d = serve()
+    # The simulated gantry with its camera: a frame per reading cannot be read on the fly.
+    data = load_config("sim").model_dump(mode="json")
+    data["detector"].setdefault("sim", {})["kind"] = "camera"
+    d = serve(cfg=parse_config(data))
     r = d.client.post("/campaigns", json={"grid": "iso:step=30,order=fly", "material": "lambert:albedo=0.5"})
     assert r.status_code == 422, r.text
     (err,) = r.json()["detail"]
-    assert err["loc"] == ["body", "grid"] and "gonio simulate" in err["msg"]
+    assert err["loc"] == ["body", "grid"] and "'camera' cannot be simulated on the fly" in err["msg"]
     # A Modbus gantry: its sweeping axes are not Dynamixel servos (refused before anything is written).
     data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
     d2 = serve(cfg=parse_config(data), data=tmp_path / "modbus")
@@ -64,6 +66,50 @@ def test_a_fly_request_the_gantry_cannot_fly_is_refused_naming_the_grid(serve, t
     for daemon in (d, d2):
         assert daemon.client.get("/campaigns").json()["campaigns"] == []
     assert not list((tmp_path / "modbus" / "campaigns").glob("c*"))
+
+
+def test_the_daemon_runs_a_simulated_fly_campaign_with_pause_halt_and_abort(serve, tmp_path):
+    """The simulated gantry flies through the same engine as hardware: its sweeps are rendered, one
+    unit each, while the paced clock runs, so a pause, a halt and a resume act between (a halt: within)
+    sweeps; a second campaign is aborted mid-way. The finished one equals `gonio simulate` bit for bit."""
+    from gonio.cli import main
+
+    grid, material = "iso:step=15,order=fly", "lambert:albedo=0.5"
+    d = serve(pace=0.002)
+    cid = d.client.post("/campaigns", json={"grid": grid, "material": material}).json()["id"]
+    folder = tmp_path / "data" / "campaigns" / cid
+    wait_for(lambda: d.client.get(f"/campaigns/{cid}").json()["steps_done"] >= 1, "a committed sweep")
+    assert d.client.post(f"/campaigns/{cid}/pause").status_code == 200
+    paused = wait_state(d.client, cid, "paused")
+    assert 0 < paused["steps_done"] < paused["steps"]
+    assert d.client.post(f"/campaigns/{cid}/resume").status_code == 200
+    wait_for(lambda: d.client.get(f"/campaigns/{cid}").json()["steps_done"] > paused["steps_done"],
+             "a sweep after the resume")
+    assert d.client.post("/gantry/halt").status_code == 200
+    halted = wait_state(d.client, cid, "halted")
+    assert halted["steps_done"] < halted["steps"]
+    units, done = _units(folder)
+    for first, n in units:   # whole sweeps only, the halted one dropped
+        assert len({s for s in range(first, first + n) if s in done}) in (0, n)
+    assert d.client.post(f"/campaigns/{cid}/resume").status_code == 200
+    assert wait_state(d.client, cid, {"done", "faulted"})["state"] == "done"
+    second = d.client.post("/campaigns", json={"grid": grid, "material": material}).json()["id"]
+    wait_for(lambda: d.client.get(f"/campaigns/{second}").json()["steps_done"] >= 1, "a committed sweep")
+    assert d.client.post(f"/campaigns/{second}/abort").status_code == 200
+    aborted = wait_state(d.client, second, "aborted")
+    assert 0 < aborted["steps_done"] < aborted["steps"]
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        meta, events = j.meta(), j.events()
+    finally:
+        j.close()
+    assert meta["kind"] == "fly"
+    kinds = [e["kind"] for e in events]
+    assert "pause" in kinds and "halt" in kinds and "park" in kinds
+    assert main(["simulate", material, "--grid", grid, "--out", str(tmp_path / "cli"), "--quiet"]) == 0
+    a, b = read_brdf(folder / "brdf.h5"), read_brdf(tmp_path / "cli" / "brdf.h5")
+    for name in ("value", "stddev", "theta_i", "phi_i", "theta_o", "phi_o", "campaign_s", "step", "pose"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
 
 
 class _PacedSyncedClock(SyncedVirtualClock):

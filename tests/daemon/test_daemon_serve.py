@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 from daemon_helpers import GONIO, WAIT_S, Serve, wait_for
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.config import load_config
+from gonio.lifecycle import run_campaign
 from gonio.sim.materials import load
 from gonio.store import JOURNAL_NAME, Journal
 from gonio.wiring import build_gantry

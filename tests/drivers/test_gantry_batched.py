@@ -8,10 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.config import load_config, parse_config
 from gonio.drivers.dynamixel import DynamixelCommError
 from gonio.drivers.modbus import ModbusAxis, make_client
+from gonio.lifecycle import run_campaign
 from gonio.plan.schedule import STEP_POSE
 from gonio.runner import State
 from gonio.sim.emulators.dxl_packet import Inst, PacketReader

@@ -135,6 +135,10 @@ class _SharedClient:
 
 
 class _Axis:
+    """Declares :class:`gonio.protocols.ReadsState` (state in one read) and shares its ``client``."""
+
+    state_in_one_read = True
+
     def __init__(self, name, client, deg, meet=None):
         self.name, self.client, self.deg, self.meet = name, client, deg, meet
 

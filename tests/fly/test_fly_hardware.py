@@ -9,11 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.cli import main
 from gonio.config import load_config
 from gonio.dataset import read_brdf
-from gonio.fly import create_fly_campaign, fly_plan_of
+from gonio.fly import fly_plan_of
+from gonio.lifecycle import run_campaign
 from gonio.plan.fly import fly_steps
 from gonio.runner import State
 from gonio.sim.emulators.gantry import EmulatedGantry
@@ -33,7 +34,7 @@ def _fly(folder, emu, clock, *, on_runner=None, detector_hook=None, clear_fault=
     from gonio.campaign import open_campaign
 
     cfg = emu.config()
-    c = (create_fly_campaign(folder, cfg, grid=GRID + ",order=fly", material=None, sample="gold") if create
+    c = (create_campaign(folder, cfg, grid=GRID + ",order=fly", material=None, sample="gold") if create
          else open_campaign(folder))
     try:
         g = build_gantry(cfg, clock=clock)
@@ -141,7 +142,7 @@ def test_a_dry_run_fly_campaign_renders_along_the_servos_read_backs(tmp_path, st
                             "sim": {"half_angle_deg": 1.0, "aperture_samples": 256,
                                     "noise": {"shot_counts_per_unit": 0.0, "read_sigma": 0.0}}}
         cfg = parse_config(data)
-        c = create_fly_campaign(tmp_path, cfg, grid=GRID + ",order=fly", material=MATERIAL, sample="gold")
+        c = create_campaign(tmp_path, cfg, grid=GRID + ",order=fly", material=MATERIAL, sample="gold")
         moving = []
         try:
             g = build_gantry(cfg, MATERIAL, clock=clock)
@@ -336,15 +337,15 @@ def test_gonio_run_refuses_order_fly_where_a_sweeping_axis_is_not_a_dynamixel_se
 def test_a_run_up_ending_within_the_planners_rounding_of_a_limit_is_taken_to_the_limit():
     """The planner lets a line's rest position lie within 1e-6° beyond a limit (float rounding of
     v²/2a + v·e/2), which the driver would refuse; further beyond is left for the driver to refuse."""
-    from gonio.fly.hardware import _on_limits
+    from gonio.fly.hardware import on_limits
     from gonio.kinematics import make_kinematics
 
     kin = make_kinematics(load_config(TWIN))
     lo, hi = np.asarray(kin.limits_deg).T
     near = np.array([lo[0] - 1e-9, hi[1] + 5e-7, 10.0, lo[3]])
-    np.testing.assert_array_equal(_on_limits(kin, near), [lo[0], hi[1], 10.0, lo[3]])
+    np.testing.assert_array_equal(on_limits(kin, near), [lo[0], hi[1], 10.0, lo[3]])
     far = np.array([lo[0] - 1e-3, 0.0, 0.0, 0.0])
-    np.testing.assert_array_equal(_on_limits(kin, far), far)
+    np.testing.assert_array_equal(on_limits(kin, far), far)
 
 
 @pytest.mark.slow

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from gonio.calibrate import calibrate
-from gonio.campaign import open_campaign
+from gonio.campaign import create_campaign, open_campaign
 from gonio.config import load_config
 from gonio.dataset import read_brdf
-from gonio.fly import create_fly_campaign, fly_plan_of, run_fly_campaign
+from gonio.fly import fly_plan_of
 from gonio.fly.blur import motion_blur
 from gonio.geometry import sph_to_vec
 from gonio.plan import build_plan
@@ -207,29 +207,46 @@ def test_positions_from_timestamped_reads_at_mid_exposure(fine):
     assert np.allclose(ends, 5.0 + line.mid_times() + line.exposure_s / 2)
 
 
+class _Crash(BaseException):
+    """A simulated process death: nothing catches it."""
+
+
+def _run_fly(c, spec, on_step=None):
+    """Run the fly campaign ``c`` on the simulated gantry through the lifecycle (the engine's units of
+    kind ``fly``, rendered by the gantry)."""
+    from gonio.lifecycle import campaign_gantry, run_campaign
+
+    return run_campaign(c, campaign_gantry(c, spec), on_step=on_step)
+
+
 def test_campaign_resumes_from_the_next_sweep_and_equals_an_uninterrupted_one(tmp_path):
+    from gonio.runner import State
+
     cfg = load_config(None)
     spec, grid = "ward:rho_d=0.1,rho_s=0.05,alpha_x=0.1,alpha_y=0.3", "iso:step=15,order=fly"
-    whole = create_fly_campaign(tmp_path / "a", cfg, grid=grid, material=spec, seed=3)
-    run_fly_campaign(whole, FlySimulator(whole.cfg, spec, seed=3))
+    whole = create_campaign(tmp_path / "a", cfg, grid=grid, material=spec, seed=3)
+    assert whole.kind == "fly"
+    state, _ = _run_fly(whole, spec)
+    assert state == State.DONE
     whole.close()
 
-    class Crash(Exception):
-        pass
+    units = []
 
-    def crash(done, total):
-        if done == 7:
-            raise Crash
+    def crash(runner, step):
+        units.append(step)
+        if len(units) == 7:
+            raise _Crash
 
-    c = create_fly_campaign(tmp_path / "b", cfg, grid=grid, material=spec, seed=3)
-    with pytest.raises(Crash):
-        run_fly_campaign(c, FlySimulator(c.cfg, spec, seed=3), on_sweep=crash)
+    c = create_campaign(tmp_path / "b", cfg, grid=grid, material=spec, seed=3)
+    with pytest.raises(_Crash):
+        _run_fly(c, spec, on_step=crash)
     items = fly_steps(fly_plan_of(c))
     # Seven whole sweeps or checkpoints are in the journal, nothing of the eighth.
     assert c.journal.done_count() == items[7][2]
     c.close()
     c = open_campaign(tmp_path / "b")
-    run_fly_campaign(c, FlySimulator(c.cfg, spec, seed=3))
+    state, _ = _run_fly(c, spec)
+    assert state == State.DONE
     c.close()
     from gonio.cli.campaigns import campaign_status
 

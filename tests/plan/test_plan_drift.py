@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from gonio.calibrate import calibrate
-from gonio.campaign import create_campaign, run_campaign
+from gonio.campaign import create_campaign
 from gonio.clock import VirtualClock
 from gonio.config import CONFIG_DIR, load_config
+from gonio.lifecycle import run_campaign
 from gonio.plan import STEP_POSE, STEP_REFERENCE, build_plan
 from gonio.runner import State
 from gonio.sim.light import SimLight
