@@ -27,7 +27,7 @@ demo: $(RUNTIME)
 	$(VENV)/bin/gonio plot $(DEMO) --kind polar --out $(DEMO)/polar.png --force
 
 test: $(DEV)
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider --durations=15
 
 lint: $(DEV)
 	$(VENV)/bin/ruff check gonio drivers sim tests tools examples

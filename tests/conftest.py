@@ -1,5 +1,6 @@
 """Fixtures shared across the test folders."""
 
+import numpy as np
 import pytest
 from brdf_samples import sampled
 from jit_backends import backend_params
@@ -26,3 +27,25 @@ def backend(request, monkeypatch):
 def jit(backend):
     """The Dr.Jit array types of each backend in turn (``jit.Float64``, ``jit.Array3f``, ``jit.PCG32``...)."""
     return array_types(backend)
+
+
+@pytest.fixture(scope="session")
+def planned():
+    """``planned(grid, cfg, kin)``: ``build_plan(grid, cfg, kin)``, built once per session for tests that
+    only read the plan (its arrays are read-only: a test that wrote into a shared plan would fail). A
+    fine grid on the sample stage takes the planner 10 s or more."""
+    from gonio.plan import build_plan
+
+    plans = {}
+
+    def plan(grid, cfg, kin):
+        key = (grid, cfg.model_dump_json())
+        if key not in plans:
+            p = build_plan(grid, cfg, kin)
+            for value in vars(p).values():
+                if isinstance(value, np.ndarray):
+                    value.flags.writeable = False
+            plans[key] = p
+        return plans[key]
+
+    return plan

@@ -243,8 +243,8 @@ def test_a_signal_mid_campaign_pauses_parks_journals_and_says_how_to_resume(tmp_
     from gonio.store import JOURNAL_NAME, Journal
 
     out = tmp_path / "run"
-    argv = [sys.executable, "-m", "gonio.cli", "simulate", "ggx:alpha=0.2,metal=gold", "--grid", "iso:step=5",
-            "--out", str(out), "--quiet"]
+    argv = [sys.executable, "-m", "gonio.cli", "simulate", "ggx:alpha=0.2,metal=gold", "--grid",
+            "iso:step=10", "--out", str(out), "--quiet"]
     p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     try:

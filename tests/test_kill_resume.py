@@ -1,8 +1,12 @@
-"""`gonio simulate` killed with SIGKILL at random moments, creation included, then run again until done:
-the final brdf.h5 equals an uninterrupted run's bit for bit (the simulated gantry resumes where the
-journal last saw it, every reading's random numbers are keyed by (seed, step, attempt), the campaign clock
-continues), and with a drifting lamp and a dark offset it matches the true material within the stated
-uncertainty."""
+"""`gonio simulate` killed at random moments, creation included, then run again until done: the final
+brdf.h5 equals an uninterrupted run's bit for bit (the simulated gantry resumes where the journal last saw
+it, every reading's random numbers are keyed by (seed, step, attempt), the campaign clock continues), and
+with a drifting lamp and a dark offset it matches the true material within the stated uncertainty.
+
+Most kills are simulated in the test's process (tests/journal_crash.py): the command dies before a chosen
+journal write (one of the creation's, the first ones of a resumed run, or one after a random number of
+further writes), then the same command runs again. One real SIGKILL per path (stop-and-go steps, fly
+sweeps) runs the command as a process and kills it while the journal is being created and mid-campaign."""
 
 from __future__ import annotations
 
@@ -18,11 +22,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from journal_crash import Crash, crash_at_write
 
+from gonio.cli import main
 from gonio.config import DEFAULT_CONFIG, load_config
 from gonio.store import JOURNAL_NAME, Journal
-
-pytestmark = pytest.mark.slow
 
 GONIO = [sys.executable, "-m", "gonio.cli"]
 #: Upper bound on one whole run of these small campaigns (start-up included), for every wait below.
@@ -69,36 +73,8 @@ def _config(tmp_path: Path, **settings) -> Path:
 
 
 def _argv(material, grid, out, config, seed=3):
-    return [*GONIO, "simulate", material, "--grid", grid, "--out", str(out), "--seed", str(seed),
-            "--config", str(config), "--quiet"]
-
-
-def _run_to_end(argv) -> float:
-    """Run the command to the end; the seconds it took."""
-    t0 = time.monotonic()
-    r = subprocess.run(argv, capture_output=True, text=True, timeout=RUN_LIMIT_S)
-    assert r.returncode == 0, r.stderr
-    return time.monotonic() - t0
-
-
-def _kill_during_creation(argv, out: Path) -> bool:
-    """Start the command and SIGKILL it while the journal is being built (its temporary file exists).
-    True when it was caught in that window (the window is short: the caller counts the catches)."""
-    p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    caught = False
-    deadline = time.monotonic() + RUN_LIMIT_S
-    try:
-        while p.poll() is None and time.monotonic() < deadline:
-            if out.is_dir() and Journal.partial_paths(out / JOURNAL_NAME):
-                caught = True
-                break
-            if (out / JOURNAL_NAME).exists():
-                break
-            time.sleep(0.0002)
-    finally:
-        p.kill()
-        p.wait(timeout=RUN_LIMIT_S)
-    return caught
+    return ["simulate", material, "--grid", grid, "--out", str(out), "--seed", str(seed), "--config",
+            str(config), "--quiet"]
 
 
 def _done(out: Path) -> int:
@@ -111,70 +87,21 @@ def _done(out: Path) -> int:
         j.close()
 
 
-def _kill_after(argv, out: Path, *, seconds: float | None = None, steps: int | None = None) -> bool:
-    """Start the command and SIGKILL it after ``seconds`` of start-up, or once ``steps`` more steps are
-    committed (watched through a read-only journal connection). False when it finished first."""
-    start = _done(out)
-    p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + RUN_LIMIT_S
-    t0 = time.monotonic()
-    try:
-        while p.poll() is None and time.monotonic() < deadline:
-            if seconds is not None and time.monotonic() - t0 >= seconds:
-                break
-            if steps is not None and _done(out) >= start + steps:
-                break
-            time.sleep(0.001)
-        if p.poll() is not None:
-            return False
-        os.kill(p.pid, signal.SIGKILL)
-        return True
-    finally:
-        p.wait(timeout=RUN_LIMIT_S)
-
-
-def _kill_and_resume(argv, out: Path, kills: int, seed: int) -> dict:
-    """Kill ``kills`` times at random moments: a few while the journal is being created, some during
-    start-up, the rest after a random number of further committed steps (each run gets part of the way).
-    Then run to the end."""
-    rng = random.Random(seed)
-    stats = {"creation": 0, "startup": 0, "running": 0, "progress": []}
-    for _ in range(3):
-        if not (out / JOURNAL_NAME).exists():
-            stats["creation"] += _kill_during_creation(argv, out)
-    total = None
-    while stats["startup"] + stats["running"] < kills:
-        if (out / JOURNAL_NAME).exists() and total is None:
-            j = Journal.open(out / JOURNAL_NAME, readonly=True)
-            total = j.step_count()
-            j.close()
-        if total is not None and rng.random() < 0.3:
-            killed = _kill_after(argv, out, seconds=rng.uniform(0.02, 0.6))
-            stats["startup"] += killed
-        else:
-            most = 60 if total is None else max(1, total // (2 * kills))
-            killed = _kill_after(argv, out, steps=rng.randint(1, most))
-            stats["running"] += killed
-        if not killed:
-            pytest.fail(f"a run finished before its kill; kills so far: {stats}")
-        stats["progress"].append(_done(out))
-    _run_to_end(argv)
-    return stats
-
-
 def _h5(path: Path) -> dict:
     with h5py.File(path, "r") as f:
         return {k: f["samples"][k][()] for k in f["samples"]}
 
 
-def _killed_equals_uninterrupted(tmp_path, material, grid, config, kills, seed, running) -> dict:
-    """Run the campaign once to the end and once killed ``kills`` times (``running`` of them at least
-    mid-campaign) and resumed; the two brdf.h5 are equal bit for bit and the journal holds exactly one
-    measurement per step. Returns the killed run's samples."""
-    ref, out = tmp_path / "ref", tmp_path / "killed"
-    _run_to_end(_argv(material, grid, ref, config))
-    stats = _kill_and_resume(_argv(material, grid, out, config), out, kills=kills, seed=seed)
-    assert stats["startup"] + stats["running"] >= kills and stats["running"] >= running, stats
+def _uninterrupted(monkeypatch, argv):
+    """Run the command in this process to the end; the journal writes it made (:class:`Writes`)."""
+    with crash_at_write(monkeypatch, None) as writes:
+        assert main(argv) == 0
+    return writes
+
+
+def _equal_to(ref: Path, out: Path) -> dict:
+    """The two campaigns' brdf.h5 are equal bit for bit and ``out``'s journal holds exactly one measurement
+    per step. Returns ``out``'s samples."""
     a, b = _h5(ref / "brdf.h5"), _h5(out / "brdf.h5")
     assert a.keys() == b.keys()
     for key in a:
@@ -185,16 +112,67 @@ def _killed_equals_uninterrupted(tmp_path, material, grid, config, kills, seed, 
     return b
 
 
-def test_sigkill_at_random_moments_then_resume_equals_an_uninterrupted_run(tmp_path):
-    _killed_equals_uninterrupted(tmp_path, "ggx:alpha=0.15,metal=gold", "iso:step=10", _config(tmp_path),
-                                 kills=10, seed=1, running=3)
+def _crash(monkeypatch, argv, at: int) -> None:
+    with crash_at_write(monkeypatch, at), pytest.raises(Crash):   # DID NOT RAISE: it finished first
+        main(argv)
 
 
-def test_sigkill_with_a_drifting_lamp_and_dark_offset_matches_the_truth_within_its_uncertainty(tmp_path):
+#: The journal writes a run makes before its first unit (its state event, the devices' descriptions in
+#: the meta and an event, the resume's event): a crash among them is a start-up crash.
+STARTUP_WRITES = 4
+
+
+def _crash_and_resume(monkeypatch, argv, out: Path, kills: int, seed: int, writes, creation: int) -> dict:
+    """Crash the command ``creation`` times (0 to 2) during the journal's creation, then ``kills`` times
+    more, each run before a random journal write of its own; then run it to the end. ``writes``: an
+    uninterrupted run's (:class:`Writes`). About a third of the kills come among a resumed run's first
+    :data:`STARTUP_WRITES` writes (its start-up), the rest after a random number of further writes (each
+    run gets part of the way)."""
+    rng = random.Random(seed)
+    stats = {"creation": 0, "startup": 0, "running": 0, "progress": []}
+    for at in (1, rng.randint(2, writes.creation))[:creation]:
+        _crash(monkeypatch, argv, at)
+        assert not (out / JOURNAL_NAME).exists() and Journal.partial_paths(out / JOURNAL_NAME)
+        stats["creation"] += 1
+    most = max(4, (writes.count - writes.creation) // (2 * kills))
+    while stats["startup"] + stats["running"] < kills:
+        if (out / JOURNAL_NAME).exists() and rng.random() < 0.3:
+            _crash(monkeypatch, argv, rng.randint(1, STARTUP_WRITES))
+            stats["startup"] += 1
+        else:
+            created = 0 if (out / JOURNAL_NAME).exists() else writes.creation
+            _crash(monkeypatch, argv, created + STARTUP_WRITES + rng.randint(1, most))
+            stats["running"] += 1
+        stats["progress"].append(_done(out))
+    assert main(argv) == 0
+    assert not Journal.partial_paths(out / JOURNAL_NAME)   # the killed creation's files are gone
+    return stats
+
+
+def _crashed_equals_uninterrupted(tmp_path, monkeypatch, material, grid, config, kills, seed,
+                                  creation=2) -> dict:
+    """Run the campaign once to the end and once crashed ``creation`` + ``kills`` times (at least a third
+    of the kills mid-campaign) and resumed, in this process; see :func:`_equal_to`."""
+    ref, out = tmp_path / "ref", tmp_path / "crashed"
+    writes = _uninterrupted(monkeypatch, _argv(material, grid, ref, config))
+    stats = _crash_and_resume(monkeypatch, _argv(material, grid, out, config), out, kills=kills, seed=seed,
+                              writes=writes, creation=creation)
+    assert stats["running"] >= kills // 3 and len(set(stats["progress"])) >= kills // 3, stats
+    return _equal_to(ref, out)
+
+
+def test_crashes_at_random_journal_writes_then_resume_equal_an_uninterrupted_run(tmp_path, monkeypatch):
+    _crashed_equals_uninterrupted(tmp_path, monkeypatch, "ggx:alpha=0.15,metal=gold", "iso:step=15",
+                                  _config(tmp_path), kills=10, seed=1)
+
+
+def test_crashes_with_a_drifting_lamp_and_dark_offset_match_the_truth_within_its_uncertainty(tmp_path,
+                                                                                             monkeypatch):
     config = _config(tmp_path, drift_per_hour=-0.3, dark_offset=2.0, shot_counts_per_unit=50.0,
                      read_sigma=0.05, radiance=1e6)
-    b = _killed_equals_uninterrupted(tmp_path, "lambert:albedo=0.5", "iso:step=10", config, kills=10, seed=2,
-                                     running=3)
+    # Long enough for the lamp to drift (iso:step=10: 17 minutes); the creation's crashes: the test above.
+    b = _crashed_equals_uninterrupted(tmp_path, monkeypatch, "lambert:albedo=0.5", "iso:step=10", config,
+                                      kills=10, seed=2, creation=0)
     # The lamp lost several percent over the campaign; the references track it.
     assert b["campaign_s"].max() > 600.0
     z = (b["value"] - 0.5 / np.pi) / b["stddev"]
@@ -202,9 +180,83 @@ def test_sigkill_with_a_drifting_lamp_and_dark_offset_matches_the_truth_within_i
     assert np.mean(np.abs(z) < 3.0) > 0.99
 
 
-def test_a_fly_campaign_killed_at_random_moments_resumes_to_the_uninterrupted_result(tmp_path):
-    """The same for on-the-fly scanning (one journal transaction per sweep): a kill loses at most the
+def test_a_fly_campaign_crashed_at_random_journal_writes_resumes_to_the_uninterrupted_result(tmp_path,
+                                                                                              monkeypatch):
+    """The same for on-the-fly scanning (one journal transaction per sweep): a crash loses at most the
     sweep in flight, and the resumed campaign is the uninterrupted one bit for bit."""
-    b = _killed_equals_uninterrupted(tmp_path, "ward:rho_d=0.1,rho_s=0.05,alpha=0.15",
-                                     "iso:step=10,order=fly", _config(tmp_path), kills=6, seed=4, running=2)
-    assert len(b["value"]) > 1000
+    b = _crashed_equals_uninterrupted(tmp_path, monkeypatch, "ward:rho_d=0.1,rho_s=0.05,alpha=0.15",
+                                      "iso:step=15,order=fly", _config(tmp_path), kills=6, seed=4,
+                                      creation=1)
+    assert len(b["value"]) == 304   # every pose of iso:step=15
+
+
+# -- one real SIGKILL per path ---------------------------------------------------------------------------
+
+GONIO = [sys.executable, "-m", "gonio.cli"]
+#: Upper bound on one whole run of these small campaigns (start-up included), for every wait below.
+RUN_LIMIT_S = 120.0
+
+
+def _kill_during_creation(argv, out: Path) -> bool:
+    """Start the command and SIGKILL it while the journal is being built (its temporary file exists), or
+    as soon as the journal exists. True when it was caught in the creation's window (a short one)."""
+    p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    caught = False
+    deadline = time.monotonic() + RUN_LIMIT_S
+    try:
+        while p.poll() is None and time.monotonic() < deadline:
+            if out.is_dir() and Journal.partial_paths(out / JOURNAL_NAME):
+                caught = True
+                break
+            if (out / JOURNAL_NAME).exists():
+                break
+            time.sleep(0.0002)  # polling what another process writes; bounded by the deadline
+        assert p.poll() is None, "the run finished before its kill"
+    finally:
+        p.kill()
+        p.wait(timeout=RUN_LIMIT_S)
+    return caught
+
+
+def _kill_after_steps(argv, out: Path, steps: int) -> None:
+    """Start the command and SIGKILL it once ``steps`` more steps are committed (watched through a
+    read-only journal connection)."""
+    start = _done(out)
+    p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + RUN_LIMIT_S
+    try:
+        while p.poll() is None and time.monotonic() < deadline and _done(out) < start + steps:
+            time.sleep(0.001)  # polling what another process writes; bounded by the deadline
+        assert p.poll() is None, "the run finished before its kill"
+        os.kill(p.pid, signal.SIGKILL)
+    finally:
+        p.wait(timeout=RUN_LIMIT_S)
+    assert start + steps <= _done(out) < Journal.open(out / JOURNAL_NAME, readonly=True).step_count()
+
+
+def _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, material, grid, steps) -> None:
+    """``gonio simulate`` as a process, SIGKILLed during the journal's creation (or just after it), then
+    after ``steps`` committed steps, then run to the end: bit for bit the uninterrupted run (made in this
+    process)."""
+    config = _config(tmp_path)
+    ref, out = tmp_path / "ref", tmp_path / "killed"
+    _uninterrupted(monkeypatch, _argv(material, grid, ref, config))
+    argv = [*GONIO, *_argv(material, grid, out, config)]
+    _kill_during_creation(argv, out)
+    _kill_after_steps(argv, out, steps)
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=RUN_LIMIT_S)
+    assert r.returncode == 0, r.stderr
+    assert not Journal.partial_paths(out / JOURNAL_NAME)
+    _equal_to(ref, out)
+
+
+@pytest.mark.slow
+def test_sigkill_during_creation_and_mid_campaign_then_resume_equals_an_uninterrupted_run(tmp_path,
+                                                                                          monkeypatch):
+    _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, "ggx:alpha=0.15,metal=gold", "iso:step=15", 10)
+
+
+@pytest.mark.slow
+def test_a_sigkilled_fly_campaign_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch):
+    _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, "ward:rho_d=0.1,rho_s=0.05,alpha=0.15",
+                                    "iso:step=15,order=fly", 3)

@@ -22,7 +22,6 @@ from gonio.motion.metric import MoveMetric
 from gonio.motion.order import improve_tour, nearest_neighbour_tour
 from gonio.motion.refine import refine_order, walk_costs
 from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
-from gonio.plan import build_plan
 
 sys.path.insert(0, str(Path(__file__).parent))
 from exact import held_karp  # noqa: E402
@@ -31,10 +30,10 @@ SUBSETS = 200
 
 
 @pytest.fixture(scope="module", params=["sim.toml", "sample-stage.toml"])
-def subsets(request):
+def subsets(request, planned):
     cfg = load_config(CONFIG_DIR / request.param)
     kin = make_kinematics(cfg)
-    plan = build_plan("iso:step=10", cfg, kin)
+    plan = planned("iso:step=10", cfg, kin)
     metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
     angles = np.stack([plan.theta_i, plan.phi_i, plan.theta_o, plan.phi_o])
     rng = np.random.default_rng(20240611)

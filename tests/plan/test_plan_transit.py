@@ -31,9 +31,9 @@ def gantry(request):
 
 
 @pytest.mark.parametrize("grid", GRIDS)
-def test_every_planned_move_and_the_park_replay_without_collision(gantry, grid):
+def test_every_planned_move_and_the_park_replay_without_collision(gantry, grid, planned):
     cfg, kin = gantry
-    plan = build_plan(grid, cfg, kin)
+    plan = planned(grid, cfg, kin)
     a, b = planned_moves(kin, plan)
     assert a.shape[0] >= np.count_nonzero(plan.step_kind != STEP_DARK) + 1
     hit = replay(kin, a, b, step_deg=0.1)
@@ -49,10 +49,10 @@ def test_every_planned_move_and_the_park_replay_without_collision(gantry, grid):
     assert plan.lower_bound_s <= plan.estimated_s
 
 
-def test_first_merl_move_no_longer_spins_the_detector_a_whole_turn():
+def test_first_merl_move_no_longer_spins_the_detector_a_whole_turn(planned):
     cfg = load_config(DEFAULT_CONFIG)
     kin = make_kinematics(cfg)
-    plan = build_plan("merl:stride=8", cfg, kin)
+    plan = planned("merl:stride=8", cfg, kin)
     a, b = planned_moves(kin, plan)
     # Home -> white reference: the detector carriage stays within half a turn of home.
     assert abs(b[0, 2] - a[0, 2]) <= 180.0
