@@ -146,21 +146,26 @@ def _hard_stop(gantry, cfg, name: str, out) -> float:
         limit = travel / speed + 2.0 * speed / accel + 5.0
         start = clock.now()
         slowed: tuple[float, float] | None = None  # (clock, position) when the approach slowed down
-        last: tuple[float, float] | None = None
+        last: tuple[float, float, float] | None = None     # (clock, position, half the read's duration)
         v_seen = False
         while True:
             clock.sleep(rc.poll_s)
-            now = clock.now()
+            asked = clock.now()
             state = axis.seek_state()
+            answered = clock.now()
+            # The position was read somewhere between the request and the reply: a slow round trip (a
+            # loaded host) must not make the travel between two looks seem shorter than it was.
+            now, half = 0.5 * (asked + answered), 0.5 * (answered - asked)
             for p in partners:
                 p.seek_state()  # also feeds its watchdog
             # Slowed, once past the acceleration: less than a quarter of the approach's travel since the
-            # last look, or (where the servo reports its velocity: it was seen at speed) its velocity
-            # under a quarter of the approach's, which shows the stop a look earlier.
+            # last look (over the least time that can have passed between the two reads), or (where the
+            # servo reports its velocity: it was seen at speed) its velocity under a quarter of the
+            # approach's, which shows the stop a look earlier.
             v_seen = v_seen or abs(state.velocity_deg_s) >= 0.5 * speed
             moved = None if last is None else abs(state.position_deg - last[1])
             crept = (moved is not None and last[0] - start >= speed / accel
-                     and moved < 0.25 * speed * (now - last[0]))
+                     and moved < 0.25 * speed * (now - last[0] - half - last[2]))
             braked = v_seen and now - start >= speed / accel and abs(state.velocity_deg_s) < 0.25 * speed
             if slowed is None and (crept or braked):
                 # At the first sign of the stop the followers stop: the carriages' distance changes
@@ -169,7 +174,7 @@ def _hard_stop(gantry, cfg, name: str, out) -> float:
                     p.follow_stop()
                 partners_stopped = True
                 slowed = (now, state.position_deg)
-            last = (now, state.position_deg)
+            last = (now, state.position_deg, half)
             if slowed is not None:
                 if abs(state.position_deg - slowed[1]) > max(0.5, 0.25 * speed * STALL_S):
                     raise DeviceFault(name, f"the approach slowed at {slowed[1]:.2f}° (unreferenced) and "
