@@ -43,7 +43,8 @@ import numpy as np
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.store import Measurement
 
-__all__ = ["CalibrationError", "Calibrated", "calibrate", "interpolation_weights", "SPACING_RATIO"]
+__all__ = ["CalibrationError", "Calibrated", "calibrate", "interpolation_weights", "interpolate_readings",
+           "SPACING_RATIO"]
 
 #: The drift interpolation uses a reading beyond the two around a pose only when the interval to it is
 #: within this factor of theirs.
@@ -106,7 +107,7 @@ def interpolation_weights(t, tk, ratio: float = None) -> tuple[np.ndarray, np.nd
     return idx, weights
 
 
-def _interp(t, tk, yk, ek):
+def interpolate_readings(t, tk, yk, ek):
     """Values ``yk`` (K, C) with standard errors ``ek`` (K, C), read at the times ``tk``, interpolated at
     the times ``t`` (N,) as :func:`interpolation_weights` says. Returns (value, stddev), each (N, C)."""
     idx, weights = interpolation_weights(t, tk)
@@ -149,7 +150,7 @@ def calibrate(measurements: list[Measurement], reference_albedo) -> Calibrated:
     theta_i = np.radians([m.angles_deg[0] for m in measurements])
 
     dk = kind == STEP_DARK
-    dark, dark_err = _interp(t, t[dk], rate[dk], err[dk])
+    dark, dark_err = interpolate_readings(t, t[dk], rate[dk], err[dk])
 
     rk = kind == STEP_REFERENCE
     ref_net = rate[rk] - dark[rk]
@@ -162,7 +163,7 @@ def calibrate(measurements: list[Measurement], reference_albedo) -> Calibrated:
     k_ref_err = k_ref * np.hypot(err[rk], dark_err[rk]) / ref_net
 
     pk = kind == STEP_POSE
-    k, k_err = _interp(t[pk], t[rk], k_ref, k_ref_err)
+    k, k_err = interpolate_readings(t[pk], t[rk], k_ref, k_ref_err)
     cos_i = np.cos(theta_i[pk])[:, None]
     net = rate[pk] - dark[pk]
     net_err = np.hypot(err[pk], dark_err[pk])

@@ -371,8 +371,8 @@ class DetectorConfig(DeviceConfig):
         return None
 
     def descriptor(self) -> dict:
-        """What a reading is (:func:`gonio.store.detector_descriptor`), for the campaign's journal."""
-        from gonio.store import detector_descriptor
+        """What a reading is (:func:`gonio.protocols.detector_descriptor`), for the campaign's journal."""
+        from gonio.protocols import detector_descriptor
 
         return detector_descriptor(self.kind_name, self.channel_names, self.wavelengths_nm)
 

@@ -373,3 +373,28 @@ class ReportsLink(Protocol):
     """A gantry that says in one line what its drivers could not trust (the engine journals it)."""
 
     def link_report(self) -> str | None: ...
+
+
+def detector_descriptor(kind: str, channels, wavelengths_nm=None, shape=None, units: str = "signal") -> dict:
+    """What a reading of a detector is, as the journal's meta ``detector`` keeps it.
+
+    Parameters
+    ----------
+    kind : str
+        ``photodiode``, ``spectrometer``, ``camera``, or a real driver's kind.
+    channels : sequence of str
+        Channel names (R, G, B; or one per band).
+    wavelengths_nm : sequence of float, optional
+        Centre wavelength of each channel (nm), for spectral channels; None otherwise.
+    shape : sequence of int, optional
+        The shape of each reading's signal; default ``[len(channels)]``.
+    units : str
+        Of the signal (``signal``: the detector's own linear units, dark not subtracted).
+    """
+    channels = [str(c) for c in channels]
+    wl = None if wavelengths_nm is None else [float(w) for w in wavelengths_nm]
+    if wl is not None and len(wl) != len(channels):
+        raise ValueError(f"wavelengths_nm: {len(wl)} for {len(channels)} channels")
+    return {"kind": str(kind), "channels": channels, "wavelengths_nm": wl,
+            "shape": [len(channels)] if shape is None else [int(n) for n in shape], "dtype": "float64",
+            "units": units}

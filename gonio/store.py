@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gonio.protocols import detector_descriptor
+
 __all__ = ["Journal", "JournalError", "Measurement", "SCHEMA_VERSION", "JOURNAL_NAME", "FRAMES_DIR",
            "detector_descriptor"]
 
@@ -140,31 +142,6 @@ class Measurement:
     extra: dict = field(default_factory=dict)
     frame_file: str | None = None     # read back: the frame's EXR, relative to the journal's folder
     frame_sha256: str | None = None
-
-
-def detector_descriptor(kind: str, channels, wavelengths_nm=None, shape=None, units: str = "signal") -> dict:
-    """What a reading of a detector is, as the journal's meta ``detector`` keeps it.
-
-    Parameters
-    ----------
-    kind : str
-        ``photodiode``, ``spectrometer``, ``camera``, or a real driver's kind.
-    channels : sequence of str
-        Channel names (R, G, B; or one per band).
-    wavelengths_nm : sequence of float, optional
-        Centre wavelength of each channel (nm), for spectral channels; None otherwise.
-    shape : sequence of int, optional
-        The shape of each reading's signal; default ``[len(channels)]``.
-    units : str
-        Of the signal (``signal``: the detector's own linear units, dark not subtracted).
-    """
-    channels = [str(c) for c in channels]
-    wl = None if wavelengths_nm is None else [float(w) for w in wavelengths_nm]
-    if wl is not None and len(wl) != len(channels):
-        raise ValueError(f"wavelengths_nm: {len(wl)} for {len(channels)} channels")
-    return {"kind": str(kind), "channels": channels, "wavelengths_nm": wl,
-            "shape": [len(channels)] if shape is None else [int(n) for n in shape], "dtype": "float64",
-            "units": units}
 
 
 def _json_default(value):

@@ -22,7 +22,7 @@ class SimDetectorKind:
     build : callable
         ``build(cfg, sample, *, light, axes, kinematics, clock, seed, track_motion)``: the detector (a
         :class:`gonio.protocols.Detector`), rendering the material ``sample`` (a loaded material) and
-        the white standard of ``cfg.reference`` (:func:`gonio.sim.gantry.reference_material`).
+        the white standard of ``cfg.reference`` (:func:`gonio.sim.standard.reference_material`).
         ``light`` has ``radiance()`` and ``half_angle_deg``; ``axes`` have ``true_position_deg()``.
     check : callable, optional
         ``check(detector_cfg)``: ValueError naming a ``[detector]`` setting this kind cannot take.
@@ -38,7 +38,7 @@ class SimDetectorKind:
 
 def _photodiode(cfg, sample, *, light, axes, kinematics, clock, seed, track_motion):
     from gonio.sim.detector import SimDetector
-    from gonio.sim.gantry import reference_material
+    from gonio.sim.standard import reference_material
 
     return SimDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics, clock=clock, seed=seed,
                        materials={"sample": sample, "reference": reference_material(cfg)},
@@ -47,7 +47,7 @@ def _photodiode(cfg, sample, *, light, axes, kinematics, clock, seed, track_moti
 
 def _spectrometer(cfg, sample, *, light, axes, kinematics, clock, seed, track_motion):
     from gonio.sim.detector_spectral import SpectrometerDetector, spectral_material
-    from gonio.sim.gantry import reference_material
+    from gonio.sim.standard import reference_material
 
     return SpectrometerDetector(cfg.detector, light=light, axes=axes, kinematics=kinematics,
                                 materials={"sample": spectral_material(sample),
@@ -68,7 +68,7 @@ def _spectrometer_bands(det):
 
 def _camera(cfg, sample, *, light, axes, kinematics, clock, seed, track_motion):
     from gonio.sim.detector_camera import CameraDetector, camera_settings
-    from gonio.sim.gantry import reference_material
+    from gonio.sim.standard import reference_material
 
     materials = {"sample": sample, "reference": reference_material(cfg)}
     return CameraDetector(cfg.detector, camera_settings(cfg.detector, cfg.light), light=light, axes=axes,

@@ -61,8 +61,8 @@ from gonio.plan.fly import FlyLine, FlyPlan, fly_steps
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.sim import materials as _materials
 from gonio.sim.aperture import aperture_radiance_factor
-from gonio.sim.gantry import reference_material
 from gonio.sim.light import SimLight
+from gonio.sim.standard import reference_material
 from gonio.store import Measurement
 
 __all__ = ["TIME_SAMPLES", "SUBFRAMES", "AXIS_READ_S", "FlySimulator"]

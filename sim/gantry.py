@@ -8,8 +8,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-import numpy as np
-
 from gonio.clock import VirtualClock
 from gonio.config import GonioConfig
 from gonio.kinematics import make_kinematics
@@ -19,7 +17,7 @@ from gonio.sim.axis import SimAxis
 from gonio.sim.detector import TARGETS, SimDetector
 from gonio.sim.light import SimLight
 
-__all__ = ["SimGantry", "sim_detector", "detector_beside", "reference_material", "ReadBack", "LampView"]
+__all__ = ["SimGantry", "sim_detector", "detector_beside", "ReadBack", "LampView"]
 
 
 def sim_detector(cfg: GonioConfig, material, *, light, axes, kinematics, clock: Clock, seed: int = 0,
@@ -76,30 +74,6 @@ def detector_beside(cfg: GonioConfig, material, *, light, axes, kinematics, cloc
     real = any(isinstance(v, ReadBack) for v in views.values())
     return sim_detector(cfg, material, light=lamp, axes=views, kinematics=kinematics, clock=clock, seed=seed,
                         track_motion=real)
-
-
-def reference_material(cfg: GonioConfig, spectral: bool = False):
-    """The simulated white standard: a Lambertian of ``reference.albedo``, or of ``reference.reflectance``
-    per channel, or of ``reference.spectrum`` (spectral: ρ(λ) at every band; RGB: its linear sRGB), times
-    ``reference.response`` (so that at its reading angles it reflects as the config says)."""
-    ref, det = cfg.reference, cfg.detector
-    g = ref.response
-    if spectral:
-        from gonio.sim.materials.spectral import SpectralLambert
-
-        if ref.spectrum is not None:
-            return SpectralLambert(lambda wl: ref.spectrum.at(wl) * g)
-        if ref.reflectance is not None:
-            bands, rho = np.asarray(det.wavelengths_nm, float), np.asarray(ref.reflectance, float) * g
-            return SpectralLambert(lambda wl: np.interp(wl, bands, rho))
-        return SpectralLambert(lambda wl: np.full(np.shape(wl), ref.albedo * g))
-    if ref.reflectance is None and ref.spectrum is None and g == 1.0:
-        return _materials.load(f"lambert:albedo={ref.albedo!r}")
-    rho = ref.reference_fr(det.channel_names, det.wavelengths_nm)
-    if np.any(rho > 1.0):
-        raise ValueError(f"reference.response: the simulated standard would reflect ρ·response = "
-                         f"{float(rho.max()):g} > 1 of the light it receives")
-    return _materials.load("lambert:albedo=" + "/".join(repr(float(r)) for r in rho))
 
 
 class SimGantry:

@@ -197,7 +197,7 @@ def test_readings_with_a_shape_calibrate_channel_by_channel():
 
 
 def test_drift_interpolation_is_a_local_cubic_that_falls_back_across_long_gaps():
-    from gonio.calibrate import _interp, interpolation_weights
+    from gonio.calibrate import interpolate_readings, interpolation_weights
 
     tk = np.array([0.0, 10.0, 20.0, 30.0, 40.0, 1000.0, 1010.0, 1020.0])
     t = np.linspace(-5.0, 1025.0, 400)
@@ -206,12 +206,12 @@ def test_drift_interpolation_is_a_local_cubic_that_falls_back_across_long_gaps()
     # A cubic drift inside the first block is followed exactly where two readings stand on each side.
     cubic = lambda x: 1.0 + 1e-3 * x - 4e-5 * x**2 + 2e-6 * x**3  # noqa: E731
     y = cubic(tk)[:, None]
-    value, _ = _interp(t, tk, y, np.zeros_like(y))
+    value, _ = interpolate_readings(t, tk, y, np.zeros_like(y))
     inner = (t >= 10.0) & (t <= 30.0)
     np.testing.assert_allclose(value[inner, 0], cubic(t[inner]), rtol=1e-12)
     # A straight line everywhere, constant beyond the ends.
     line = (2.0 + 0.01 * tk)[:, None]
-    value, _ = _interp(t, tk, line, np.zeros_like(line))
+    value, _ = interpolate_readings(t, tk, line, np.zeros_like(line))
     np.testing.assert_allclose(value[:, 0], 2.0 + 0.01 * np.clip(t, 0.0, 1020.0), rtol=1e-12)
     # Across the 960 s pause nothing on the far side is used, and inside it only its two ends.
     near = (t > 20.0) & (t < 40.0)
@@ -220,5 +220,5 @@ def test_drift_interpolation_is_a_local_cubic_that_falls_back_across_long_gaps()
     assert np.all(np.isin(idx[gap][w[gap] != 0.0], [4, 5]))
     # Standard errors add as the weights say.
     e = np.full((tk.size, 1), 0.1)
-    _, sd = _interp(np.array([25.0]), tk, line, e)
+    _, sd = interpolate_readings(np.array([25.0]), tk, line, e)
     assert sd[0, 0] == pytest.approx(0.1 * np.sqrt(2 * (1 / 16) ** 2 + 2 * (9 / 16) ** 2), rel=1e-12)

@@ -12,7 +12,7 @@ from gonio.registry import lazy_attributes
 #: Each public name -> the submodule it lives in (imported when the name is first used: the driver's
 #: config model, gonio.config reads at every config load, must not import the driver's library).
 _EXPORTS = {
-    "AxisState": "axis", "DynamixelAxis": "axis", "NotReferencedError": "axis", "DynamixelBus": "bus",
+    "AxisState": "state", "DynamixelAxis": "axis", "NotReferencedError": "axis", "DynamixelBus": "bus",
     "TABLES": "control_table", "XL430": "control_table", "XM430": "control_table",
     "ControlTable": "control_table", "Field": "control_table", "DynamixelCommError": "errors",
     "DynamixelError": "errors", "DynamixelHardwareError": "errors", "DynamixelStatusError": "errors",

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 from gonio.clock import WallClock
 from gonio.drivers.dynamixel.bus import DynamixelBus
@@ -62,16 +61,13 @@ from gonio.drivers.dynamixel.reference import (
     encode_marker,
     indirect_defaults,
 )
+from gonio.drivers.dynamixel.state import BLOCK_LEN, BLOCK_START, READS, AxisState
 from gonio.drivers.readback import PlausibilityGuard
 from gonio.protocols import NotReferencedFault
 
 __all__ = ["DynamixelAxis", "AxisState", "NotReferencedError", "BLOCK_START", "BLOCK_LEN", "READS"]
 
 _WATCHDOG_UNIT_S = 0.02
-#: One block read covers Bus Watchdog(98) .. Present Position(132..135).
-BLOCK_START, BLOCK_LEN = 98, 38
-#: Reads of a position that are tried before one is called implausible (the first and fresh ones).
-READS = 3
 # Realtime Tick(120): the servo's millisecond clock (from power-up), in every block read; wraps at 32768.
 _TICK, _TICK_WRAP = 120 - BLOCK_START, 32768
 #: A tick is compared with the last accepted one only within this long (s): past half the wrap an
@@ -82,15 +78,6 @@ _TICK_SLACK_MS, _TICK_DRIFT = 3.0, 0.01
 #: While a hardware warning keeps the alert bit up, Hardware Error Status is read again at most this
 #: often (s): a new bit (one Shutdown acts on) is seen within it, without a read per transaction.
 _ALERT_RECHECK_S = 1.0
-
-
-@dataclass(frozen=True)
-class AxisState:
-    """One axis as a read saw it: position (°), moving flag, velocity (°/s)."""
-
-    position_deg: float
-    moving: bool
-    velocity_deg_s: float
 
 
 class NotReferencedError(DynamixelError, NotReferencedFault):

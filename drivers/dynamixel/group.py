@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from gonio.drivers.dynamixel.axis import BLOCK_LEN, BLOCK_START, READS, AxisState, DynamixelAxis
 from gonio.drivers.dynamixel.errors import DynamixelCommError
+from gonio.drivers.dynamixel.state import BLOCK_LEN, BLOCK_START, READS, AxisState
 
 __all__ = ["DynamixelGroup"]
 
@@ -26,7 +26,7 @@ class DynamixelGroup:
         watchdog, goal and present fields share addresses).
     """
 
-    def __init__(self, axes: Sequence[DynamixelAxis]):
+    def __init__(self, axes: Sequence):
         axes = list(axes)
         if not axes:
             raise ValueError("dynamixel group: needs at least one axis")

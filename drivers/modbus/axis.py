@@ -24,17 +24,19 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
 from gonio.clock import WallClock
-from gonio.drivers.modbus.profile import Command, MotorProfile, load_profile
+from gonio.drivers.modbus.profile import FAMILIES, Command, MotorProfile, load_profile
 from gonio.drivers.readback import PlausibilityGuard
 from gonio.protocols import DeviceFault, NotReferencedFault
 
-__all__ = ["ModbusAxis", "ModbusCommError", "ModbusExceptionError", "ModbusAlarmError", "make_client"]
+__all__ = ["ModbusAxis", "ModbusCommError", "ModbusExceptionError", "ModbusAlarmError", "make_client",
+           "axis_class"]
 
 
 class ModbusCommError(DeviceFault):
@@ -524,3 +526,11 @@ class ModbusAxis:
 
     def stop(self) -> None:
         self._command(self.profile.stop)
+
+
+def axis_class(name_or_path: str | Path):
+    """The axis class that drives a family (:data:`gonio.drivers.modbus.profile.FAMILIES`); a profile
+    given by path is driven by :class:`ModbusAxis`."""
+    if str(name_or_path) in FAMILIES:
+        return FAMILIES.load(str(name_or_path))
+    return ModbusAxis

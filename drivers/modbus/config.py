@@ -65,7 +65,7 @@ class ModbusAxisConfig(AxisConfig):
         return ("none", "origin"), "a 'modbus' axis"
 
     def build(self, name: str, ctx: BuildContext, start_deg: float | None = None):
-        from gonio.drivers.modbus.profile import axis_class
+        from gonio.drivers.modbus.axis import axis_class
 
         return axis_class(self.profile)(
             name, ctx.buses[self.bus], self.profile, device_id=self.device_id,

@@ -37,7 +37,7 @@ from pathlib import Path
 
 from gonio.registry import Registry
 
-__all__ = ["Register", "Command", "MotorProfile", "load_profile", "axis_class", "FAMILIES", "PROFILES"]
+__all__ = ["Register", "Command", "MotorProfile", "load_profile", "FAMILIES", "PROFILES"]
 
 _TYPES = {"u16": (1, False), "s16": (1, True), "u32": (2, False), "s32": (2, True)}
 _REQUIRED = ("target_position", "velocity", "acceleration", "deceleration", "actual_position", "status",
@@ -283,13 +283,3 @@ def load_profile(name_or_path: str | Path) -> MotorProfile:
         raise ValueError(f"modbus profile {str(name_or_path)!r} is neither one of "
                          f"{', '.join(FAMILIES.names())} nor a file")
     return parse_profile(tomllib.loads(path.read_text()), str(path))
-
-
-def axis_class(name_or_path: str | Path):
-    """The axis class that drives a family (:data:`FAMILIES`); a profile given by path is driven by
-    :class:`~gonio.drivers.modbus.axis.ModbusAxis`."""
-    if str(name_or_path) in FAMILIES:
-        return FAMILIES.load(str(name_or_path))
-    from gonio.drivers.modbus.axis import ModbusAxis
-
-    return ModbusAxis

@@ -226,8 +226,7 @@ def create_app(d: Daemon) -> FastAPI:
     @app.get("/gantry", response_model=GantryStatus, responses=_docs(*reads, 409))
     def gantry_status():
         q = d.queue
-        with q._cond:
-            g, rec = q.gantry, q.current
+        g, rec = q.running_gantry()
         if g is not None and rec is not None:
             return snapshot(g, rec.id, d.cfg)
         return d.gantry.status()

@@ -234,6 +234,12 @@ class CampaignQueue:
     def stopping(self) -> bool:
         return self._stopping.is_set()
 
+    def running_gantry(self):
+        """(gantry, record) of the campaign running now, read together under the queue's lock; (None,
+        None) or a record without a gantry between campaigns."""
+        with self._cond:
+            return self.gantry, self.current
+
     # -- submitting ------------------------------------------------------------------------------
     def staging(self) -> Path:
         """A fresh staging folder's path (not created) for the planner to journal a request in."""

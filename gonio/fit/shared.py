@@ -16,6 +16,7 @@ diag(σ² − Σ U²) + U Uᵀ per channel (the channels are calibrated independ
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
@@ -32,17 +33,21 @@ def shared_errors(folder, value: np.ndarray) -> np.ndarray | None:
     Returns None when the folder has no journal or its calibration does not reproduce ``value`` (the
     brdf.h5 was made otherwise), so that the caller falls back to independent samples.
     """
-    from gonio.campaign import open_campaign
+    from gonio.config import parse_config
+    from gonio.store import JOURNAL_NAME, Journal
 
     try:
-        c = open_campaign(folder, readonly=True)
+        journal = Journal.open(Path(folder) / JOURNAL_NAME, readonly=True)
     except Exception:  # no journal, another format: nothing to say about shared errors
         return None
     try:
-        measurements = c.journal.measurements()
-        albedo = c.cfg.reference.albedo
+        try:   # the white standard the campaign was planned with (its config snapshot)
+            albedo = parse_config(journal.meta()["config"], f"{folder} (config snapshot)").reference.albedo
+        except Exception:  # a snapshot this gonio cannot read: nothing to say about shared errors
+            return None
+        measurements = journal.measurements()
     finally:
-        c.close()
+        journal.close()
     base = calibrate(measurements, albedo)
     if base.value.shape != value.shape or not np.allclose(base.value, value, rtol=1e-9, atol=1e-12):
         return None

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.calibrate import SPACING_RATIO, _interp, interpolation_weights
+from gonio.calibrate import SPACING_RATIO, interpolate_readings, interpolation_weights
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.store import JOURNAL_NAME, Journal
 
@@ -232,7 +232,7 @@ def calibration_readings(measurements: list) -> tuple[Readings, Readings]:
     dk, rk = kind == STEP_DARK, kind == STEP_REFERENCE
     if not dk.any() or not rk.any():
         raise ValueError("the journal holds no dark or no white-reference reading: nothing calibrated it")
-    dark_at_ref, dark_err = _interp(t[rk], t[dk], rate[dk], err[dk])
+    dark_at_ref, dark_err = interpolate_readings(t[rk], t[dk], rate[dk], err[dk])
     net = rate[rk] - dark_at_ref
     scale = np.median(net, axis=0)
     scale = np.where(np.abs(scale) > 0, np.abs(scale), 1.0)

@@ -170,6 +170,10 @@ class EmulatedServo:
     def _put(self, addr: int, size: int, value: int) -> None:
         self._mem[addr:addr + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
 
+    def ping_reply(self) -> bytes:
+        """What a Ping's status packet carries: Model Number (2 bytes) and Firmware Version(6)."""
+        return self._spec.number.to_bytes(2, "little") + bytes([self._get(6, 1)])
+
     def _get(self, addr: int, size: int, signed: bool = False) -> int:
         return int.from_bytes(self._mem[addr:addr + size], "little", signed=signed)
 

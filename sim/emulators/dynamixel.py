@@ -175,7 +175,7 @@ class DynamixelBusEmulator(EmulatorThread):
     def _single(self, s: EmulatedServo, p: Packet) -> tuple[int | None, bytes]:
         prm = p.params
         if p.inst == Inst.PING:
-            return 0, s._spec.number.to_bytes(2, "little") + bytes([s._get(6, 1)])
+            return 0, s.ping_reply()
         if p.inst == Inst.READ:
             if len(prm) != 4:
                 return ERR_DATA_LENGTH, b""

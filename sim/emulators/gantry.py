@@ -229,8 +229,8 @@ class EmulatedGantry:
         from gonio.kinematics import make_kinematics
         from gonio.sim import materials as _materials
         from gonio.sim.detector import SimDetector
-        from gonio.sim.gantry import reference_material
         from gonio.sim.light import SimLight
+        from gonio.sim.standard import reference_material
 
         cfg = self.cfg
         kinematics = make_kinematics(cfg)

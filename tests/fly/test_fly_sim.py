@@ -19,7 +19,7 @@ from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
 from gonio.sim import materials
 from gonio.sim.aperture import aperture_radiance_factor
 from gonio.sim.fly import SUBFRAMES, FlySimulator
-from gonio.sim.gantry import reference_material
+from gonio.sim.standard import reference_material
 
 # Fine steps (the density of iso:step=2) over a small cap of angles: cheap, yet the blur is that of
 # a real fine campaign.
