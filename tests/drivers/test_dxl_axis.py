@@ -171,7 +171,7 @@ def test_group_refuses_all_when_one_target_is_out_of_range(rig, dxl_emu):
 
 def test_silent_servo_in_sync_read_is_an_error_never_zero(rig, dxl_emu):
     bus, a, b = rig
-    dxl_emu.faults.add("drop", match=(2, Inst.SYNC_READ), times=2)  # both attempts
+    dxl_emu.faults.add("drop", match=(2, Inst.SYNC_READ), times=bus.retries + 1)  # every attempt
     with pytest.raises(DynamixelCommError, match="servo 2 did not answer") as err:
         DynamixelGroup([a, b]).read()
     assert err.value.transient and err.value.dxl_id == 2
@@ -186,10 +186,10 @@ def test_dropped_reply_is_retried(rig, dxl_emu):
 
 @pytest.mark.parametrize("kind", ["corrupt", "truncate"])
 def test_bad_reply_retried_then_typed_error(rig, dxl_emu, kind):
-    _bus, a, _b = rig
+    bus, a, _b = rig
     dxl_emu.faults.add(kind, match=1)
     assert a.position_deg() == 0.0  # one bad reply: the retry gets a good one
-    dxl_emu.faults.add(kind, match=1, times=2)
+    dxl_emu.faults.add(kind, match=1, times=bus.retries + 1)  # every attempt
     with pytest.raises(DynamixelCommError) as err:
         a.position_deg()
     assert err.value.transient and "servo 1" in str(err.value)
