@@ -78,7 +78,7 @@ def main() -> None:
                         "--full: 20,10,8,5)")
     parser.add_argument("--full", action="store_true", help="the whole isotropic panel, 4 counts, --reach")
     parser.add_argument("--reach", action="store_true", help="poses adaptive needs for the iso:step=5 error")
-    parser.add_argument("--reach-from", type=int, default=400)
+    parser.add_argument("--reach-from", type=int, default=100)
     parser.add_argument("--engines", action="store_true", help="reconstruction variants (1,156 poses)")
     parser.add_argument("--pilots", action="store_true", help="pilot fractions and growths (1,156 poses)")
     parser.add_argument("--pairs", type=int, default=20_000)

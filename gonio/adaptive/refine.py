@@ -6,8 +6,9 @@ Each sample owns a cell (the poses nearer to it than to any other sample, in the
     E_j = |r_j| · m_j,
 
 with r_j the sample's leave-one-out residual (:func:`gonio.adaptive.reconstruct.loo_residual`, summed over
-channels: how far f_r there departs from the plane its neighbours span, i.e. the reconstruction's error
-at the local spacing; large on the peak's flanks, on a Fresnel rise, at grazing) and m_j the cell's weight
+channels: how far f_r there departs from what the reconstruction makes of its neighbours alone, i.e. the
+reconstruction's error at the local spacing; large on the peak's flanks, on a Fresnel rise, at grazing)
+and m_j the cell's weight
 in the error: the measure of uniformly random direction pairs in the cell, times cos θi cos θo. m_j is
 the volume of a ball of radius ρ_j / 2 (ρ_j: the distance to the nearest other sample) times the pair
 density there, estimated from a seeded cloud of uniformly random pairs (their count within a radius
@@ -46,8 +47,10 @@ CLOUD = 40_000
 #: Cloud points within the radius at which the density around a sample is estimated.
 DENSITY_NEIGHBOURS = 24
 #: The fit whose leave-one-out residuals rate the cells: (domain, transform, degree) of
-#: :class:`gonio.adaptive.reconstruct.LocalFit`.
-LOO = ("half", "linear", 1)
+#: :class:`gonio.adaptive.reconstruct.LocalFit`; the reconstruction's own. At 1,156 poses it left 30 % less
+#: error than planes fitted to f_r in the half/difference domain on cook-torrance and lambert+ggx and 20 %
+#: less on ggx α = 0.2, 35 % more on ggx α = 0.05 (still 7x under the uniform grid's).
+LOO = ("iso", "log", 2)
 
 
 def cell_errors(samples: Samples, theta_max: float, domain: str = "half", seed: int = 0,
