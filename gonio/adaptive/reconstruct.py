@@ -9,7 +9,10 @@ query. Defaults, each measured by ``tools/bench_adaptive.py --engines`` on unifo
 - the fitted quantity is log(f_r cos θi cos θo + ε) (ε: 1e-3 of the samples' median): a microfacet lobe's
   log is close to a quadratic bowl, and the cosines take out the 1/(cos θi cos θo) rise at grazing;
 - degree 2 (a local quadric, :data:`QUADRATIC_NEIGHBOURS` neighbours): a plane flattens the peak by
-  h² f''/2; the quadric follows it. ``degree=1, transform="linear"`` is gonio.brdf's scattered method.
+  h² f''/2; the quadric follows it. Where samples are sparse around a sharp peak a quadric can swing
+  far past them (ggx α = 0.05 at 148 poses: 6.6 error without a bound), so its value is kept between
+  half the least and twice the largest neighbour (:data:`SWING`). ``degree=1, transform="linear"`` is
+  the method of gonio.brdf's scattered engine.
 
 :func:`loo_residual` fits the same way to each sample's neighbours without that sample (nor its
 reciprocal twin) and returns the sample minus that prediction, in f_r: large where f_r bends faster than
@@ -32,6 +35,8 @@ NEIGHBOURS = 10
 #: Neighbours of a local quadric (10 parameters in 3D).
 QUADRATIC_NEIGHBOURS = 24
 TRANSFORMS = ("linear", "log")
+#: How far a quadric's value may leave its neighbours' range (:func:`_fit`).
+SWING = 2.0
 # Floor of the log transform, relative to the median of f_r cos θi cos θo.
 _FLOOR = 1e-3
 _CHUNK = 20_000
@@ -60,7 +65,8 @@ class LocalFit:
             part = q[start:start + _CHUNK]
             dist, idx = self.tree.query(part, k=self.k)
             out[start:start + _CHUNK] = _fit(part, dist.reshape(len(part), -1), idx.reshape(len(part), -1),
-                                             self.points, self.values, None, self.degree)
+                                             self.points, self.values, None, self.degree,
+                                             self.transform == "log")
         return self._inverse(out) / (wi[:, 2] * wo[:, 2])[:, None]
 
     def _forward(self, x):
@@ -98,7 +104,8 @@ def loo_residual(samples: Samples, domain: str = "iso", transform: str = "log",
     dist, idx = dist.reshape(n, -1), idx.reshape(n, -1)
     _, owner = samples.points(domain)
     own = owner[idx] == np.arange(n)[:, None]
-    pred = fit._inverse(_fit(fit.points[:n], dist, idx, fit.points, fit.values, own, degree))
+    pred = fit._inverse(_fit(fit.points[:n], dist, idx, fit.points, fit.values, own, degree,
+                             transform == "log"))
     return samples.value - pred / _cosines(samples.theta_i, samples.theta_o)
 
 
@@ -106,7 +113,7 @@ def _cosines(theta_i, theta_o):
     return (np.cos(theta_i) * np.cos(theta_o))[:, None]
 
 
-def _fit(q, dist, idx, points, values, drop, degree):
+def _fit(q, dist, idx, points, values, drop, degree, log=False):
     """Value at each query of the weighted local polynomial through its neighbours ``idx`` (those where
     ``drop`` is true get no weight)."""
     d = dist if drop is None else np.where(drop, 0.0, dist)
@@ -121,5 +128,17 @@ def _fit(q, dist, idx, points, values, drop, degree):
     design = np.concatenate(cols, axis=2)
     normal = np.einsum("nk,nki,nkj->nij", w, design, design)
     normal += 1e-6 * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(design.shape[2])
-    rhs = np.einsum("nk,nki,nkc->nic", w, design, values[idx])
-    return np.linalg.solve(normal, rhs)[:, 0, :]
+    near = values[idx]
+    rhs = np.einsum("nk,nki,nkc->nic", w, design, near)
+    fitted = np.linalg.solve(normal, rhs)[:, 0, :]
+    if degree == 1:
+        return fitted
+    # A quadric may swing far past its data where they are sparse around a sharp peak: keep it between
+    # SWING times the least and SWING times the largest neighbour (log), or within the neighbours' range
+    # widened by SWING - 1 of it on each side (linear).
+    live = w[:, :, None] > 0
+    lo = np.where(live, near, np.inf).min(axis=1)
+    hi = np.where(live, near, -np.inf).max(axis=1)
+    if log:
+        return np.clip(fitted, lo - np.log(SWING), hi + np.log(SWING))
+    return np.clip(fitted, lo - (SWING - 1.0) * (hi - lo), hi + (SWING - 1.0) * (hi - lo))
