@@ -134,7 +134,7 @@ def _fit(q, dist, idx, points, values, drop, degree, log=False):
     if degree == 1:
         return fitted
     # A quadric may swing far past its data where they are sparse around a sharp peak: keep it between
-    # SWING times the least and SWING times the largest neighbour (log), or within the neighbours' range
+    # the least neighbour over SWING and the largest times SWING (log), or within the neighbours' range
     # widened by SWING - 1 of it on each side (linear).
     live = w[:, :, None] > 0
     lo = np.where(live, near, np.inf).min(axis=1)
