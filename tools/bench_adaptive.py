@@ -157,6 +157,9 @@ def _engines(measure, kin, theta_max, truth, wi, wo):
                         for s in (uni, acq.samples)]
                 print(f"  {domain:>4} {transform:>6} degree {degree}: uniform {errs[0]:.4f}  "
                       f"adaptive {errs[1]:.4f}", flush=True)
+    half_cells, _ = adaptive_error(measure, kin, theta_max, len(uni), truth, wi, wo, domain="half")
+    print(f"  adaptive with cells in half/difference angles instead of (θi, θo, Δφ): {half_cells:.4f}",
+          flush=True)
 
 
 def _pilots(measure, kin, theta_max, truth, wi, wo):

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gonio.adaptive.pilot import pilot_poses
-from gonio.adaptive.refine import LOO, plan_round
+from gonio.adaptive.refine import CELLS, LOO, plan_round
 from gonio.adaptive.samples import Samples
 
 __all__ = ["acquire", "round_sizes", "Acquisition", "PILOT_FRACTION", "GROWTH"]
@@ -49,7 +49,7 @@ def round_sizes(pilot: int, budget: int, growth: float = GROWTH) -> list[int]:
 
 
 def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: float = PILOT_FRACTION,
-            domain: str = "half", seed: int = 0, growth: float = GROWTH, loo: tuple = LOO) -> Acquisition:
+            domain: str = CELLS, seed: int = 0, growth: float = GROWTH, loo: tuple = LOO) -> Acquisition:
     """Measure ``budget`` poses adaptively (module docstring).
 
     Raises

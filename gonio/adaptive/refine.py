@@ -8,11 +8,10 @@ Each sample owns a cell (the poses nearer to it than to any other sample, in the
 with r_j the sample's leave-one-out residual (:func:`gonio.adaptive.reconstruct.loo_residual`, summed over
 channels: how far f_r there departs from what the reconstruction makes of its neighbours alone, i.e. the
 reconstruction's error at the local spacing; large on the peak's flanks, on a Fresnel rise, at grazing)
-and m_j the cell's weight
-in the error: the measure of uniformly random direction pairs in the cell, times cos θi cos θo. m_j is
-the volume of a ball of radius ρ_j / 2 (ρ_j: the distance to the nearest other sample) times the pair
-density there, estimated from a seeded cloud of uniformly random pairs (their count within a radius
-that holds :data:`DENSITY_NEIGHBOURS` of them).
+and m_j the cell's weight in the error: the measure of uniformly random direction pairs in the cell,
+times cos θi cos θo. m_j is the volume of a ball of radius ρ_j / 2 (ρ_j: the distance to the nearest
+other sample) times the pair density there, estimated from a seeded cloud of uniformly random pairs
+(their count within a radius that holds :data:`DENSITY_NEIGHBOURS` of them).
 
 The ``n`` cells of largest E_j each get one new pose (fewer cells than ``n``: the largest get more, in
 turn): of :data:`TRIALS` seeded points in the ball of radius ρ_j around the sample, the one farthest from
@@ -38,7 +37,7 @@ from gonio.adaptive.reach import reachable_iso
 from gonio.adaptive.reconstruct import loo_residual
 from gonio.adaptive.samples import Samples
 
-__all__ = ["plan_round", "cell_errors", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS"]
+__all__ = ["plan_round", "cell_errors", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO"]
 
 #: Seeded trial points per refined cell.
 TRIALS = 32
@@ -46,6 +45,10 @@ TRIALS = 32
 CLOUD = 40_000
 #: Cloud points within the radius at which the density around a sample is estimated.
 DENSITY_NEIGHBOURS = 24
+#: The embedding the cells and trial points live in (:mod:`gonio.adaptive.domain`). With the log-quadric
+#: residuals, (θi, θo, Δφ) cells left 10-50 % less error than half/difference ones at 1,156 poses
+#: (``tools/bench_adaptive.py --engines``); with planes fitted to f_r it was the other way round.
+CELLS = "iso"
 #: The fit whose leave-one-out residuals rate the cells: (domain, transform, degree) of
 #: :class:`gonio.adaptive.reconstruct.LocalFit`; the reconstruction's own. At 1,156 poses it left 30 % less
 #: error than planes fitted to f_r in the half/difference domain on cook-torrance and lambert+ggx and 20 %
@@ -53,7 +56,7 @@ DENSITY_NEIGHBOURS = 24
 LOO = ("iso", "log", 2)
 
 
-def cell_errors(samples: Samples, theta_max: float, domain: str = "half", seed: int = 0,
+def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: int = 0,
                 loo: tuple = LOO) -> np.ndarray:
     """E_j of every sample (module docstring), shape (N,)."""
     points, _ = samples.points(domain)
@@ -68,7 +71,7 @@ def cell_errors(samples: Samples, theta_max: float, domain: str = "half", seed: 
     return np.abs(loo_residual(samples, *loo)).sum(axis=1) * mass
 
 
-def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = "half",
+def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CELLS,
                seed: int = 0, loo: tuple = LOO) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians), in the order chosen.
 
