@@ -26,7 +26,7 @@ from gonio.sim.materials import load
 
 GGX = "ggx:alpha=0.2,metal=gold"
 #: Cosine-weighted relative L1 the adaptive run of GGX must reach at 1,156 poses.
-BOUND = 0.012
+BOUND = 0.008
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +151,7 @@ def test_reachable_iso_uses_the_twin(gantry):
 
 def test_adaptive_beats_uniform_at_equal_pose_count(gantry):
     """ggx α = 0.2 gold on iso:step=10's reachable poses (1,156), both through the same reconstruction:
-    adaptive must stay within BOUND, which the uniform grid misses by more than half again (measured:
+    adaptive must stay within BOUND, which the uniform grid misses by more than twice (measured:
     0.0040 against 0.0234 at 20,000 pairs, tools/bench_adaptive.py)."""
     _, kin, tmax = gantry
     material = load(GGX)
@@ -167,4 +167,4 @@ def test_adaptive_beats_uniform_at_equal_pose_count(gantry):
     adaptive_err = weighted_l1(reconstruct(adaptive).eval(wi, wo), truth, wi, wo)[0]
     assert len(adaptive) == len(uniform) == 1156
     assert adaptive_err <= BOUND, (adaptive_err, uniform_err)
-    assert uniform_err > 1.5 * BOUND, (adaptive_err, uniform_err)  # the uniform grid fails it by far
+    assert uniform_err > 2 * BOUND, (adaptive_err, uniform_err)  # the uniform grid misses it by far
