@@ -37,7 +37,7 @@ from gonio.adaptive.reach import reachable_iso
 from gonio.adaptive.reconstruct import loo_residual
 from gonio.adaptive.samples import Samples
 
-__all__ = ["plan_round", "cell_errors", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO"]
+__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO"]
 
 #: Seeded trial points per refined cell.
 TRIALS = 32
@@ -50,20 +50,20 @@ DENSITY_NEIGHBOURS = 24
 #: (``tools/bench_adaptive.py --engines``); with planes fitted to f_r it was the other way round.
 CELLS = "iso"
 #: The fit whose leave-one-out residuals rate the cells: (domain, transform, degree) of
-#: :class:`gonio.adaptive.reconstruct.LocalFit`; the reconstruction's own. At 1,156 poses it left 30 % less
-#: error than planes fitted to f_r in the half/difference domain on cook-torrance and lambert+ggx and 20 %
-#: less on ggx α = 0.2, 35 % more on ggx α = 0.05 (still 7x under the uniform grid's).
+#: :class:`gonio.adaptive.reconstruct.LocalFit`; the reconstruction's own. At 1,156 poses (measured with
+#: half/difference cells) it left 30 % less error than planes fitted to f_r in the half/difference
+#: domain on cook-torrance and lambert+ggx, 20 % less on ggx α = 0.2 and 35 % more on ggx α = 0.05.
 LOO = ("iso", "log", 2)
 
 
 def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: int = 0,
                 loo: tuple = LOO) -> np.ndarray:
     """E_j of every sample (module docstring), shape (N,)."""
-    points, _ = samples.points(domain)
+    points, owner = samples.points(domain)
     n = len(samples)
     wi, wo = random_pairs(CLOUD, theta_max, seed)
     cloud = embed_pairs(domain, wi, wo)
-    near = cKDTree(points).query(points[:n], k=2)[0][:, 1]
+    near = spacing(cKDTree(points), points, owner, n)
     radius = cKDTree(cloud).query(points[:n], k=DENSITY_NEIGHBOURS)[0][:, -1]
     density = DENSITY_NEIGHBOURS / (CLOUD * radius ** 3)  # per unit volume, up to a constant
     weight = np.cos(samples.theta_i) * np.cos(samples.theta_o)
@@ -86,9 +86,9 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
     if n == 0:
         return empty, empty, empty
     rng = np.random.default_rng([seed, len(samples)])
-    points, _ = samples.points(domain)
+    points, owner = samples.points(domain)
     tree = cKDTree(points)
-    near = tree.query(points[:len(samples)], k=2)[0][:, 1]
+    near = spacing(tree, points, owner, len(samples))
     score = cell_errors(samples, theta_max, domain, seed, loo)
     # Cells by decreasing error; ties by sample index (lexsort is stable), cycled when n exceeds them.
     order = np.lexsort((np.arange(len(samples)), -score))
@@ -120,6 +120,16 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
     return out[:, 0].copy(), out[:, 1].copy(), out[:, 2].copy()
 
 
+def spacing(tree, points, owner, n: int) -> np.ndarray:
+    """ρ_j: each of the first ``n`` points' distance to the nearest point of another sample (a pose on the
+    specular line θo = θi, Δφ = π is its own reciprocal twin: that copy does not count)."""
+    k = min(3, len(points))
+    dist, idx = tree.query(points[:n], k=k)
+    dist, idx = dist.reshape(n, -1), idx.reshape(n, -1)
+    other = np.where(owner[idx] != np.arange(n)[:, None], dist, np.inf).min(axis=1)
+    return np.where(np.isfinite(other), other, 0.0)
+
+
 def _measurable(kin, points, theta_max, domain):
     """(ok, θi, θo, Δφ as measured) of embedded points."""
     ti, to, d = poses_of(domain, points)
@@ -135,6 +145,8 @@ def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
     cloud = embed_pairs(domain, wi, wo)
     ok, ti, to, d = _measurable(kin, cloud, theta_max, domain)
     idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        raise ValueError(f"plan_round: no reachable pose left for {count} more")
     gap = tree.query(cloud[idx])[0]
     if len(chosen):
         gap = np.minimum(gap, cKDTree(chosen).query(cloud[idx])[0])
