@@ -168,3 +168,17 @@ def test_adaptive_beats_uniform_at_equal_pose_count(gantry):
     assert len(adaptive) == len(uniform) == 1156
     assert adaptive_err <= BOUND, (adaptive_err, uniform_err)
     assert uniform_err > 2 * BOUND, (adaptive_err, uniform_err)  # the uniform grid misses it by far
+
+
+def test_a_pose_that_is_its_own_twin_has_the_spacing_to_another_sample():
+    """(θ, θ, π) is its own reciprocal twin (the same embedded point): its cell's radius is the distance to
+    the other sample, 0.2 rad here (θo 0.5 → 0.7 along the specular plane), never 0."""
+    from scipy.spatial import cKDTree
+
+    from gonio.adaptive.refine import spacing
+
+    s = Samples([0.5, 0.5], [0.5, 0.7], [np.pi, np.pi], np.ones((2, 1)))
+    points, owner = s.points("iso")
+    assert np.linalg.norm(points[0] - points[2]) < 1e-12  # sample 0 and its twin coincide
+    rho = spacing(cKDTree(points), points, owner, len(s))
+    assert rho == pytest.approx([0.2, 0.2], abs=1e-12)
