@@ -46,7 +46,7 @@ CLOUD = 40_000
 #: Cloud points within the radius at which the density around a sample is estimated.
 DENSITY_NEIGHBOURS = 24
 #: The embedding the cells and trial points live in (:mod:`gonio.adaptive.domain`). With the log-quadric
-#: residuals, (θi, θo, Δφ) cells left 10-50 % less error than half/difference ones at 1,156 poses
+#: residuals, (θi, θo, Δφ) cells left 14-42 % less error than half/difference ones at 1,156 poses
 #: (``tools/bench_adaptive.py --engines``); with planes fitted to f_r it was the other way round.
 CELLS = "iso"
 #: The fit whose leave-one-out residuals rate the cells: (domain, transform, degree) of
