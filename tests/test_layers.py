@@ -9,7 +9,8 @@ Layers, lowest first (a module may import its own layer and those below):
 1. hardware and physics: the config models (each device's, owned by its driver), drivers (talk bytes to
    devices) and the simulated devices' physics (materials, optics, frames, colour);
 2. geometry of motion: kinematics, motion, plans;
-3. data: the journal, calibration, the dataset, the measured BRDF, exports, plots, fits, the report;
+3. data: the journal, calibration, the dataset, the measured BRDF, exports, plots, fits, the report,
+   adaptive sampling (where the next poses go, from the samples so far);
 4. machinery: the gantry as assembled, the engine that runs campaigns, fly scanning, simulated
    gantries and the emulators that stand in for devices;
 5. the campaign floor: campaigns and their lifecycle;
@@ -127,6 +128,7 @@ LAYERS = {
     "gonio.kinematics": 2, "gonio.motion": 2, "gonio.plan": 2,
     "gonio.store": 3, "gonio.calibrate": 3, "gonio.dataset": 3, "gonio.brdf": 3, "gonio.interpolate": 3,
     "gonio.export": 3, "gonio.plot": 3, "gonio.slices": 3, "gonio.fit": 3, "gonio.report": 3,
+    "gonio.adaptive": 3,
     "gonio.gantry": 4, "gonio.wiring": 4, "gonio.runner": 4, "gonio.executor": 4, "gonio.units": 4,
     "gonio.manual": 4, "gonio.reference": 4, "gonio.fly": 4, "gonio.sim": 4,
     "gonio.campaign": 5, "gonio.lifecycle": 5,

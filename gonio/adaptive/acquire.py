@@ -1,0 +1,79 @@
+"""An adaptive acquisition: the pilot, then rounds until the pose budget is spent.
+
+``measure(theta_i, theta_o, dphi)`` (radians, φi = 0; the poses as the gantry drives them) returns f_r
+(n, C). Each round is :func:`gonio.adaptive.refine.plan_round` of the samples measured so far, so a run
+can be replayed from its samples alone: the rounds' sizes depend only on the budget and the pilot's
+size (:func:`round_sizes`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gonio.adaptive.pilot import pilot_poses
+from gonio.adaptive.refine import CELLS, LOO, plan_round
+from gonio.adaptive.samples import Samples
+
+__all__ = ["acquire", "round_sizes", "Acquisition", "PILOT_FRACTION", "GROWTH"]
+
+#: Share of the budget the pilot may take (``tools/bench_adaptive.py --pilots`` compares others).
+PILOT_FRACTION = 0.1
+#: Each round adds this fraction of the samples so far (at least one pose), until the budget is spent.
+GROWTH = 0.2
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """The result: every sample in the order measured, and the size of each phase (pilot first)."""
+
+    samples: Samples
+    phases: tuple[int, ...]
+
+
+def round_sizes(pilot: int, budget: int, growth: float = GROWTH) -> list[int]:
+    """Sizes of the rounds after a pilot of ``pilot`` poses; they sum to ``budget - pilot``.
+
+    >>> round_sizes(100, 400, growth=0.5)
+    [50, 75, 112, 63]
+    """
+    if not 0 < pilot <= budget:
+        raise ValueError(f"budget: must be at least the pilot's {pilot} poses, got {budget}")
+    sizes, total = [], pilot
+    while total < budget:
+        step = min(budget - total, max(1, int(growth * total)))
+        sizes.append(step)
+        total += step
+    return sizes
+
+
+def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: float = PILOT_FRACTION,
+            domain: str = CELLS, seed: int = 0, growth: float = GROWTH, loo: tuple = LOO) -> Acquisition:
+    """Measure ``budget`` poses adaptively (module docstring).
+
+    Raises
+    ------
+    ValueError
+        For a budget below the smallest pilot, or a pilot fraction outside (0, 1].
+    """
+    if not 0.0 < pilot_fraction <= 1.0:
+        raise ValueError(f"pilot_fraction: must be in (0, 1], got {pilot_fraction}")
+    ti, to, d = pilot_poses(kin, theta_max, max(1, int(pilot_fraction * budget)))
+    sizes = round_sizes(ti.size, budget, growth)
+    samples = Samples(ti, to, d, measure(ti, to, d))
+    for size in sizes:
+        ti, to, d = plan_round(samples, size, kin, theta_max, domain, seed, loo)
+        samples = samples.extended(ti, to, d, measure(ti, to, d))
+    return Acquisition(samples, (samples.theta_i.size - sum(sizes),) + tuple(sizes))
+
+
+def material_measure(material):
+    """A noise-free ``measure`` of a :mod:`gonio.sim.materials` material (its ``eval`` at the poses)."""
+    from gonio.geometry import sph_to_vec
+
+    def measure(theta_i, theta_o, dphi):
+        zero = np.zeros_like(theta_i)
+        return material.eval(sph_to_vec(theta_i, zero), sph_to_vec(theta_o, dphi))
+
+    return measure

@@ -1,0 +1,160 @@
+"""One refinement round: where the next poses go, as a pure function of the samples so far.
+
+Each sample owns a cell (the poses nearer to it than to any other sample, in the embedding of
+:mod:`gonio.adaptive.domain`). A cell's share of the benchmark's error is estimated as
+
+    E_j = |r_j| · m_j,
+
+with r_j the sample's leave-one-out residual (:func:`gonio.adaptive.reconstruct.loo_residual`, summed over
+channels: how far f_r there departs from what the reconstruction makes of its neighbours alone, i.e. the
+reconstruction's error at the local spacing; large on the peak's flanks, on a Fresnel rise, at grazing)
+and m_j the cell's weight in the error: the measure of uniformly random direction pairs in the cell,
+times cos θi cos θo. m_j is the volume of a ball of radius ρ_j / 2 (ρ_j: the distance to the nearest
+other sample) times the pair density there, estimated from a seeded cloud of uniformly random pairs
+(their count within a radius that holds :data:`DENSITY_NEIGHBOURS` of them).
+
+The ``n`` cells of largest E_j each get one new pose (fewer cells than ``n``: the largest get more, in
+turn): of :data:`TRIALS` seeded points in the ball of radius ρ_j around the sample, the one farthest from
+every sample and every pose chosen before it in the round, among those the gantry can reach
+(:func:`gonio.adaptive.reach.reachable_iso`) and within theta_max. Whatever cannot be placed so (no
+reachable trial) is taken, farthest first, from the reachable uniform cloud, so a round returns exactly
+``n`` poses whenever the reachable domain holds them.
+
+Purity: the only inputs are the samples, ``n``, the gantry (its reach), theta_max, the domain and a
+seed; random numbers come from ``numpy.random.default_rng([seed, len(samples)])``; nothing reads a clock
+or a global state. The same inputs give the same poses, bit for bit, which is what lets a resume replay a
+round from the journal.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from gonio.adaptive.domain import embed_pairs, poses_of
+from gonio.adaptive.error import random_pairs
+from gonio.adaptive.reach import reachable_iso
+from gonio.adaptive.reconstruct import loo_residual
+from gonio.adaptive.samples import Samples
+
+__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO"]
+
+#: Seeded trial points per refined cell.
+TRIALS = 32
+#: Uniformly random pairs that measure the pair density (and stand by as fallback poses).
+CLOUD = 40_000
+#: Cloud points within the radius at which the density around a sample is estimated.
+DENSITY_NEIGHBOURS = 24
+#: The embedding the cells and trial points live in (:mod:`gonio.adaptive.domain`). With the log-quadric
+#: residuals, (θi, θo, Δφ) cells left 14-42 % less error than half/difference ones at 1,156 poses
+#: (``tools/bench_adaptive.py --engines``); with planes fitted to f_r it was the other way round.
+CELLS = "iso"
+#: The fit whose leave-one-out residuals rate the cells: (domain, transform, degree) of
+#: :class:`gonio.adaptive.reconstruct.LocalFit`; the reconstruction's own. At 1,156 poses (measured with
+#: half/difference cells) it left 30 % less error than planes fitted to f_r in the half/difference
+#: domain on cook-torrance and lambert+ggx, 20 % less on ggx α = 0.2 and 35 % more on ggx α = 0.05.
+LOO = ("iso", "log", 2)
+
+
+def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: int = 0,
+                loo: tuple = LOO) -> np.ndarray:
+    """E_j of every sample (module docstring), shape (N,)."""
+    points, owner = samples.points(domain)
+    n = len(samples)
+    wi, wo = random_pairs(CLOUD, theta_max, seed)
+    cloud = embed_pairs(domain, wi, wo)
+    near = spacing(cKDTree(points), points, owner, n)
+    radius = cKDTree(cloud).query(points[:n], k=DENSITY_NEIGHBOURS)[0][:, -1]
+    density = DENSITY_NEIGHBOURS / (CLOUD * radius ** 3)  # per unit volume, up to a constant
+    weight = np.cos(samples.theta_i) * np.cos(samples.theta_o)
+    mass = density * (0.5 * near) ** 3 * weight
+    return np.abs(loo_residual(samples, *loo)).sum(axis=1) * mass
+
+
+def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CELLS,
+               seed: int = 0, loo: tuple = LOO) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians), in the order chosen.
+
+    Raises
+    ------
+    ValueError
+        When ``n`` is negative or fewer than ``n`` new reachable poses can be found.
+    """
+    if n < 0:
+        raise ValueError(f"n: must be >= 0, got {n}")
+    empty = np.zeros(0)
+    if n == 0:
+        return empty, empty, empty
+    rng = np.random.default_rng([seed, len(samples)])
+    points, owner = samples.points(domain)
+    tree = cKDTree(points)
+    near = spacing(tree, points, owner, len(samples))
+    score = cell_errors(samples, theta_max, domain, seed, loo)
+    # Cells by decreasing error; ties by sample index (lexsort is stable), cycled when n exceeds them.
+    order = np.lexsort((np.arange(len(samples)), -score))
+    cells = order[np.arange(n) % len(order)]
+    # Trial points uniform in the ball of radius ρ_j around each chosen cell's sample.
+    direction = rng.normal(size=(n, TRIALS, 3))
+    direction /= np.linalg.norm(direction, axis=2, keepdims=True)
+    radius = near[cells][:, None] * rng.uniform(0.0, 1.0, (n, TRIALS)) ** (1.0 / 3.0)
+    trial = points[cells][:, None, :] + direction * radius[:, :, None]
+    poses = _measurable(kin, trial.reshape(-1, 3), theta_max, domain)
+    ok = poses[0].reshape(n, TRIALS)
+    gap = tree.query(trial.reshape(-1, 3))[0].reshape(n, TRIALS)
+    chosen: list[np.ndarray] = []
+    chosen_poses: list[tuple[float, float, float]] = []
+    for c in range(n):
+        d = np.where(ok[c], gap[c], -1.0)
+        if chosen:
+            apart = np.linalg.norm(trial[c][:, None, :] - np.asarray(chosen)[None], axis=2).min(axis=1)
+            d = np.minimum(d, apart)
+        best = int(np.argmax(d))
+        if d[best] <= 0.0:
+            continue
+        chosen.append(trial[c, best])
+        chosen_poses.append(tuple(p.reshape(n, TRIALS)[c, best] for p in poses[1:]))
+    if len(chosen) < n:
+        chosen_poses += _fallback(samples, np.asarray(chosen).reshape(-1, 3), n - len(chosen), kin, theta_max,
+                                  domain, seed, tree)
+    out = np.asarray(chosen_poses, dtype=np.float64).reshape(-1, 3)
+    return out[:, 0].copy(), out[:, 1].copy(), out[:, 2].copy()
+
+
+def spacing(tree, points, owner, n: int) -> np.ndarray:
+    """ρ_j: each of the first ``n`` points' distance to the nearest point of another sample (a pose on the
+    specular line θo = θi, Δφ = π is its own reciprocal twin: that copy does not count)."""
+    k = min(3, len(points))
+    dist, idx = tree.query(points[:n], k=k)
+    dist, idx = dist.reshape(n, -1), idx.reshape(n, -1)
+    other = np.where(owner[idx] != np.arange(n)[:, None], dist, np.inf).min(axis=1)
+    return np.where(np.isfinite(other), other, 0.0)
+
+
+def _measurable(kin, points, theta_max, domain):
+    """(ok, θi, θo, Δφ as measured) of embedded points."""
+    ti, to, d = poses_of(domain, points)
+    inside = (ti >= 0.0) & (to >= 0.0) & (ti <= theta_max) & (to <= theta_max)
+    ok, (mti, _, mto, mpo) = reachable_iso(kin, np.where(inside, ti, 0.0), np.where(inside, to, 0.0), d,
+                                           theta_max)
+    return ok & inside, mti, mto, mpo
+
+
+def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
+    """``count`` reachable poses of the uniform cloud, farthest from the samples and each other first."""
+    wi, wo = random_pairs(CLOUD, theta_max, seed + 1)
+    cloud = embed_pairs(domain, wi, wo)
+    ok, ti, to, d = _measurable(kin, cloud, theta_max, domain)
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        raise ValueError(f"plan_round: no reachable pose left for {count} more")
+    gap = tree.query(cloud[idx])[0]
+    if len(chosen):
+        gap = np.minimum(gap, cKDTree(chosen).query(cloud[idx])[0])
+    out = []
+    for _ in range(count):
+        best = int(np.argmax(gap))
+        if gap[best] <= 0.0:
+            raise ValueError(f"plan_round: only {len(out)} of {count} more reachable new poses found")
+        out.append((ti[idx[best]], to[idx[best]], d[idx[best]]))
+        gap = np.minimum(gap, np.linalg.norm(cloud[idx] - cloud[idx[best]], axis=1))
+    return out

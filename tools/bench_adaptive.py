@@ -1,0 +1,177 @@
+"""Adaptive against uniform acquisition at equal pose counts (issue 23): where the poses go, nothing else.
+
+For each material, both acquisitions measure the same thing at their poses: the material's own noise-free
+f_r (``gonio.sim.materials.load(spec).eval``), on the default simulated gantry (``config/sim.toml``: its
+reach, the 5° occlusion cone around retro-reflection, θ <= 80°). Uniform poses are those an
+``iso:step=S`` plan measures (:func:`gonio.plan.grids.enumerate_grid`, a reciprocal twin standing in for
+an unreachable pose, unreachable classes dropped); the adaptive run (:func:`gonio.adaptive.acquire`) gets
+exactly as many poses. Error: cosine-weighted relative L1 against the true material at ``--pairs`` random
+direction pairs (:mod:`gonio.adaptive.error`; pairs with both θ <= 80°, seeded).
+
+Columns: the uniform grid through ``gonio.brdf`` (its lattice engine: what a campaign's users get
+today; a pair it leaves NaN counts as 0, its coverage is printed), the uniform grid through the
+adaptive package's reconstruction (:class:`gonio.adaptive.LocalFit`, log-quadric), the adaptive run
+through that same reconstruction, and the ratios. ``same/adaptive`` is the comparison of placement
+alone (one engine for both).
+
+``--reach`` also finds the poses adaptive needs to reach the ``iso:step=5`` error (budgets grow by 25 %
+from ``--reach-from`` until the adaptive error is at or below the target; the first such budget is
+printed). ``--engines`` scores reconstruction variants on the uniform and adaptive samples;
+``--pilots`` compares pilot fractions and round growths.
+
+    .venv/bin/python tools/bench_adaptive.py                       # ggx α = 0.2, 148 and 1,156 poses
+    .venv/bin/python tools/bench_adaptive.py --full                # the isotropic panel, 4 counts, --reach
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import numpy as np
+
+from gonio.adaptive import Samples, acquire, material_measure, random_pairs, reachable_iso, weighted_l1
+from gonio.adaptive.reconstruct import LocalFit
+from gonio.config import load_config
+from gonio.geometry import to_isotropic
+from gonio.kinematics import make_kinematics
+from gonio.plan.grids import enumerate_grid, parse_grid
+from gonio.sim.materials import load
+
+PANEL = ("ggx:alpha=0.05,metal=gold", "ggx:alpha=0.2,metal=gold",
+         "cook-torrance:d=beckmann,m=0.3,metal=gold", "ggx:alpha=0.2,metal=gold,rho_d=0.2,rho_s=0.8")
+
+
+def uniform_samples(step: float, kin, theta_max: float, measure) -> Samples:
+    """The reachable poses of ``iso:step=S`` up to theta_max, measured."""
+    grid = enumerate_grid(parse_grid(f"iso:step={step:g}"), np.degrees(theta_max))
+    poses = to_isotropic(grid.theta_i, grid.phi_i, grid.theta_o, grid.phi_o)
+    ok, (ti, _, to, po) = reachable_iso(kin, *poses, theta_max)
+    ti, to, po = ti[ok], to[ok], po[ok]
+    return Samples(ti, to, po, measure(ti, to, po))
+
+
+def lattice_error(samples: Samples, step: float, truth, wi, wo) -> tuple[float, float]:
+    """Error and coverage of the uniform samples through gonio.brdf's default (lattice) engine."""
+    from gonio.brdf import MeasuredBRDF
+    from gonio.dataset import SampledBRDF
+
+    deg = [np.degrees(a) for a in (samples.theta_i, np.zeros(len(samples)), samples.theta_o, samples.dphi)]
+    data = SampledBRDF(*deg, value=samples.value, stddev=np.zeros_like(samples.value),
+                       attrs={"symmetries": {"reciprocity": True, "isotropy": True, "mirror": False},
+                              "grid": f"iso:step={step:g}"})
+    return weighted_l1(MeasuredBRDF(data).eval(wi, wo).value, truth, wi, wo)
+
+
+def adaptive_error(measure, kin, theta_max, budget, truth, wi, wo, **options) -> tuple[float, Samples]:
+    acq = acquire(measure, kin, theta_max, budget, **options)
+    return weighted_l1(LocalFit(acq.samples).eval(wi, wo), truth, wi, wo)[0], acq
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--materials", help="';'-separated MATERIAL strings (default: ggx α = 0.2 gold; "
+                        "--full: the isotropic panel)")
+    parser.add_argument("--steps", default=None, help="uniform iso steps, comma-separated (default 20,10; "
+                        "--full: 20,10,8,5)")
+    parser.add_argument("--full", action="store_true", help="the whole isotropic panel, 4 counts, --reach")
+    parser.add_argument("--reach", action="store_true", help="poses adaptive needs for the iso:step=5 error")
+    parser.add_argument("--reach-from", type=int, default=100)
+    parser.add_argument("--engines", action="store_true", help="reconstruction variants (1,156 poses)")
+    parser.add_argument("--pilots", action="store_true", help="pilot fractions and growths (1,156 poses)")
+    parser.add_argument("--pairs", type=int, default=20_000)
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args()
+
+    specs = args.materials.split(";") if args.materials else (list(PANEL) if args.full else [PANEL[1]])
+    steps = [float(s) for s in (args.steps or ("20,10,8,5" if args.full else "20,10")).split(",")]
+    reach = args.reach or args.full
+    cfg = load_config()
+    kin = make_kinematics(cfg)
+    theta_max = np.radians(cfg.kinematics.theta_max_deg)
+    wi, wo = random_pairs(args.pairs, theta_max, args.seed)
+    print(f"bench_adaptive: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
+          f"{args.pairs:,} pairs (seed {args.seed}), θ <= {cfg.kinematics.theta_max_deg:g}°, gantry "
+          f"{cfg.name}; noise-free f_r at the poses")
+    for spec in specs:
+        material = load(spec)
+        measure = material_measure(material)
+        truth = material.eval(wi, wo)
+        print(f"\n{spec}")
+        if args.engines:
+            _engines(measure, kin, theta_max, truth, wi, wo)
+            continue
+        if args.pilots:
+            _pilots(measure, kin, theta_max, truth, wi, wo)
+            continue
+        print(f"  {'grid':>12} {'poses':>6} | {'uniform, gonio.brdf':>22} | {'uniform, same':>13} | "
+              f"{'adaptive':>8} | {'lattice/adaptive':>16} {'same/adaptive':>13} | {'adaptive s':>10}")
+        same_errors = {}
+        for step in steps:
+            uni = uniform_samples(step, kin, theta_max, measure)
+            lat, cover = lattice_error(uni, step, truth, wi, wo)
+            same = weighted_l1(LocalFit(uni).eval(wi, wo), truth, wi, wo)[0]
+            same_errors[step] = (lat, same)
+            t0 = time.perf_counter()
+            ada, acq = adaptive_error(measure, kin, theta_max, len(uni), truth, wi, wo)
+            took = time.perf_counter() - t0
+            grid = f"iso:step={step:g}"
+            print(f"  {grid:>12} {len(uni):>6} | {lat:>10.4f} ({cover:>5.1%} ans.) | {same:>13.4f} | "
+                  f"{ada:>8.4f} | {lat / ada:>15.1f}x {same / ada:>12.1f}x | {took:>10.1f}", flush=True)
+        if reach:
+            uni5 = uniform_samples(5.0, kin, theta_max, measure)
+            lat5, same5 = same_errors.get(5.0) or (lattice_error(uni5, 5.0, truth, wi, wo)[0],
+                                                   weighted_l1(LocalFit(uni5).eval(wi, wo), truth, wi, wo)[0])
+            _reach(measure, kin, theta_max, truth, wi, wo, len(uni5), lat5, same5, args.reach_from)
+
+
+def _reach(measure, kin, theta_max, truth, wi, wo, n5, lat5, same5, start):
+    """First budget (growing by 25 %) whose adaptive error is at or below each iso:step=5 error."""
+    found = {}
+    budget = start
+    while len(found) < 2 and budget <= n5:
+        err, _ = adaptive_error(measure, kin, theta_max, budget, truth, wi, wo)
+        for name, target in (("gonio.brdf", lat5), ("same engine", same5)):
+            if name not in found and err <= target:
+                found[name] = (budget, err)
+        budget = int(round(budget * 1.25))
+    for name, target in (("gonio.brdf", lat5), ("same engine", same5)):
+        if name in found:
+            b, err = found[name]
+            print(f"  to reach iso:step=5 ({n5} poses) through {name} ({target:.4f}): {b} adaptive poses "
+                  f"({err:.4f}), {n5 / b:.1f}x fewer", flush=True)
+        else:
+            print(f"  to reach iso:step=5 through {name} ({target:.4f}): not within {n5} poses", flush=True)
+
+
+def _engines(measure, kin, theta_max, truth, wi, wo):
+    uni = uniform_samples(10.0, kin, theta_max, measure)
+    _, acq = adaptive_error(measure, kin, theta_max, len(uni), truth, wi, wo)
+    print(f"  reconstruction variants, iso:step=10 ({len(uni)} poses) and adaptive at the same count")
+    for domain in ("iso", "half"):
+        for transform in ("linear", "log"):
+            for degree in (1, 2):
+                errs = [weighted_l1(LocalFit(s, domain, transform, degree).eval(wi, wo), truth, wi, wo)[0]
+                        for s in (uni, acq.samples)]
+                print(f"  {domain:>4} {transform:>6} degree {degree}: uniform {errs[0]:.4f}  "
+                      f"adaptive {errs[1]:.4f}", flush=True)
+    half_cells, _ = adaptive_error(measure, kin, theta_max, len(uni), truth, wi, wo, domain="half")
+    print(f"  adaptive with cells in half/difference angles instead of (θi, θo, Δφ): {half_cells:.4f}",
+          flush=True)
+
+
+def _pilots(measure, kin, theta_max, truth, wi, wo):
+    budget = len(uniform_samples(10.0, kin, theta_max, measure))
+    print(f"  pilot fraction and round growth, {budget} poses")
+    for fraction in (0.05, 0.1, 0.25, 0.5):
+        for growth in (0.1, 0.2, 0.5):
+            err, acq = adaptive_error(measure, kin, theta_max, budget, truth, wi, wo, pilot_fraction=fraction,
+                                      growth=growth)
+            print(f"  pilot {fraction:>4} ({acq.phases[0]:>4} poses), growth {growth}, "
+                  f"{len(acq.phases) - 1:>3} rounds: {err:.4f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
