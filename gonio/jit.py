@@ -26,7 +26,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 __all__ = ["BACKENDS", "ENV_VAR", "resolve_backend", "using_backend", "cuda_available", "array_types",
-           "backend_of", "upload"]
+           "backend_of", "upload", "exact_float64"]
 
 #: The Dr.Jit backends gonio computes on.
 BACKENDS = ("llvm", "cuda")
@@ -76,6 +76,28 @@ def resolve_backend(backend: str | None = None) -> str:
     if backend == "cuda" and not cuda_available():
         raise ValueError(f"{source}: 'cuda' asked for, but Dr.Jit finds no CUDA device (use llvm)")
     return backend
+
+
+@contextmanager
+def exact_float64(kind) -> Iterator[None]:
+    """Trace float64 arithmetic with correctly rounded reciprocals on every backend, until the block ends.
+
+    Dr.Jit's fast-math flag (on by default) makes the CUDA backend compute reciprocals with the GPU's
+    approximate ``rcp.approx.ftz`` instruction, for float64 too; ``dr.rcp``, ``dr.rsqrt``,
+    ``dr.normalize``, a 3-vector divided by a scalar array and a negative integer power all go through
+    it. That is a relative error of 1e-6 where float64 promises 1e-16 (measured on an H200 by
+    ``tools/gpu_check.sh``): the float64 reference path and the fits would be no better than float32
+    there. For ``kind`` (a Dr.Jit array or array type) of float64 this block turns the flag off; the flag
+    is per thread, so each call that traces sets it itself. On LLVM float64 reciprocals are divisions
+    either way (results unchanged), and float32, the simulation's path, keeps Dr.Jit's defaults.
+    """
+    import drjit as dr
+
+    if dr.type_v(kind) == dr.VarType.Float64:
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            yield
+    else:
+        yield
 
 
 @contextmanager

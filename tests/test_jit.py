@@ -110,3 +110,20 @@ def test_gonio_simulate_and_fit_refuse_cuda_without_a_device_before_writing(tmp_
     capsys.readouterr()
     assert main(["fit", str(out), "--model", "lambert", "--backend", "cuda"]) == 2
     one_clear_line(capsys, "no CUDA device")
+
+
+def test_exact_float64_turns_fast_math_off_for_float64_inside_the_block_only():
+    """Dr.Jit's fast math makes CUDA's float64 reciprocals approximate (1e-6): float64 work is traced
+    with it off, float32 (the simulation path) keeps it, and the flag comes back after the block."""
+    from drjit.llvm import Array3f, Array3f64, Float64
+
+    from gonio.jit import exact_float64
+
+    assert dr.flag(dr.JitFlag.FastMath)
+    with exact_float64(Float64):
+        assert not dr.flag(dr.JitFlag.FastMath)
+    with exact_float64(Array3f64(1, 2, 3)):
+        assert not dr.flag(dr.JitFlag.FastMath)
+    with exact_float64(Array3f):
+        assert dr.flag(dr.JitFlag.FastMath)
+    assert dr.flag(dr.JitFlag.FastMath)

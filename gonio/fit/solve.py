@@ -47,7 +47,7 @@ from scipy.optimize import least_squares
 
 from gonio.fit.models import FitModel
 from gonio.geometry import to_half_diff
-from gonio.jit import array_types, resolve_backend
+from gonio.jit import array_types, exact_float64, resolve_backend
 
 __all__ = ["FitData", "Problem", "LOSSES", "solve", "residual_statistics"]
 
@@ -136,7 +136,7 @@ class Problem:
     def residuals(self, x) -> np.ndarray:
         """Weighted residuals (n = samples × channels, channel-major) at the fit vector ``x``."""
         self.evaluations += 1
-        with dr.suspend_grad():
+        with dr.suspend_grad(), exact_float64(self._float):
             _, res = self._residual_dr(x, False)
             dr.eval(res)
             return np.concatenate([r.numpy() for r in res])
@@ -144,15 +144,16 @@ class Problem:
     def jacobian(self, x) -> np.ndarray:
         """∂residuals/∂x, (n, p), by forward-mode AD: one traversal per variable, one kernel launch."""
         self.jacobians += 1
-        xs, res = self._residual_dr(x, True)
-        cols = []
-        flags = dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput
-        for v in xs:
-            dr.forward_from(v, flags=flags)
-            cols.append([dr.grad(r) for r in res])
-            for r in res:
-                dr.clear_grad(r)
-        dr.eval(cols)
+        with exact_float64(self._float):
+            xs, res = self._residual_dr(x, True)
+            cols = []
+            flags = dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput
+            for v in xs:
+                dr.forward_from(v, flags=flags)
+                cols.append([dr.grad(r) for r in res])
+                for r in res:
+                    dr.clear_grad(r)
+            dr.eval(cols)
         return np.stack([np.concatenate([g.numpy() for g in col]) for col in cols], axis=1)
 
     def set_shared(self, u: np.ndarray | None) -> None:

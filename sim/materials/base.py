@@ -29,7 +29,7 @@ from typing import ClassVar
 import drjit as dr
 import numpy as np
 
-from gonio.jit import array_types, resolve_backend, upload
+from gonio.jit import array_types, exact_float64, resolve_backend, upload
 
 __all__ = ["Material", "positive_power", "check_directions", "vector_type", "INV_PI"]
 
@@ -170,7 +170,8 @@ class Material:
         Dr.Jit 3-vector of the type of ``wi``
             f_r per channel (R, G, B) in sr⁻¹; 0 where either direction is at or below the horizon.
         """
-        return self._eval_dr(wi, wo, self.dr_parameters(type(wi)))
+        with exact_float64(wi):
+            return self._eval_dr(wi, wo, self.dr_parameters(type(wi)))
 
     def evaluate(self, wi, wo):
         """:meth:`eval_dr`, evaluated, through a frozen function (module docstring): the same values
@@ -193,7 +194,7 @@ class Material:
             return out
         params = self.dr_parameters(type(wi))
         # A frozen function keeps its recordings in the object: one call at a time (daemon threads).
-        with self._frozen_lock:
+        with self._frozen_lock, exact_float64(wi):
             if self._frozen is None:
                 self._frozen = dr.freeze(self._eval_dr)
             return self._frozen(wi, wo, params)
@@ -216,7 +217,8 @@ class Material:
         Dr.Jit 3-vector of the type of ``wi``
             f_r per channel in sr⁻¹.
         """
-        return self._eval_dr(wi, wo, self._parameters_dr(v))
+        with exact_float64(wi):
+            return self._eval_dr(wi, wo, self._parameters_dr(v))
 
     def eval(self, wi, wo, *, precision: str = "float32", backend: str | None = None) -> np.ndarray:
         """f_r in sr⁻¹ for numpy direction pairs, evaluated with :meth:`eval_dr`.

@@ -28,6 +28,7 @@ import numpy as np
 
 from gonio.formats.merl import MERL_SCALE, read_merl
 from gonio.geometry import MERL_SHAPE
+from gonio.jit import exact_float64
 
 from .base import Material
 
@@ -36,7 +37,13 @@ __all__ = ["Merl", "read_merl", "merl_index_dr", "MERL_SCALE"]
 
 def merl_index_dr(wi, wo):
     """Flat MERL bin index (unsigned 32-bit Dr.Jit array) of direction pairs; the rules of
-    :func:`gonio.geometry.merl_index` after :func:`gonio.geometry.to_half_diff`."""
+    :func:`gonio.geometry.merl_index` after :func:`gonio.geometry.to_half_diff` (float64 inputs traced
+    with exact reciprocals: :func:`gonio.jit.exact_float64`)."""
+    with exact_float64(wi):
+        return _merl_index(wi, wo)
+
+
+def _merl_index(wi, wo):
     scalar = dr.value_t(wi)
     uint = dr.uint32_array_t(scalar)
     n_th, n_td, n_pd = MERL_SHAPE
