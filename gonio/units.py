@@ -51,9 +51,9 @@ __all__ = ["Unit", "Cut", "StepReader", "stop_and_go_units", "unit_source", "KIN
 
 STOP_AND_GO, FLY, ADAPTIVE = "stop-and-go", "fly", "adaptive"
 #: A chunk of stop-and-go steps (a detector that reads in batches) ends once it spans this much gantry
-#: time (s): a paced simulation (the daemon's) commits at least this often (0.6 s of wall time at its
+#: time (s): a paced simulation (the daemon's) commits at least this often (1.2 s of wall time at its
 #: default pace), and a crash redoes no more.
-CHUNK_SPAN_S = 30.0
+CHUNK_SPAN_S = 60.0
 #: Campaign kind -> its unit source, "module:function" (imported when a campaign of that kind runs).
 KINDS = {STOP_AND_GO: "gonio.units:stop_and_go_units", FLY: "gonio.fly.units:fly_units"}
 

@@ -85,7 +85,7 @@ MOTION_TIMES = 16
 #: Poses per Dr.Jit launch of :meth:`SimDetector.measure_poses` (bounds the launch's memory).
 BATCH_ROWS = 16384
 #: Readings a campaign takes before developing them in one launch (:meth:`SimDetector.batch_readings`):
-#: past ~32 the launch's fixed cost is spread thin (tools/bench_batch.py --only campaign), and a chunk
+#: a chunk spreads the launch's fixed cost (tools/bench_batch.py --only campaign), and a chunk
 #: is what a crash loses and redoes (bit for bit the same).
 CAMPAIGN_CHUNK = 64
 #: Above this many expected counts numpy's Poisson sampler is replaced by its Gaussian limit.

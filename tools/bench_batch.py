@@ -9,6 +9,14 @@
    for ``--poses`` still poses of a glossy material: :meth:`SimDetector.measure` one pose at a time (what
    a campaign does) against :meth:`SimDetector.measure_poses` (all poses per target in one launch),
    reading for reading the same values.
+2b. campaign: what ``gonio simulate MATERIAL --grid GRID`` runs (the campaign lifecycle: the engine, the
+   simulated gantry's motion on the virtual clock, the journal, the calibration and ``brdf.h5``), the
+   plan made once, timed from the start of the run to ``brdf.h5``: process CPU per step (Dr.Jit's threads
+   included), and the simulated detector's part of it (its ``measure``, ``take`` and ``develop`` calls),
+   in three modes alternating ``--repeats`` times in one process (medians): before (one step a unit,
+   ``chunk = 1``, and the render's kernel traced on every call, as campaigns ran before), one step a
+   unit with the frozen kernel, and now (chunks, frozen kernel); the journals' readings compared bit
+   for bit.
 3. materials: GGX with a gold conductor Fresnel, our :meth:`Material.evaluate` (a frozen Dr.Jit
    function, float32, LLVM) against Mitsuba 3's ``roughconductor`` (``distribution=ggx``, ``material=Au``,
    ``llvm_ad_rgb``) ``eval`` on the same random direction pairs, 10^2 (per-call overhead) to 10^7;
@@ -16,7 +24,7 @@
    ``dr.sync_thread`` included. (Mitsuba's value includes cos θo, ours does not: one multiply.)
 
 Run: ``.venv/bin/python tools/bench_batch.py [--materials 200] [--grid iso:step=15] [--poses 300]
-[--repeats 7] [--only workers|detector|materials]``.
+[--repeats 7] [--campaign-grid iso:step=10] [--only workers|detector|campaign|materials]``.
 """
 
 from __future__ import annotations
@@ -110,6 +118,79 @@ def bench_detector(poses: int) -> None:
           f"({cpu / max(cpu_batch, 1e-9):.1f}x); readings identical: {same}")
 
 
+class _Traced:
+    """The sample's material seen through ``eval_dr`` alone: the detector traces its kernel on every
+    render, as it did before the kernel was frozen (sim/aperture.py)."""
+
+    def __init__(self, material):
+        self.eval_dr = material.eval_dr
+
+
+def _campaign_once(cfg, request, material, planned, folder: Path, chunk: int | None, traced: bool = False):
+    """One simulated campaign through the lifecycle in ``folder``: (CPU s of the whole run, CPU s in the
+    detector, steps, readings as bytes)."""
+    from gonio.lifecycle import campaign_gantry, open_or_create, run_campaign
+
+    c, _ = open_or_create(folder, cfg, request, spec=material.spec, plan=lambda: planned)
+    gantry = campaign_gantry(c, _Traced(material) if traced else material)
+    det = gantry.detector
+    if chunk is not None:
+        det.chunk = chunk
+    spent = [0.0]
+
+    def timed(fn):
+        def call(*args, **kw):
+            t = time.process_time()
+            try:
+                return fn(*args, **kw)
+            finally:
+                spent[0] += time.process_time() - t
+        return call
+
+    for name in ("measure", "take", "develop"):
+        setattr(det, name, timed(getattr(det, name)))
+    t = time.process_time()
+    state, _ = run_campaign(c, gantry)
+    cpu = time.process_time() - t
+    assert state == "done", state
+    steps = c.journal.step_count()
+    readings = [(m.signal.tobytes(), m.stderr.tobytes()) for m in c.journal.measurements()]
+    c.close()
+    return cpu, spent[0], steps, readings
+
+
+def bench_campaign(grid: str, repeats: int) -> None:
+    from gonio.config import load_config
+    from gonio.lifecycle import Request, check_request, plan_request
+    from gonio.sim.detector import CAMPAIGN_CHUNK
+
+    cfg = load_config()
+    request = Request(grid, material="ggx:alpha=0.1,metal=gold", seed=3)
+    material = check_request(cfg, request)
+    planned = plan_request(cfg, request)
+    modes = {"before: one step a unit, kernel traced": (1, True),
+             "one step a unit, kernel frozen": (1, False),
+             f"now: chunks of <= {CAMPAIGN_CHUNK}, kernel frozen": (None, False)}
+    runs = {m: [] for m in modes}
+    readings = {}
+    with tempfile.TemporaryDirectory() as d:
+        _campaign_once(cfg, request, material, planned, Path(d) / "warm", None)   # kernels compiled
+        for r in range(repeats):
+            for k, (mode, (chunk, traced)) in enumerate(modes.items()):
+                cpu, det, steps, readings[mode] = _campaign_once(cfg, request, material, planned,
+                                                                 Path(d) / f"{r}-{k}", chunk, traced)
+                runs[mode].append((cpu / steps, det / steps))
+    load = os.getloadavg()[0]
+    print(f"campaign, gonio simulate {request.material} --grid {grid}: {steps} steps, median of {repeats} "
+          f"(load average at the end {load:.2f})")
+    for mode, rows in runs.items():
+        total = statistics.median(r[0] for r in rows)
+        det = statistics.median(r[1] for r in rows)
+        print(f"  {mode:<40} whole run {1e3 * total:6.3f} ms CPU per step, detector {1e3 * det:6.3f} ms")
+    first, *others = readings.values()
+    print(f"  readings identical in every mode: {all(o == first for o in others)}")
+
+
 def _median_call(fn, repeats: int) -> float:
     fn()
     times = []
@@ -168,11 +249,14 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=300)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--sizes", type=float, nargs="+", default=[1e2, 1e5, 1e6, 1e7])
-    ap.add_argument("--only", choices=("workers", "detector", "materials"))
+    ap.add_argument("--campaign-grid", default="iso:step=10")
+    ap.add_argument("--only", choices=("workers", "detector", "campaign", "materials"))
     a = ap.parse_args()
     print(f"load average at the start: {os.getloadavg()[0]:.2f}")
     if a.only in (None, "detector"):
         bench_detector(a.poses)
+    if a.only in (None, "campaign"):
+        bench_campaign(a.campaign_grid, a.repeats)
     if a.only in (None, "materials"):
         bench_materials(a.repeats, a.sizes)
     if a.only in (None, "workers"):
