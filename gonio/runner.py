@@ -471,4 +471,4 @@ class Runner:
         else:  # a sweep's axes stand at its run-down's end; a chunk of steps noted its own rests
             self.journal.commit_measurements(ms)
         self._journal_warnings(unit.first)
-        return ms[-1].step
+        return unit.first + len(ms) - 1
