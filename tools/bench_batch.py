@@ -22,9 +22,12 @@
    ``llvm_ad_rgb``) ``eval`` on the same random direction pairs, 10^2 (per-call overhead) to 10^7;
    median of ``--repeats`` warm calls each, inputs already in memory, ``dr.eval`` and
    ``dr.sync_thread`` included. (Mitsuba's value includes cos θo, ours does not: one multiply.)
+4. overhead: one ``Material.evaluate`` of 100 directions taken apart (medians of many calls): the checks,
+   the frozen function's handling of its inputs, a kernel launch, the traced path for comparison.
 
 Run: ``.venv/bin/python tools/bench_batch.py [--materials 200] [--grid iso:step=15] [--poses 300]
-[--repeats 7] [--campaign-grid iso:step=10] [--only workers|detector|campaign|materials]``.
+[--repeats 7] [--campaign-grid iso:step=10] [--threads N]
+[--only workers|detector|campaign|materials|overhead]``.
 """
 
 from __future__ import annotations
@@ -242,6 +245,58 @@ def bench_materials(repeats: int, sizes) -> None:
         print(f"  {n:>10,d}: {1e3 * a:9.3f} ms  {1e3 * b:9.3f} ms  {a / b:5.2f}")
 
 
+def bench_overhead(repeats: int) -> None:
+    """Where a small call's time goes: ``Material.evaluate`` of 100 direction pairs taken apart (median
+    of many calls each, so that a preemption on a loaded machine does not count)."""
+    import drjit as dr
+    from drjit.llvm import Array3f
+
+    from gonio.sim.materials import load
+
+    m = load("ggx:alpha=0.2,metal=gold")
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(2, 100, 3))
+    d[..., 2] = np.abs(d[..., 2])
+    d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    wi, wo = Array3f(*d[0].T), Array3f(*d[1].T)
+    dr.eval(wi, wo)
+    params = m.dr_parameters(Array3f)
+    add_in = dr.freeze(lambda a, b, p: a + b)
+    add = dr.freeze(lambda a, b: a + b)
+    one = dr.freeze(lambda a: a + 1.0)
+    v = m.evaluate(wi, wo)
+
+    n = max(200, 40 * repeats)
+
+    def median_us(fn):
+        for _ in range(20):
+            fn()
+        times = []
+        for _ in range(n):
+            t = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t)
+        return 1e6 * statistics.median(times)
+
+    rows = [
+        ("Material.evaluate + dr.eval + dr.sync_thread (the materials panel's call)",
+         lambda: (dr.eval(m.evaluate(wi, wo)), dr.sync_thread())),
+        ("Material.evaluate alone (frozen GGX replayed)", lambda: m.evaluate(wi, wo)),
+        ("  its checks: dr.grad_enabled x2 and the cached dr_parameters",
+         lambda: (dr.grad_enabled(wi), dr.grad_enabled(wo), m.dr_parameters(Array3f))),
+        ("  a frozen a+b with the same inputs (6 direction arrays + 14 parameter arrays)",
+         lambda: add_in(wi, wo, params)),
+        ("  a frozen a+b of the 6 direction arrays alone", lambda: add(wi, wo)),
+        ("  a frozen a+1 of one array", lambda: one(wi.x)),
+        ("  a traced a+1 of one array, evaluated (kernel cache hit)", lambda: dr.eval(wi.x + 1.0)),
+        ("  dr.eval of an evaluated result", lambda: dr.eval(v)),
+        ("eval_dr traced and evaluated (no freeze)", lambda: dr.eval(m.eval_dr(wi, wo))),
+    ]
+    print("overhead of one call at 100 directions (µs, median):")
+    for label, fn in rows:
+        print(f"  {median_us(fn):8.1f}  {label}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--materials", type=int, default=200)
@@ -250,15 +305,22 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--sizes", type=float, nargs="+", default=[1e2, 1e5, 1e6, 1e7])
     ap.add_argument("--campaign-grid", default="iso:step=10")
-    ap.add_argument("--only", choices=("workers", "detector", "campaign", "materials"))
+    ap.add_argument("--threads", type=int, help="Dr.Jit threads (default: Dr.Jit's, one per core)")
+    ap.add_argument("--only", choices=("workers", "detector", "campaign", "materials", "overhead"))
     a = ap.parse_args()
     print(f"load average at the start: {os.getloadavg()[0]:.2f}")
+    if a.threads is not None:
+        import drjit as dr
+
+        dr.set_thread_count(a.threads)
     if a.only in (None, "detector"):
         bench_detector(a.poses)
     if a.only in (None, "campaign"):
         bench_campaign(a.campaign_grid, a.repeats)
     if a.only in (None, "materials"):
         bench_materials(a.repeats, a.sizes)
+    if a.only in (None, "overhead"):
+        bench_overhead(a.repeats)
     if a.only in (None, "workers"):
         bench_workers(a.materials, a.grid)
 
