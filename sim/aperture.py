@@ -183,12 +183,12 @@ def aperture_factors(material, wi: np.ndarray, wo: np.ndarray, source_half_angle
               upload(t.UInt32, lane_row, np.uint32), upload(t.UInt32, lane_start, np.uint32),
               dr.opaque(t.Float, _one_minus_cos(source_half_angle_deg)),
               dr.opaque(t.Float, _one_minus_cos(detector_half_angle_deg)), dr.opaque(t.UInt32, samples))
-    if hasattr(material, "eval_with"):   # a Material: its parameters are inputs of the frozen kernel
-        frozen, lock = _frozen_sums(material, backend)
-        with lock:   # a frozen function keeps its recordings in itself: one call at a time
-            s1, s2 = frozen(material.dr_parameters(t.Array3f), *inputs)
+    frozen = _frozen_sums(material, backend)
+    if frozen is not None:   # a Material: its parameters are inputs of the frozen kernel
+        with frozen[1]:      # a frozen function keeps its recordings in itself: one call at a time
+            s1, s2 = frozen[0](material.dr_parameters(t.Array3f), *inputs)
             s1, s2 = _sums_to_numpy(s1, s2, n, chunks)
-    else:                                # anything else with eval_dr: traced on every call
+    else:                    # anything else with eval_dr: traced on every call
         s1, s2 = _sums_to_numpy(*_sums(material, t, None, *inputs), n, chunks)
     mean = s1 / samples
     # Rounding can leave a zero variance (a constant integrand) a hair below zero.
@@ -206,9 +206,16 @@ def _frozen_sums(material, backend: str):
     """The per-lane sums of :func:`aperture_factors` for ``material`` on ``backend`` as a frozen Dr.Jit
     function (:func:`drjit.freeze`): the first call traces and records the launch, later calls replay it
     with new inputs of any size, so a chunk of a campaign costs ~0.2 ms of launch instead of ~1 ms of
-    tracing (tools/bench_batch.py --only campaign), the same kernel, so the same values bit for bit."""
+    tracing (tools/bench_batch.py --only campaign), the same kernel, so the same values bit for bit.
+    None for a material that is not a :class:`~gonio.sim.materials.Material` (no ``eval_with``) or that
+    cannot be a weak dictionary key (unhashable): it is traced on every call."""
+    if not hasattr(material, "eval_with"):
+        return None
     with _FROZEN_LOCK:
-        per = _FROZEN.setdefault(material, {})
+        try:
+            per = _FROZEN.setdefault(material, {})
+        except TypeError:
+            return None
         if backend not in per:
             t, ref = array_types(backend), weakref.ref(material)   # the cache must not keep it alive
 
