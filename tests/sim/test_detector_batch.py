@@ -214,3 +214,25 @@ def test_the_frozen_render_replays_the_traced_kernel_bit_for_bit_at_any_size(sam
         assert frozen[0].shape == (n, 3) and np.all(frozen[0] > 0)
         np.testing.assert_array_equal(frozen[0], traced[0])
         np.testing.assert_array_equal(frozen[1], traced[1])
+
+
+@pytest.mark.parametrize("config", ["sim", "sample-stage"])
+def test_take_then_develop_is_measure_bit_for_bit_and_keeps_the_clock(config):
+    """What a campaign does with a detector that reads in batches: take() at each pose as it is reached
+    (lamp drifting, darks, the standard, several frames, noise), develop() them all at once: the readings
+    measure() gives on a twin gantry, extra included, and the clock at the same time after each."""
+    single, batch = _gantry(config, GLOSSY, NOISE), _gantry(config, GLOSSY, NOISE)
+    axes, keys, targets, lit, exposure, frames = _plan(single, 25)
+    want, _, _, _ = _one_at_a_time(single, axes, keys, targets, lit, exposure, frames)
+    takes, clocks = [], []
+    for k, key in enumerate(keys):
+        for name, target in zip(batch.kinematics.axis_names, axes[k], strict=True):
+            batch.axes[name].move_to(target)
+        batch.clock.sleep(max(a.arrival_time_s() for a in batch.axes.values()) - batch.clock.now())
+        batch.light.set_on(bool(lit[k]))
+        batch.detector.set_target(targets[k])
+        takes.append(batch.detector.take(exposure[k], frames=frames[k], key=key))
+        clocks.append(batch.clock.now())
+    assert clocks[-1] == single.clock.now()
+    assert batch.detector.batch_readings() == detector_module.CAMPAIGN_CHUNK
+    _assert_same(batch.detector.develop(takes), want)
