@@ -41,6 +41,7 @@ from gonio.protocols import (
     JoinsGroup,
     KeepsAlive,
     LightSource,
+    ReadsInBatches,
     ReadsOnTheFly,
     ReadsState,
     Referencing,
@@ -68,6 +69,8 @@ class Abilities:
     warnings: ReportsWarnings | None
     link: ReportsLink | None
     reads_on_the_fly: bool
+    #: The detector, where it takes readings to develop them later in batches of more than one.
+    batches: ReadsInBatches | None = None
 
 
 def abilities(gantry: Gantry) -> Abilities:
@@ -78,7 +81,15 @@ def abilities(gantry: Gantry) -> Abilities:
 
     return Abilities(batched=ask(BatchedAxes), keep_alive=ask(KeepsAlive), flies=ask(FliesAxes),
                      renders_fly=ask(RendersFly), warnings=ask(ReportsWarnings), link=ask(ReportsLink),
-                     reads_on_the_fly=isinstance(gantry.detector, ReadsOnTheFly))
+                     reads_on_the_fly=isinstance(gantry.detector, ReadsOnTheFly),
+                     batches=_batches(gantry.detector))
+
+
+def _batches(detector) -> ReadsInBatches | None:
+    """``detector`` where it develops readings in batches of more than one, else None."""
+    if isinstance(detector, ReadsInBatches) and detector.batch_readings() > 1:
+        return detector
+    return None
 
 
 def describe_devices(gantry: Gantry) -> dict[str, dict]:

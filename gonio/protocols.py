@@ -315,6 +315,21 @@ class ReadsOnTheFly(Protocol):
         """One frame of ``exposure_s`` s, keyed as :meth:`Detector.measure`."""
 
 
+@runtime_checkable
+class ReadsInBatches(Protocol):
+    """A detector whose readings can be taken now and computed later, many at once (a simulated one: a
+    chunk of poses rendered in one kernel launch). A stop-and-go campaign then takes a chunk of steps
+    before developing and committing them (:func:`gonio.units.stop_and_go_units`)."""
+
+    def batch_readings(self) -> int:
+        """How many readings are worth developing together (1: nothing is gained; read one at a time)."""
+    def take(self, exposure_s: float, frames: int = 1, *, key: tuple[int, int] | None = None) -> object:
+        """What :meth:`Detector.measure` would read now, keyed alike, to be developed later; the clock
+        advances as ``measure``'s does."""
+    def develop(self, takes: list) -> list[Reading]:
+        """The readings of ``takes``, in order, each bit for bit what ``measure`` would have returned."""
+
+
 # -- abilities of gantries --------------------------------------------------------------------------------
 @runtime_checkable
 class BatchedAxes(Protocol):

@@ -56,7 +56,7 @@ from gonio.config import GonioConfig
 from gonio.executor import Halted, MotionExecutor, MotionFault
 from gonio.protocols import DeviceFault, Gantry
 from gonio.store import Journal
-from gonio.units import StepReader, Unit, stop_and_go_units
+from gonio.units import Cut, StepReader, Unit, stop_and_go_units
 
 __all__ = ["Runner", "State", "TRANSITIONS", "TransitionError", "Command"]
 
@@ -247,6 +247,11 @@ class Runner:
         self.journal.log_event("halt", message=reason, campaign_s=self.campaign_s())
         return True
 
+    def requests_waiting(self) -> bool:
+        """Whether a request waits for the next unit boundary (a unit of several steps ends early at
+        one: :func:`gonio.units.stop_and_go_units`)."""
+        return bool(self._commands)
+
     def _take(self) -> set[Command]:
         """The queued requests, taken (the engine's thread, at a unit boundary)."""
         with self._lock:
@@ -330,9 +335,9 @@ class Runner:
                 step = unit.first
                 if self._stopped_at(step):
                     return
-                self._run_unit(unit)
+                last = self._run_unit(unit)
                 if self.on_step is not None:
-                    self.on_step(self, unit.first + unit.count - 1)
+                    self.on_step(self, last)
             self._to(State.DONE, f"{n} steps measured")   # a request after the last unit comes too late
         except Halted:
             park = False
@@ -426,30 +431,44 @@ class Runner:
         if line:
             self.journal.log_event("link", message=line, campaign_s=self.campaign_s())
 
-    def _run_unit(self, unit: Unit) -> None:
-        """Measure and commit one unit (a step, or a sweep in one transaction), retrying transient
-        faults."""
+    def _run_unit(self, unit: Unit) -> int:
+        """Measure and commit one unit (a step, or several in one transaction), retrying transient
+        faults; returns the last step committed (a unit may end early: :func:`gonio.units.stop_and_go_units`).
+        A unit cut by a fault part-way (:class:`gonio.units.Cut`) commits the steps before the fault;
+        the fault is then its failing step's, retried as that step's own."""
         retries = self.cfg.runner.retries
-        step = unit.first
-        for attempt in range(1, retries + 2):
+        attempt = 1
+        while True:
             try:
                 ms = unit.measure(attempt)
-            except DeviceFault as err:
-                if not err.transient:
-                    raise MotionFault(err.device, str(err).removeprefix(f"{err.device}: ")) from None
-                self.executor.stop()
-                if attempt > retries:
-                    raise MotionFault(err.device, f"step {step}: {str(err).removeprefix(f'{err.device}: ')} "
-                                      f"(gave up after {retries} retries)") from None
-                self.journal.log_event("retry", step=step, campaign_s=self.campaign_s(),
-                                       message=f"step {step}, attempt {attempt}: {err}; retrying")
-                continue
-            self.executor.check_halt()  # the reading is whole, but a halt means nothing more is committed
-            if unit.count == 1:
-                self.journal.commit_measurement(ms[0])
-                self.executor.note_rest(ms[0].actual_deg)
-            else:  # a sweep: the axes stand at its run-down's end, not where its readings were
-                self.journal.commit_measurements(ms)
-            self._journal_warnings(step)
-            return
-        raise AssertionError("unreachable")  # pragma: no cover
+            except Cut as cut:
+                self._commit(unit, cut.done)
+                unit, attempt, err = cut.rest, 1, cut.fault
+                if not isinstance(err, DeviceFault):
+                    raise err from None
+            except DeviceFault as fault:
+                err = fault
+            else:
+                self.executor.check_halt()  # the readings are whole; after a halt nothing more is committed
+                return self._commit(unit, ms)
+            step = unit.first
+            if not err.transient:
+                raise MotionFault(err.device, str(err).removeprefix(f"{err.device}: ")) from None
+            self.executor.stop()
+            if attempt > retries:
+                raise MotionFault(err.device, f"step {step}: {str(err).removeprefix(f'{err.device}: ')} "
+                                  f"(gave up after {retries} retries)") from None
+            self.journal.log_event("retry", step=step, campaign_s=self.campaign_s(),
+                                   message=f"step {step}, attempt {attempt}: {err}; retrying")
+            attempt += 1
+
+    def _commit(self, unit: Unit, ms: list) -> int:
+        """Commit the measurements of ``unit`` (one step alone, or several in one transaction); the
+        last step committed."""
+        if unit.count == 1:
+            self.journal.commit_measurement(ms[0])
+            self.executor.note_rest(ms[0].actual_deg)
+        else:  # a sweep's axes stand at its run-down's end; a chunk of steps noted its own rests
+            self.journal.commit_measurements(ms)
+        self._journal_warnings(unit.first)
+        return unit.first + len(ms) - 1

@@ -32,6 +32,8 @@ taken in that kernel (no per-sample buffer).
 from __future__ import annotations
 
 import math
+import threading
+import weakref
 
 import drjit as dr
 import numpy as np
@@ -123,11 +125,6 @@ def aperture_directions(wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: f
     return wi_s, wo_s
 
 
-def _per_row(cls, values, dtype, row):
-    """Per-row ``values`` (numpy) gathered onto the lanes of their rows."""
-    return dr.gather(cls, upload(cls, values, dtype), row)
-
-
 def aperture_factors(material, wi: np.ndarray, wo: np.ndarray, source_half_angle_deg: float,
                      detector_half_angle_deg: float, samples: int, keys, words, counters,
                      backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -173,40 +170,86 @@ def aperture_factors(material, wi: np.ndarray, wo: np.ndarray, source_half_angle
             raise ValueError(f"{name}: must be integers in [0, 2**{bits}), one per pose")
     if n == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
-    t = array_types(resolve_backend(backend))
+    backend = resolve_backend(backend)
+    t = array_types(backend)
     chunks = -(-samples // CHUNK_SAMPLES)
-    lane = dr.arange(t.UInt32, n * chunks)
-    row = lane // chunks
-    axes = _axes_buffer(t, wi, wo)
-    wi_c = dr.gather(t.Array3f, axes, 2 * row)
-    wo_c = dr.gather(t.Array3f, axes, 2 * row + 1)
-    key = _per_row(t.UInt64, keys, np.uint64, row)
-    word = _per_row(t.UInt32, words, np.uint32, row)
-    counter = _per_row(t.UInt32, counters, np.uint32, row)
     # Opaque apertures and sample count: another reading, pose count or detector reuses the kernel.
-    om_src = dr.opaque(t.Float, _one_minus_cos(source_half_angle_deg))
-    om_det = dr.opaque(t.Float, _one_minus_cos(detector_half_angle_deg))
-    start = (lane - row * chunks) * CHUNK_SAMPLES
-    end = dr.minimum(start + CHUNK_SAMPLES, dr.opaque(t.UInt32, samples))
-
-    def body(j, s1, s2):
-        u1, u2, u3, u4 = t.Philox4x32(key, j, counter, word).next_float32x4()
-        wi_s = cone_directions(wi_c, om_src, u1, u2)
-        wo_s = cone_directions(wo_c, om_det, u3, u4)
-        x = t.Array3f64(material.eval_dr(wi_s, wo_s) * dr.maximum(wi_s.z, 0.0))
-        return j + 1, s1 + x, s2 + x * x
-
-    zero = dr.zeros(t.Array3f64, n * chunks)
-    _, s1, s2 = dr.while_loop((start, zero, dr.zeros(t.Array3f64, n * chunks)),
-                              lambda j, s1, s2: j < end, body)
-    dr.eval(s1, s2)
-    s1, s2 = (_chunk_totals(np.stack([np.asarray(c, dtype=np.float64) for c in s], axis=1), n, chunks)
-              for s in (s1, s2))
+    # Every lane's row and first sample come in as arrays of the lane count: a replay of the frozen
+    # kernel takes its sizes from its inputs (a count computed in Python would be baked into it).
+    lane_row = np.repeat(np.arange(n, dtype=np.uint32), chunks)
+    lane_start = np.tile(np.arange(chunks, dtype=np.uint32) * CHUNK_SAMPLES, n)
+    inputs = (_axes_buffer(t, wi, wo), upload(t.UInt64, keys, np.uint64),
+              upload(t.UInt32, words, np.uint32), upload(t.UInt32, counters, np.uint32),
+              upload(t.UInt32, lane_row, np.uint32), upload(t.UInt32, lane_start, np.uint32),
+              dr.opaque(t.Float, _one_minus_cos(source_half_angle_deg)),
+              dr.opaque(t.Float, _one_minus_cos(detector_half_angle_deg)), dr.opaque(t.UInt32, samples))
+    frozen = _frozen_sums(material, backend)
+    if frozen is not None:   # a Material: its parameters are inputs of the frozen kernel
+        with frozen[1]:      # a frozen function keeps its recordings in itself: one call at a time
+            s1, s2 = frozen[0](material.dr_parameters(t.Array3f), *inputs)
+            s1, s2 = _sums_to_numpy(s1, s2, n, chunks)
+    else:                    # anything else with eval_dr: traced on every call
+        s1, s2 = _sums_to_numpy(*_sums(material, t, None, *inputs), n, chunks)
     mean = s1 / samples
     # Rounding can leave a zero variance (a constant integrand) a hair below zero.
     var = np.maximum(s2 - s1 * mean, 0.0) / (samples - 1)
     omega = 2.0 * np.pi * _one_minus_cos(source_half_angle_deg)
     return omega * mean, omega * np.sqrt(var / samples)
+
+
+#: material -> backend -> (the frozen kernel of its sums, its lock); dropped with the material.
+_FROZEN: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_FROZEN_LOCK = threading.Lock()
+
+
+def _frozen_sums(material, backend: str):
+    """The per-lane sums of :func:`aperture_factors` for ``material`` on ``backend`` as a frozen Dr.Jit
+    function (:func:`drjit.freeze`): the first call traces and records the launch, later calls replay it
+    with new inputs of any size, so a chunk of a campaign costs ~0.2 ms of launch instead of ~1 ms of
+    tracing (tools/bench_batch.py --only campaign), the same kernel, so the same values bit for bit.
+    None for a material that is not a :class:`~gonio.sim.materials.Material` (no ``eval_with``) or that
+    cannot be a weak dictionary key (unhashable): it is traced on every call."""
+    if not hasattr(material, "eval_with"):
+        return None
+    with _FROZEN_LOCK:
+        try:
+            per = _FROZEN.setdefault(material, {})
+        except TypeError:
+            return None
+        if backend not in per:
+            t, ref = array_types(backend), weakref.ref(material)   # the cache must not keep it alive
+
+            def sums(*inputs):
+                return _sums(ref(), t, *inputs)
+            per[backend] = (dr.freeze(sums), threading.Lock())
+        return per[backend]
+
+
+def _sums_to_numpy(s1, s2, n: int, chunks: int):
+    return (_chunk_totals(np.stack([np.asarray(c, dtype=np.float64) for c in s], axis=1), n, chunks)
+            for s in (s1, s2))
+
+
+def _sums(material, t, params, axes, keys, words, counters, row, start, om_src, om_det, samples):
+    """Σx and Σx² (Array3f64, one per lane) of x = f_r · cos θi' over each lane's samples, lane = (row,
+    chunk of :data:`CHUNK_SAMPLES` from sample ``start``) in row-major order (module docstring);
+    ``params``: the material's :meth:`~gonio.sim.materials.Material.dr_parameters` (None: ``eval_dr``)."""
+    wi_c = dr.gather(t.Array3f, axes, 2 * row)
+    wo_c = dr.gather(t.Array3f, axes, 2 * row + 1)
+    key, word, counter = (dr.gather(type(v), v, row) for v in (keys, words, counters))
+    end = dr.minimum(start + CHUNK_SAMPLES, samples)
+
+    def body(j, s1, s2):
+        u1, u2, u3, u4 = t.Philox4x32(key, j, counter, word).next_float32x4()
+        wi_s = cone_directions(wi_c, om_src, u1, u2)
+        wo_s = cone_directions(wo_c, om_det, u3, u4)
+        f = material.eval_dr(wi_s, wo_s) if params is None else material.eval_with(wi_s, wo_s, params)
+        x = t.Array3f64(f * dr.maximum(wi_s.z, 0.0))
+        return j + 1, s1 + x, s2 + x * x
+
+    zero = t.Float64(start) * 0.0   # +0.0 on every lane, sized by an input
+    _, s1, s2 = dr.while_loop((start, t.Array3f64(zero), t.Array3f64(zero)), lambda j, s1, s2: j < end, body)
+    return s1, s2
 
 
 def _chunk_totals(sums: np.ndarray, n: int, chunks: int) -> np.ndarray:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -53,8 +54,9 @@ class _Move:
     #: Seconds after ``t0_s`` at which the shaft is blocked (inf: never).
     stall_s: float = float("inf")
 
-    @property
+    @cached_property
     def duration_s(self) -> float:
+        # Cached: a campaign looks at a moving axis ~10 times a step (the same value every time).
         return min(float(move_time(self.target_deg - self.start_deg, self.v_max, self.a_max)), self.stall_s)
 
     def position(self, t_s: float) -> float:

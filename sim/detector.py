@@ -44,12 +44,23 @@ Batches. Where the poses are known in advance (a simulation: every pose of a pla
 measure_poses` renders the still readings of many poses in one launch per target: reading for reading
 bit-identical to what :meth:`SimDetector.measure` gives with the same key, pose, source radiance,
 exposure and frames (the same rows, the same per-reading sensor code), at a fraction of the CPU time
-(``tools/bench_batch_detector.py``).
+(``tools/bench_batch.py --only detector``).
+
+Campaigns. A campaign learns its poses only by moving there, so it takes its readings in two halves
+(:class:`gonio.protocols.ReadsInBatches`): :meth:`SimDetector.take` at each pose notes what
+:meth:`measure` would read there (the actual axes, the source radiance, the target, the start time, the
+reading number and the key) and advances the clock by the integration, and :meth:`SimDetector.develop`
+renders a chunk of such takes in one launch per target: each reading bit for bit the one ``measure``
+would have returned at its pose (the random streams are keyed per reading, never per launch), so how a
+campaign is chunked never changes a value. A detector that integrates along the axes' read-backs
+(``track_motion``) measures at once in ``take`` (the end of its integration is not known before), and
+says so with :meth:`SimDetector.batch_readings` = 1.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -58,7 +69,8 @@ from gonio.jit import resolve_backend
 from gonio.protocols import Clock, DeviceFault, Reading
 from gonio.sim.aperture import aperture_factors, aperture_radiance_factor, seed_state
 
-__all__ = ["SimDetector", "TARGETS", "MOTION_TIMES", "BATCH_ROWS", "aperture_radiance_factor"]
+__all__ = ["SimDetector", "Take", "TARGETS", "MOTION_TIMES", "BATCH_ROWS", "CAMPAIGN_CHUNK",
+           "aperture_radiance_factor"]
 
 #: What can be under the beam: the sample, or the white reference standard.
 TARGETS = ("sample", "reference")
@@ -72,6 +84,10 @@ _MOTION_STREAM = 5
 MOTION_TIMES = 16
 #: Poses per Dr.Jit launch of :meth:`SimDetector.measure_poses` (bounds the launch's memory).
 BATCH_ROWS = 16384
+#: Readings a campaign takes before developing them in one launch (:meth:`SimDetector.batch_readings`):
+#: a chunk spreads the launch's fixed cost (tools/bench_batch.py --only campaign), and a chunk
+#: is what a crash loses and redoes (bit for bit the same).
+CAMPAIGN_CHUNK = 64
 #: Above this many expected counts numpy's Poisson sampler is replaced by its Gaussian limit.
 _POISSON_MAX = 1e15
 
@@ -86,8 +102,27 @@ def _straight(t0: float, a_deg: np.ndarray, t1: float, b_deg: np.ndarray):
     return motion
 
 
+@dataclass(frozen=True)
+class Take:
+    """A still reading taken but not rendered yet (:meth:`SimDetector.take`): what
+    :meth:`SimDetector.measure` saw at its start, or the reading itself where it was measured at once."""
+
+    axes_deg: np.ndarray
+    target: str
+    source: float
+    exposure_s: float
+    frames: int
+    t_s: float
+    reading: int
+    key: tuple[int, int] | None
+    mc_id: tuple[int, int, int]
+    noise_id: tuple[int, int, int]
+    done: Reading | None = None
+
+
 class SimDetector:
-    """A simulated detector satisfying :class:`gonio.protocols.Detector`.
+    """A simulated detector satisfying :class:`gonio.protocols.Detector` and
+    :class:`gonio.protocols.ReadsInBatches`.
 
     Parameters
     ----------
@@ -147,6 +182,9 @@ class SimDetector:
         self._seed = int(seed)
         self._track_motion = bool(track_motion)
         self._count = 0
+        #: Readings a campaign takes before developing them (:meth:`batch_readings`); 1: one at a time.
+        #: Never changes a value, only how many steps a unit of the campaign holds.
+        self.chunk = CAMPAIGN_CHUNK
         self._target = "sample"
         self._connected = False
 
@@ -201,10 +239,7 @@ class SimDetector:
         source = self._light.radiance()
         n = self._count
         self._count += 1
-        if key is None:
-            mc_id, noise_id = (_MC_COUNTER_STREAM, n, 0), (_NOISE_COUNTER_STREAM, n, 0)
-        else:
-            mc_id, noise_id = (_MC_STREAM, *key), (_NOISE_STREAM, *key)
+        mc_id, noise_id = self._streams(n, key)
         path = None
         slept = False
         if source > 0.0 and motion is None and self._track_motion:
@@ -292,20 +327,56 @@ class SimDetector:
         times = [float(t) for t in _each("times_s", times_s, self._clock.now(), p)]
         first = self._count
         self._count += p
-        factor = np.zeros((p, len(self.channels)))
+        return self.develop([
+            Take(axes_deg[k], targets[k], sources[k], exposure[k], frame_counts[k], times[k], first + k,
+                 keys[k], (_MC_STREAM, *keys[k]), (_NOISE_STREAM, *keys[k])) for k in range(p)])
+
+    # -- readings taken now, rendered later (gonio.protocols.ReadsInBatches) -------------------------
+    def batch_readings(self) -> int:
+        """Readings worth developing together: :attr:`chunk` (1 where ``track_motion`` makes :meth:`take`
+        measure at once)."""
+        return 1 if self._track_motion else self.chunk
+
+    def take(self, exposure_s: float, frames: int = 1, *, key: tuple[int, int] | None = None) -> Take:
+        """:meth:`measure` at the current pose, its render left to :meth:`develop`: the pose, the source
+        radiance, the target and the start time are noted now, the reading number and the streams
+        assigned now, and the clock advances by the integration as ``measure``'s does. With
+        ``track_motion`` the reading is measured at once (its path is known only at its end)."""
+        self._require_connected()
+        if self._track_motion:
+            reading = self.measure(exposure_s, frames, key=key)
+            x = reading.extra
+            return Take(np.array(list(x["axes_deg"].values())), x["target"], 0.0, reading.exposure_s,
+                        reading.frames, x["t_s"], x["reading"], x["key"], (), (), done=reading)
+        exposure_s = _check_exposure(exposure_s)
+        frames = _check_frames(frames)
+        key = _check_key(key)
+        n = self._count
+        self._count += 1
+        mc_id, noise_id = self._streams(n, key)
+        taken = Take(self.actual_axes_deg(), self._target, self._light.radiance(), exposure_s, frames,
+                     self._clock.now(), n, key, mc_id, noise_id)
+        self._clock.sleep(exposure_s * frames)
+        return taken
+
+    def develop(self, takes: Sequence[Take]) -> list[Reading]:
+        """The readings of ``takes`` (from :meth:`take`, in any number), in order: the lit ones of each
+        target rendered in one launch (launches of :data:`BATCH_ROWS`), each bit for bit what
+        :meth:`measure` would have returned when it was taken."""
+        takes = list(takes)
+        factor = np.zeros((len(takes), len(self.channels)))
         factor_se = np.zeros_like(factor)
-        key_words = [seed_state(self._seed, _MC_STREAM, *k) for k in keys]
         for target in TARGETS:
-            lit = [k for k in range(p) if targets[k] == target and sources[k] > 0.0]
+            lit = [k for k, t in enumerate(takes) if t.done is None and t.target == target and t.source > 0.0]
             for lo in range(0, len(lit), BATCH_ROWS):
                 part = lit[lo:lo + BATCH_ROWS]
-                f, e = self._render(axes_deg[part], target, *_rows([key_words[k] for k in part]))
-                factor[part], factor_se[part] = f, e
-        return [self._reading(factor[k], factor_se[k], sources[k], exposure[k], frame_counts[k],
-                              (_NOISE_STREAM, *keys[k]), {
-                                  "target": targets[k], "axes_deg": self._named(axes_deg[k]), "t_s": times[k],
-                                  "reading": first + k, "key": keys[k], "moving": False})
-                for k in range(p)]
+                axes = np.array([takes[k].axes_deg for k in part])
+                words = [seed_state(self._seed, *takes[k].mc_id) for k in part]
+                factor[part], factor_se[part] = self._render(axes, target, *_rows(words))
+        return [t.done if t.done is not None else self._reading(
+            factor[k], factor_se[k], t.source, t.exposure_s, t.frames, t.noise_id, {
+                "target": t.target, "axes_deg": self._named(t.axes_deg), "t_s": t.t_s, "reading": t.reading,
+                "key": t.key, "moving": False}) for k, t in enumerate(takes)]
 
     def read_on_the_fly(self, exposure_s: float, *, key: tuple[int, int] | None = None) -> Reading:
         """One frame of ``exposure_s`` s while the axes may move (:class:`gonio.protocols.ReadsOnTheFly`):
@@ -376,6 +447,13 @@ class SimDetector:
         return np.sqrt(var)
 
     # -- internals ----------------------------------------------------------------------------------
+    @staticmethod
+    def _streams(n: int, key: tuple[int, int] | None) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+        """(aperture, noise) stream ids of reading number ``n`` with ``key`` (module docstring)."""
+        if key is None:
+            return (_MC_COUNTER_STREAM, n, 0), (_NOISE_COUNTER_STREAM, n, 0)
+        return (_MC_STREAM, *key), (_NOISE_STREAM, *key)
+
     def _render(self, axes_deg: np.ndarray, target: str, keys, words, counters,
                 samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(factor, stderr) per pose of ``axes_deg`` (K, n_axes), each pose a row of

@@ -121,6 +121,9 @@ class SpectrometerDetector(SimDetector):
             raise ValueError("detector.sim.kind: a SpectrometerDetector needs kind = 'spectrometer'")
         self.wavelengths_nm = np.asarray(wl, dtype=np.float64)
         self.channels = tuple(cfg.channel_names)
+        # It renders stream by stream (one launch per reading), so developing readings together gains
+        # nothing: a campaign reads it one step a unit.
+        self.chunk = 1
 
     def _render(self, axes_deg: np.ndarray, target: str, keys, words, counters,
                 samples: int | None = None):

@@ -122,7 +122,7 @@ def test_crash_between_any_two_writes_then_resume_measures_each_step_once(tmp_pa
     ref, state = _run(tmp_path / "ref", cfg, material, grid, write_hook=writes.append)
     assert state == State.DONE
     n_steps, total = ref.journal.step_count(), len(writes)
-    assert total >= n_steps  # at least one write per step
+    assert total > 4  # creation, devices, states and each unit's commit (a chunk of steps is one)
     for crash_at in range(1, total + 1):
         folder = tmp_path / f"crash{crash_at}"
 

@@ -79,8 +79,10 @@ def test_simulate_resumes_a_crashed_campaign_and_refuses_another(tmp_path, capsy
             raise Crash
 
     c = open_campaign(out, write_hook=crash)
+    gantry = build_gantry(c.cfg, "lambert:albedo=0.5")
+    gantry.detector.chunk = 1   # one step a unit: a write per step (the resumed run takes chunks)
     with pytest.raises(Crash):
-        run_campaign(c, build_gantry(c.cfg, "lambert:albedo=0.5"))
+        run_campaign(c, gantry)
     n_steps = c.journal.step_count()
     c.close()  # the process died: its connection and its lock on the folder go with it
     c = open_campaign(out, readonly=True)
@@ -279,16 +281,25 @@ def test_a_signal_inside_a_journal_transaction_pauses_cleanly(tmp_path, capsys, 
     step's measurement: the pause and its journal event must not nest a transaction in that one."""
     from gonio.store import JOURNAL_NAME, Journal
 
-    real_write, writes = Journal._write, []
+    real_write, real_many, rows = Journal._write, Journal._write_many, []
+
+    def committed(sql, n):
+        if sql.startswith("INSERT INTO measurements"):
+            rows.append(n)
+            if sum(rows) >= 10 > sum(rows) - n:     # inside the transaction that holds the 10th step
+                os.kill(os.getpid(), sig)
 
     def write(self, sql, params=()):
         real_write(self, sql, params)
-        if sql.startswith("INSERT INTO measurements"):
-            writes.append(sql)
-            if len(writes) == 10:          # inside the transaction of the 10th step
-                os.kill(os.getpid(), sig)
+        committed(sql, 1)
+
+    def write_many(self, sql, many):
+        many = list(many)
+        real_many(self, sql, many)
+        committed(sql, len(many))     # a chunk of steps: one transaction
 
     monkeypatch.setattr(Journal, "_write", write)
+    monkeypatch.setattr(Journal, "_write_many", write_many)
     out = tmp_path / "run"
     argv = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=15", "--quiet", "--out", str(out)]
     assert main(argv) == 130

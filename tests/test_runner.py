@@ -25,6 +25,10 @@ def _setup(tmp_path, cfg, material="lambert:albedo=0.5", on_step=None):
     c = create_campaign(tmp_path / "c", cfg, grid=GRID, material=material, seed=1)
     g = build_gantry(cfg, material, seed=1)
     g.connect()
+    if on_step is not None:
+        # Requests timed by the step committed: one step a unit (the simulated detector would take a
+        # chunk of steps a unit; tests/test_runner_chunks.py times its requests within a chunk).
+        g.detector.chunk = 1
     return c, g, Runner(g, c.journal, cfg, on_step=on_step)
 
 
@@ -212,17 +216,13 @@ def test_hardware_fault_stops_leaves_axes_and_stays_latched_across_a_restart(tmp
 def test_limit_violation_in_a_journal_faults_before_any_axis_moves(tmp_path, cfg):
     c, g, r = _setup(tmp_path, cfg)
     r.reader.steps["axes_deg"][3, 1] = 97.0  # a corrupted plan: light_tilt beyond its limit
-    positions = {}
-
-    def on_step(runner, step):
-        if step == 2:
-            positions.update({n: a.position_deg() for n, a in g.axes.items()})
-
-    r.on_step = on_step
     assert r.run() == State.FAULTED
     assert "light_tilt" in r.fault and "97" in r.fault
-    # Step 3 was refused before anything moved: the axes stand where step 2 left them.
-    assert {n: a.position_deg() for n, a in g.axes.items()} == positions
+    # Step 3 was refused before anything moved: the steps before it are committed (the chunk they were
+    # taken in too), and the axes stand where step 2 left them.
+    assert c.journal.done_steps().tolist() == [0, 1, 2]
+    step2 = c.journal.measurements()[2].actual_deg
+    assert [g.axes[n].position_deg() for n in cfg.axis_names] == step2.tolist()
 
 
 def test_a_target_one_axis_rejects_stops_the_axes_commanded_before_it(tmp_path, cfg):
@@ -287,7 +287,7 @@ def test_halt_from_another_thread_stops_every_axis_mid_move(tmp_path, cfg):
 
     def hook(now):
         moving = [a for a in g.axes.values() if a.is_moving()]
-        if not halted_at and len(moving) >= 2 and c.journal.done_count() >= 4:
+        if not halted_at and len(moving) >= 2 and now > 5.0:
             halted_at["t"] = now
             halted_at["targets"] = {a.name: a._motion.target_deg for a in moving}
             t = threading.Thread(target=r.request_halt, args=("emergency stop button",))
@@ -325,7 +325,7 @@ def test_a_stop_from_another_thread_is_a_fault_not_a_retry(tmp_path, cfg):
     fired = []
 
     def hook(now):
-        if not fired and any(a.is_moving() for a in g.axes.values()) and c.journal.done_count() >= 4:
+        if not fired and any(a.is_moving() for a in g.axes.values()) and now > 5.0:
             fired.append(now)
             t = threading.Thread(target=g.stop)  # someone else's client, not the runner's halt
             t.start()

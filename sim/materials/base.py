@@ -173,6 +173,12 @@ class Material:
         with exact_float64(wi):
             return self._eval_dr(wi, wo, self.dr_parameters(type(wi)))
 
+    def eval_with(self, wi, wo, params: dict):
+        """:meth:`eval_dr` with ``params`` = :meth:`dr_parameters` passed in: how a frozen function that
+        evaluates the material inside a larger kernel (the detectors' aperture sums) names them as its
+        inputs, so that a replay reads them as the recording did."""
+        return self._eval_dr(wi, wo, params)
+
     def evaluate(self, wi, wo):
         """:meth:`eval_dr`, evaluated, through a frozen function (module docstring): the same values
         bit for bit, without tracing the model again after the first call.

@@ -186,3 +186,53 @@ def test_row_streams_are_checked():
         aperture_factors(m, w, w, 0.5, 1.0, 16, [1, 2], [1, 1 << 32], [0, 1])
     with pytest.raises(ValueError, match=r"counters: must be integers in \[0, 2\*\*32\)"):
         aperture_factors(m, w, w, 0.5, 1.0, 16, [1, 2], [1, 2], [0, -1])
+
+
+class _Traced:
+    """A material seen through ``eval_dr`` alone: aperture_factors traces its kernel on every call."""
+
+    def __init__(self, material):
+        self.eval_dr = material.eval_dr
+
+
+@pytest.mark.parametrize("samples", [256, 2 * CHUNK_SAMPLES + 37])
+def test_the_frozen_render_replays_the_traced_kernel_bit_for_bit_at_any_size(samples, backend):
+    """A Material's aperture sums replay one recorded kernel (drjit.freeze) whose sizes come from its
+    inputs: launches of 1, 9, 40 and again 9 rows give what the kernel traced anew gives, to the bit."""
+    rng = np.random.default_rng(samples + 1)
+    m = materials.load("ggx:alpha=0.2,metal=copper")
+    for n in (1, 9, 40, 9):
+        wi = rng.normal(size=(n, 3))
+        wi[:, 2] = np.abs(wi[:, 2])
+        wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+        wo = wi * np.array([-1.0, -1.0, 1.0])
+        keys = rng.integers(0, 1 << 63, n, dtype=np.uint64)
+        words = rng.integers(0, 1 << 32, n, dtype=np.uint64)
+        counters = rng.integers(0, 20, n)
+        frozen = aperture_factors(m, wi, wo, 0.5, 1.0, samples, keys, words, counters, backend)
+        traced = aperture_factors(_Traced(m), wi, wo, 0.5, 1.0, samples, keys, words, counters, backend)
+        assert frozen[0].shape == (n, 3) and np.all(frozen[0] > 0)
+        np.testing.assert_array_equal(frozen[0], traced[0])
+        np.testing.assert_array_equal(frozen[1], traced[1])
+
+
+@pytest.mark.parametrize("config", ["sim", "sample-stage"])
+def test_take_then_develop_is_measure_bit_for_bit_and_keeps_the_clock(config):
+    """What a campaign does with a detector that reads in batches: take() at each pose as it is reached
+    (lamp drifting, darks, the standard, several frames, noise), develop() them all at once: the readings
+    measure() gives on a twin gantry, extra included, and the clock at the same time after each."""
+    single, batch = _gantry(config, GLOSSY, NOISE), _gantry(config, GLOSSY, NOISE)
+    axes, keys, targets, lit, exposure, frames = _plan(single, 25)
+    want, _, _, _ = _one_at_a_time(single, axes, keys, targets, lit, exposure, frames)
+    takes, clocks = [], []
+    for k, key in enumerate(keys):
+        for name, target in zip(batch.kinematics.axis_names, axes[k], strict=True):
+            batch.axes[name].move_to(target)
+        batch.clock.sleep(max(a.arrival_time_s() for a in batch.axes.values()) - batch.clock.now())
+        batch.light.set_on(bool(lit[k]))
+        batch.detector.set_target(targets[k])
+        takes.append(batch.detector.take(exposure[k], frames=frames[k], key=key))
+        clocks.append(batch.clock.now())
+    assert clocks[-1] == single.clock.now()
+    assert batch.detector.batch_readings() == detector_module.CAMPAIGN_CHUNK
+    _assert_same(batch.detector.develop(takes), want)

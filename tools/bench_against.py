@@ -1,0 +1,123 @@
+"""Benchmark: ``gonio simulate``'s campaign run on this tree and on another checkout of gonio (an older
+commit), side by side: process CPU per step of the whole run (the engine, the simulated motion, the
+journal, brdf.h5) and of the simulated detector's calls (``measure``, ``take``, ``develop``), and a hash
+of the journal's readings (equal hashes: the same readings bit for bit).
+
+Each tree runs in its own subprocess of this venv, with the editable install's package mapping pointed at
+that tree; the two alternate ``--rounds`` times (each subprocess: one warm-up campaign, then
+``--repeats`` timed ones, medians).
+
+Run (the tree of an older commit exported first)::
+
+    git archive b9750b6 | (mkdir -p /tmp/base && tar -x -C /tmp/base)
+    .venv/bin/python tools/bench_against.py /tmp/base --grid iso:step=10
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parents[1]
+
+
+def _point_at(root: Path) -> None:
+    """Make ``import gonio`` (and its mapped sub-packages) load from ``root`` instead of this tree."""
+    for finder in sys.meta_path:
+        mapping = getattr(sys.modules.get(getattr(finder, "__module__", ""), None), "MAPPING", None)
+        if isinstance(mapping, dict) and "gonio" in mapping:
+            for name, path in mapping.items():
+                mapping[name] = str(root / Path(path).relative_to(HERE))
+            return
+    raise SystemExit("this venv has no editable install of gonio to point elsewhere")
+
+
+def _child(root: Path, grid: str, repeats: int) -> None:
+    _point_at(root)
+    import gonio
+    from gonio.config import load_config
+    from gonio.lifecycle import (
+        Request,
+        campaign_gantry,
+        check_request,
+        open_or_create,
+        plan_request,
+        run_campaign,
+    )
+
+    assert Path(gonio.__file__).is_relative_to(root), gonio.__file__
+    cfg = load_config()
+    request = Request(grid, material="ggx:alpha=0.1,metal=gold", seed=3)
+    material = check_request(cfg, request)
+    planned = plan_request(cfg, request)
+    runs, digest = [], ""
+    with tempfile.TemporaryDirectory() as d:
+        for r in range(repeats + 1):
+            c, _ = open_or_create(Path(d) / str(r), cfg, request, spec=material.spec, plan=lambda: planned)
+            gantry = campaign_gantry(c, material)
+            det, spent = gantry.detector, [0.0]
+
+            def timed(fn, spent=spent):
+                def call(*args, **kw):
+                    t = time.process_time()
+                    try:
+                        return fn(*args, **kw)
+                    finally:
+                        spent[0] += time.process_time() - t
+                return call
+
+            for name in ("measure", "take", "develop"):
+                if hasattr(det, name):
+                    setattr(det, name, timed(getattr(det, name)))
+            t = time.process_time()
+            state, _ = run_campaign(c, gantry)
+            cpu = time.process_time() - t
+            assert state == "done", state
+            n = c.journal.step_count()
+            digest = hashlib.sha256(b"".join(m.signal.tobytes() + m.stderr.tobytes()
+                                             for m in c.journal.measurements())).hexdigest()[:16]
+            c.close()
+            if r:
+                runs.append((cpu / n, spent[0] / n))
+    print(f"{statistics.median(x for x, _ in runs)} {statistics.median(y for _, y in runs)} {n} {digest}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("other", type=Path, help="another gonio tree (e.g. an older commit, exported)")
+    ap.add_argument("--grid", default="iso:step=10")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--child", type=Path, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.child is not None:
+        _child(a.child, a.grid, a.repeats)
+        return
+    trees = {"other": a.other.resolve(), "this": HERE}
+    got = {k: [] for k in trees}
+    print(f"load average at the start: {os.getloadavg()[0]:.2f}")
+    for _ in range(a.rounds):
+        for k, root in trees.items():
+            out = subprocess.run([sys.executable, __file__, str(root), "--grid", a.grid, "--repeats",
+                                  str(a.repeats), "--child", str(root)], capture_output=True, text=True,
+                                 check=True).stdout.split()
+            got[k].append((float(out[0]), float(out[1]), int(out[2]), out[3]))
+    print(f"gonio simulate ggx:alpha=0.1,metal=gold --grid {a.grid} --seed 3, {got['this'][0][2]} steps; "
+          f"medians of {a.rounds} x {a.repeats} (load average at the end {os.getloadavg()[0]:.2f}):")
+    for k, root in trees.items():
+        whole = statistics.median(g[0] for g in got[k])
+        det = statistics.median(g[1] for g in got[k])
+        print(f"  {k} ({root}): whole run {1e3 * whole:.3f} ms CPU per step, detector {1e3 * det:.3f} ms; "
+              f"readings {got[k][0][3]}")
+    print(f"  readings identical: {got['other'][0][3] == got['this'][0][3]}")
+
+
+if __name__ == "__main__":
+    main()
