@@ -177,7 +177,8 @@ class Material:
         """:meth:`eval_dr` with ``params`` = :meth:`dr_parameters` passed in: how a frozen function that
         evaluates the material inside a larger kernel (the detectors' aperture sums) names them as its
         inputs, so that a replay reads them as the recording did."""
-        return self._eval_dr(wi, wo, params)
+        with exact_float64(wi):
+            return self._eval_dr(wi, wo, params)
 
     def evaluate(self, wi, wo):
         """:meth:`eval_dr`, evaluated, through a frozen function (module docstring): the same values
