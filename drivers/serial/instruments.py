@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.drivers.serial.line import InstrumentCommError, LineInstrument
+from gonio.drivers.serial.line import InstrumentCommError, InstrumentError, LineInstrument, refusal_code
 from gonio.drivers.serial.profile import command_fields
-from gonio.protocols import Reading
+from gonio.drivers.serial.stream import StreamReader
+from gonio.drivers.serial.transport import PortLost
+from gonio.protocols import Reading, StreamSamples
 
-__all__ = ["SerialLightSource", "SerialPowerMeter", "SerialSpectrometer"]
+__all__ = ["SerialLightSource", "SerialPowerMeter", "SerialSpectrometer", "StreamingPowerMeter"]
 
 #: What a lamp's level command takes: its range and unit.
 _LEVEL_RANGE = {"percent": (0.0, 100.0, "%"), "current_a": (0.0, 100.0, " A")}
@@ -162,6 +164,101 @@ class SerialPowerMeter(LineInstrument):
         extra = {} if key is None else {"key": tuple(key)}
         return Reading(signal=data.mean(axis=0), stderr=stderr, exposure_s=float(exposure_s), frames=frames,
                        extra=extra)
+
+
+class StreamingPowerMeter(SerialPowerMeter):
+    """A power meter with a continuous mode (its profile's ``[power_meter.stream]``), as a
+    :class:`gonio.protocols.Streams`: :meth:`start_stream` sets the rate (``rate_hz``, default the
+    profile's), sends ``start`` and hands the port's reads to a :class:`~gonio.drivers.serial.stream.
+    StreamReader`, which stamps every line on the gantry clock; :meth:`stop_stream` sends ``stop`` and
+    waits for its acknowledgement behind the last samples. Readings on request (:meth:`measure`) are
+    refused while the stream runs."""
+
+    def __init__(self, name: str, port: str, profile=None, *, rate_hz: float | None = None, **kwargs):
+        super().__init__(name, port, profile, **kwargs)
+        stream = self.commands.stream
+        if stream is None:
+            raise ValueError(f"detector '{name}': profile {self.profile.source} has no [power_meter.stream]")
+        if rate_hz is not None and not 0 < rate_hz <= 100_000:
+            raise ValueError(f"detector '{name}': rate_hz {rate_hz} is outside (0, 100000] Hz")
+        self.stream_commands = stream
+        self.rate_hz = float(rate_hz if rate_hz is not None else stream.rate_hz)
+        self._reader: StreamReader | None = None
+
+    def start_stream(self) -> float:
+        if self._reader is not None:
+            self.stop_stream()
+        s = self.stream_commands
+        self.setters([s.rate.format(rate_hz=self.rate_hz)])
+        p = self.profile
+
+        def go() -> str:
+            self._t.flush_input()
+            reader = StreamReader(self.name, self._t, self.terminator, s, self.rate_hz, self.baudrate,
+                                  self.clock, p.ok_reply, p.error_prefix)
+            reader.start()
+            self._t.write(s.start.encode("ascii") + self.terminator)
+            self._reader = reader
+            return ""
+
+        self._io(s.start, go)
+        reader = self._reader
+        acked = reader.wait_ack(self.timeout_s)
+        if not acked or reader.refusals or reader.error is not None:
+            self._abandon()
+            what = (reader.refusals[0] if reader.refusals else f"port lost ({reader.error})"
+                    if reader.error is not None else f"no {p.ok_reply!r} within {self.timeout_s:g} s")
+            if reader.refusals:
+                raise InstrumentError(self.name, f"{s.start!r} refused: {what}",
+                                      refusal_code(what, p.error_prefix))
+            raise InstrumentCommError(self.name, f"{s.start!r}: {what}")
+        return 1.0 / self.rate_hz
+
+    def read_stream(self) -> StreamSamples:
+        reader = self._reader
+        if reader is None:
+            raise ValueError(f"detector '{self.name}': no stream running (start_stream() first)")
+        if reader.error is not None:
+            raise InstrumentCommError(self.name, f"stream: port {self.port} lost ({reader.error})")
+        return reader.samples()
+
+    def stop_stream(self) -> None:
+        reader, self._reader = self._reader, None
+        if reader is None:
+            return
+        s = self.stream_commands
+        try:
+            self._t.write(s.stop.encode("ascii") + self.terminator)
+            acked = reader.wait_ack(self.timeout_s + 2.0 / self.rate_hz)
+        except PortLost:
+            acked = False
+        finally:
+            reader.halt()
+        if not acked or reader.error is not None:
+            self._abandon()
+            raise InstrumentCommError(self.name, f"{s.stop!r}: no {self.profile.ok_reply!r} after the stream")
+
+    def _abandon(self) -> None:
+        """After a stream that did not start or stop cleanly: its reader gone, the port reopened (and the
+        link re-synchronised on the identity) at the next exchange."""
+        if self._reader is not None:
+            self._reader.halt()
+            self._reader = None
+        self._drop()
+        self._stale = max(self._stale or 0.0, 0.0)
+
+    def measure(self, exposure_s: float, frames: int = 1, *, key=None) -> Reading:
+        if self._reader is not None:
+            raise ValueError(f"detector '{self.name}': a reading on request while the stream runs")
+        return super().measure(exposure_s, frames, key=key)
+
+    def close(self) -> None:
+        if self._reader is not None:
+            try:
+                self.stop_stream()
+            except InstrumentCommError:
+                pass
+        super().close()
 
 
 class SerialSpectrometer(SerialPowerMeter):
