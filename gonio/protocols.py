@@ -206,7 +206,8 @@ class TimesRoundTrip(Protocol):
 
 @runtime_checkable
 class Warns(Protocol):
-    """An axis whose controller reports conditions it does not act on (a low input voltage)."""
+    """A device that reports conditions it does not act on (a servo's low input voltage, a detector's
+    stream running off its configured rate)."""
 
     def warnings(self) -> list[str]:
         """The warnings seen since the last call."""

@@ -184,6 +184,8 @@ class StreamingPowerMeter(SerialPowerMeter):
         self.stream_commands = stream
         self.rate_hz = float(rate_hz if rate_hz is not None else stream.rate_hz)
         self._reader: StreamReader | None = None
+        self._warnings: list[str] = []
+        self._reported: float | None = None   # the off-rate period last reported
 
     def start_stream(self) -> float:
         if self._reader is not None:
@@ -222,6 +224,12 @@ class StreamingPowerMeter(SerialPowerMeter):
             raise InstrumentCommError(self.name, f"stream: port {self.port} lost ({reader.error})")
         return reader.samples()
 
+    def warnings(self) -> list[str]:
+        """What the timing checks of the streams stopped since the last call found
+        (:class:`gonio.protocols.Warns`)."""
+        out, self._warnings = self._warnings, []
+        return out
+
     def stop_stream(self) -> None:
         reader, self._reader = self._reader, None
         if reader is None:
@@ -234,6 +242,13 @@ class StreamingPowerMeter(SerialPowerMeter):
             acked = False
         finally:
             reader.halt()
+        # the stream's timing check over all of it: a rate off the configured one is reported once,
+        # and again only where a later stream's differs from it by more than the tolerance
+        samples = reader.samples()
+        tol = s.rate_tolerance * samples.period_s
+        if samples.warnings and (self._reported is None or abs(samples.period_s - self._reported) > tol):
+            self._reported = samples.period_s
+            self._warnings += list(samples.warnings)
         if not acked or reader.error is not None:
             self._abandon()
             raise InstrumentCommError(self.name, f"{s.stop!r}: no {self.profile.ok_reply!r} after the stream")

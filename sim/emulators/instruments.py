@@ -246,7 +246,8 @@ class StreamingPhotodiodeEmulator(PowerMeterEmulator):
       are refused (``ERR -221,"settings conflict"``), ``STRM:RATE`` too;
     - overflow: a line that does not fit its transmit buffer (``buffer_bytes``, of which what the host
       has not read yet takes its part) is not sent (the counter goes on: the host sees the gap);
-    - stream faults (:attr:`faults` with ``match="SAMPLE"``): ``drop`` (the line is lost), ``corrupt``
+    - stream faults (:attr:`faults` with ``match="SAMPLE"``, or ``("SAMPLE", k)`` for line k): ``drop``
+      (the line is lost), ``corrupt``
       (line noise in its place: a garbage line), ``truncate`` (no terminator: it runs into the next
       line, both lost), ``late`` (held back and sent with the next line: a late burst; several in a
       row hold several).
@@ -297,11 +298,11 @@ class StreamingPhotodiodeEmulator(PowerMeterEmulator):
         return self._t0 + (k + 1) * self._period() + self.delay_s + nbytes * 10.0 / self.baudrate
 
     def next_due(self) -> float | None:
-        """The virtual instant the next line arrives (None: not streaming)."""
-        with self.lock:
-            if not self.streaming or not self.powered:
-                return None
-            return self._due(self._k)
+        """The virtual instant the next line arrives (None: not streaming). Without the lock: the clock
+        asks while this emulator's own thread may hold it (its MEAS? sleeps the shared clock)."""
+        if not self.streaming or not self.powered:
+            return None
+        return self._due(self._k)
 
     def _emit_due(self) -> None:
         """Send every line due by now (the caller holds the lock)."""
@@ -309,7 +310,7 @@ class StreamingPhotodiodeEmulator(PowerMeterEmulator):
         while self.streaming and self._due(self._k) <= now:
             k, self._k = self._k, self._k + 1
             data = self._line(k)
-            fault = self.faults.take("SAMPLE")
+            fault = self.faults.take("SAMPLE", ("SAMPLE", k))
             if fault is not None and fault.kind == "late":
                 self._held.append(data)
                 continue
@@ -329,7 +330,10 @@ class StreamingPhotodiodeEmulator(PowerMeterEmulator):
 
     def drain(self, timeout_s: float = 2.0) -> bool:
         """Handle what the driver sent, send the lines due by now, and wait (at most ``timeout_s``) until
-        the driver has read them; False if bytes were still waiting."""
+        the driver has read them; False if bytes were still waiting. Called from its own thread (whose
+        MEAS? sleeps the shared clock through the exposure) it does nothing: that thread is serving."""
+        if threading.current_thread() is self._thread:
+            return True
         deadline = time.monotonic() + timeout_s
         while self.link.readable(0.0) and time.monotonic() < deadline:
             time.sleep(0.0005)  # the serving thread reads them

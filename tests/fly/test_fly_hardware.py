@@ -256,6 +256,19 @@ def _after_subreads(count, action):
     return hook
 
 
+def _resume_through_gonio_run(tmp_path, emu, clock, folder, monkeypatch, capsys) -> None:
+    """``gonio run`` on the same folder resumes and finishes (the config written for another process;
+    the CLI's wall clock is the emulators' virtual one here, so the test does not wait for the gantry)."""
+    path = tmp_path / "gantry.toml"
+    path.write_text(emu.config_toml())
+    monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
+    code = main(["run", "--config", str(path), "--grid", GRID + ",order=fly", "--out", str(folder),
+                 "--sample", "gold"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "resuming the campaign" in err
+
+
 def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_done_again(tmp_path, flown, monkeypatch,
                                                                             capsys):
     clock = SyncedVirtualClock()
@@ -273,16 +286,7 @@ def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_done_again(t
         assert in_flight[0] < len(rows) + 2 * len(fp.checkpoints)  # halted inside a sweep, nothing of it kept
         assert not done & set(range(in_flight[0], in_flight[0] + in_flight[1]))
         halted_at = max(m.campaign_s for m in rows)
-        # gonio run on the same folder resumes (the config written for another process; the CLI's wall
-        # clock is the emulators' virtual one here, so the test does not wait for the gantry).
-        path = tmp_path / "gantry.toml"
-        path.write_text(emu.config_toml())
-        monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
-        code = main(["run", "--config", str(path), "--grid", GRID + ",order=fly", "--out", str(folder),
-                     "--sample", "gold"])
-        err = capsys.readouterr().err
-        assert code == 0, err
-        assert "resuming the campaign" in err
+        _resume_through_gonio_run(tmp_path, emu, clock, folder, monkeypatch, capsys)
     rows, _ = _measurements(folder)
     redone = [m for m in rows if in_flight[0] <= m.step < in_flight[0] + in_flight[1]]
     assert len(redone) == in_flight[1] and all(m.campaign_s > halted_at for m in redone)
