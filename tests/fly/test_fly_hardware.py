@@ -105,9 +105,8 @@ def _z(measured, simulated):
     return value, sim, (value - sim) / np.sqrt(2 * sd_sim**2 + sd**2)
 
 
-def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(flown, stop_and_go):
-    folder, servos, profiles, meta = flown
-    assert meta["fly"]["lines"] >= 4
+def _matches_stop_and_go(folder, meta, stop_and_go):
+    """The fly campaign in ``folder`` against the stop-and-go simulation; its (rows, events, swept)."""
     measured = read_brdf(folder / "brdf.h5")
     value, sim, z = _z(measured, stop_and_go)
     # Within 4 σ each, plus 1 % for the poses, which differ by the encoders' resolution (as the
@@ -117,6 +116,13 @@ def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(f
     rows, events = _measurements(folder)
     swept = [m for m in rows if m.frames > 1]
     assert len(swept) == meta["poses"]  # every pose read on the fly, none stop-and-go
+    return rows, events, swept
+
+
+def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(flown, stop_and_go):
+    folder, servos, profiles, meta = flown
+    assert meta["fly"]["lines"] >= 4
+    rows, events, swept = _matches_stop_and_go(folder, meta, stop_and_go)
     assert any(np.max(m.extra["stderr_blur"]) > 0 for m in swept)
     # The watchdog was fed through every sweep (never fired), nothing was retried, and every sweeping
     # servo runs with the campaign's profile again.

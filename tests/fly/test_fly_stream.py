@@ -13,6 +13,7 @@ from test_fly_hardware import (  # the fly hardware tests' helpers and their sto
     MATERIAL,
     TWIN,
     _fly,
+    _matches_stop_and_go,
     _measurements,
     _resume_through_gonio_run,
     _z,
@@ -66,22 +67,18 @@ def streamed(tmp_path_factory):
 
 def test_a_streamed_fly_campaign_matches_the_stop_and_go_simulation(streamed, stop_and_go):  # noqa: F811
     folder, meta, commands = streamed
-    measured = read_brdf(folder / "brdf.h5")
-    value, sim, z = _z(measured, stop_and_go)
-    assert np.all(np.abs(value - sim) <= 4 * np.abs((value - sim) / z) + 0.01 * sim), z
-    assert np.sqrt(np.mean(z**2)) < 1.5, z
-    rows, events = _measurements(folder)
-    swept = [m for m in rows if m.frames > 1]
-    assert len(swept) == meta["poses"]
+    rows, events, swept = _matches_stop_and_go(folder, meta, stop_and_go)
     # every reading from the stream: whole samples covering its exposure, none requested mid-sweep
     for m in swept:
         assert m.extra["stream_samples"] == pytest.approx(m.exposure_s * RATE_HZ, abs=m.frames)
     fp = fly_plan_of_folder(folder)
     moving = sum(1 for kind, k, _ in fly_steps(fp) if kind == "line" and fp.lines[k].moving)
-    assert commands.count("STRM ON") == commands.count("STRM OFF") == moving
-    assert commands.count(f"STRM:RATE {RATE_HZ:g}") == moving
+    # one stream per sweep (a sweep retried after a fault on a loaded host: one more)
+    retried = len([e for e in events if e["kind"] == "retry"])
+    assert commands.count("STRM ON") == commands.count("STRM OFF") == commands.count(f"STRM:RATE {RATE_HZ:g}")
+    assert moving <= commands.count("STRM ON") <= moving + retried
     # on request only at rest: the checkpoints' dark and white and any pose read stop-and-go
-    assert commands.count("MEAS?") == len(rows) - len(swept)
+    assert len(rows) - len(swept) <= commands.count("MEAS?") <= len(rows) - len(swept) + 2 * retried
     assert not [e for e in events if e["kind"] == "warning"]
 
 
