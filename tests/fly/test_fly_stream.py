@@ -140,3 +140,20 @@ def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_read_again(t
     assert resumed.value.shape == whole.value.shape
     value, other, z = _z(resumed, whole)
     assert np.all(np.abs(z) < 4), z   # the same campaign, read twice: equal within both uncertainties
+
+
+def test_a_stream_that_stalls_mid_sweep_is_a_transient_fault_and_the_sweep_is_read_again(tmp_path):
+    clock = SyncedVirtualClock()
+    folder = tmp_path / "fly"
+    with EmulatedGantry(_streaming_config(), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+        def hook(g, n):
+            emu.meter.faults.clear()
+            if n == 2:   # the second sweep's stream goes silent: no line reaches the host
+                emu.meter.faults.add("drop", match="SAMPLE", times=100_000)
+
+        state, runner, _ = _fly(folder, emu, clock, detector_hook=_on_stream_start(hook))
+        assert state == State.DONE, runner.fault
+    rows, events = _measurements(folder)
+    retries = [e["message"] for e in events if e["kind"] == "retry"]
+    assert any("stream: no sample past" in m and "the stream stalled" in m for m in retries), retries
+    assert sorted(m.step for m in rows) == list(range(len(rows)))
