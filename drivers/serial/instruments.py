@@ -3,6 +3,8 @@ photodiode/power meter (one value per frame) and a spectrometer (one value per w
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from gonio.drivers.serial.line import InstrumentCommError, InstrumentError, LineInstrument, refusal_code
@@ -186,6 +188,24 @@ class StreamingPowerMeter(SerialPowerMeter):
         self._reader: StreamReader | None = None
         self._warnings: list[str] = []
         self._reported: float | None = None   # the off-rate period last reported
+
+    def connect(self) -> None:
+        """Stop a stream a previous process left running (killed mid-sweep, the instrument streams on and
+        would answer the identity query among its samples), then connect as any line instrument."""
+        self._open()
+        t, ok = self._t, self.profile.ok_reply
+        try:
+            t.flush_input()
+            t.write(self.stream_commands.stop.encode("ascii") + self.terminator)
+            deadline = time.monotonic() + self.timeout_s + 2.0 / self.rate_hz
+            for _ in range(100_000):   # bounded: the samples already on their way, then the OK
+                buf = t.read_until(self.terminator, deadline)
+                if not buf.endswith(self.terminator) or buf[:-len(self.terminator)].strip() == ok.encode():
+                    break
+                self.late_replies += 1
+        except PortLost as exc:
+            raise InstrumentCommError(self.name, f"cannot open {self.port} ({exc})") from exc
+        super().connect()
 
     def start_stream(self) -> float:
         if self._reader is not None:

@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from gonio.drivers.serial.profile import StreamCommands, parse_number
-from gonio.drivers.serial.transport import PortLost, Transport
+from gonio.drivers.serial.transport import Transport
 from gonio.protocols import StreamSamples
 
 __all__ = ["StreamReader", "fit_sample_clock"]
@@ -116,7 +116,7 @@ class StreamReader:
         while not self._halt.is_set():
             try:
                 buf += self._t.read_until(term, time.monotonic() + READ_SLICE_S)
-            except PortLost as exc:
+            except Exception as exc:   # PortLost, or a port closed under it: kept, never a silent death
                 self.error = exc
                 self._acks.release()
                 return

@@ -60,15 +60,16 @@ def test_stream_commands_on_the_wire_and_every_line_stamped_where_its_sample_end
     emu, dev = make()
     assert dev.start_stream() == P
     t0 = clock.now()   # the emulator starts integrating when STRM ON reaches it
-    clock.sleep(0.1)
+    clock.sleep(0.5)
     s = dev.read_stream()
-    # 20 samples have ended by 0.1 s; the 20th line is still on its way (delay + its transfer)
-    assert s.index.tolist() == list(range(19)) and s.missing == () and not s.warnings
+    # 100 samples have ended by 0.5 s; the 100th line is still on its way (delay + its transfer)
+    assert s.index.tolist() == list(range(99)) and s.missing == () and not s.warnings
     np.testing.assert_allclose(s.t_end_s, t0 + (s.index + 1) * P, rtol=0, atol=1e-9)
     np.testing.assert_allclose(s.values[:, 0], _signal(P), rtol=1e-8)
     assert s.period_s == pytest.approx(P, abs=1e-12)
     dev.stop_stream()
-    assert emu.commands == ["*IDN?", "STRM:RATE 200", "STRM ON", "STRM OFF"]
+    # a stream a killed process left running is stopped first, at connect
+    assert emu.commands == ["STRM OFF", "*IDN?", "STRM:RATE 200", "STRM ON", "STRM OFF"]
     assert emu.streaming is False
     # the link is in step: a reading on request answers its own request
     reading = dev.measure(0.05)
@@ -170,3 +171,21 @@ def test_a_stream_needs_an_acknowledging_dialect():
                                                              "rate_hz": 10.0}}}
     with pytest.raises(ValueError, match="power_meter.stream: a stream needs setters = 'ok'"):
         parse_profile(data, "x.toml")
+
+
+def test_a_stream_left_running_by_a_killed_process_is_stopped_at_connect(streaming):
+    clock, make = streaming
+    emu, first = make()
+    first.start_stream()
+    clock.sleep(0.05)
+    first._reader.halt()
+    first._t.close()                  # the process dies: its port closes, the instrument streams on
+    clock.sleep(0.05)                 # lines nobody reads
+    assert emu.streaming and emu.link.pending() > 0
+    dev = StreamingPowerMeter("pd", emu.port, "streaming-photodiode", timeout_s=0.5, clock=clock)
+    dev.connect()
+    try:
+        assert not emu.streaming and dev.identity == StreamingPhotodiodeEmulator.idn
+        assert dev.measure(0.05).signal[0] == pytest.approx(_signal(0.05))
+    finally:
+        dev.close()
