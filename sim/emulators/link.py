@@ -336,6 +336,7 @@ class SyncedVirtualClock(VirtualClock):
 
     def sleep(self, seconds: float) -> None:
         end = self.now() + seconds
+        stopped = False
         for _ in range(10_000_000):   # bounded: every stop is an emulator's act, each later than the last
             for drain in list(self._drains):
                 drain()
@@ -344,4 +345,6 @@ class SyncedVirtualClock(VirtualClock):
             if nxt is None or nxt >= end or nxt <= self.now():
                 break
             super().sleep(nxt - self.now())
-        super().sleep(max(end - self.now(), 0.0))
+            stopped = True
+        # without a stop on the way, exactly as a plain virtual clock sleeps (no rounding of now + s - now)
+        super().sleep(max(end - self.now(), 0.0) if stopped else seconds)
