@@ -6,6 +6,7 @@ each stream fault (a dropped, garbled, truncated or late line, an overflow, a lo
 from __future__ import annotations
 
 import time
+from importlib.resources import files
 
 import numpy as np
 import pytest
@@ -189,3 +190,43 @@ def test_a_stream_left_running_by_a_killed_process_is_stopped_at_connect(streami
         assert dev.measure(0.05).signal[0] == pytest.approx(_signal(0.05))
     finally:
         dev.close()
+
+
+STREAMING = (files("gonio.drivers.serial") / "profiles" / "streaming-photodiode.toml").read_text()
+
+
+@pytest.mark.parametrize("old, new, field", [
+    ('rate = "STRM:RATE {rate_hz:g}"', 'rate = "STRM:RATE 200"',
+     "power_meter.stream.rate: 'STRM:RATE 200' must take"),
+    ('start = "STRM ON"\n', "", "power_meter.stream.start: missing"),
+    ('format = "index,value"', 'format = "value"', "power_meter.stream.format: 'value' is not one of"),
+    ('combine = "sum"', 'combine = "max"', "power_meter.stream.combine: 'max' is not one of"),
+    ("rate_hz = 200.0", "rate_hz = 0", "power_meter.stream.rate_hz: 0 is outside (0, 100000]"),
+    ("delay_s = 0.0002", "delay_s = -1", "power_meter.stream.delay_s: -1 is outside [0, 1]"),
+    ('stop = "STRM OFF"', 'stop = "STRM OFF"\nburst = 4', "power_meter.stream.burst: unknown key"),
+])
+def test_a_malformed_stream_section_is_one_line_naming_the_field(tmp_path, old, new, field):
+    assert old in STREAMING
+    path = tmp_path / "mine.toml"
+    path.write_text(STREAMING.replace(old, new))
+    with pytest.raises(ValueError) as err:
+        load_profile(path)
+    assert str(err.value).startswith(f"instrument profile {path}: ") and field in str(err.value)
+
+
+def test_the_config_builds_the_streaming_driver_where_the_profile_streams_unless_told_not_to():
+    from gonio.config import load_config, parse_config
+    from gonio.wiring import build_gantry
+
+    data = load_config("emulated-two-arm-dynamixel").model_dump(mode="json")
+    data["detector"]["profile"] = "streaming-photodiode"
+    assert isinstance(build_gantry(parse_config(data)).detector, StreamingPowerMeter)
+    data["detector"]["stream"] = False
+    det = build_gantry(parse_config(data)).detector
+    assert not isinstance(det, Streams) and isinstance(det, Detector)
+    data["detector"]["stream_rate_hz"] = 100.0
+    with pytest.raises(ValueError, match="stream_rate_hz: set, but stream = false"):
+        parse_config(data)
+    data["detector"].update(profile="acknowledging", stream=True)
+    with pytest.raises(ValueError, match="stream_rate_hz: profile acknowledging has no stream to run"):
+        parse_config(data)
