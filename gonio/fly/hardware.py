@@ -42,6 +42,13 @@ between readings rather than beside them: the dead time of one Sync Read (~1 ms 
 sub-read is lost to the exposure and the interpolation spans at most one sub-read. The reads between
 sub-reads also feed an armed bus watchdog (sub-reads are made shorter than half of it).
 
+A detector that streams (:class:`gonio.protocols.Streams`, declared once: ``Abilities.streams``) is not
+asked per sub-read: its stream runs from before the kickoff to after the run-down, a reading's
+sub-reads are windows of exposure / subreads back to back from its start, the axes read at each
+window's end while the instrument integrates on (no dead time), and after the last reading the
+samples, stamped on the gantry clock by the driver's reader, are gathered per window
+(:meth:`FlySweeper._stream_subreads`); a sample missing in any window makes the sweep be read again.
+
 Uncertainty. ``stderr`` adds in quadrature the sub-reads' own stated errors (a serial power meter
 states none for one frame, as in a stop-and-go reading; a simulated detector its Monte Carlo and sensor
 errors) and the motion blur from the quadratic through the sub-reads
