@@ -188,29 +188,40 @@ class StreamingPowerMeter(SerialPowerMeter):
         self._reader: StreamReader | None = None
         self._warnings: list[str] = []
         self._reported: float | None = None   # the off-rate period last reported
+        self._may_stream = False   # the instrument may still stream (a stream that did not stop cleanly)
 
     def connect(self) -> None:
         """Stop a stream a previous process left running (killed mid-sweep, the instrument streams on and
         would answer the identity query among its samples), then connect as any line instrument."""
         self._open()
-        t, ok = self._t, self.profile.ok_reply
         try:
-            t.flush_input()
-            t.write(self.stream_commands.stop.encode("ascii") + self.terminator)
-            deadline = time.monotonic() + self.timeout_s + 2.0 / self.rate_hz
-            for _ in range(100_000):   # bounded: the samples already on their way, then the OK
-                buf = t.read_until(self.terminator, deadline)
-                if not buf.endswith(self.terminator) or buf[:-len(self.terminator)].strip() == ok.encode():
-                    break
-                self.late_replies += 1
+            self._quiet()
         except PortLost as exc:
             raise InstrumentCommError(self.name, f"cannot open {self.port} ({exc})") from exc
         super().connect()
+        self._may_stream = False
+
+    def _quiet(self) -> str:
+        """Send ``stop`` and discard what comes before its acknowledgement (samples on their way); where
+        none comes (an instrument that is not there), the exchange that follows says so."""
+        t, ok = self._t, self.profile.ok_reply.encode("ascii")
+        t.flush_input()
+        t.write(self.stream_commands.stop.encode("ascii") + self.terminator)
+        deadline = time.monotonic() + self.timeout_s + 2.0 / self.rate_hz
+        for _ in range(100_000):   # bounded: the samples already on their way, then the OK
+            buf = t.read_until(self.terminator, deadline)
+            if not buf.endswith(self.terminator) or buf[:-len(self.terminator)].strip() == ok:
+                break
+            self.late_replies += 1
+        return ""
 
     def start_stream(self) -> float:
         if self._reader is not None:
             self.stop_stream()
         s = self.stream_commands
+        if self._may_stream:   # a stream that did not stop cleanly (a lost port) may still be running
+            self._io(s.stop, self._quiet)
+            self._may_stream = False
         self.setters([s.rate.format(rate_hz=self.rate_hz)])
         p = self.profile
 
@@ -281,6 +292,7 @@ class StreamingPowerMeter(SerialPowerMeter):
             self._reader = None
         self._drop()
         self._stale = max(self._stale or 0.0, 0.0)
+        self._may_stream = True
 
     def measure(self, exposure_s: float, frames: int = 1, *, key=None) -> Reading:
         if self._reader is not None:

@@ -155,6 +155,14 @@ def test_a_rate_the_instrument_refuses_is_its_error_and_a_lost_port_a_transient_
     with pytest.raises(InstrumentCommError, match="lost") as err:
         dev.read_stream()
     assert err.value.transient
+    with pytest.raises(InstrumentCommError):
+        dev.stop_stream()                        # its STRM OFF cannot go out: the port is dropped
+    emu.replug()                                 # plugged in again: the next start reopens the port,
+    assert emu.streaming                         # stops the stream that ran on meanwhile, starts anew
+    dev.start_stream()
+    clock.sleep(0.1)
+    assert dev.read_stream().index.tolist() == list(range(19))
+    dev.stop_stream()
 
 
 def test_the_clock_model_is_the_lower_envelope_of_the_arrivals():
