@@ -189,6 +189,7 @@ class StreamingPowerMeter(SerialPowerMeter):
         self._warnings: list[str] = []
         self._reported: float | None = None   # the off-rate period last reported
         self._may_stream = False   # the instrument may still stream (a stream that did not stop cleanly)
+        self._started = 0.0        # when the last stream was started (gantry clock)
 
     def connect(self) -> None:
         """Stop a stream a previous process left running (killed mid-sweep, the instrument streams on and
@@ -236,6 +237,7 @@ class StreamingPowerMeter(SerialPowerMeter):
 
         self._io(s.start, go)
         reader = self._reader
+        self._started = self.clock.now()
         acked = reader.wait_ack(self.timeout_s)
         if not acked or reader.refusals or reader.error is not None:
             self._abandon()
@@ -266,6 +268,7 @@ class StreamingPowerMeter(SerialPowerMeter):
         if reader is None:
             return
         s = self.stream_commands
+        stopped = self.clock.now()
         try:
             self._t.write(s.stop.encode("ascii") + self.terminator)
             acked = reader.wait_ack(self.timeout_s + 2.0 / self.rate_hz)
@@ -280,6 +283,19 @@ class StreamingPowerMeter(SerialPowerMeter):
         if samples.warnings and (self._reported is None or abs(samples.period_s - self._reported) > tol):
             self._reported = samples.period_s
             self._warnings += list(samples.warnings)
+        # and the lines lost: the counter's gaps, and those after the last line received (the samples
+        # the instrument had ended by its stop: a stream gone silent leaves no gap behind it)
+        missing = list(samples.missing)
+        ended = int((stopped - self._started) / samples.period_s) - 1
+        after = int(samples.index[-1]) + 1 if len(samples.index) else 0
+        if ended > after:
+            missing.append((after, ended))
+        if missing:
+            lost = sum(b - a for a, b in missing)
+            where = ", ".join(f"{a}..{b - 1}" for a, b in missing[:5])
+            more = ", ..." if len(missing) > 5 else ""
+            self._warnings.append(f"stream: {lost} of {lost + len(samples.index)} lines lost (samples {where}"
+                                  f"{more}; {reader.garbage} garbled); a reading they fell in was read again")
         if not acked or reader.error is not None:
             self._abandon()
             raise InstrumentCommError(self.name, f"{s.stop!r}: no {self.profile.ok_reply!r} after the stream")

@@ -109,6 +109,10 @@ def test_a_lost_or_garbled_line_is_a_gap_and_a_late_burst_keeps_its_stamps(strea
     # a late burst (lines 4, 5, 6 held back and sent with line 7) arrives late, stamped where it ended
     np.testing.assert_allclose(s.t_end_s, t0 + (s.index + 1) * P, rtol=0, atol=1e-9)
     dev.stop_stream()
+    lost = sum(b - a for a, b in missing)
+    assert dev.warnings() == ([f"stream: {lost} of {len(s.index) + lost} lines lost (samples "
+                               f"{missing[0][0]}..{missing[0][1] - 1}; {garbage} garbled); a reading they "
+                               "fell in was read again"] if missing else [])
 
 
 def test_an_unread_stream_overflows_the_instruments_buffer_and_the_counter_shows_the_gap():

@@ -107,8 +107,10 @@ def test_lines_lost_mid_sweep_read_that_sweep_again_and_a_fast_stream_is_journal
     steps = [m.step for m in rows]
     assert sorted(steps) == list(range(len(steps))) and len(steps) == len(set(steps))  # one per step
     warnings = [e["message"] for e in events if e["kind"] == "warning"]
-    assert len(warnings) == 1, warnings
-    assert warnings[0].startswith("detector: stream period") and "-1.96 %" in warnings[0]
+    rate = [w for w in warnings if w.startswith("detector: stream period")]
+    assert len(rate) == 1 and "-1.96 %" in rate[0], warnings     # once, not once per sweep
+    lost = [w for w in warnings if w.startswith("detector: stream: ")]
+    assert len(lost) == 1 and "60 of" in lost[0] and "samples 30..89" in lost[0], warnings
 
 
 def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_read_again(tmp_path, streamed,
@@ -158,4 +160,7 @@ def test_a_stream_that_stalls_mid_sweep_is_a_transient_fault_and_the_sweep_is_re
     rows, events = _measurements(folder)
     retries = [e["message"] for e in events if e["kind"] == "retry"]
     assert any("stream: no sample past" in m and "the stream stalled" in m for m in retries), retries
+    warnings = [e["message"] for e in events if e["kind"] == "warning"]
+    assert any(w.startswith("detector: stream: ") and "lines lost (samples 0.." in w
+               for w in warnings), warnings
     assert sorted(m.step for m in rows) == list(range(len(rows)))
