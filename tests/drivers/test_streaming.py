@@ -28,6 +28,17 @@ def _signal(exposure_s: float) -> float:
     return 3.0e4 * exposure_s
 
 
+def _read(dev, last: int):
+    """The stream once the reader thread has taken line ``last`` (read off the pty before the clock
+    moved on, but handed over in the reader's own time; bounded)."""
+    deadline = time.monotonic() + 5.0
+    s = dev.read_stream()
+    while (not len(s.index) or s.index[-1] < last) and time.monotonic() < deadline:
+        time.sleep(0.001)
+        s = dev.read_stream()
+    return s
+
+
 @pytest.fixture
 def streaming():
     clock = SyncedVirtualClock(10.0)
@@ -62,7 +73,7 @@ def test_stream_commands_on_the_wire_and_every_line_stamped_where_its_sample_end
     assert dev.start_stream() == P
     t0 = clock.now()   # the emulator starts integrating when STRM ON reaches it
     clock.sleep(0.5)
-    s = dev.read_stream()
+    s = _read(dev, 98)
     # 100 samples have ended by 0.5 s; the 100th line is still on its way (delay + its transfer)
     assert s.index.tolist() == list(range(99)) and s.missing == () and not s.warnings
     np.testing.assert_allclose(s.t_end_s, t0 + (s.index + 1) * P, rtol=0, atol=1e-9)
@@ -84,7 +95,7 @@ def test_a_stream_running_fast_is_journaled_and_stamped_at_its_own_period(stream
     dev.start_stream()
     t0 = clock.now()
     clock.sleep(1.0)
-    s = dev.read_stream()
+    s = _read(dev, 202)
     true_p = P / 1.02
     assert len(s.warnings) == 1 and "+/-" not in s.warnings[0] and "-1.96 %" in s.warnings[0], s.warnings
     assert s.period_s == pytest.approx(true_p, rel=1e-6)
@@ -102,8 +113,8 @@ def test_a_lost_or_garbled_line_is_a_gap_and_a_late_burst_keeps_its_stamps(strea
     clock.sleep(0.025)                       # lines 0..3 sent (line 4 is on its way)
     emu.faults.add(kind, match="SAMPLE", times=3 if kind == "late" else 1)
     clock.sleep(0.1)
-    s = dev.read_stream()
-    assert list(s.missing) == missing and dev._reader.garbage == garbage
+    s = _read(dev, 23)                       # lines 0..23 have ended by 0.125 s and arrived
+    assert s.index[-1] == 23 and list(s.missing) == missing and dev._reader.garbage == garbage
     got = set(s.index.tolist())
     assert got == set(range(s.index[-1] + 1)) - {k for a, b in missing for k in range(a, b)}
     # a late burst (lines 4, 5, 6 held back and sent with line 7) arrives late, stamped where it ended
@@ -165,7 +176,7 @@ def test_a_rate_the_instrument_refuses_is_its_error_and_a_lost_port_a_transient_
     assert emu.streaming                         # stops the stream that ran on meanwhile, starts anew
     dev.start_stream()
     clock.sleep(0.1)
-    assert dev.read_stream().index.tolist() == list(range(19))
+    assert _read(dev, 18).index.tolist() == list(range(19))
     dev.stop_stream()
 
 
