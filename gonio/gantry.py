@@ -49,6 +49,7 @@ from gonio.protocols import (
     ReportsLink,
     ReportsWarnings,
     SharesConnection,
+    Streams,
     SwitchesTarget,
     TimesRoundTrip,
     Warns,
@@ -71,6 +72,9 @@ class Abilities:
     reads_on_the_fly: bool
     #: The detector, where it takes readings to develop them later in batches of more than one.
     batches: ReadsInBatches | None = None
+    #: The detector where it streams (:class:`gonio.protocols.Streams`): fly sub-reads come from its
+    #: stream, not from requests.
+    streams: Streams | None = None
 
 
 def abilities(gantry: Gantry) -> Abilities:
@@ -82,7 +86,8 @@ def abilities(gantry: Gantry) -> Abilities:
     return Abilities(batched=ask(BatchedAxes), keep_alive=ask(KeepsAlive), flies=ask(FliesAxes),
                      renders_fly=ask(RendersFly), warnings=ask(ReportsWarnings), link=ask(ReportsLink),
                      reads_on_the_fly=isinstance(gantry.detector, ReadsOnTheFly),
-                     batches=_batches(gantry.detector))
+                     batches=_batches(gantry.detector),
+                     streams=gantry.detector if isinstance(gantry.detector, Streams) else None)
 
 
 def _batches(detector) -> ReadsInBatches | None:
@@ -219,7 +224,8 @@ class AssembledGantry:
         self._renders_target = isinstance(detector, SwitchesTarget)
         self._checks = {n for n, a in self.axes.items() if isinstance(a, ChecksTarget)}
         self._flyable = {n for n, a in self.axes.items() if isinstance(a, Flyable)}
-        self._warners = [(n, a) for n, a in every.items() if isinstance(a, Warns)]
+        warners = [*every.items(), (detector.name, detector)]
+        self._warners = [(n, a) for n, a in warners if isinstance(a, Warns)]
         self._counters = [(n, a) for n, a in every.items() if isinstance(a, CountsLink)]
         self._holders = {n for n, a in every.items() if isinstance(a, HoldsAtGoal)}
         axes = list(self.axes.values())

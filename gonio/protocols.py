@@ -206,7 +206,8 @@ class TimesRoundTrip(Protocol):
 
 @runtime_checkable
 class Warns(Protocol):
-    """An axis whose controller reports conditions it does not act on (a low input voltage)."""
+    """A device that reports conditions it does not act on (a servo's low input voltage, a detector's
+    stream running off its configured rate)."""
 
     def warnings(self) -> list[str]:
         """The warnings seen since the last call."""
@@ -328,6 +329,42 @@ class ReadsInBatches(Protocol):
         advances as ``measure``'s does."""
     def develop(self, takes: list) -> list[Reading]:
         """The readings of ``takes``, in order, each bit for bit what ``measure`` would have returned."""
+
+
+@dataclass(frozen=True)
+class StreamSamples:
+    """What a streaming detector sent since its stream started, each sample stamped on the gantry clock.
+
+    ``index`` (K,): the instrument's sample counter (from 0 at the start, consecutive unless lines were
+    lost); ``t_end_s`` (K,): when each sample's integration ended (gantry clock, s), so sample k covers
+    ``[t_end_s[k] - period_s, t_end_s[k]]``; ``values`` (K, C); ``period_s``: the sample period as
+    measured on the gantry clock; ``missing``: the index ranges ``[a, b)`` never received (dropped,
+    garbled or overflowed lines), which no reading may span; ``combine``: ``"sum"`` (a sample is
+    integrated over its period) or ``"mean"`` (a rate); ``warnings``: what the stream's timing check
+    found (a rate off the configured one)."""
+
+    index: np.ndarray
+    t_end_s: np.ndarray
+    values: np.ndarray
+    period_s: float
+    missing: tuple[tuple[int, int], ...] = ()
+    combine: str = "sum"
+    warnings: tuple[str, ...] = ()
+
+
+@runtime_checkable
+class Streams(Protocol):
+    """A detector that sends samples on its own at a set rate (a photodiode or power meter in a
+    continuous mode), read by a background reader that stamps them on the gantry clock: readings taken
+    from it while the axes sweep have no dead time between them (:mod:`gonio.fly.hardware`)."""
+
+    def start_stream(self) -> float:
+        """Start the stream; returns its configured sample period (s)."""
+    def read_stream(self) -> StreamSamples:
+        """Every sample received since :meth:`start_stream`, stamped (raises DeviceFault where the
+        reader lost its port)."""
+    def stop_stream(self) -> None:
+        """Stop the stream (the instrument answers requests again); safe when it is not running."""
 
 
 # -- abilities of gantries --------------------------------------------------------------------------------

@@ -8,7 +8,8 @@ from gonio.registry import lazy_attributes
 #: config model, gonio.config reads at every config load, must not import the driver's library).
 _EXPORTS = {
     "SerialLightSource": "instruments", "SerialPowerMeter": "instruments",
-    "SerialSpectrometer": "instruments", "InstrumentCommError": "line", "InstrumentError": "line",
+    "SerialSpectrometer": "instruments", "StreamingPowerMeter": "instruments",
+    "StreamReader": "stream", "InstrumentCommError": "line", "InstrumentError": "line",
     "LineInstrument": "line", "DEFAULT_PROFILE": "profile", "PROFILES": "profile",
     "InstrumentProfile": "profile", "load_profile": "profile",
 }

@@ -117,10 +117,18 @@ class SerialDetectorConfig(DetectorConfig):
     #: The wavelength (nm) a power meter takes its sensor's responsivity at (profiles that set it); None
     #: leaves the meter's own setting (which a power cycle resets).
     wavelength_nm: float | None = Field(None, ge=100.0, le=20000.0)
+    #: Where the profile has a continuous mode ([power_meter.stream]): read a fly sweep's sub-reads from
+    #: the stream (no dead time between them). False: on request, as a profile without one.
+    stream: bool = True
+    #: The stream's sample rate (Hz); None: the profile's ``rate_hz``.
+    stream_rate_hz: float | None = Field(None, gt=0.0, le=100_000.0)
 
     @model_validator(mode="after")
     def _check_profile(self):
         profile, meter = instrument_profile(self.profile, self.kind)
+        if self.stream_rate_hz is not None and (meter.stream is None or not self.stream):
+            raise ValueError(f"stream_rate_hz: profile {profile.source} has no stream to run"
+                             if meter.stream is None else "stream_rate_hz: set, but stream = false")
         if "wavelength_nm" not in meter.fields and self.wavelength_nm is not None:
             raise ValueError(f"wavelength_nm: profile {profile.source} sets no wavelength")
         if self.kind == "power_meter" and len(self.channels) != 1:
@@ -133,14 +141,19 @@ class SerialDetectorConfig(DetectorConfig):
         return self.kind
 
     def build(self, ctx: BuildContext):
-        from gonio.drivers.serial.instruments import SerialPowerMeter, SerialSpectrometer
+        from gonio.drivers.serial.instruments import SerialPowerMeter, SerialSpectrometer, StreamingPowerMeter
+        from gonio.drivers.serial.profile import load_profile
         from gonio.protocols import DeviceFault
 
         bus = ctx.cfg.buses[self.bus]
         settings = dict(wavelength_nm=self.wavelength_nm, **bus.line_settings(ctx.clock))
         channels = tuple(self.channels)
         if self.kind == "power_meter":
-            det = SerialPowerMeter("detector", bus.port, self.profile, **settings)
+            if self.stream and load_profile(self.profile).power_meter.stream is not None:
+                det = StreamingPowerMeter("detector", bus.port, self.profile, rate_hz=self.stream_rate_hz,
+                                          **settings)
+            else:
+                det = SerialPowerMeter("detector", bus.port, self.profile, **settings)
             det.channels = channels
             return det
 

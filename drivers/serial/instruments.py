@@ -3,13 +3,17 @@ photodiode/power meter (one value per frame) and a spectrometer (one value per w
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
-from gonio.drivers.serial.line import InstrumentCommError, LineInstrument
+from gonio.drivers.serial.line import InstrumentCommError, InstrumentError, LineInstrument, refusal_code
 from gonio.drivers.serial.profile import command_fields
-from gonio.protocols import Reading
+from gonio.drivers.serial.stream import StreamReader
+from gonio.drivers.serial.transport import PortLost
+from gonio.protocols import Reading, StreamSamples
 
-__all__ = ["SerialLightSource", "SerialPowerMeter", "SerialSpectrometer"]
+__all__ = ["SerialLightSource", "SerialPowerMeter", "SerialSpectrometer", "StreamingPowerMeter"]
 
 #: What a lamp's level command takes: its range and unit.
 _LEVEL_RANGE = {"percent": (0.0, 100.0, "%"), "current_a": (0.0, 100.0, " A")}
@@ -162,6 +166,162 @@ class SerialPowerMeter(LineInstrument):
         extra = {} if key is None else {"key": tuple(key)}
         return Reading(signal=data.mean(axis=0), stderr=stderr, exposure_s=float(exposure_s), frames=frames,
                        extra=extra)
+
+
+class StreamingPowerMeter(SerialPowerMeter):
+    """A power meter with a continuous mode (its profile's ``[power_meter.stream]``), as a
+    :class:`gonio.protocols.Streams`: :meth:`start_stream` sets the rate (``rate_hz``, default the
+    profile's), sends ``start`` and hands the port's reads to a :class:`~gonio.drivers.serial.stream.
+    StreamReader`, which stamps every line on the gantry clock; :meth:`stop_stream` sends ``stop`` and
+    waits for its acknowledgement behind the last samples. Readings on request (:meth:`measure`) are
+    refused while the stream runs."""
+
+    def __init__(self, name: str, port: str, profile=None, *, rate_hz: float | None = None, **kwargs):
+        super().__init__(name, port, profile, **kwargs)
+        stream = self.commands.stream
+        if stream is None:
+            raise ValueError(f"detector '{name}': profile {self.profile.source} has no [power_meter.stream]")
+        if rate_hz is not None and not 0 < rate_hz <= 100_000:
+            raise ValueError(f"detector '{name}': rate_hz {rate_hz} is outside (0, 100000] Hz")
+        self.stream_commands = stream
+        self.rate_hz = float(rate_hz if rate_hz is not None else stream.rate_hz)
+        self._reader: StreamReader | None = None
+        self._warnings: list[str] = []
+        self._reported: float | None = None   # the off-rate period last reported
+        self._may_stream = False   # the instrument may still stream (a stream that did not stop cleanly)
+        self._started = 0.0        # when the last stream was started (gantry clock)
+
+    def connect(self) -> None:
+        """Stop a stream a previous process left running (killed mid-sweep, the instrument streams on and
+        would answer the identity query among its samples), then connect as any line instrument."""
+        self._open()
+        try:
+            self._quiet()
+        except PortLost as exc:
+            raise InstrumentCommError(self.name, f"cannot open {self.port} ({exc})") from exc
+        super().connect()
+        self._may_stream = False
+
+    def _quiet(self) -> str:
+        """Send ``stop`` and discard what comes before its acknowledgement (samples on their way); where
+        none comes (an instrument that is not there), the exchange that follows says so."""
+        t, ok = self._t, self.profile.ok_reply.encode("ascii")
+        t.flush_input()
+        t.write(self.stream_commands.stop.encode("ascii") + self.terminator)
+        deadline = time.monotonic() + self.timeout_s + 2.0 / self.rate_hz
+        for _ in range(100_000):   # bounded: the samples already on their way, then the OK
+            buf = t.read_until(self.terminator, deadline)
+            if not buf.endswith(self.terminator) or buf[:-len(self.terminator)].strip() == ok:
+                break
+            self.late_replies += 1
+        return ""
+
+    def start_stream(self) -> float:
+        if self._reader is not None:
+            self.stop_stream()
+        s = self.stream_commands
+        if self._may_stream:   # a stream that did not stop cleanly (a lost port) may still be running
+            self._io(s.stop, self._quiet)
+            self._may_stream = False
+        self.setters([s.rate.format(rate_hz=self.rate_hz)])
+        p = self.profile
+
+        def go() -> str:
+            self._t.flush_input()
+            reader = StreamReader(self.name, self._t, self.terminator, s, self.rate_hz, self.baudrate,
+                                  self.clock, p.ok_reply, p.error_prefix)
+            reader.start()
+            self._t.write(s.start.encode("ascii") + self.terminator)
+            self._reader = reader
+            return ""
+
+        self._io(s.start, go)
+        reader = self._reader
+        self._started = self.clock.now()
+        acked = reader.wait_ack(self.timeout_s)
+        if not acked or reader.refusals or reader.error is not None:
+            self._abandon()
+            what = (reader.refusals[0] if reader.refusals else f"port lost ({reader.error})"
+                    if reader.error is not None else f"no {p.ok_reply!r} within {self.timeout_s:g} s")
+            if reader.refusals:
+                raise InstrumentError(self.name, f"{s.start!r} refused: {what}",
+                                      refusal_code(what, p.error_prefix))
+            raise InstrumentCommError(self.name, f"{s.start!r}: {what}")
+        return 1.0 / self.rate_hz
+
+    def read_stream(self) -> StreamSamples:
+        reader = self._reader
+        if reader is None:
+            raise ValueError(f"detector '{self.name}': no stream running (start_stream() first)")
+        if reader.error is not None:
+            raise InstrumentCommError(self.name, f"stream: port {self.port} lost ({reader.error})")
+        return reader.samples()
+
+    def warnings(self) -> list[str]:
+        """What the timing checks of the streams stopped since the last call found
+        (:class:`gonio.protocols.Warns`)."""
+        out, self._warnings = self._warnings, []
+        return out
+
+    def stop_stream(self) -> None:
+        reader, self._reader = self._reader, None
+        if reader is None:
+            return
+        s = self.stream_commands
+        stopped = self.clock.now()
+        try:
+            self._t.write(s.stop.encode("ascii") + self.terminator)
+            acked = reader.wait_ack(self.timeout_s + 2.0 / self.rate_hz)
+        except PortLost:
+            acked = False
+        finally:
+            reader.halt()
+        # the stream's timing check over all of it: a rate off the configured one is reported once,
+        # and again only where a later stream's differs from it by more than the tolerance
+        samples = reader.samples()
+        tol = s.rate_tolerance * samples.period_s
+        if samples.warnings and (self._reported is None or abs(samples.period_s - self._reported) > tol):
+            self._reported = samples.period_s
+            self._warnings += list(samples.warnings)
+        # and the lines lost: the counter's gaps, and those after the last line received (the samples
+        # the instrument had ended by its stop: a stream gone silent leaves no gap behind it)
+        missing = list(samples.missing)
+        ended = int((stopped - self._started) / samples.period_s) - 1
+        after = int(samples.index[-1]) + 1 if len(samples.index) else 0
+        if ended > after:
+            missing.append((after, ended))
+        if missing:
+            lost = sum(b - a for a, b in missing)
+            where = ", ".join(f"{a}..{b - 1}" for a, b in missing[:5])
+            more = ", ..." if len(missing) > 5 else ""
+            self._warnings.append(f"stream: {lost} of {lost + len(samples.index)} lines lost (samples {where}"
+                                  f"{more}; {reader.garbage} garbled); a reading they fell in was read again")
+        if not acked or reader.error is not None:
+            self._abandon()
+            raise InstrumentCommError(self.name, f"{s.stop!r}: no {self.profile.ok_reply!r} after the stream")
+
+    def _abandon(self) -> None:
+        """After a stream that did not start or stop cleanly: its reader gone, the port reopened (and the
+        link re-synchronised on the identity) at the next exchange."""
+        if self._reader is not None:
+            self._reader.halt()
+            self._reader = None
+        self._drop()
+        self._stale = max(self._stale or 0.0, 0.0)
+        self._may_stream = True
+
+    def measure(self, exposure_s: float, frames: int = 1, *, key=None) -> Reading:
+        if self._reader is not None:
+            raise ValueError(f"detector '{self.name}': a reading on request while the stream runs")
+        return super().measure(exposure_s, frames, key=key)
+
+    def close(self) -> None:
+        if self._reader is not None:
+            try:
+                self.stop_stream()
+            except InstrumentCommError:
+                pass
+        super().close()
 
 
 class SerialSpectrometer(SerialPowerMeter):

@@ -48,7 +48,7 @@ from gonio.drivers.serial.profile import (
 from gonio.drivers.serial.transport import PortLost, open_transport
 from gonio.protocols import DeviceFault
 
-__all__ = ["LineInstrument", "InstrumentCommError", "InstrumentError", "transient_code"]
+__all__ = ["LineInstrument", "InstrumentCommError", "InstrumentError", "transient_code", "refusal_code"]
 
 #: Most entries drained from an error queue at once (SCPI queues hold 10 to 30; -350 marks overflow).
 MAX_ERRORS = 32
@@ -76,6 +76,14 @@ class InstrumentError(DeviceFault):
     def __init__(self, device: str, message: str, code: int | None = None):
         super().__init__(device, message, transient=transient_code(code))
         self.code = code
+
+
+def refusal_code(reply: str, prefix: str) -> int | None:
+    """The code of a refusal ``<prefix> <code>,"<text>"`` (None where it has none)."""
+    try:
+        return int(reply[len(prefix):].split(",")[0])
+    except ValueError:
+        return None
 
 
 class LineInstrument:
@@ -277,12 +285,8 @@ class LineInstrument:
             raise
         p = self.profile
         if p.setters == "ok" and reply.startswith(p.error_prefix):
-            code = None
-            try:
-                code = int(reply[len(p.error_prefix):].split(",")[0])
-            except ValueError:
-                pass
-            raise InstrumentError(self.name, f"{line!r} refused: {reply}", code)
+            raise InstrumentError(self.name, f"{line!r} refused: {reply}",
+                                  refusal_code(reply, p.error_prefix))
         return reply
 
     def setters(self, commands: Sequence[str], *, wait_s: float = 0.0, idempotent: bool = True) -> None:

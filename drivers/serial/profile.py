@@ -28,6 +28,15 @@ Schema::
                                  {wavelength_nm}; unit (of the reading, e.g. "W")
     [spectrometer]               as power_meter, the query's reply a comma-separated list; and
                                  wavelengths (a query: the bins' centres in nm)
+    [power_meter.stream]         optional: a continuous mode (the instrument sends a line per sample at a
+                                 set rate, unasked): rate (a setter with {rate_hz}), start, stop (setters),
+                                 rate_hz (the default rate), format = "index,value" (each line: the
+                                 instrument's sample counter from 0 at start, then the value),
+                                 delay_s (from the end of a sample's integration to its line's first
+                                 byte: the instrument's processing), combine = "sum" (a sample is the
+                                 signal integrated over its period) or "mean" (a rate, e.g. W),
+                                 rate_tolerance (relative: a stream whose period measured on the gantry
+                                 clock differs more is journaled)
 
 A number in a reply is SCPI decimal data (NR1, NR2 or NR3: ``42``, ``0.5``, ``1.234567E-03``); SCPI's
 9.91E37 (not a number) and ±9.9E37 (overload) are not readings.
@@ -44,12 +53,13 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["InstrumentProfile", "LightCommands", "MeterCommands", "load_profile", "parse_profile", "PROFILES",
+__all__ = ["InstrumentProfile", "LightCommands", "MeterCommands", "StreamCommands", "STREAM_FORMATS",
+           "load_profile", "parse_profile", "PROFILES",
            "DEFAULT_PROFILE", "DEVICE_KINDS", "parse_number", "parse_numbers", "parse_bool", "is_query",
            "command_fields"]
 
 #: Shipped profiles, by name.
-PROFILES = ("acknowledging", "thorlabs-pm100", "scpi-current-source")
+PROFILES = ("acknowledging", "thorlabs-pm100", "scpi-current-source", "streaming-photodiode")
 #: The profile of a config that names none: gonio's own acknowledging line dialect.
 DEFAULT_PROFILE = "acknowledging"
 #: The kinds of device a profile may describe (its sections).
@@ -63,7 +73,10 @@ _SCPI_NAN = 9.9e37
 _TOP_KEYS = {"name", "description", "terminator", "setters", "ok_reply", "error_prefix", "errors", "complete",
              "identify", "reset", "secondary", *DEVICE_KINDS}
 _LIGHT_KEYS = {"on", "off", "state", "level", "level_query", "ready"}
-_METER_KEYS = {"configure", "sample_s", "measure", "unit", "wavelengths"}
+_METER_KEYS = {"configure", "sample_s", "measure", "unit", "wavelengths", "stream"}
+_STREAM_KEYS = {"rate", "start", "stop", "rate_hz", "format", "delay_s", "combine", "rate_tolerance"}
+#: The line formats a stream may have (the sample counter makes every dropped line visible).
+STREAM_FORMATS = ("index,value",)
 
 
 def is_query(command: str) -> bool:
@@ -110,6 +123,21 @@ class LightCommands:
 
 
 @dataclass(frozen=True)
+class StreamCommands:
+    """A power meter's continuous mode: it sends ``<index>,<value>`` lines at ``rate_hz`` from ``start``
+    to ``stop``, unasked."""
+
+    rate: str
+    start: str
+    stop: str
+    rate_hz: float
+    format: str = "index,value"
+    delay_s: float = 0.0
+    combine: str = "sum"
+    rate_tolerance: float = 0.005
+
+
+@dataclass(frozen=True)
 class MeterCommands:
     """A power meter's or a spectrometer's commands."""
 
@@ -118,6 +146,7 @@ class MeterCommands:
     sample_s: float | None = None
     unit: str = ""
     wavelengths: str | None = None
+    stream: StreamCommands | None = None
 
     @property
     def fields(self) -> set[str]:
@@ -244,8 +273,41 @@ def _meter(where: str, data: dict, kind: str) -> MeterCommands:
         raise _fail(where, f"{kind}.unit", f"must be a string, got {unit!r}")
     wavelengths = (_command(where, f"{kind}.wavelengths", t["wavelengths"], query=True)
                    if kind == "spectrometer" else None)
+    stream = _stream(where, t, kind) if "stream" in t else None
     return MeterCommands(measure=measure, configure=configure, sample_s=None if sample_s is None else
-                         float(sample_s), unit=unit, wavelengths=wavelengths)
+                         float(sample_s), unit=unit, wavelengths=wavelengths, stream=stream)
+
+
+def _number(where: str, key: str, value, lo: float, hi: float, *, open_lo: bool = True) -> float:
+    inside = isinstance(value, int | float) and not isinstance(value, bool) and (
+        (lo < value if open_lo else lo <= value) and value <= hi)
+    if not inside:
+        raise _fail(where, key, f"{value!r} is outside {'(' if open_lo else '['}{lo:g}, {hi:g}]")
+    return float(value)
+
+
+def _stream(where: str, data: dict, kind: str) -> StreamCommands:
+    key = f"{kind}.stream"
+    if kind != "power_meter":
+        raise _fail(where, key, "only a power meter streams (one value per line)")
+    t = _table(where, key, {key: data["stream"]}, _STREAM_KEYS, ("rate", "start", "stop", "rate_hz"))
+    rate = _command(where, f"{key}.rate", t["rate"], allowed=("rate_hz",), query=False)
+    if command_fields(rate) != ["rate_hz"]:
+        raise _fail(where, f"{key}.rate", f"{rate!r} must take {{rate_hz}} once")
+    fmt = t.get("format", "index,value")
+    if fmt not in STREAM_FORMATS:
+        raise _fail(where, f"{key}.format", f"{fmt!r} is not one of {', '.join(STREAM_FORMATS)}")
+    combine = t.get("combine", "sum")
+    if combine not in ("sum", "mean"):
+        raise _fail(where, f"{key}.combine", f"{combine!r} is not one of 'sum' (a sample is integrated over "
+                    "its period), 'mean' (a sample is a rate)")
+    return StreamCommands(
+        rate=rate, start=_command(where, f"{key}.start", t["start"], query=False),
+        stop=_command(where, f"{key}.stop", t["stop"], query=False),
+        rate_hz=_number(where, f"{key}.rate_hz", t["rate_hz"], 0.0, 100_000.0), format=fmt,
+        delay_s=_number(where, f"{key}.delay_s", t.get("delay_s", 0.0), 0.0, 1.0, open_lo=False),
+        combine=combine,
+        rate_tolerance=_number(where, f"{key}.rate_tolerance", t.get("rate_tolerance", 0.005), 0.0, 0.5))
 
 
 def parse_profile(data: dict, where: str = "<dict>", text: str = "") -> InstrumentProfile:
@@ -272,6 +334,10 @@ def parse_profile(data: dict, where: str = "<dict>", text: str = "") -> Instrume
     if setters == "ok" and errors is not None:
         raise _fail(where, "errors", "an 'ok' dialect refuses a command in its reply (error_prefix); "
                     "leave errors out")
+    meter = data.get("power_meter")
+    if isinstance(meter, dict) and "stream" in meter and setters != "ok":
+        raise _fail(where, "power_meter.stream", "a stream needs setters = 'ok' (its start and stop are told "
+                    "apart from the samples by their acknowledgement)")
     kinds = tuple(k for k in DEVICE_KINDS if k in data)
     if not kinds:
         raise _fail(where, "light",

@@ -42,6 +42,13 @@ between readings rather than beside them: the dead time of one Sync Read (~1 ms 
 sub-read is lost to the exposure and the interpolation spans at most one sub-read. The reads between
 sub-reads also feed an armed bus watchdog (sub-reads are made shorter than half of it).
 
+A detector that streams (:class:`gonio.protocols.Streams`, declared once: ``Abilities.streams``) is not
+asked per sub-read: its stream runs from before the kickoff to after the run-down, a reading's
+sub-reads are windows of exposure / subreads back to back from its start, the axes read at each
+window's end while the instrument integrates on (no dead time), and after the last reading the
+samples, stamped on the gantry clock by the driver's reader, are gathered per window
+(:meth:`FlySweeper._stream_subreads`); a sample missing in any window makes the sweep be read again.
+
 Uncertainty. ``stderr`` adds in quadrature the sub-reads' own stated errors (a serial power meter
 states none for one frame, as in a stop-and-go reading; a simulated detector its Monte Carlo and sensor
 errors) and the motion blur from the quadratic through the sub-reads
@@ -60,6 +67,7 @@ import numpy as np
 from gonio.fly.blur import motion_blur
 from gonio.plan.fly import FLY_TOL_DEG, FlyLine
 from gonio.plan.schedule import STEP_POSE
+from gonio.protocols import DeviceFault
 from gonio.store import Measurement
 
 __all__ = ["FlySweeper", "on_limits", "READ_S", "SUBREADS"]
@@ -105,6 +113,9 @@ class FlySweeper:
         self.flies = self.executor.abilities.flies
         if self.flies is None:
             raise ValueError("the gantry cannot sweep its axes (on-the-fly scanning needs Dynamixel servos)")
+        #: The detector where it streams (its samples stamped on the gantry clock): sub-reads are taken
+        #: from the stream, back to back, not requested (:meth:`_stream_subreads`).
+        self.streams = self.executor.abilities.streams
         keep = self.executor.abilities.keep_alive
         self.feed_s = keep.feed_s if keep is not None else None
         self.read_s = float(read_s)
@@ -122,23 +133,40 @@ class FlySweeper:
         ex.goto(start)
         ex.settle()
         reads: list[tuple[np.ndarray, np.ndarray]] = []
-        v, a = ex.command(lambda: flies.sweep(name, float(end[line.axis]), line.speed_deg_s,
-                                              line.accel_deg_s2))
+        if self.streams is not None:
+            self.streams.start_stream()
+        try:
+            v, a = ex.command(lambda: flies.sweep(name, float(end[line.axis]), line.speed_deg_s,
+                                                  line.accel_deg_s2))
+        except BaseException:
+            self._stop_stream()
+            raise
         t_go = clock.now()
         try:
             out = self._readings(line, step, attempt, v, reads)
             # The run-down: the axis arrives at the line's end (the executor faults one that stopped short).
             ex.arrive(start, end, max(t_go + line.duration_s - clock.now(), 0.0))
         except BaseException:
+            self._stop_stream()
             try:
                 flies.end_sweep(name)
             except Exception:  # noqa: S110 - the first failure is the one to report; the next move restores
                 pass
             raise
         flies.end_sweep(name)
+        if self.streams is not None:
+            self.streams.stop_stream()
         for m in out:
             m.extra.update({"speed_deg_s": v, "accel_deg_s2": a, "planned_speed_deg_s": line.speed_deg_s})
         return out
+
+    def _stop_stream(self) -> None:
+        """Stop the stream after a failure (the failure is the one to report)."""
+        if self.streams is not None:
+            try:
+                self.streams.stop_stream()
+            except Exception:  # noqa: S110 - a stream that cannot stop now is started afresh next time
+                pass
 
     def _look(self, reads) -> tuple[float, float]:
         t, x = self.flies.stamped_positions()
@@ -154,12 +182,14 @@ class FlySweeper:
         m = max(self.subreads, math.ceil(e / feed) if feed else 0)
         planned = line.readings_deg()
         self._look(reads)
-        spans, signals, variances, ends = [], [], [], []
+        spans, signals, variances, ends, windows = [], [], [], [], []
         gaps = self._gaps   # dead time between sub-reads seen so far (their reads and replies)
         for j in range(line.n):
             # Start when the axis, at its speed from the last read, passes the pose at the mid-time of
-            # the sub-reads (their exposures and the dead time between them, as seen so far).
-            span = e + (m - 1) * (float(np.median(gaps)) if gaps else 0.0)
+            # the sub-reads (their exposures and the dead time between them, as seen so far; none when
+            # they come from a stream).
+            dead = float(np.median(gaps)) if gaps and self.streams is None else 0.0
+            span = e + (m - 1) * dead
             while True:
                 t, x = reads[-1][0][ax], reads[-1][1][ax]
                 start = t + sign * (planned[j, ax] - x) / v - 0.5 * span
@@ -170,6 +200,17 @@ class FlySweeper:
                     break
                 ex.wait(self.read_s)
                 self._look(reads)
+            if self.streams is not None:
+                # Sub-reads from the stream: windows back to back, the axes read at each window's end
+                # while the instrument integrates on; their samples are gathered after the last reading.
+                t0 = clock.now()
+                for k in range(m):
+                    ex.wait(max(t0 + (k + 1) * e / m - clock.now(), 0.0))
+                    self._look(reads)
+                windows.append(t0)
+                t1 = t0 + e
+                ends.append((t1, self.engine.campaign_s() - (clock.now() - t1)))
+                continue
             subs, var, mids = [], [], []
             for k in range(m):
                 t0 = clock.now()
@@ -187,6 +228,8 @@ class FlySweeper:
             signals.append(np.asarray(subs, dtype=np.float64))
             variances.append(np.asarray(var))
             ends.append((t1, self.engine.campaign_s() - (clock.now() - t1)))
+        if self.streams is not None:
+            spans, signals, variances, counts = self._stream_subreads(windows, e, m, step)
         subs = np.stack(signals)                                        # (n, M, C)
         noise_var = np.stack(variances)
         blur = motion_blur(subs, noise_var)                             # (n, C)
@@ -202,5 +245,60 @@ class FlySweeper:
                             campaign_s=float(ends[j][1]), exposure_s=e, frames=m, signal=subs[j].sum(axis=0),
                             stderr=stderr[j], attempts=attempt,
                             extra={"mid_s": float(mid[j]), "stderr_blur": blur[j].tolist(),
-                                   "stderr_sensor": sensor[j].tolist(), "axis_reads": len(reads)})
+                                   "stderr_sensor": sensor[j].tolist(), "axis_reads": len(reads),
+                                   **({} if self.streams is None else {"stream_samples": counts[j]})})
                 for j in range(line.n)]
+
+    def _stream_subreads(self, windows: list[float], e: float, m: int, step: int):
+        """The sub-reads of readings starting at ``windows`` (gantry clock), each ``m`` windows of ``e / m``
+        s back to back, from the stream: a sample belongs to the window holding its mid-time (each
+        sample counted once, the exposure continuous). A summing stream's sub-read is its samples' sum
+        scaled from their exposure (whole samples) to the window's; a rate's is their mean. Waits (in
+        slices, the axes read as in any wait) until the stream holds a sample past the last window;
+        a sample lost in any window (a gap in the counter) is a transient fault: the sweep is read
+        again, never interpolated across the gap."""
+        ex, clock = self.executor, self.executor.gantry.clock
+        last = windows[-1] + e
+        deadline = last + max(1.0, 10 * e)
+        while True:
+            s = self.streams.read_stream()
+            if len(s.index) and s.t_end_s[-1] - 0.5 * s.period_s >= last:
+                break
+            if clock.now() > deadline:
+                raise DeviceFault(self.engine.gantry.detector.name, f"stream: no sample past {last:.4f} s "
+                                  f"by {clock.now():.4f} s (step {step}): the stream stalled", transient=True)
+            ex.wait(self.read_s)
+        period = s.period_s
+        mids = s.t_end_s - 0.5 * period
+        origin = float(s.t_end_s[0] - (s.index[0] + 1) * period)   # where sample 0 started
+        spans, signals, variances, counts = [], [], [], []
+        sub = e / m
+        for t0 in windows:
+            edges = t0 + sub * np.arange(m + 1)
+            # the counters the windows need: every sample whose mid-time falls in them
+            k_lo = math.ceil((edges[0] - origin) / period - 0.5 - 1e-9)
+            k_hi = math.ceil((edges[-1] - origin) / period - 0.5 - 1e-9)
+            lost = [(a, b) for a, b in s.missing if a < k_hi and b > k_lo]
+            if lost:
+                a, b = lost[0]
+                raise DeviceFault(self.engine.gantry.detector.name, f"stream: samples {a}..{b - 1} lost "
+                                  f"during step {step} (reading from {t0:.4f} s): the sweep is read again",
+                                  transient=True)
+            which = np.searchsorted(edges, mids, side="right") - 1
+            subs, sub_mids, n_used = [], [], 0
+            for k in range(m):
+                take = which == k
+                q = int(take.sum())
+                if q == 0:
+                    raise DeviceFault(self.engine.gantry.detector.name, f"stream: no sample in a sub-read of "
+                                      f"step {step} ({sub:g} s at {period:g} s a sample)", transient=True)
+                vals = s.values[take]
+                summed = s.combine == "sum"
+                subs.append(vals.sum(axis=0) * sub / (q * period) if summed else vals.mean(axis=0))
+                sub_mids.append(float(mids[take].mean()))
+                n_used += q
+            spans.append((float(np.mean(sub_mids)), e))
+            signals.append(np.asarray(subs, dtype=np.float64))
+            variances.append(np.zeros_like(signals[-1]))   # a stream states no noise of its own
+            counts.append(n_used)
+        return spans, signals, variances, counts

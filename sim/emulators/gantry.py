@@ -42,7 +42,12 @@ import numpy as np
 from gonio.clock import WallClock
 from gonio.config import GonioConfig
 from gonio.sim.emulators.dynamixel import DynamixelBusEmulator, EmulatedServo
-from gonio.sim.emulators.instruments import LightSourceEmulator, PowerMeterEmulator, SpectrometerEmulator
+from gonio.sim.emulators.instruments import (
+    LightSourceEmulator,
+    PowerMeterEmulator,
+    SpectrometerEmulator,
+    StreamingPhotodiodeEmulator,
+)
 from gonio.sim.emulators.modbus import ModbusMotorEmulator
 from gonio.sim.emulators.scpi import CurrentSourceEmulator, Pm100Emulator
 from gonio.sim.emulators.tcp_link import TcpLink
@@ -57,7 +62,8 @@ WATTS_PER_UNIT = 1e-6
 #: Instrument profile name -> the emulator of a lamp that speaks it.
 LAMP_EMULATORS = {"acknowledging": LightSourceEmulator, "scpi-current-source": CurrentSourceEmulator}
 #: Instrument profile name -> the emulator of a power meter that speaks it.
-METER_EMULATORS = {"acknowledging": PowerMeterEmulator, "thorlabs-pm100": Pm100Emulator}
+METER_EMULATORS = {"acknowledging": PowerMeterEmulator, "thorlabs-pm100": Pm100Emulator,
+                   "streaming-photodiode": StreamingPhotodiodeEmulator}
 SPECTROMETER_EMULATORS = {"acknowledging": SpectrometerEmulator}
 _LOOPBACK = ("127.0.0.1", "localhost")
 _VISA_SOCKET = re.compile(r"^TCPIP(\d*)::([^:]+)::(\d+)::SOCKET$", re.IGNORECASE)
@@ -132,7 +138,9 @@ class EmulatedGantry:
             if missing:
                 raise ValueError(f"emulate: the emulated detector renders at the emulated axes' poses, but "
                                  f"{', '.join(missing)} {'is' if len(missing) == 1 else 'are'} 'sim'")
-            self._detector, self._light = self._renderer(material, seed)
+            self._detector, self._light = self._renderer(material, seed, self.clock)
+        self._material, self._seed = material, seed
+        self._stream_render = None   # (clock, detector, light) of a streaming photodiode's samples
         self._build()
 
     # -- building -------------------------------------------------------------------------------------
@@ -179,7 +187,10 @@ class EmulatedGantry:
                 if cfg.detector.kind == "power_meter":
                     make = self._emulator_for("detector", cfg.detector.profile, METER_EMULATORS)
                     signal = self._watts if make is Pm100Emulator else self._power
-                    self.meter = make(signal, clock=self.clock, link=self._link(bus_name))
+                    extra = {}
+                    if make is StreamingPhotodiodeEmulator:
+                        extra = dict(window=self._window, baudrate=cfg.buses[bus_name].baudrate)
+                    self.meter = make(signal, clock=self.clock, link=self._link(bus_name), **extra)
                 else:
                     self._emulator_for("detector", cfg.detector.profile, SPECTROMETER_EMULATORS)
                     if len(cfg.detector.channels) != len(SPECTROMETER_BANDS_NM):
@@ -225,7 +236,7 @@ class EmulatedGantry:
             return a.direction * (m.position_steps_f(t) - a.zero_steps) / per_deg
         return modbus
 
-    def _renderer(self, material, seed: int):
+    def _renderer(self, material, seed: int, clock):
         from gonio.kinematics import make_kinematics
         from gonio.sim import materials as _materials
         from gonio.sim.detector import SimDetector
@@ -234,7 +245,7 @@ class EmulatedGantry:
 
         cfg = self.cfg
         kinematics = make_kinematics(cfg)
-        light = SimLight(cfg.light, self.clock)
+        light = SimLight(cfg.light, clock)
         light.connect()
         sample = _materials.load(material) if isinstance(material, str) else material
         views = {n: _ShaftView(self._positions[n]) for n in kinematics.axis_names}
@@ -244,7 +255,7 @@ class EmulatedGantry:
         reference = reference_material(cfg.model_copy(update={"detector": rgb}))
         det = SimDetector(rgb, light=light, axes=views,
                           kinematics=kinematics, materials={"sample": sample, "reference": reference},
-                          clock=self.clock, seed=seed, name="emulated detector")
+                          clock=clock, seed=seed, name="emulated detector")
         det.connect()
         return det, light
 
@@ -272,6 +283,22 @@ class EmulatedGantry:
             self._light.set_on(bool(self.lamp.on) if self.lamp is not None else True)
             self._detector.set_target(self.target_now())
             return self._detector.measure(exposure_s, motion=self.axes_at).signal
+
+    def _window(self, t0: float, t1: float) -> float:
+        """A streaming photodiode's sample: the signal integrated over ``[t0, t1]`` of the gantry's
+        timeline, the axes moving along their trajectories meanwhile; rendered on a clock of its own set
+        to ``t0`` (the shared clock does not move: the stream's instants are the emulator's own)."""
+        from gonio.clock import VirtualClock
+
+        with self._render_lock:
+            if self._stream_render is None or self._stream_render[0].now() > t0:
+                clock = VirtualClock(t0)
+                self._stream_render = (clock, *self._renderer(self._material, self._seed, clock))
+            clock, det, light = self._stream_render
+            clock.sleep_until(t0)
+            light.set_on(bool(self.lamp.on) if self.lamp is not None else True)
+            det.set_target(self.target_now())
+            return float(det.measure(t1 - t0, motion=self.axes_at).signal.mean())
 
     def _power(self, exposure_s: float) -> float:
         return float(self._render(exposure_s).mean())
@@ -302,7 +329,8 @@ class EmulatedGantry:
                     emu.start()
                     self._locations[name] = self._location(name, emu)
                     if hasattr(emu, "drain") and hasattr(self.clock, "attach"):
-                        self.clock.attach(emu.drain)  # a SyncedVirtualClock: no time passes mid-packet
+                        # a SyncedVirtualClock: no time passes mid-packet; a stream's lines at their instants
+                        self.clock.attach(emu.drain, getattr(emu, "next_due", None))
         except BaseException:
             self.stop()
             raise

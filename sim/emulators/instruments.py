@@ -14,6 +14,7 @@ The SCPI instruments (silent setters, an error queue) are in :mod:`gonio.sim.emu
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Sequence
 
 from gonio.clock import WallClock
@@ -221,4 +222,177 @@ class SpectrometerEmulator(PowerMeterEmulator):
             return ",".join(f"{w:g}" for w in self.wavelengths_nm)
         if head == "MEAS:SPEC?":
             return ",".join(f"{float(v):.6e}" for v in self.signal(self.exposure_s))
+        return super().handle(line)
+
+
+#: Wall time a drain leaves the driver's stream reader to stamp the lines it just read (s).
+STAMP_GRACE_S = 0.001
+#: A drain stops waiting for the driver to read the lines when it took none for this long (s, wall).
+UNREAD_S = 0.02
+
+
+class StreamingPhotodiodeEmulator(PowerMeterEmulator):
+    """A photodiode with a stream mode (profile ``streaming-photodiode``): as :class:`PowerMeterEmulator`
+    (``CONF:EXP``, ``MEAS?``), and
+
+    - ``STRM:RATE <hz>`` (1 .. 2000 Hz, and no faster than its lines fit the baud rate: ``ERR -222``
+      otherwise), ``STRM:RATE?``; ``STRM?`` (1 while streaming);
+    - ``STRM ON`` answers ``OK``, then sends ``<index>,<value>`` per sample, unasked: sample ``k`` (from 0)
+      integrates ``[t0 + k P, t0 + (k+1) P)`` (``P`` = 1 / rate, on the instrument's own clock, which
+      runs ``clock_error`` fast: 0 = exactly the gantry's), its value from ``window(t_start, t_end)``
+      (default ``signal(P)``), and its line goes out ``delay_s`` after the end of its integration, the
+      last byte arriving after the line's transfer time at ``baudrate`` (8N1: 10 bits a byte);
+    - ``STRM OFF`` sends the samples already due, then ``OK``; ``MEAS?`` and ``CONF:EXP`` while streaming
+      are refused (``ERR -221,"settings conflict"``), ``STRM:RATE`` too;
+    - overflow: a line that does not fit its transmit buffer (``buffer_bytes``, of which what the host
+      has not read yet takes its part) is not sent (the counter goes on: the host sees the gap);
+    - stream faults (:attr:`faults` with ``match="SAMPLE"``, or ``("SAMPLE", k)`` for line k): ``drop``
+      (the line is lost), ``corrupt``
+      (line noise in its place: a garbage line), ``truncate`` (no terminator: it runs into the next
+      line, both lost), ``late`` (held back and sent with the next line: a late burst; several in a
+      row hold several).
+
+    On a :class:`~gonio.sim.emulators.link.SyncedVirtualClock` the clock stops at each line's time
+    (:meth:`next_due`) and :meth:`drain` sends it and waits until the driver has read it, so a line
+    arrives at its own instant of virtual time."""
+
+    idn = "gonio,streaming-photodiode-emulator,0,1.0"
+    #: Longest line (bytes with its terminator) the rate is checked against.
+    LINE_BYTES = 24
+
+    def __init__(self, signal: Callable[[float], float], clock=None, link=None, *,
+                 window: Callable[[float, float], float] | None = None, baudrate: int = 115200,
+                 delay_s: float = 0.0002, clock_error: float = 0.0, buffer_bytes: int = 4096):
+        self.baudrate = int(baudrate)
+        self.delay_s = float(delay_s)
+        self.clock_error = float(clock_error)
+        self.buffer_bytes = int(buffer_bytes)
+        self.window = window
+        super().__init__(signal, clock=clock, link=link)
+        #: Lines sent and lines lost to a full buffer, since power-on.
+        self.sent = 0
+        self.overflowed = 0
+
+    def reset(self) -> None:
+        super().reset()
+        self.rate_hz = 100.0
+        self.streaming = False
+        self._k = 0
+        self._t0 = 0.0
+        self._held: list[bytes] = []
+
+    # -- the stream ------------------------------------------------------------------------------------
+    def _period(self) -> float:
+        return 1.0 / (self.rate_hz * (1.0 + self.clock_error))
+
+    def _line(self, k: int) -> bytes:
+        p = self._period()
+        t0 = self._t0 + k * p
+        value = self.window(t0, t0 + p) if self.window is not None else self.signal(p)
+        return f"{k},{float(value):.9e}".encode("ascii") + self.terminator
+
+    def _due(self, k: int) -> float:
+        """When the last byte of sample ``k``'s line arrives (``<k>,`` and a value of 15 characters, its
+        sign aside)."""
+        nbytes = len(str(k)) + 16 + len(self.terminator)
+        return self._t0 + (k + 1) * self._period() + self.delay_s + nbytes * 10.0 / self.baudrate
+
+    def next_due(self) -> float | None:
+        """The virtual instant the next line arrives (None: not streaming). Without the lock: the clock
+        asks while this emulator's own thread may hold it (its MEAS? sleeps the shared clock)."""
+        if not self.streaming or not self.powered:
+            return None
+        return self._due(self._k)
+
+    def _emit_due(self) -> None:
+        """Send every line due by now (the caller holds the lock)."""
+        now = self.clock.now() + 1e-9   # a virtual clock stopped at a due instant lands within rounding
+        while self.streaming and self._due(self._k) <= now:
+            k, self._k = self._k, self._k + 1
+            data = self._line(k)
+            fault = self.faults.take("SAMPLE", ("SAMPLE", k))
+            if fault is not None and fault.kind == "late":
+                self._held.append(data)
+                continue
+            if fault is not None and fault.kind == "corrupt":
+                data = b"\x8f#" + data[2:]
+            elif fault is not None and fault.kind == "truncate":
+                data = data[:-len(self.terminator)]
+            elif fault is not None and fault.kind == "drop":
+                data = b""
+            out, self._held = b"".join(self._held) + data, []
+            if self.link.pending() + len(out) > self.buffer_bytes:
+                self.overflowed += 1
+                continue
+            if out:
+                self.link.write(out)
+                self.sent += 1
+
+    def drain(self, timeout_s: float = 2.0) -> bool:
+        """Handle what the driver sent, send the lines due by now, and wait (at most ``timeout_s``) until
+        the driver has read them; False if bytes were still waiting. Called from its own thread (whose
+        MEAS? sleeps the shared clock through the exposure) it does nothing: that thread is serving."""
+        if threading.current_thread() is self._thread:
+            return True
+        deadline = time.monotonic() + timeout_s
+        while self.link.readable(0.0) and time.monotonic() < deadline:
+            time.sleep(0.0005)  # the serving thread reads them
+        with self.lock:
+            sent = self.sent
+            if self.powered and self.link.plugged:
+                self._emit_due()
+            sent = self.sent > sent
+        left, still = self.link.pending(), time.monotonic()
+        while left > 0:
+            time.sleep(0.0002)  # the driver's reader takes them: bounded by the deadline
+            now, left, was = time.monotonic(), self.link.pending(), left
+            if left < was:
+                still = now
+            elif now - still > UNREAD_S or now >= deadline:
+                return False    # nobody is reading (the lines stay in the buffer, which may overflow)
+        if sent:
+            # The reader has the bytes; its stamp (the clock's now) follows in its own thread: this one
+            # gives it the interpreter before time moves. A reader held up longer stamps late, which the
+            # driver's clock model (the lower envelope of the arrivals) absorbs, as a busy host's.
+            time.sleep(STAMP_GRACE_S)
+        return True
+
+    def step(self) -> None:
+        super().step()
+        with self.lock:
+            if self.powered and self.link.plugged:
+                self._emit_due()
+
+    @property
+    def poll_s(self) -> float:
+        return 0.001 if self.streaming else 0.02
+
+    def handle(self, line):
+        parts = line.split()
+        head = parts[0].upper()
+        if head == "STRM" and len(parts) == 2 and parts[1].upper() in ("ON", "OFF"):
+            if parts[1].upper() == "OFF":
+                self._emit_due()
+                held, self._held = b"".join(self._held), []
+                self.link.write(held)
+                self.streaming = False
+                return "OK"
+            if not self.streaming:
+                self.streaming, self._k, self._t0, self._held = True, 0, self.clock.now(), []
+            return "OK"
+        if head == "STRM?":
+            return "1" if self.streaming else "0"
+        if head == "STRM:RATE?":
+            return f"{self.rate_hz:g}"
+        if self.streaming and head in ("STRM:RATE", "MEAS?", "CONF:EXP"):
+            return 'ERR -221,"settings conflict"'
+        if head == "STRM:RATE" and len(parts) == 2:
+            try:
+                rate = float(parts[1])
+            except ValueError:
+                return 'ERR -104,"data type error"'
+            if not 1.0 <= rate <= 2000.0 or rate * self.LINE_BYTES * 10.0 > self.baudrate:
+                return 'ERR -222,"data out of range"'
+            self.rate_hz = rate
+            return "OK"
         return super().handle(line)

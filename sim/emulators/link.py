@@ -8,9 +8,12 @@ makes a fresh pty behind the same name, so a driver can reconnect by reopening t
 
 from __future__ import annotations
 
+import fcntl
 import os
 import select
+import struct
 import tempfile
+import termios
 import threading
 import time
 import tty
@@ -90,6 +93,16 @@ class PtyLink:
             return bool(select.select([fd], [], [], timeout_s)[0])
         except (OSError, ValueError):
             return False
+
+    def pending(self) -> int:
+        """Bytes written to the driver that it has not read yet (0 when unplugged)."""
+        fd = self._slave
+        if fd is None:
+            return 0
+        try:
+            return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+        except OSError:
+            return 0
 
     def read(self, timeout_s: float) -> bytes:
         """Bytes the driver wrote, waiting at most ``timeout_s`` s (b"" when none, or unplugged)."""
@@ -306,16 +319,32 @@ class SyncedVirtualClock(VirtualClock):
     def __init__(self, start: float = 0.0):
         super().__init__(start)
         self._drains: list = []
+        self._dues: dict = {}
 
-    def attach(self, drain) -> None:
-        """Call ``drain()`` before every advance of the clock."""
+    def attach(self, drain, due=None) -> None:
+        """Call ``drain()`` before every advance of the clock; ``due()``, where given, says the next
+        instant (or None) the emulator acts unasked (a streaming instrument's next line): the clock stops
+        there on its way, and drains, so that the act happens at its own instant."""
         self._drains.append(drain)
+        if due is not None:
+            self._dues[drain] = due
 
     def detach(self, drain) -> None:
         if drain in self._drains:
             self._drains.remove(drain)
+        self._dues.pop(drain, None)
 
     def sleep(self, seconds: float) -> None:
-        for drain in list(self._drains):
-            drain()
-        super().sleep(seconds)
+        end = self.now() + seconds
+        stopped = False
+        for _ in range(10_000_000):   # bounded: every stop is an emulator's act, each later than the last
+            for drain in list(self._drains):
+                drain()
+            stops = [t for t in (due() for due in list(self._dues.values())) if t is not None]
+            nxt = min(stops, default=None)
+            if nxt is None or nxt >= end or nxt <= self.now():
+                break
+            super().sleep(nxt - self.now())
+            stopped = True
+        # without a stop on the way, exactly as a plain virtual clock sleeps (no rounding of now + s - now)
+        super().sleep(max(end - self.now(), 0.0) if stopped else seconds)

@@ -9,8 +9,11 @@ serves the last connection). :meth:`TcpLink.unplug` closes the client's connecti
 
 from __future__ import annotations
 
+import fcntl
 import select
 import socket
+import struct
+import termios
 import threading
 import time
 
@@ -118,6 +121,17 @@ class TcpLink:
                     conn.close()
                     self._conn = None
         return data
+
+    def pending(self) -> int:
+        """Bytes written that the client's end has not acknowledged (the socket's send queue; what the
+        client's program has not read yet cannot be seen from here)."""
+        conn = self._conn
+        if conn is None:
+            return 0
+        try:
+            return struct.unpack("i", fcntl.ioctl(conn.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+        except OSError:
+            return 0
 
     def write(self, data: bytes) -> None:
         conn = self._conn

@@ -62,7 +62,7 @@ def test_a_malformed_profile_is_one_line_naming_the_file_and_field(tmp_path, edi
 
 def test_an_unknown_profile_names_the_shipped_ones():
     with pytest.raises(ValueError, match="'pm100' is neither one of acknowledging, thorlabs-pm100, "
-                                         "scpi-current-source nor a file"):
+                                         "scpi-current-source, streaming-photodiode nor a file"):
         load_profile("pm100")
 
 

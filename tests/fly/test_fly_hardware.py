@@ -105,9 +105,8 @@ def _z(measured, simulated):
     return value, sim, (value - sim) / np.sqrt(2 * sd_sim**2 + sd**2)
 
 
-def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(flown, stop_and_go):
-    folder, servos, profiles, meta = flown
-    assert meta["fly"]["lines"] >= 4
+def _matches_stop_and_go(folder, meta, stop_and_go):
+    """The fly campaign in ``folder`` against the stop-and-go simulation; its (rows, events, swept)."""
     measured = read_brdf(folder / "brdf.h5")
     value, sim, z = _z(measured, stop_and_go)
     # Within 4 σ each, plus 1 % for the poses, which differ by the encoders' resolution (as the
@@ -117,6 +116,13 @@ def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(f
     rows, events = _measurements(folder)
     swept = [m for m in rows if m.frames > 1]
     assert len(swept) == meta["poses"]  # every pose read on the fly, none stop-and-go
+    return rows, events, swept
+
+
+def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(flown, stop_and_go):
+    folder, servos, profiles, meta = flown
+    assert meta["fly"]["lines"] >= 4
+    rows, events, swept = _matches_stop_and_go(folder, meta, stop_and_go)
     assert any(np.max(m.extra["stderr_blur"]) > 0 for m in swept)
     # The watchdog was fed through every sweep (never fired), nothing was retried, and every sweeping
     # servo runs with the campaign's profile again.
@@ -256,6 +262,19 @@ def _after_subreads(count, action):
     return hook
 
 
+def _resume_through_gonio_run(tmp_path, emu, clock, folder, monkeypatch, capsys) -> None:
+    """``gonio run`` on the same folder resumes and finishes (the config written for another process;
+    the CLI's wall clock is the emulators' virtual one here, so the test does not wait for the gantry)."""
+    path = tmp_path / "gantry.toml"
+    path.write_text(emu.config_toml())
+    monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
+    code = main(["run", "--config", str(path), "--grid", GRID + ",order=fly", "--out", str(folder),
+                 "--sample", "gold"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "resuming the campaign" in err
+
+
 def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_done_again(tmp_path, flown, monkeypatch,
                                                                             capsys):
     clock = SyncedVirtualClock()
@@ -273,16 +292,7 @@ def test_halted_mid_sweep_resumes_through_gonio_run_with_that_sweep_done_again(t
         assert in_flight[0] < len(rows) + 2 * len(fp.checkpoints)  # halted inside a sweep, nothing of it kept
         assert not done & set(range(in_flight[0], in_flight[0] + in_flight[1]))
         halted_at = max(m.campaign_s for m in rows)
-        # gonio run on the same folder resumes (the config written for another process; the CLI's wall
-        # clock is the emulators' virtual one here, so the test does not wait for the gantry).
-        path = tmp_path / "gantry.toml"
-        path.write_text(emu.config_toml())
-        monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
-        code = main(["run", "--config", str(path), "--grid", GRID + ",order=fly", "--out", str(folder),
-                     "--sample", "gold"])
-        err = capsys.readouterr().err
-        assert code == 0, err
-        assert "resuming the campaign" in err
+        _resume_through_gonio_run(tmp_path, emu, clock, folder, monkeypatch, capsys)
     rows, _ = _measurements(folder)
     redone = [m for m in rows if in_flight[0] <= m.step < in_flight[0] + in_flight[1]]
     assert len(redone) == in_flight[1] and all(m.campaign_s > halted_at for m in redone)
@@ -348,8 +358,15 @@ def test_a_run_up_ending_within_the_planners_rounding_of_a_limit_is_taken_to_the
     np.testing.assert_array_equal(on_limits(kin, far), far)
 
 
+def _progress(meter) -> int:
+    """Sub-reads answered (a photodiode on request), or stream lines sent (a streaming one: it streams
+    only during sweeps)."""
+    return meter.sent // 4 if hasattr(meter, "sent") else meter.answered
+
+
 @pytest.mark.slow
-def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp_path):
+@pytest.mark.parametrize("profile", ["acknowledging", "streaming-photodiode"])
+def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp_path, profile):
     """kill -9 of ``gonio run ... order=fly`` on the wall clock while a sweep is under way: the journal
     holds every sweep whole or not at all (one transaction per sweep), and the same command run again
     resumes and completes the campaign with exactly one reading per step."""
@@ -367,6 +384,7 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
         axis["max_accel_deg_s2"] = 1000.0
     data["runner"].update(settle_s=0.0, poll_s=0.02)
     data["detector"]["exposure_s"] = 0.02
+    data["detector"]["profile"] = profile   # read on request, or from its stream
     cfg = parse_config(data)
     out = tmp_path / "run"
     with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True, referenced=True) as emu:
@@ -395,9 +413,9 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
                                   kind == "line" and fp.lines[k].moving and fp.lines[k].n >= 3)
                                  for kind, k, step in fly_steps(fp)]
                     if len(done) != last:
-                        last, answered = len(done), emu.meter.answered
+                        last, answered = len(done), _progress(emu.meter)
                     nxt = next((u for u in units if u[0] not in done), None)
-                    if nxt is not None and nxt[2] and done and emu.meter.answered >= answered + 6:
+                    if nxt is not None and nxt[2] and done and _progress(emu.meter) >= answered + 6:
                         in_flight = nxt
                 time.sleep(0.002)  # polling what another process writes; bounded by the deadline
             assert in_flight is not None and proc.poll() is None, proc.communicate()
