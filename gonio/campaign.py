@@ -179,7 +179,10 @@ def plan_campaign(grid: str, cfg: GonioConfig) -> Planned:
         from gonio.adaptive.plan import pilot_plan
 
         plan, adaptive = pilot_plan(grid, cfg)
-        return Planned(ADAPTIVE, plan, meta={"adaptive": adaptive})
+        # The whole budget's estimate (at the pilot's pace for a pose budget): what a status's ETA is of.
+        pace = plan.estimated_s / max(1, len(plan.theta_i))
+        whole = adaptive["budget_s"] or pace * adaptive["budget_poses"]
+        return Planned(ADAPTIVE, plan, meta={"adaptive": adaptive, "estimated_s": float(whole)})
     if spec.order == "fly":
         from gonio.fly.plans import fly_plans
 
