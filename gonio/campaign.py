@@ -221,7 +221,7 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
         extra = {"fly": fly_summary(fp), "stop_and_go_estimated_s": float(plan.estimated_s)}
         plan = dataclasses.replace(plan, step_kind=kind, step_pose=pose, estimated_s=fp.estimated_s,
                                    lower_bound_s=fp.lower_bound_s)
-    meta = {"kind": planned.kind, **extra, **planned.meta,
+    meta = {"kind": planned.kind, **extra,
         "grid": plan.grid, "grid_requested": parse_grid(grid).normalized, "material": material,
         "sample": sample, "seed": int(seed), "symmetries": plan.symmetries,
         "counts": plan.counts, "infeasible": plan.infeasible, "poses": int(len(plan.theta_i)),
@@ -230,6 +230,7 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
         "detector": cfg.detector.descriptor(),
         "gantry": cfg.name, "config": config_snapshot(cfg), "config_sha256": config_hash(cfg),
         "software_version": software_version(), "created_unix": time.time(),
+        **planned.meta,
     }
     steps = step_table(plan, cfg)
     folder.mkdir(parents=True, exist_ok=True)

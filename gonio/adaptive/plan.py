@@ -89,8 +89,8 @@ def pilot_plan(grid: str, cfg, kin=None) -> tuple[Plan, dict]:
             m, pilot = m + 1, bigger
     n = int(pilot.theta_i.size)
     meta = {"budget_poses": spec.poses, "budget_s": spec.budget_s, "pilot_nodes": int(m), "pilot_poses": n,
-            "pilot_s": float(pilot.estimated_s), "min_round": MIN_ROUND, "growth": GROWTH, "seed": SEED,
-            "rounds": []}
+            "pilot_s": float(pilot.estimated_s), "pilot_lower_bound_s": float(pilot.lower_bound_s),
+            "min_round": MIN_ROUND, "growth": GROWTH, "seed": SEED, "rounds": []}
     return pilot, meta
 
 
@@ -148,7 +148,8 @@ def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
     steps = {k: v[2:] for k, v in steps.items()}
     steps["pose"] = np.where(steps["kind"] == STEP_POSE, steps["pose"] + int(meta["poses"]), -1)
     added = int(plan.theta_i.size)
-    entry = {"poses": added, "estimated_s": float(plan.estimated_s), "first_step": journal.step_count(),
+    entry = {"poses": added, "estimated_s": float(plan.estimated_s),
+             "lower_bound_s": float(plan.lower_bound_s), "first_step": journal.step_count(),
              "steps": int(steps["kind"].size)}
     rounds = adaptive["rounds"] + [entry]
     line = (f"round {len(rounds)}: {added} poses placed from {len(samples)} samples, estimated "

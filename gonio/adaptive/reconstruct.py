@@ -171,11 +171,14 @@ def _fit(q, dist, idx, points, values, drop, degree, log=False, hat=False):
     normal += 1e-6 * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(design.shape[2])
     near = values[idx]
     rhs = np.einsum("nk,nki,nkc->nic", w, design, near)
-    fitted = np.linalg.solve(normal, rhs)[:, 0, :]
-    if hat:   # the first row of normal⁻¹ Dᵀ W (normal is symmetric)
+    if hat:   # also the first row of normal⁻¹ Dᵀ W (normal is symmetric), in the same solve
         e0 = np.zeros((len(q), design.shape[2], 1))
         e0[:, 0] = 1.0
-        a = w * np.einsum("nki,ni->nk", design, np.linalg.solve(normal, e0)[:, :, 0])
+        both = np.linalg.solve(normal, np.concatenate([rhs, e0], axis=2))
+        fitted = both[:, 0, :-1]
+        a = w * np.einsum("nki,ni->nk", design, both[:, :, -1])
+    else:
+        fitted = np.linalg.solve(normal, rhs)[:, 0, :]
     if degree == 1:
         return (fitted, a) if hat else fitted
     # A quadric may swing far past its data where they are sparse around a sharp peak: keep it between

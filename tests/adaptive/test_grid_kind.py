@@ -58,9 +58,10 @@ def test_plan_states_the_pilot_and_the_budget(capsys):
     text = capsys.readouterr().out
     assert "pilot: 66 poses (a 4-node lattice), estimated 0:01:32 (91.5 s) of gantry time" in text
     assert "budget: 1,000 poses, pilot included" in text
-    assert main(["plan", "--grid", "adaptive:budget_s=3600"]) == 0
+    assert main(["plan", "--grid", "adaptive:budget_s=900"]) == 0
     text = capsys.readouterr().out
-    assert "budget: 3,600 s of gantry time" in text and "pilot: 279 poses (a 6-node lattice)" in text
+    # the densest lattice whose plan is estimated within 10 % of the budget
+    assert "budget: 900 s of gantry time" in text and "pilot: 18 poses (a 3-node lattice), estimated 0:00:37" in text
 
 
 def test_a_simulated_campaign_spends_its_pose_budget_in_journaled_rounds(campaign):
@@ -129,3 +130,27 @@ def test_a_time_budget_stops_the_rounds_within_it(tmp_path):
     # Each round is sized to the time left at the pace so far; the last one may overrun by its own
     # estimate's error only.
     assert spent <= 60.0 * 1.2, spent
+
+
+def test_the_report_shows_where_the_poses_went(campaign):
+    from gonio.report import build_report
+
+    rep = build_report(campaign, "lambert", starts=1)
+    assert rep.figures["adaptive"].startswith(b"\x89PNG")
+    # The shares of poses near the specular direction, from the file's planned directions: the half
+    # vector's angle to the normal.
+    b = read_brdf(campaign / "brdf.h5")
+    p = np.radians(b.planned)
+    wi = np.stack([np.sin(p[:, 0]) * np.cos(p[:, 1]), np.sin(p[:, 0]) * np.sin(p[:, 1]), np.cos(p[:, 0])], 1)
+    wo = np.stack([np.sin(p[:, 2]) * np.cos(p[:, 3]), np.sin(p[:, 2]) * np.sin(p[:, 3]), np.cos(p[:, 2])], 1)
+    h = wi + wo
+    near = h[:, 2] / np.linalg.norm(h, axis=1) >= np.cos(np.radians(10.0))
+    pilot = b.step < 7   # the pilot's 3 poses and its 4 checkpoint readings
+    assert rep.adaptive == {"pilot": near[pilot].mean(), "rounds": near[~pilot].mean()}
+    from html import escape
+
+    assert escape(f"{100 * near[pilot].mean():.0f} % of the pilot's, {100 * near[~pilot].mean():.0f} % of "
+                  "the rounds'") in rep.html
+    assert "Adaptive acquisition: where the poses went" in rep.html
+    assert "4: 10, 10, 10, 12 poses" in rep.html and "3 poses (a 2-node lattice" in rep.html
+    assert "pilot feasible 3 → with the rounds 45" in rep.html
