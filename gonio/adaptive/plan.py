@@ -27,7 +27,7 @@ from gonio.adaptive.refine import plan_round
 from gonio.adaptive.samples import Samples
 from gonio.calibrate import calibrate, reference_rho
 from gonio.plan.build import Plan, build_plan
-from gonio.plan.grids import GridPoses, parse_grid
+from gonio.plan.grids import ADAPTIVE_MAX_BUDGET_S, ADAPTIVE_MAX_POSES, GridPoses, parse_grid
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, step_table
 
 __all__ = ["pilot_plan", "round_size", "journal_samples", "next_round", "expected_steps", "budget_text",
@@ -74,17 +74,21 @@ def pilot_plan(grid: str, cfg, kin=None) -> tuple[Plan, dict]:
         pilot = plan(m)
         if pilot.theta_i.size > spec.poses:
             raise ValueError(f"grid '{spec.kind}': option 'poses' must be at least the pilot's "
-                             f"{pilot.theta_i.size} poses (and at most 100,000), got {spec.poses}")
+                             f"{pilot.theta_i.size} poses (and at most {ADAPTIVE_MAX_POSES:,}), got "
+                             f"{spec.poses}")
     else:
         m, pilot = 2, plan(2)
         if pilot.estimated_s > spec.budget_s:
             raise ValueError(f"grid '{spec.kind}': option 'budget_s' must be at least the pilot's "
-                             f"{pilot.estimated_s:,.0f} s of gantry time (up to 2,592,000), got "
-                             f"{spec.budget_s:g}")
-        while True:
+                             f"{pilot.estimated_s:,.0f} s of gantry time (up to "
+                             f"{ADAPTIVE_MAX_BUDGET_S:,.0f}), got {spec.budget_s:g}")
+        # The densest lattice within the pilot's share of the time (estimates grow with m; the smaller
+        # ones cost least to plan, so they are tried first), and within the pilot's share of the largest
+        # pose budget.
+        top = pilot_nodes(kin, tmax, int(PILOT_FRACTION * ADAPTIVE_MAX_POSES))
+        while m < top:
             bigger = plan(m + 1)
-            if (bigger.estimated_s > PILOT_FRACTION * spec.budget_s
-                    or bigger.theta_i.size == pilot.theta_i.size):
+            if bigger.estimated_s > PILOT_FRACTION * spec.budget_s:
                 break
             m, pilot = m + 1, bigger
     n = int(pilot.theta_i.size)
@@ -103,7 +107,7 @@ def round_size(adaptive: dict) -> int:
         return sizes[len(rounds)] if len(rounds) < len(sizes) else 0
     poses = adaptive["pilot_poses"] + sum(r["poses"] for r in rounds)
     spent = adaptive["pilot_s"] + sum(r["estimated_s"] for r in rounds)
-    left = int((adaptive["budget_s"] - spent) / (spent / poses))
+    left = min(int((adaptive["budget_s"] - spent) / (spent / poses)), ADAPTIVE_MAX_POSES - poses)
     return max(0, min(max(adaptive["min_round"], int(adaptive["growth"] * poses)), left))
 
 
