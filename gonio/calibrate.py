@@ -43,8 +43,8 @@ import numpy as np
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.store import Measurement
 
-__all__ = ["CalibrationError", "Calibrated", "calibrate", "interpolation_weights", "interpolate_readings",
-           "SPACING_RATIO"]
+__all__ = ["CalibrationError", "Calibrated", "calibrate", "reference_rho", "interpolation_weights",
+           "interpolate_readings", "SPACING_RATIO"]
 
 #: The drift interpolation uses a reading beyond the two around a pose only when the interval to it is
 #: within this factor of theirs.
@@ -114,6 +114,17 @@ def interpolate_readings(t, tk, yk, ek):
     value = np.einsum("nj,njc->nc", weights, yk[idx])
     stddev = np.sqrt(np.einsum("nj,njc->nc", weights**2, ek[idx] ** 2))
     return value, stddev
+
+
+def reference_rho(reference, detector: dict):
+    """(ρ_ref, per_channel) of the white standard: its reflectance per channel of ``detector`` (a
+    journal's descriptor) where the config's ``reference`` gives a reflectance per channel, a spectrum or a
+    response other than 1 (per_channel True), else its albedo (one number)."""
+    per_channel = (reference.reflectance is not None or reference.spectrum is not None
+                   or reference.response != 1.0)
+    if per_channel:
+        return reference.reference_fr(detector["channels"], detector["wavelengths_nm"]), True
+    return reference.albedo, False
 
 
 def calibrate(measurements: list[Measurement], reference_albedo) -> Calibrated:

@@ -25,15 +25,17 @@ from pathlib import Path
 import numpy as np
 
 from gonio import software_version
-from gonio.calibrate import calibrate
+from gonio.calibrate import calibrate, reference_rho
 from gonio.config import GonioConfig, parse_config
 from gonio.dataset import BRDF_NAME, campaign_dataset, write_brdf
 from gonio.gantry import describe_devices
-from gonio.plan import STEP_POSE, STEP_REFERENCE, Plan, build_plan, parse_grid
+from gonio.plan import Plan, build_plan, parse_grid
 from gonio.plan.fly import FlyPlan
+from gonio.plan.grids import grid_kind
+from gonio.plan.schedule import step_table
 from gonio.protocols import Gantry
 from gonio.store import JOURNAL_NAME, Journal, JournalError
-from gonio.units import FLY, KINDS, STOP_AND_GO
+from gonio.units import ADAPTIVE, FLY, KINDS, STOP_AND_GO
 
 __all__ = ["Campaign", "CampaignLock", "Planned", "plan_campaign", "create_campaign", "open_campaign",
            "finish_campaign", "software_version", "config_hash", "config_snapshot", "compare_campaign",
@@ -138,36 +140,13 @@ class Campaign:
 
     @property
     def kind(self) -> str:
-        """``stop-and-go`` or ``fly`` (:func:`kind_of`): which unit source the engine runs."""
+        """``stop-and-go``, ``fly`` or ``adaptive`` (:func:`kind_of`): which unit source the engine runs."""
         return kind_of(self.meta)
 
     def close(self) -> None:
         self.journal.close()
         if self.lock is not None:
             self.lock.release()
-
-
-def _steps_of(plan: Plan, cfg: GonioConfig) -> dict:
-    """Per step: planned directions and commanded axes. A dark is read where the gantry stands, so it
-    inherits the previous step's targets (home before the first move)."""
-    kind = plan.step_kind
-    pose = plan.step_pose
-    n_axes = plan.axes_deg.shape[1]
-    angles = np.full((len(kind), 4), np.nan)
-    axes = np.empty((len(kind), n_axes))
-    last = np.array([cfg.axes[a].home_deg for a in cfg.axis_names], float)
-    ref_angles = np.array([cfg.reference.theta_i_deg, 0.0, cfg.reference.theta_o_deg, cfg.reference.dphi_deg])
-    pose_angles = np.degrees(np.stack([plan.theta_i, plan.phi_i, plan.theta_o, plan.phi_o], axis=1))
-    for s, (k, p) in enumerate(zip(kind, pose, strict=True)):
-        if k == STEP_POSE:
-            last = plan.axes_deg[p]
-            angles[s] = pose_angles[p]
-        elif k == STEP_REFERENCE:
-            last = plan.reference_axes_deg
-            angles[s] = ref_angles
-        axes[s] = last
-    return {"kind": kind, "pose": pose, "theta_i_deg": angles[:, 0], "phi_i_deg": angles[:, 1],
-            "theta_o_deg": angles[:, 2], "phi_o_deg": angles[:, 3], "axes_deg": axes}
 
 
 @dataclass(frozen=True)
@@ -178,6 +157,8 @@ class Planned:
     kind: str
     plan: Plan
     fly: FlyPlan | None = None
+    #: Further meta the journal keeps (an adaptive campaign's ``adaptive``: its budget and rounds).
+    meta: dict = dataclasses.field(default_factory=dict)
 
     @property
     def steps(self) -> int:
@@ -190,9 +171,19 @@ class Planned:
 
 
 def plan_campaign(grid: str, cfg: GonioConfig) -> Planned:
-    """Plan ``grid`` on the gantry ``cfg``; the kind follows the grid (``order=fly``: a fly campaign).
+    """Plan ``grid`` on the gantry ``cfg``; the kind follows the grid (``order=fly``: a fly campaign; an
+    ``adaptive`` grid: an adaptive campaign, planned up to its pilot, :mod:`gonio.adaptive.plan`).
     ValueError (naming the field) for a grid the planner refuses."""
-    if parse_grid(grid).order == "fly":
+    spec = parse_grid(grid)
+    if grid_kind(spec.kind).campaign == ADAPTIVE:
+        from gonio.adaptive.plan import pilot_plan
+
+        plan, adaptive = pilot_plan(grid, cfg)
+        # The whole budget's estimate (at the pilot's pace for a pose budget): what a status's ETA is of.
+        pace = plan.estimated_s / max(1, len(plan.theta_i))
+        whole = adaptive["budget_s"] or pace * adaptive["budget_poses"]
+        return Planned(ADAPTIVE, plan, meta={"adaptive": adaptive, "estimated_s": float(whole)})
+    if spec.order == "fly":
         from gonio.fly.plans import fly_plans
 
         plan, fp = fly_plans(grid, cfg)
@@ -239,8 +230,9 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
         "detector": cfg.detector.descriptor(),
         "gantry": cfg.name, "config": config_snapshot(cfg), "config_sha256": config_hash(cfg),
         "software_version": software_version(), "created_unix": time.time(),
+        **planned.meta,
     }
-    steps = _steps_of(plan, cfg)
+    steps = step_table(plan, cfg)
     folder.mkdir(parents=True, exist_ok=True)
     lock = CampaignLock(folder).acquire()
     try:
@@ -317,9 +309,7 @@ def finish_campaign(c: Campaign) -> Path:
     for step, problem in c.journal.check_frames():
         c.journal.log_event("fault", step=step, message=f"frame: {problem}")
     measurements = c.journal.measurements()
-    ref, det = c.cfg.reference, c.journal.detector()
-    per_channel = ref.reflectance is not None or ref.spectrum is not None or ref.response != 1.0
-    rho = ref.reference_fr(det["channels"], det["wavelengths_nm"]) if per_channel else ref.albedo
+    rho, per_channel = reference_rho(c.cfg.reference, c.journal.detector())
     cal = calibrate(measurements, rho)
     exposure = {m.step: m.exposure_s for m in measurements}
     data = campaign_dataset(cal, c.journal.steps(), meta, exposure_s=[exposure[int(s)] for s in cal.steps],

@@ -134,13 +134,16 @@ def grid_indices(grid: str, planned_deg: np.ndarray) -> tuple[np.ndarray, tuple[
     -------
     (numpy.ndarray of int64, shape (N, K), tuple of K axis names) or None
         iso: (θi, θo, Δφ) / step; full: (θi, φi, θo, φo) / step; merl: (θh, θd, φd) MERL bin numbers
-        (φd over 360 bins without reciprocity). None for an unknown grid or directions off its lattice.
+        (φd over 360 bins without reciprocity). None for an unknown grid, a grid of scattered poses
+        (adaptive) or directions off its lattice.
     """
     from gonio.plan.grids import parse_grid
 
     try:
         spec = parse_grid(grid)
     except ValueError:
+        return None
+    if spec.kind not in _GRID_AXES:   # scattered poses (adaptive): no lattice to index
         return None
     p = np.asarray(planned_deg, dtype=np.float64).reshape(-1, 4)
     if not np.isfinite(p).all():

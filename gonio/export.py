@@ -182,7 +182,7 @@ def export(source, fmt: str, out, *, method: str = "auto", theta_step_deg: float
         A name of :data:`gonio.registries.EXPORT_FORMATS`.
     out : str or Path
         Output file (a folder, created if needed, for ``radiance``). Its folder must exist.
-    method : {"auto", "grid", "scattered"}
+    method : {"auto", "grid", "scattered", "local"}
         Interpolation of :func:`gonio.brdf.open_brdf`.
     theta_step_deg : float
         Spacing of θi slices (``bsdf``) and of θi, θo, φo (``radiance``), degrees (> 0).

@@ -44,7 +44,7 @@ from gonio.dataset import BRDF_NAME
 from gonio.protocols import Gantry, NotReferencedFault
 from gonio.runner import Runner, State
 from gonio.store import JOURNAL_NAME, Journal
-from gonio.units import FLY, unit_source
+from gonio.units import ADAPTIVE, FLY, unit_source
 
 __all__ = ["Request", "RequestError", "CampaignMismatch", "check_request", "plan_request", "open_or_create",
            "campaign_gantry", "is_complete", "run_campaign", "status"]
@@ -256,6 +256,10 @@ def status(folder: str | Path) -> dict:
         campaign_s, last_wall = j.campaign_clock()
     finally:
         j.close()
+    if kind_of(meta) == ADAPTIVE:   # its rounds are appended as it measures: the steps it will hold
+        from gonio.adaptive.plan import expected_steps
+
+        total = expected_steps(meta, total)
     pid = CampaignLock.holder(folder)
     state = state_event["state"] if state_event else "created"
     interrupted = pid is None and state in ("running", "pausing")

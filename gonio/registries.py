@@ -23,7 +23,8 @@ EXPORT_FORMATS    ``export(job, out) -> ExportReport``                 ``file_na
                                                                        it writes a folder
 PLOT_KINDS        a :class:`gonio.plot.PlotKind`                        -
 GRID_KINDS        a :class:`gonio.plan.grids.GridKind`                  ``options`` (tuple), ``size``
-                                                                       (``"step"`` or ``"stride"``)
+                                                                       (``"step"``, ``"stride"`` or
+                                                                       ``"budget"``: poses or budget_s)
 GRID_OPTIONS      - (documentation of each GRID option)                -
 ORDERS            ``order(inputs) -> permutation``                      ``lattice``: needs lines of a lattice
                   (:class:`gonio.plan.build.OrderInputs`)
@@ -114,11 +115,20 @@ GRID_KINDS.add("full", "gonio.plan.grids:FULL",
 GRID_KINDS.add("merl", "gonio.plan.grids:MERL",
                "centres of every K-th MERL bin along θh, θd and φd, with φh = 0 (an isotropic sample)",
                size="stride", options=("stride", "theta_max", "reciprocity", "isotropy", "order"))
+GRID_KINDS.add("adaptive", "gonio.plan.grids:ADAPTIVE",
+               "a pilot lattice, then rounds of poses placed where the samples so far are least trustworthy "
+               "(peak, Fresnel rise, grazing), until the budget is spent (an isotropic sample; "
+               "gonio.adaptive)",
+               size="budget", options=("poses", "budget_s", "theta_max", "isotropy", "order"))
 
 GRID_OPTIONS = Registry("grid option")
 GRID_OPTIONS.add("step", None, "S degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ + 180° stay on the "
                  "grid); required")
 GRID_OPTIONS.add("stride", None, "K, an integer from 1 to 90; required")
+GRID_OPTIONS.add("poses", None, "N, an integer from 1 to 100,000: the poses measured in all, pilot included "
+                 "(adaptive; this or budget_s)")
+GRID_OPTIONS.add("budget_s", None, "T seconds of estimated gantry time, > 0 and <= 2,592,000 (30 days), "
+                 "pilot included (adaptive; this or poses)")
 GRID_OPTIONS.add("theta_max", None, "degrees in (0, 90]; default: the config's kinematics.theta_max_deg")
 GRID_OPTIONS.add("reciprocity", None, "true|false, default true: measure one pose of each Helmholtz pair "
                  "(ωi, ωo) ~ (ωo, ωi)")
@@ -133,7 +143,7 @@ GRID_OPTIONS.add("order", None, "the order the poses are measured in, default au
 #: ``fly`` plans the serpentine, whose lines a fly campaign sweeps (``lattice``: grids with lines only).
 ORDERS = Registry("order")
 ORDERS.add("auto", None, "serpentine sweeps (full; iso unless the tour is estimated quicker, up to "
-           "10,000 poses), a tour (merl)")
+           "10,000 poses), a tour (merl, each phase of adaptive)")
 ORDERS.add("serpentine", "gonio.plan.build:order_serpentine",
            "sweep the grid's innermost loop back and forth, cut where sweeping is cheapest")
 ORDERS.add("raster", "gonio.plan.build:order_raster", "the grid's loops in their natural order")

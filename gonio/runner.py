@@ -1,7 +1,7 @@
 """The engine: runs a journaled campaign's units on a gantry, one committed unit at a time.
 
 One engine runs every kind of campaign: its units come from a source chosen by the campaign's kind
-(:mod:`gonio.units`: stop-and-go steps, fly sweeps; adaptive rounds to come) and move the gantry
+(:mod:`gonio.units`: stop-and-go steps, fly sweeps, adaptive rounds) and move the gantry
 through the public motion executor (:class:`gonio.executor.MotionExecutor`: goto, wait, settle,
 arrive, stop). The engine itself is the state machine: an explicit table (``TRANSITIONS``) guards every
 change of state; units are measured, retried on transient faults, committed in one transaction each;
@@ -308,7 +308,6 @@ class Runner:
 
     def _run(self, units: Iterable[Unit] | None) -> None:
         step = self.journal.next_step()
-        n = self.journal.step_count()
         # Requests made before the run started: an abort or a halt ends it before anything moves.
         with self._lock:
             early = set(self._commands) & {Command.ABORT, Command.HALT}
@@ -338,7 +337,9 @@ class Runner:
                 last = self._run_unit(unit)
                 if self.on_step is not None:
                     self.on_step(self, last)
-            self._to(State.DONE, f"{n} steps measured")   # a request after the last unit comes too late
+            # A request after the last unit comes too late. The count is the journal's now: an adaptive
+            # campaign's source appended its rounds while it ran.
+            self._to(State.DONE, f"{self.journal.step_count()} steps measured")
         except Halted:
             park = False
             self._to(State.HALTED, f"halted during step {step}")

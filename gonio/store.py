@@ -180,6 +180,19 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
+def _step_rows(steps: dict, first: int):
+    """Rows of the steps table for ``steps`` (equal-length arrays, :meth:`Journal.create`), numbered from
+    ``first``."""
+    return zip(
+        range(first, first + len(steps["kind"])), (int(k) for k in steps["kind"]),
+        (int(p) for p in steps["pose"]),
+        *(np.asarray(steps[c], float).tolist()
+          for c in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")),
+        (json.dumps(a) for a in np.asarray(steps["axes_deg"], float).tolist()),
+        strict=True,
+    )
+
+
 def _is_stub(path: Path) -> bool:
     """True for a journal that an old gonio left empty when killed during creation (no schema)."""
     try:
@@ -268,15 +281,7 @@ class Journal:
                 j._write(f"PRAGMA user_version={SCHEMA_VERSION}")
                 for k, v in meta.items():
                     j._write("INSERT INTO meta VALUES (?, ?)", (k, json.dumps(v)))
-                rows = zip(
-                    range(len(steps["kind"])), (int(k) for k in steps["kind"]),
-                    (int(p) for p in steps["pose"]),
-                    *(np.asarray(steps[c], float).tolist()
-                      for c in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")),
-                    (json.dumps(a) for a in np.asarray(steps["axes_deg"], float).tolist()),
-                    strict=True,
-                )
-                j._write_many("INSERT INTO steps VALUES (?, ?, ?, ?, ?, ?, ?, ?)", rows)
+                j._write_many("INSERT INTO steps VALUES (?, ?, ?, ?, ?, ?, ?, ?)", _step_rows(steps, 0))
         finally:
             conn.close()
         fd = os.open(tmp, os.O_RDONLY)
@@ -469,6 +474,22 @@ class Journal:
             self.log_event("unclean-stop", step=self.next_step(), campaign_s=self.campaign_clock()[0],
                            message=f"{why}; {self.done_count()} steps were committed")
             return True
+
+    def append_steps(self, steps: dict, meta: dict, *, event: str = "",
+                     campaign_s: float | None = None) -> int:
+        """Append ``steps`` (as :meth:`create` takes them; pose indices as given) to the plan, set the
+        ``meta`` keys and log an ``append`` event (``event``: its message), all in one transaction: a
+        crash leaves the journal as it was or holds all of it (an adaptive campaign's round). Returns
+        the first new step's number."""
+        with self._transaction():
+            first = self._query("SELECT COUNT(*) FROM steps")[0][0]
+            self._write_many("INSERT INTO steps VALUES (?, ?, ?, ?, ?, ?, ?, ?)", _step_rows(steps, first))
+            self._write_many("INSERT OR REPLACE INTO meta VALUES (?, ?)",
+                             [(k, json.dumps(v)) for k, v in meta.items()])
+            self._write("INSERT INTO events (campaign_s, wall_s, kind, state, step, message, axes_deg) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                        (campaign_s, time.time(), "append", None, first, event, None))
+        return int(first)
 
     def set_meta(self, key: str, value) -> None:
         with self._transaction():

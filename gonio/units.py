@@ -18,8 +18,9 @@ it is created (:data:`KINDS`):
     One unit per checkpoint and per line of the fly plan (:func:`gonio.fly.units.fly_units`): swept on
     a gantry whose axes fly (:class:`gonio.fly.hardware.FlySweeper`), or rendered by a gantry that
     renders fly readings itself (the simulated gantry).
-``adaptive`` (to come)
-    A source that yields the pilot's units, then each round's, placed from what was measured: the
+``adaptive``
+    The pilot's steps, then each round's, planned from the journal once the steps before it are
+    measured and appended to it in one transaction (:func:`gonio.adaptive.units.adaptive_units`): the
     engine asks a source for its units lazily, one at a time, so a source may plan the next unit from
     the journal.
 
@@ -55,7 +56,8 @@ STOP_AND_GO, FLY, ADAPTIVE = "stop-and-go", "fly", "adaptive"
 #: default pace), and a crash redoes no more.
 CHUNK_SPAN_S = 60.0
 #: Campaign kind -> its unit source, "module:function" (imported when a campaign of that kind runs).
-KINDS = {STOP_AND_GO: "gonio.units:stop_and_go_units", FLY: "gonio.fly.units:fly_units"}
+KINDS = {STOP_AND_GO: "gonio.units:stop_and_go_units", FLY: "gonio.fly.units:fly_units",
+         ADAPTIVE: "gonio.adaptive.units:adaptive_units"}
 
 
 @dataclass(frozen=True)

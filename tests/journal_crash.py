@@ -23,6 +23,13 @@ class Writes:
     def __init__(self):
         self.count = 0
         self.creation = 0
+        self.dead = False
+
+    def die(self):
+        """The process dies here, between two writes (e.g. while it computes): :class:`Crash` now, and
+        at every later write (the code under test's clean-ups write nothing)."""
+        self.dead = True
+        raise Crash
 
 
 @contextlib.contextmanager
@@ -34,7 +41,7 @@ def crash_at_write(monkeypatch, at: int | None):
 
     def hook(_n: int) -> None:
         writes.count += 1
-        if at is not None and writes.count >= at:
+        if writes.dead or (at is not None and writes.count >= at):
             raise Crash   # and at every later write: a dead process writes nothing more (clean-ups included)
 
     def hooked_create(cls, path, meta, steps, *, write_hook=None):

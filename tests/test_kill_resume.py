@@ -264,3 +264,74 @@ def test_sigkill_during_creation_and_mid_campaign_then_resume_equals_an_uninterr
 def test_a_sigkilled_fly_campaign_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch):
     _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, "ward:rho_d=0.1,rho_s=0.05,alpha=0.15",
                                     "iso:step=15,order=fly", 3)
+
+
+# -- adaptive campaigns: rounds planned from the journal ------------------------------------------------
+
+ADAPTIVE_GRID = "adaptive:poses=45"
+
+
+def test_an_adaptive_campaign_crashed_at_random_journal_writes_resumes_to_the_uninterrupted_result(
+        tmp_path, monkeypatch):
+    """Kills at random journal writes, the round appends among them (a kill inside one leaves no part of
+    the round): the resumed campaign plans the same rounds and ends bit for bit the uninterrupted one."""
+    b = _crashed_equals_uninterrupted(tmp_path, monkeypatch, "ggx:alpha=0.15,metal=gold", ADAPTIVE_GRID,
+                                      _config(tmp_path), kills=8, seed=5, creation=1)
+    assert len(b["value"]) == 45
+
+
+def test_an_adaptive_campaign_killed_while_it_plans_a_round_resumes_to_the_uninterrupted_result(
+        tmp_path, monkeypatch):
+    """A death in the middle of planning each round (nothing of it journaled), then the same command
+    again: the round is planned again from the journal, and the result is the uninterrupted run's."""
+    import gonio.adaptive.plan as adaptive_plan
+
+    config = _config(tmp_path)
+    ref, out = tmp_path / "ref", tmp_path / "crashed"
+    _uninterrupted(monkeypatch, _argv("ggx:alpha=0.15,metal=gold", ADAPTIVE_GRID, ref, config))
+    argv = _argv("ggx:alpha=0.15,metal=gold", ADAPTIVE_GRID, out, config)
+    plan_round = adaptive_plan.plan_round
+    rounds, dying, appends = [], [], []
+    append = Journal.append_steps
+
+    def counted_append(journal, *args, **kwargs):
+        appends.append(1)
+        return append(journal, *args, **kwargs)
+
+    def dies_after_planning(*args, **kwargs):
+        plan_round(*args, **kwargs)   # the whole round planned, then the process dies before the append
+        rounds.append(_done(out))
+        dying[0].die()
+
+    for _ in range(4):   # a death in each of the four rounds
+        with monkeypatch.context() as m, crash_at_write(monkeypatch, None) as writes:
+            dying[:] = [writes]
+            m.setattr(adaptive_plan, "plan_round", dies_after_planning)
+            with pytest.raises(Crash):
+                main(argv)
+        assert _rounds(out) == len(rounds) - 1      # the round in planning was not journaled
+        # The next run plans it again and dies inside the transaction that appends it (its second write):
+        # none of it is journaled; the one after gets it whole and dies among its steps.
+        appends.clear()
+        with monkeypatch.context() as m:
+            m.setattr(Journal, "append_steps", counted_append)
+            _crash(monkeypatch, argv, STARTUP_WRITES + 2)
+        assert appends == [1] and _rounds(out) == len(rounds) - 1
+        _crash(monkeypatch, argv, STARTUP_WRITES + 6)
+        assert _rounds(out) == len(rounds)
+    assert main(argv) == 0
+    assert len(set(rounds)) == 4   # each death came at another round
+    _equal_to(ref, out)
+
+
+def _rounds(out: Path) -> int:
+    j = Journal.open(out / JOURNAL_NAME, readonly=True)
+    try:
+        return len(j.meta()["adaptive"]["rounds"])
+    finally:
+        j.close()
+
+
+@pytest.mark.slow
+def test_a_sigkilled_adaptive_campaign_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch):
+    _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, "ggx:alpha=0.15,metal=gold", ADAPTIVE_GRID, 10)

@@ -11,7 +11,8 @@ Layers, lowest first (a module may import its own layer and those below):
 2. geometry of motion: kinematics, motion, plans;
 3. data: the journal, calibration, the dataset, the measured BRDF, exports, plots, fits, the report,
    adaptive sampling (where the next poses go, from the samples so far);
-4. machinery: the gantry as assembled, the engine that runs campaigns, fly scanning, simulated
+4. machinery: the gantry as assembled, the engine that runs campaigns (and its unit sources: fly
+   scanning's, adaptive rounds'), fly scanning, simulated
    gantries and the emulators that stand in for devices;
 5. the campaign floor: campaigns and their lifecycle;
 6. faces: the daemon, the CLI, and batch runs on Dask.
@@ -128,7 +129,7 @@ LAYERS = {
     "gonio.kinematics": 2, "gonio.motion": 2, "gonio.plan": 2,
     "gonio.store": 3, "gonio.calibrate": 3, "gonio.dataset": 3, "gonio.brdf": 3, "gonio.interpolate": 3,
     "gonio.export": 3, "gonio.plot": 3, "gonio.slices": 3, "gonio.fit": 3, "gonio.report": 3,
-    "gonio.adaptive": 3,
+    "gonio.adaptive": 3, "gonio.adaptive.units": 4,
     "gonio.gantry": 4, "gonio.wiring": 4, "gonio.runner": 4, "gonio.executor": 4, "gonio.units": 4,
     "gonio.manual": 4, "gonio.reference": 4, "gonio.fly": 4, "gonio.sim": 4,
     "gonio.campaign": 5, "gonio.lifecycle": 5,

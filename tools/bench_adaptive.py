@@ -19,8 +19,15 @@ from ``--reach-from`` until the adaptive error is at or below the target; the fi
 printed). ``--engines`` scores reconstruction variants on the uniform and adaptive samples;
 ``--pilots`` compares pilot fractions and round growths.
 
+``--campaigns`` runs whole simulated campaigns instead (``gonio simulate`` in this process: the simulated
+detector's aperture and noise, the planned tours, checkpoints and the engine): per step, ``iso:step=S``,
+then ``adaptive:poses=N`` with its pose count N and ``adaptive:budget_s=T`` with its gantry time T, each
+read through ``gonio.brdf`` as users read it (``auto``: the lattice engine for iso, ``local`` for
+adaptive), with the gantry time each took (the campaign clock) and the wall time of the simulation.
+
     .venv/bin/python tools/bench_adaptive.py                       # ggx α = 0.2, 148 and 1,156 poses
     .venv/bin/python tools/bench_adaptive.py --full                # the isotropic panel, 4 counts, --reach
+    .venv/bin/python tools/bench_adaptive.py --campaigns --steps 20,10   # whole simulated campaigns
 """
 
 from __future__ import annotations
@@ -81,6 +88,8 @@ def main() -> None:
     parser.add_argument("--reach-from", type=int, default=100)
     parser.add_argument("--engines", action="store_true", help="reconstruction variants (1,156 poses)")
     parser.add_argument("--pilots", action="store_true", help="pilot fractions and growths (1,156 poses)")
+    parser.add_argument("--campaigns", action="store_true", help="whole simulated campaigns through "
+                        "gonio.brdf, at equal poses and equal gantry time")
     parser.add_argument("--pairs", type=int, default=20_000)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
@@ -94,7 +103,8 @@ def main() -> None:
     wi, wo = random_pairs(args.pairs, theta_max, args.seed)
     print(f"bench_adaptive: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
           f"{args.pairs:,} pairs (seed {args.seed}), θ <= {cfg.kinematics.theta_max_deg:g}°, gantry "
-          f"{cfg.name}; noise-free f_r at the poses")
+          f"{cfg.name}; " + ("whole simulated campaigns (the simulated detector: aperture, noise)"
+                               if args.campaigns else "noise-free f_r at the poses"))
     for spec in specs:
         material = load(spec)
         measure = material_measure(material)
@@ -105,6 +115,9 @@ def main() -> None:
             continue
         if args.pilots:
             _pilots(measure, kin, theta_max, truth, wi, wo)
+            continue
+        if args.campaigns:
+            _campaigns(spec, steps, truth, wi, wo)
             continue
         print(f"  {'grid':>12} {'poses':>6} | {'uniform, gonio.brdf':>22} | {'uniform, same':>13} | "
               f"{'adaptive':>8} | {'lattice/adaptive':>16} {'same/adaptive':>13} | {'adaptive s':>10}")
@@ -171,6 +184,45 @@ def _pilots(measure, kin, theta_max, truth, wi, wo):
                                       growth=growth)
             print(f"  pilot {fraction:>4} ({acq.phases[0]:>4} poses), growth {growth}, "
                   f"{len(acq.phases) - 1:>3} rounds: {err:.4f}", flush=True)
+
+
+
+def _simulated(folder, grid: str, spec: str):
+    """``gonio simulate SPEC --grid GRID --out FOLDER`` in this process: (brdf, gantry s, wall s)."""
+    from gonio.brdf import open_brdf
+    from gonio.campaign import create_campaign
+    from gonio.lifecycle import run_campaign
+    from gonio.wiring import build_gantry
+
+    cfg = load_config()
+    t0 = time.perf_counter()
+    c = create_campaign(folder, cfg, grid=grid, material=load(spec).spec)
+    try:
+        state, runner = run_campaign(c, build_gantry(cfg, spec))
+        gantry_s = runner.campaign_s()
+    finally:
+        c.close()
+    assert state == "done", state
+    return open_brdf(folder), gantry_s, time.perf_counter() - t0
+
+
+def _campaigns(spec, steps, truth, wi, wo):
+    import tempfile
+
+    print(f"  {'grid':>26} {'poses':>6} {'gantry':>8} | {'error':>7} {'(answered)':>10} {'method':>9} | "
+          f"{'uniform/this':>12} | {'wall s':>6}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for step in steps:
+            uniform = None
+            runs = [f"iso:step={step:g}"]
+            for k, grid in enumerate(runs):
+                b, gantry_s, wall = _simulated(f"{tmp}/{step:g}-{k}", grid, spec)
+                err, answered = weighted_l1(b.eval(wi, wo).value, truth, wi, wo)
+                if uniform is None:
+                    uniform = err
+                    runs += [f"adaptive:poses={b.n_samples}", f"adaptive:budget_s={gantry_s:.0f}"]
+                print(f"  {grid:>26} {b.n_samples:>6} {gantry_s:>7.0f}s | {err:>7.4f} ({answered:>8.1%}) "
+                      f"{b.method:>9} | {uniform / err:>11.1f}x | {wall:>6.1f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -32,17 +32,23 @@ class Acquisition:
     phases: tuple[int, ...]
 
 
-def round_sizes(pilot: int, budget: int, growth: float = GROWTH) -> list[int]:
-    """Sizes of the rounds after a pilot of ``pilot`` poses; they sum to ``budget - pilot``.
+def round_sizes(pilot: int, budget: int, growth: float = GROWTH, least: int = 1) -> list[int]:
+    """Sizes of the rounds after a pilot of ``pilot`` poses, each at least ``least`` (a remainder
+    smaller than that joins the last round; only a budget left below ``least`` makes a smaller one);
+    they sum to ``budget - pilot``.
 
     >>> round_sizes(100, 400, growth=0.5)
     [50, 75, 112, 63]
+    >>> round_sizes(5, 40, growth=0.2, least=10)
+    [10, 10, 15]
     """
     if not 0 < pilot <= budget:
         raise ValueError(f"budget: must be at least the pilot's {pilot} poses, got {budget}")
     sizes, total = [], pilot
     while total < budget:
-        step = min(budget - total, max(1, int(growth * total)))
+        step = min(budget - total, max(least, int(growth * total)))
+        if budget - total - step < least:
+            step = budget - total
         sizes.append(step)
         total += step
     return sizes

@@ -15,7 +15,7 @@ import numpy as np
 
 from gonio.adaptive.reach import reachable_iso
 
-__all__ = ["pilot_poses", "lattice"]
+__all__ = ["pilot_poses", "pilot_nodes", "lattice"]
 
 
 def lattice(m: int, theta_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -27,13 +27,20 @@ def lattice(m: int, theta_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return theta[a[keep]], theta[b[keep]], np.where(b[keep] > 0, c[keep] * 2.0 * np.pi / k, 0.0)
 
 
+def pilot_nodes(kin, theta_max: float, budget: int) -> int:
+    """``m`` of the densest lattice of at most ``budget`` reachable poses (at least 2)."""
+    best = 2
+    for m in range(2, 200):
+        ok, _ = reachable_iso(kin, *lattice(m, theta_max), theta_max)
+        if m > 2 and ok.sum() > budget:
+            break
+        best = m
+    return best
+
+
 def pilot_poses(kin, theta_max: float, budget: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The reachable poses (θi, θo, Δφ as measured, φi = 0) of the densest lattice of at most ``budget``
-    reachable poses (at least the 2-node lattice)."""
-    best = None
-    for m in range(2, 200):
-        ok, (ti, _, to, po) = reachable_iso(kin, *lattice(m, theta_max), theta_max)
-        if best is not None and ok.sum() > budget:
-            break
-        best = (ti[ok], to[ok], po[ok])
-    return best
+    reachable poses (at least the 2-node lattice: :func:`pilot_nodes`)."""
+    ok, (ti, _, to, po) = reachable_iso(kin, *lattice(pilot_nodes(kin, theta_max, budget), theta_max),
+                                        theta_max)
+    return ti[ok], to[ok], po[ok]

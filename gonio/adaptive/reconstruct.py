@@ -17,6 +17,10 @@ query. Defaults, each measured by ``tools/bench_adaptive.py --engines`` on unifo
 :func:`loo_residual` fits the same way to each sample's neighbours without that sample (nor its
 reciprocal twin) and returns the sample minus that prediction, in f_r: large where f_r bends faster than
 the samples around it resolve (a peak's flanks, a Fresnel rise, grazing), the signal refinement follows.
+
+:class:`LocalEngine` is :class:`LocalFit` answering as :mod:`gonio.interpolate`'s engines do (gonio.brdf's
+``local`` method, the one it takes for adaptive campaigns): values, standard deviations propagated
+through the fit, a reason per query and exact hits.
 """
 
 from __future__ import annotations
@@ -24,11 +28,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from gonio.adaptive.domain import embed_pairs
+from gonio.adaptive.domain import embed_pairs, embed_poses
 from gonio.adaptive.samples import Samples
 
-__all__ = ["LocalFit", "reconstruct", "reconstruct_brdf", "loo_residual", "NEIGHBOURS",
-           "QUADRATIC_NEIGHBOURS", "TRANSFORMS"]
+__all__ = ["LocalFit", "LocalEngine", "reconstruct", "loo_residual", "NEIGHBOURS", "QUADRATIC_NEIGHBOURS",
+           "TRANSFORMS"]
 
 #: Neighbours of a local plane (2.5 per fitted parameter in 3D, as gonio.brdf's scattered engine).
 NEIGHBOURS = 10
@@ -76,22 +80,58 @@ class LocalFit:
         return np.clip(np.exp(y) - self.floor if self.transform == "log" else y, 0.0, None)
 
 
+class LocalEngine:
+    """The default :class:`LocalFit` of isotropic, reciprocal samples as an engine of :mod:`gonio.brdf`
+    (:class:`gonio.interpolate.Scattered`'s interface).
+
+    ``coords`` (N, 3): (θi, θo, Δφ) radians; ``value``, ``stddev`` (N, C) f_r; ``tol``: a query within it
+    of a sample (in the embedding) returns that sample exactly. ``eval(coords)`` -> (value, stddev,
+    reason, exact). The standard deviation is the fit's linear response to independent sample noise:
+    the intercept in log space is Σ a_k y_k, so σ_y² = Σ a_k² σ_yk² with σ_yk = c_k σ_k / (f_k c_k + ε)
+    (c: cos θi cos θo), and σ_f = e^y σ_y / c at the query (a value held at the :data:`SWING` bound
+    keeps that σ). A query farther from its nearest sample than that sample's own k-th neighbour is
+    :attr:`gonio.interpolate.Reason.NO_DATA` (a gap wider than the local spacing), as in ``scattered``.
+    """
+
+    def __init__(self, coords, value, stddev, tol: float):
+        coords = np.asarray(coords, dtype=np.float64)
+        samples = Samples(coords[:, 0], coords[:, 1], coords[:, 2], value)
+        self.fit = LocalFit(samples)
+        _, self.owner = samples.points(self.fit.domain)
+        cc = _cosines(samples.theta_i, samples.theta_o)
+        sd = np.asarray(stddev, dtype=np.float64).reshape(samples.value.shape)
+        self.value, self.stddev = samples.value, sd
+        self.sigma_log = (cc * sd / (samples.value * cc + self.fit.floor))[self.owner]
+        k = min(self.fit.k + 1, len(self.fit.points))
+        reach = self.fit.tree.query(self.fit.points, k=k)[0]
+        self.reach = np.asarray(reach).reshape(len(self.fit.points), -1)[:, -1]
+        self.snap = tol
+
+    def eval(self, coords, workers: int = -1):
+        from gonio.interpolate import Reason
+
+        c = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
+        q = embed_poses(self.fit.domain, c[:, 0], c[:, 1], c[:, 2])
+        m, channels = len(q), self.value.shape[1]
+        if m == 0:
+            return np.zeros((0, channels)), np.zeros((0, channels)), np.zeros(0, np.uint8), np.zeros(0, bool)
+        dist, idx = self.fit.tree.query(q, k=self.fit.k, workers=workers)
+        dist, idx = dist.reshape(m, -1), idx.reshape(m, -1)
+        y, hat = _fit(q, dist, idx, self.fit.points, self.fit.values, None, self.fit.degree, True, hat=True)
+        sigma_y = np.sqrt(np.einsum("mk,mkc->mc", hat ** 2, self.sigma_log[idx] ** 2))
+        cc = _cosines(c[:, 0], c[:, 1])
+        value = self.fit._inverse(y) / cc
+        stddev = np.exp(y) * sigma_y / cc
+        exact = dist[:, 0] <= self.snap
+        nearest = self.owner[idx[:, 0]]
+        value[exact], stddev[exact] = self.value[nearest[exact]], self.stddev[nearest[exact]]
+        reason = np.where(dist[:, 0] > self.reach[idx[:, 0]], Reason.NO_DATA, Reason.OK).astype(np.uint8)
+        return value, stddev, reason, exact & (reason == Reason.OK)
+
+
 def reconstruct(samples: Samples, **options) -> LocalFit:
     """The reconstruction the benchmark scores (:class:`LocalFit` with its defaults unless overridden)."""
     return LocalFit(samples, **options)
-
-
-def reconstruct_brdf(samples: Samples):
-    """The samples as a :class:`gonio.brdf.MeasuredBRDF` with its ``scattered`` engine (isotropic,
-    reciprocal): what a campaign's users query today."""
-    from gonio.brdf import MeasuredBRDF
-    from gonio.dataset import SampledBRDF
-
-    deg = [np.degrees(a) for a in (samples.theta_i, np.zeros(len(samples)), samples.theta_o, samples.dphi)]
-    data = SampledBRDF(*deg, value=samples.value, stddev=np.zeros_like(samples.value),
-                       attrs={"symmetries": {"reciprocity": True, "isotropy": True, "mirror": False},
-                              "grid": "adaptive"})
-    return MeasuredBRDF(data, method="scattered", angles="measured")
 
 
 def loo_residual(samples: Samples, domain: str = "iso", transform: str = "log",
@@ -113,9 +153,10 @@ def _cosines(theta_i, theta_o):
     return (np.cos(theta_i) * np.cos(theta_o))[:, None]
 
 
-def _fit(q, dist, idx, points, values, drop, degree, log=False):
+def _fit(q, dist, idx, points, values, drop, degree, log=False, hat=False):
     """Value at each query of the weighted local polynomial through its neighbours ``idx`` (those where
-    ``drop`` is true get no weight)."""
+    ``drop`` is true get no weight); with ``hat``, also each neighbour's weight a_k in the fitted
+    intercept Σ a_k y_k (m, k), before the bound."""
     d = dist if drop is None else np.where(drop, 0.0, dist)
     h = d.max(axis=1, keepdims=True) * 1.05 + 1e-12
     w = (1.0 - (dist / h) ** 2) ** 2
@@ -130,9 +171,16 @@ def _fit(q, dist, idx, points, values, drop, degree, log=False):
     normal += 1e-6 * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(design.shape[2])
     near = values[idx]
     rhs = np.einsum("nk,nki,nkc->nic", w, design, near)
-    fitted = np.linalg.solve(normal, rhs)[:, 0, :]
+    if hat:   # also the first row of normal⁻¹ Dᵀ W (normal is symmetric), in the same solve
+        e0 = np.zeros((len(q), design.shape[2], 1))
+        e0[:, 0] = 1.0
+        both = np.linalg.solve(normal, np.concatenate([rhs, e0], axis=2))
+        fitted = both[:, 0, :-1]
+        a = w * np.einsum("nki,ni->nk", design, both[:, :, -1])
+    else:
+        fitted = np.linalg.solve(normal, rhs)[:, 0, :]
     if degree == 1:
-        return fitted
+        return (fitted, a) if hat else fitted
     # A quadric may swing far past its data where they are sparse around a sharp peak: keep it between
     # the least neighbour over SWING and the largest times SWING (log), or within the neighbours' range
     # widened by SWING - 1 of it on each side (linear).
@@ -140,5 +188,7 @@ def _fit(q, dist, idx, points, values, drop, degree, log=False):
     lo = np.where(live, near, np.inf).min(axis=1)
     hi = np.where(live, near, -np.inf).max(axis=1)
     if log:
-        return np.clip(fitted, lo - np.log(SWING), hi + np.log(SWING))
-    return np.clip(fitted, lo - (SWING - 1.0) * (hi - lo), hi + (SWING - 1.0) * (hi - lo))
+        bounded = np.clip(fitted, lo - np.log(SWING), hi + np.log(SWING))
+    else:
+        bounded = np.clip(fitted, lo - (SWING - 1.0) * (hi - lo), hi + (SWING - 1.0) * (hi - lo))
+    return (bounded, a) if hat else bounded

@@ -68,7 +68,9 @@ def row_data(data) -> Row:
         arrays[name] = np.asarray(getattr(data, name), np.float64).reshape(n)
     arrays["value"] = np.asarray(data.value, np.float64).reshape(n, -1)
     arrays["stddev"] = np.asarray(data.stddev, np.float64).reshape(n, -1)
-    arrays["grid_index"] = np.asarray(data.grid_index, np.int64).reshape(n, -1)
+    # Scattered poses (an adaptive grid) have no grid indices: no grid_axis.
+    index = np.zeros((n, 0)) if data.grid_index is None else data.grid_index
+    arrays["grid_index"] = np.asarray(index, np.int64).reshape(n, -1)
     attrs = dict(data.attrs)
     attrs["grid_axes"] = list(data.grid_axes)
     return Row(arrays, attrs)

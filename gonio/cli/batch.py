@@ -48,6 +48,9 @@ def cmd_batch(args) -> int:
         grid = parse_grid(args.grid)
     except ValueError as e:
         raise UsageError(f"--grid: {e}") from None
+    if grid.budget_s is not None:
+        raise UsageError("--grid: a batch stores one sample count for every material; an adaptive grid "
+                         "with budget_s measures as many as the time holds: give poses=N instead")
     if grid.order == "fly":
         raise UsageError("--grid: order=fly is not for a batch (a fly campaign sweeps one gantry); give "
                          "another order, e.g. order=auto")

@@ -37,15 +37,17 @@ PLAIN_PROGRESS_EVERY_S = 5.0
 
 # -- gonio plan -----------------------------------------------------------------------------------
 def cmd_plan(args) -> int:
-    from gonio.plan import build_plan, format_plan, plan_summary
+    from gonio.plan import build_plan, format_plan, parse_grid, plan_summary
+    from gonio.plan.grids import grid_kind
 
     cfg = load_config(args.config)
     show = sys.stdout.isatty() and not args.json    # a spinner only where a person watches the report
+    if grid_kind(parse_grid(args.grid).kind).campaign == "adaptive":
+        return _plan_adaptive(args, cfg, show)
     with planning(_Out(), args.grid, show):
         plan = build_plan(args.grid, cfg)
         fly = None
         if not plan.grid.startswith("merl:"):  # lattices have lines to sweep: fly side by side
-            from gonio.plan import parse_grid
             from gonio.plan.fly import fly_plan
 
             # A fly campaign sweeps the serpentine's lines (order=fly), whatever order auto chose here.
@@ -56,6 +58,28 @@ def cmd_plan(args) -> int:
         print(json.dumps(plan_summary(plan, fly), indent=2))
     else:
         print(format_plan(plan, fly))
+    return 0
+
+
+def _plan_adaptive(args, cfg, show: bool) -> int:
+    """``gonio plan`` of an adaptive grid: its pilot's plan (the rounds are placed as it measures) and
+    the budget the rounds spend."""
+    from gonio.adaptive.plan import budget_text
+    from gonio.campaign import plan_campaign
+    from gonio.plan import format_plan, plan_summary
+
+    with planning(_Out(), args.grid, show):
+        planned = plan_campaign(args.grid, cfg)
+    a = planned.meta["adaptive"]
+    if args.json:
+        print(json.dumps({"adaptive": a, "pilot": plan_summary(planned.plan)}, indent=2))
+        return 0
+    print(format_plan(planned.plan))
+    print(f"\nadaptive     pilot: {a['pilot_poses']:,} poses (a {a['pilot_nodes']}-node lattice), estimated "
+          f"{_hms(a['pilot_s'])} ({a['pilot_s']:.1f} s) of gantry time\n"
+          f"             budget: {budget_text(a)}, pilot included; then rounds of poses placed where the "
+          f"samples so far are least trustworthy, each {a['growth']:.0%} of the samples so far (at least "
+          f"{a['min_round']}), planned from the journal as it measures")
     return 0
 
 
@@ -275,9 +299,18 @@ def _campaign_command(args, cfg, request, *, material, model_check: bool, export
         c.close()
         raise
     sweeps = f" in {meta['fly']['lines']} sweeps" if c.kind == "fly" else ""
-    out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']}{sweeps} ({n_steps} steps with dark and "
-        f"white-reference readings), estimated {_hms(meta['estimated_s'])} of gantry time (lower bound "
-        f"{_hms(meta['lower_bound_s'])})")
+    if c.kind == "adaptive":
+        from gonio.adaptive.plan import budget_text, expected_steps
+
+        a = meta["adaptive"]
+        out(f"{meta['gantry']}: {meta['grid']}: a pilot of {a['pilot_poses']} poses (estimated "
+            f"{_hms(a['pilot_s'])} of gantry time), then rounds placed from what is measured until "
+            f"{budget_text(a)} are spent; {meta['poses']} poses planned so far")
+        n_steps = expected_steps(meta, n_steps)
+    else:
+        out(f"{meta['gantry']}: {meta['poses']} poses of {meta['grid']}{sweeps} ({n_steps} steps with dark "
+            f"and white-reference readings), estimated {_hms(meta['estimated_s'])} of gantry time (lower "
+            f"bound {_hms(meta['lower_bound_s'])})")
     t0 = time.perf_counter()
     progress, on_step = _progress(out, n_steps, c.journal.next_step(), gantry, args.quiet)
     signals: list[str] = []
@@ -323,6 +356,7 @@ def _campaign_command(args, cfg, request, *, material, model_check: bool, export
         for t in actors:
             t.join(timeout=30.0)
         c_done = c.journal.done_count()
+        n_steps = c.journal.step_count() if c.kind == "adaptive" else n_steps   # its rounds were appended
         c.close()
     wall = time.perf_counter() - t0
     out(f"campaign {state}: {c_done}/{n_steps} steps, gantry time {_hms(runner.campaign_s())}, "

@@ -57,7 +57,15 @@ from gonio.motion.order import (
 from gonio.motion.refine import refine_order
 from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
 from gonio.plan.checkpoints import cut_runs, overdue_runs
-from gonio.plan.grids import GridKind, GridSpec, class_members, enumerate_grid, grid_kind, parse_grid
+from gonio.plan.grids import (
+    GridKind,
+    GridPoses,
+    GridSpec,
+    class_members,
+    enumerate_grid,
+    grid_kind,
+    parse_grid,
+)
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, run_starts, schedule_runs
 from gonio.plan.transit import colliding_runs, secure_branches, step_targets, via_points
 from gonio.registries import ORDERS
@@ -178,8 +186,8 @@ class Plan:
     step_end_s: np.ndarray | None = None
 
 
-def build_plan(grid: str, cfg: GonioConfig, kin=None, *, _tour_seed: int | None = None,
-               _bound: dict | None = None) -> Plan:
+def build_plan(grid: str, cfg: GonioConfig, kin=None, *, poses: GridPoses | None = None,
+               _tour_seed: int | None = None, _bound: dict | None = None) -> Plan:
     """Plan a campaign over ``grid`` on the gantry ``cfg`` describes.
 
     Parameters
@@ -190,6 +198,9 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None, *, _tour_seed: int | None 
         The gantry: kinematics, axis speeds, settle time, exposure, reference schedule.
     kin : Kinematics, optional
         Defaults to ``gonio.kinematics.make_kinematics(cfg)``.
+    poses : GridPoses, optional
+        The poses to plan instead of the grid's own (an adaptive campaign's pilot and rounds: the grid
+        string then gives theta_max, the order and the symmetries).
 
     Returns
     -------
@@ -208,13 +219,15 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None, *, _tour_seed: int | None 
         kin = make_kinematics(cfg)
     kind = grid_kind(spec.kind)
     if spec.order == "auto" and kind.auto == "quicker":
-        first = build_plan(spec.spelled(order="serpentine"), cfg, kin)
+        first = build_plan(spec.spelled(order="serpentine"), cfg, kin, poses=poses)
         if first.theta_i.size > AUTO_TOUR_MAX_POSES:
             return first
-        second = build_plan(spec.spelled(order="tour"), cfg, kin, _bound=first.timing["lower_bound"])
+        second = build_plan(spec.spelled(order="tour"), cfg, kin, poses=poses,
+                            _bound=first.timing["lower_bound"])
         return second if second.estimated_s < first.estimated_s else first
     theta_max = spec.theta_max_deg if spec.theta_max_deg is not None else cfg.kinematics.theta_max_deg
-    poses = enumerate_grid(spec, theta_max)
+    given = poses
+    poses = enumerate_grid(spec, theta_max) if given is None else given
     counts = dict(poses.counts)
     angles, loops, infeasible = _reachable(spec, kin, poses, theta_max)
     counts["feasible"] = int(angles[0].size)
@@ -245,9 +258,10 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None, *, _tour_seed: int | None 
     elif _tour_seed is None and len(candidates) > 1:
         # Several candidate orders: each planned through, the quickest kept (the lower bound holds for
         # every order of the same poses, so it is computed once).
-        plans = [build_plan(grid, cfg, kin, _tour_seed=0, _bound=_bound)]
+        plans = [build_plan(grid, cfg, kin, poses=given, _tour_seed=0, _bound=_bound)]
         bound = plans[0].timing["lower_bound"]
-        plans += [build_plan(grid, cfg, kin, _tour_seed=i, _bound=bound) for i in range(1, len(candidates))]
+        plans += [build_plan(grid, cfg, kin, poses=given, _tour_seed=i, _bound=bound)
+                  for i in range(1, len(candidates))]
         return min(plans, key=lambda p: p.estimated_s)
     else:
         perm = np.asarray(candidates[_tour_seed or 0](), dtype=np.int64)

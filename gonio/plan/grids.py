@@ -23,10 +23,15 @@ from gonio.geometry import MERL_SHAPE, from_half_diff, merl_bin_centres, vec_to_
 from gonio.registries import GRID_KINDS, ORDERS
 
 __all__ = ["GridSpec", "GridPoses", "GridKind", "parse_grid", "enumerate_grid", "pose_bound",
-           "check_pose_bound", "class_members", "grid_kind", "MAX_POSES", "ISO", "FULL", "MERL"]
+           "check_pose_bound", "class_members", "grid_kind", "MAX_POSES", "ADAPTIVE_MAX_POSES",
+           "ADAPTIVE_MAX_BUDGET_S", "ISO", "FULL", "MERL", "ADAPTIVE"]
 
 #: A plan holds at most this many poses (memory and time stay within a workstation's reach).
 MAX_POSES = 3_000_000
+#: An adaptive campaign's largest pose budget (each round fits the samples so far: O(N) per round).
+ADAPTIVE_MAX_POSES = 100_000
+#: An adaptive campaign's largest time budget: 30 days of gantry time.
+ADAPTIVE_MAX_BUDGET_S = 30 * 86_400.0
 _BOOLS = {"true": True, "false": False}
 # Tolerance on "step divides 360" and on θ <= theta_max for values that come from decimal degrees.
 _DIV_TOL = 1e-9
@@ -60,6 +65,8 @@ class GridSpec:
     reciprocity: bool = True
     mirror: bool = False
     order: str = "auto"
+    poses: int | None = None
+    budget_s: float | None = None
 
     @property
     def isotropy(self) -> bool:
@@ -75,10 +82,14 @@ class GridSpec:
     def spelled(self, theta_max_deg: float | None = None, order: str | None = None) -> str:
         """:attr:`normalized`, with ``theta_max`` and ``order`` resolved to the values a plan used."""
         tmax = self.theta_max_deg if theta_max_deg is None else theta_max_deg
-        parts = [f"step={_num(self.step_deg)}"] if self.stride is None else [f"stride={self.stride}"]
+        if self.poses is not None or self.budget_s is not None:
+            parts = [f"poses={self.poses}" if self.poses is not None else f"budget_s={_num(self.budget_s)}"]
+        else:
+            parts = [f"step={_num(self.step_deg)}"] if self.stride is None else [f"stride={self.stride}"]
         if tmax is not None:
             parts.append(f"theta_max={_num(tmax)}")
-        parts.append(f"reciprocity={str(self.reciprocity).lower()}")
+        if "reciprocity" in _options(self.kind):
+            parts.append(f"reciprocity={str(self.reciprocity).lower()}")
         if "mirror" in _options(self.kind):
             parts.append(f"mirror={str(self.mirror).lower()}")
         parts.append(f"order={order or self.order}")
@@ -133,6 +144,10 @@ class GridKind:
     auto : str
         What ``order=auto`` plans: ``"serpentine"``, ``"tour"``, or ``"quicker"`` (both, keeping the
         quicker, up to ``AUTO_TOUR_MAX_POSES`` poses: :mod:`gonio.plan.build`).
+    campaign : str, optional
+        The campaign kind (:data:`gonio.units.KINDS`) of a grid whose poses are not all known when it is
+        planned (``adaptive``: rounds placed from what was measured); None: a fixed plan (stop-and-go,
+        or fly with ``order=fly``).
     """
 
     enumerate: Callable
@@ -141,6 +156,7 @@ class GridKind:
     members: Callable | None = None
     rows: Callable | None = None
     auto: str = "serpentine"
+    campaign: str | None = None
 
 
 def grid_kind(name: str) -> GridKind:
@@ -186,7 +202,9 @@ def parse_grid(grid: str) -> GridSpec:
             raise ValueError(f"grid '{kind}': option '{key}' given twice")
         raw[key] = value
     fields: dict[str, object] = {"kind": kind}
-    if GRID_KINDS[kind].extra["size"] == "stride":
+    if GRID_KINDS[kind].extra["size"] == "budget":
+        fields.update(_parse_budget(kind, raw))
+    elif GRID_KINDS[kind].extra["size"] == "stride":
         if "stride" not in raw:
             raise ValueError(f"grid '{kind}': option 'stride' is required (an integer from 1 to 90)")
         stride = _parse_number(kind, "stride", raw["stride"])
@@ -229,11 +247,34 @@ def parse_grid(grid: str) -> GridSpec:
         if raw["order"] not in orders:
             raise ValueError(f"grid '{kind}': option 'order' must be one of {', '.join(orders)}, got "
                              f"'{raw['order']}'")
+        if ORDERS[raw["order"]].extra.get("lattice") and grid_kind(kind).campaign == "adaptive":
+            raise ValueError(f"grid '{kind}': option 'order={raw['order']}' needs lines of a lattice to "
+                             "sweep; no round of an adaptive grid can fly (its poses are scattered): use "
+                             "order=auto or tour")
         if ORDERS[raw["order"]].extra.get("lattice") and grid_kind(kind).rows is None:
             raise ValueError(f"grid '{kind}': option 'order={raw['order']}' needs lines of a lattice to "
                              "sweep; use an iso or full grid")
         fields["order"] = raw["order"]
     return GridSpec(**fields)
+
+
+def _parse_budget(kind: str, raw: dict[str, str]) -> dict[str, object]:
+    """``poses=N`` or ``budget_s=T``, exactly one (an adaptive grid's budget)."""
+    given = [k for k in ("poses", "budget_s") if k in raw]
+    if len(given) != 1:
+        raise ValueError(f"grid '{kind}': give exactly one of 'poses' (an integer from 1 to "
+                         f"{ADAPTIVE_MAX_POSES:,}) or 'budget_s' (seconds of gantry time, > 0 and <= "
+                         f"{ADAPTIVE_MAX_BUDGET_S:,.0f}); got {' and '.join(given) or 'neither'}")
+    value = _parse_number(kind, given[0], raw[given[0]])
+    if given[0] == "poses":
+        if value != int(value) or not 1 <= value <= ADAPTIVE_MAX_POSES:
+            raise ValueError(f"grid '{kind}': option 'poses' must be an integer from 1 to "
+                             f"{ADAPTIVE_MAX_POSES:,}, got {raw['poses']}")
+        return {"poses": int(value)}
+    if not 0.0 < value <= ADAPTIVE_MAX_BUDGET_S:
+        raise ValueError(f"grid '{kind}': option 'budget_s' must be > 0 and <= {ADAPTIVE_MAX_BUDGET_S:,.0f} "
+                         f"seconds, got {raw['budget_s']}")
+    return {"budget_s": value}
 
 
 def enumerate_grid(spec: GridSpec, theta_max_deg: float) -> GridPoses:
@@ -401,8 +442,23 @@ def _full_rows(spec: GridSpec, loops: np.ndarray) -> tuple[np.ndarray, int]:
     return np.stack([a_i, a_o, (p_o - p_i) % period, p_i], axis=1), period
 
 
+def _adaptive(spec: GridSpec, theta_max_deg: float) -> GridPoses:
+    raise ValueError(f"grid '{spec.kind}': its poses are placed as it measures; plan it as a campaign "
+                     "(gonio.campaign.plan_campaign, gonio plan)")
+
+
+def _adaptive_bound(spec: GridSpec, theta_max_deg: float) -> int:
+    # A time budget's pose count is known once the pilot is planned (gonio.adaptive.plan): 0 here.
+    return spec.poses or 0
+
+
 ISO = GridKind(enumerate=_iso, bound=_iso_bound, isotropic=True, members=_iso_members, rows=_iso_rows,
                auto="quicker")
+#: Adaptive acquisition (:mod:`gonio.adaptive`): a pilot lattice, then rounds placed from the samples.
+#: Its plans are made of given poses (:func:`gonio.plan.build.build_plan` ``poses=``); reciprocity is
+#: always on (a round's pose stands for its Helmholtz twin, which is measured where only it is reachable).
+ADAPTIVE = GridKind(enumerate=_adaptive, bound=_adaptive_bound, isotropic=True, members=_iso_members,
+                    auto="tour", campaign="adaptive")
 FULL = GridKind(enumerate=_full, bound=_full_bound, isotropic=False, rows=_full_rows)
 MERL = GridKind(enumerate=_merl, bound=_merl_bound, isotropic=True, auto="tour")
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["STEP_POSE", "STEP_DARK", "STEP_REFERENCE", "STEP_NAMES", "schedule_steps", "schedule_runs",
-           "run_starts"]
+           "run_starts", "step_table"]
 
 STEP_POSE, STEP_DARK, STEP_REFERENCE = 0, 1, 2
 STEP_NAMES = ("pose", "dark", "reference")
@@ -84,3 +84,27 @@ def schedule_runs(n_poses: int, starts) -> tuple[np.ndarray, np.ndarray]:
 def run_starts(n_poses: int, every: int) -> np.ndarray:
     """Indices of the poses that start a run (come right after a reference reading)."""
     return np.arange(0, n_poses, every, dtype=np.int64)
+
+
+def step_table(plan, cfg) -> dict:
+    """The journal's steps table of ``plan`` (a :class:`gonio.plan.build.Plan`) on the gantry ``cfg``:
+    per step, planned directions and commanded axes. A dark is read where the gantry stands, so it
+    inherits the previous step's targets (home before the first move)."""
+    kind = plan.step_kind
+    pose = plan.step_pose
+    n_axes = plan.axes_deg.shape[1]
+    angles = np.full((len(kind), 4), np.nan)
+    axes = np.empty((len(kind), n_axes))
+    last = np.array([cfg.axes[a].home_deg for a in cfg.axis_names], float)
+    ref_angles = np.array([cfg.reference.theta_i_deg, 0.0, cfg.reference.theta_o_deg, cfg.reference.dphi_deg])
+    pose_angles = np.degrees(np.stack([plan.theta_i, plan.phi_i, plan.theta_o, plan.phi_o], axis=1))
+    for s, (k, p) in enumerate(zip(kind, pose, strict=True)):
+        if k == STEP_POSE:
+            last = plan.axes_deg[p]
+            angles[s] = pose_angles[p]
+        elif k == STEP_REFERENCE:
+            last = plan.reference_axes_deg
+            angles[s] = ref_angles
+        axes[s] = last
+    return {"kind": kind, "pose": pose, "theta_i_deg": angles[:, 0], "phi_i_deg": angles[:, 1],
+            "theta_o_deg": angles[:, 2], "phi_o_deg": angles[:, 3], "axes_deg": axes}

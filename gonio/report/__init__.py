@@ -30,6 +30,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from gonio.brdf import open_brdf
 from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
 from gonio.formats import atomic_path
@@ -54,6 +56,8 @@ class Report:
         ``reference``, ``dark``, ``reciprocity``, ``albedo``, ``invalid``, ``noise``: what was flagged.
     fits : list of dict
         :func:`gonio.report.models.fit_models`, best first.
+    adaptive : dict or None
+        An adaptive campaign's ``pilot`` and ``rounds`` shares of poses with θh <= NEAR_SPECULAR_DEG.
     """
 
     folder: Path
@@ -68,6 +72,8 @@ class Report:
     verdicts: list = field(default_factory=list)
     figures: dict = field(default_factory=dict)
     html: str = ""
+    #: An adaptive campaign's share of pilot and round poses near the specular direction (None otherwise).
+    adaptive: dict | None = None
 
     @property
     def flags(self) -> dict[str, bool]:
@@ -130,6 +136,9 @@ def build_report(folder, models: list[str] | str | None = None, *, starts: int =
                    "residuals": figures.residual_maps(fits)}
     if pairs["pairs"]:
         rep.figures["reciprocity"] = figures.reciprocity(pairs)
+    if facts["adaptive"]:
+        rep.figures["adaptive"] = figures.adaptive_poses(data, facts["adaptive"])
+        rep.adaptive = _adaptive_share(data, facts["adaptive"])
     from gonio.report.html import render
 
     rep.html = render(rep)
@@ -146,6 +155,18 @@ def report(folder, out, models: list[str] | str | None = None, *, starts: int = 
     with atomic_path(out) as tmp:
         tmp.write_text(rep.html, encoding="utf-8")
     return rep
+
+
+#: θh within which a pose counts as in the specular lobe's neighbourhood (the report's share of poses).
+NEAR_SPECULAR_DEG = 10.0
+
+
+def _adaptive_share(data: SampledBRDF, adaptive: dict) -> dict:
+    """The share of the pilot's poses and of the rounds' with θh <= :data:`NEAR_SPECULAR_DEG`."""
+    phase = figures.phases(data.step, adaptive)
+    near = figures.half_angles_deg(data)[0] <= NEAR_SPECULAR_DEG
+    return {"pilot": float(near[phase == 0].mean()) if np.any(phase == 0) else 0.0,
+            "rounds": float(near[phase > 0].mean()) if np.any(phase > 0) else 0.0}
 
 
 def _hms(seconds: float) -> str:

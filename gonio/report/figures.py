@@ -243,3 +243,53 @@ def residual_maps(fits: list[dict]) -> bytes:
         fig.colorbar(sc, ax=list(axes[:len(ok)]), shrink=0.9,
                      label=f"(model − data) / data  (%, clipped to ±{_CLIP_PERCENT:g})")
     return png(fig)
+
+
+def phases(steps, adaptive: dict) -> np.ndarray:
+    """Which phase of an adaptive campaign measured each sample (0: the pilot, k: round k), from the
+    samples' journal ``steps`` and the rounds' first steps."""
+    firsts = np.array([r["first_step"] for r in adaptive["rounds"]], dtype=np.int64)
+    return np.searchsorted(firsts, np.asarray(steps, np.int64), side="right")
+
+
+def half_angles_deg(data) -> tuple[np.ndarray, np.ndarray]:
+    """(θh, θd) in degrees of each sample's planned directions (measured ones in a version 1 file)."""
+    from gonio.geometry import sph_to_vec, to_half_diff
+
+    angles = data.planned if data.planned is not None else np.stack(
+        [data.theta_i, data.phi_i, data.theta_o, data.phi_o], axis=1)
+    a = np.radians(np.asarray(angles, np.float64))
+    th, _, td, _ = to_half_diff(sph_to_vec(a[:, 0], a[:, 1]), sph_to_vec(a[:, 2], a[:, 3]))
+    return np.degrees(th), np.degrees(td)
+
+
+def adaptive_poses(data, adaptive: dict) -> bytes:
+    """Where an adaptive campaign's poses went: poses per phase (pilot, rounds), and every pose in
+    half/difference angles (θh, θd), coloured by phase: the rounds crowd where the BRDF varies most."""
+    phase = phases(data.step, adaptive)
+    th, td = half_angles_deg(data)
+    k = len(adaptive["rounds"])
+    import matplotlib
+
+    colours = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.9, max(k, 1)))
+    fig = _figure(10.0, 4.0)
+    ax1, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.6]})
+    counts = np.bincount(phase, minlength=k + 1)
+    ax1.bar(np.arange(k + 1), counts, color=["0.55", *colours[:k]])
+    ax1.set_xticks(np.arange(k + 1), ["pilot", *[str(i) for i in range(1, k + 1)]], fontsize=7)
+    ax1.set_xlabel("phase (pilot, then rounds)")
+    ax1.set_ylabel("poses measured")
+    ax1.set_title("poses per phase", fontsize=10)
+    ax2.scatter(th[phase > 0], td[phase > 0], s=6, c=colours[np.clip(phase[phase > 0] - 1, 0, None)],
+                label="rounds (colour: round)")
+    ax2.scatter(th[phase == 0], td[phase == 0], s=22, marker="s", facecolors="none", edgecolors="0.3",
+                label="pilot")
+    ax2.set_xlabel("θh (°): half vector from the normal (0: specular)")
+    ax2.set_ylabel("θd (°)")
+    ax2.set_xlim(0, 90)
+    ax2.set_ylim(0, 90)
+    ax2.grid(alpha=0.3)
+    ax2.legend(fontsize=8, loc="upper right")
+    ax2.set_title("where the poses went", fontsize=10)
+    return png(fig)
+

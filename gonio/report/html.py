@@ -100,8 +100,9 @@ def _section_campaign(rep) -> str:
         ["infeasible poses", infeasible],
         ["steps", f"{f['steps']['total']:,}: {f['steps']['pose']:,} poses, {f['steps']['dark']} darks, "
                   f"{f['steps']['reference']} white references; {f['measured']:,} measured"],
-        ["duration (campaign time)", f"{_hms(f['campaign_s'])}; plan estimate {_hms(est)}, lower bound "
-                                     f"{_hms(f['lower_bound_s'])}{ratio}"],
+        ["duration (campaign time)", f"{_hms(f['campaign_s'])}; plan estimate {_hms(est)}"
+                                     + ("" if f["lower_bound_s"] is None else
+                                        f", lower bound {_hms(f['lower_bound_s'])}") + ratio],
         ["runs", f"{f['runs']} ({f['runs'] - 1} resume{'s' if f['runs'] != 2 else ''})"],
         ["faults, retries", f"{f['faults']} faults; {f['retries']} retried measurements"],
         ["created", f"{f['created']}, gonio {f['software_version']}, seed {f['seed']}"],
@@ -115,6 +116,31 @@ def _section_campaign(rep) -> str:
     else:
         html += "<p>The journal records no faults, retries, pauses or halts.</p>"
     return html
+
+
+def _section_adaptive(rep) -> str:
+    """An adaptive campaign: the pilot, the rounds and where their poses went."""
+    a = rep.facts["adaptive"]
+    rounds = a["rounds"]
+    budget = (f"{a['budget_poses']:,} poses" if a["budget_poses"] is not None
+              else f"{a['budget_s']:,.0f} s of estimated gantry time")
+    spent = a["pilot_s"] + sum(r["estimated_s"] for r in rounds)
+    rows = [
+        ["budget", budget],
+        ["pilot", f"{a['pilot_poses']:,} poses (a {a['pilot_nodes']}-node lattice from 0 to theta_max), "
+                  f"estimated {_hms(a['pilot_s'])}"],
+        ["rounds", f"{len(rounds)}: " + ", ".join(f"{r['poses']:,}" for r in rounds) + " poses"
+                   if rounds else "none (the pilot spent the budget)"],
+        ["estimated gantry time, all phases", _hms(spent)],
+        ["poses near the specular direction (θh ≤ 10°)",
+         f"{100 * rep.adaptive['pilot']:.0f} % of the pilot's, {100 * rep.adaptive['rounds']:.0f} % of the "
+         "rounds'"],
+    ]
+    return _table(None, rows) + _img(
+        rep.figures["adaptive"], "poses per phase and their half/difference angles",
+        "Each round was planned from the journal's readings once the steps before it were measured: one "
+        "new pose in each cell whose leave-one-out residual, weighted by its share of the error, was "
+        "largest.")
 
 
 def _drift_words(channels, drift) -> str:
@@ -299,6 +325,8 @@ def render(rep) -> str:
     parts = [
         ("summary", "Summary", f'<ul class="verdicts">{verdicts}</ul>'),
         ("campaign", "The campaign", _section_campaign(rep)),
+        *([("adaptive", "Adaptive acquisition: where the poses went", _section_adaptive(rep))]
+          if f.get("adaptive") else []),
         ("calibration", "Calibration: white reference and dark", _section_calibration(rep)),
         ("overview", "The data at a glance", _img(rep.figures["overview"], "in-plane BRDF for several θi",
                                                   "gonio plot --kind polar|hemisphere|merl draws more.")),

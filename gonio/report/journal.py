@@ -60,10 +60,12 @@ def campaign_facts(folder: Path) -> tuple[dict, list]:
     facts : dict
         ``name``, ``what`` (material or sample), ``gantry``, ``design``, ``grid``, ``symmetries``,
         ``counts`` (poses before/after each shortcut), ``infeasible`` (by reason), ``poses``, ``steps``
-        (by kind), ``campaign_s``, ``estimated_s``, ``lower_bound_s``, ``runs`` (1 + resumes),
+        (by kind), ``campaign_s``, ``estimated_s``, ``lower_bound_s`` (None for an adaptive campaign),
+        ``runs`` (1 + resumes),
         ``retries`` (extra attempts in the measurements), ``faults``, ``events`` (notable events:
         kind, campaign_s, step, message), ``reference_albedo``, ``seed``, ``created``,
-        ``software_version``, ``channels``.
+        ``software_version``, ``channels``, ``adaptive`` (an adaptive campaign's pilot and rounds, the
+        journal's meta; None for other grids).
     measurements : list of gonio.store.Measurement
     """
     j = Journal.open(folder / JOURNAL_NAME, readonly=True)
@@ -105,7 +107,17 @@ def campaign_facts(folder: Path) -> tuple[dict, list]:
         "created": _utc(meta.get("created_unix")),
         "software_version": meta.get("software_version", ""),
         "channels": [str(c) for c in meta.get("channels", ())],
+        "adaptive": meta.get("adaptive"),
     }
+    adaptive = meta.get("adaptive")
+    if adaptive:
+        # The pilot's plan, then each round's: the estimate is their sum. Their bounds' sum is no bound
+        # (each phase's plan starts at home and parks; the campaign goes on from one to the next): None.
+        rounds = adaptive["rounds"]
+        facts["estimated_s"] = adaptive["pilot_s"] + sum(r["estimated_s"] for r in rounds)
+        facts["lower_bound_s"] = None
+        facts["counts"] = {**{f"pilot {k}": v for k, v in facts["counts"].items()},
+                           "with the rounds": facts["poses"]}
     return facts, measurements
 
 

@@ -131,6 +131,7 @@ def test_an_existing_scheduler_and_worker_on_loopback(whole, tmp_path):
     (["lambert:albedo=2", "--grid", "iso:step=45"], "albedo"),
     (["lambert:albedo=0.5", "--grid", "iso:step=0"], "--grid"),
     (["lambert:albedo=0.5", "--grid", "iso:step=45,order=fly"], "order=fly is not for a batch"),
+    (["lambert:albedo=0.5", "--grid", "adaptive:budget_s=600"], "give poses=N instead"),
     (["lambert:albedo=0.5", "--grid", "iso:step=45", "--scheduler", "http://x/y"], "--scheduler"),
     (["lambert:albedo=0.5", "--grid", "iso:step=45", "--config", "emulated-two-arm-dynamixel"], "--config"),
 ])

@@ -11,6 +11,9 @@ from gonio.registries import GRID_KINDS, GRID_OPTIONS, ORDERS
 
 VALUES = {"step": "30", "stride": "30", "theta_max": "60", "reciprocity": "false", "mirror": "true",
           "order": "serpentine"}
+#: What each kind of size option takes (a grid names exactly one of them).
+SIZES = {"step": "step=30", "stride": "stride=30", "budget": "poses=30"}
+SIZE_OPTIONS = ("step", "stride", "poses", "budget_s")
 
 
 def test_plan_help_lists_every_kind_and_option(capsys):
@@ -29,10 +32,10 @@ def test_plan_help_lists_every_kind_and_option(capsys):
 @pytest.mark.parametrize("kind", list(GRID_KINDS))
 def test_the_parser_takes_exactly_the_options_the_registry_lists(kind):
     options = GRID_KINDS[kind].extra["options"]
-    size = "stride=30" if "stride" in options else "step=30"
+    size = SIZES[GRID_KINDS[kind].extra["size"]]
     for option in GRID_OPTIONS:
         value = VALUES.get(option, "true" if kind != "full" else "false")
-        grid = f"{kind}:{option}=30" if option in ("step", "stride") else f"{kind}:{size},{option}={value}"
+        grid = f"{kind}:{option}=30" if option in SIZE_OPTIONS else f"{kind}:{size},{option}={value}"
         if option in options:
             parse_grid(grid)
         else:

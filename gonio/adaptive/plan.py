@@ -1,0 +1,180 @@
+"""An adaptive campaign's plans, from its journal alone: the pilot's, each round's, and the rule that
+sizes the rounds.
+
+The pilot is the lattice of :mod:`gonio.adaptive.pilot` planned as any grid is
+(:func:`gonio.plan.build.build_plan` with the lattice's poses: reachability with the Helmholtz twin
+standing in, a tour, branches, checkpoints): for ``poses=N`` the densest lattice of at most
+:data:`~gonio.adaptive.acquire.PILOT_FRACTION` · N reachable poses, for ``budget_s=T`` the densest whose
+plan is estimated at most that fraction of T (at least the 2-node lattice either way; a budget below that
+pilot is refused). A round is :func:`gonio.adaptive.refine.plan_round` of the samples calibrated from
+every committed reading, planned the same way; its steps continue the journal's (the checkpoint that ends
+the last phase brackets the round's first run, so the round's own first one is left out).
+
+Round sizes (:func:`round_size`) depend only on the journal's ``adaptive`` meta: with ``poses=N``,
+:func:`~gonio.adaptive.acquire.round_sizes` of the pilot and N, at least :data:`MIN_ROUND` poses each
+(a round adds a dark and a white reference: 10 poses keep them within a fifth of the round); with
+``budget_s=T`` the same growth, cut to the poses the time left holds at the estimated time per pose so
+far (estimates, not the clock: a resumed campaign plans the same round whatever the downtime).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gonio.adaptive.acquire import GROWTH, PILOT_FRACTION, round_sizes
+from gonio.adaptive.pilot import lattice, pilot_nodes
+from gonio.adaptive.refine import plan_round
+from gonio.adaptive.samples import Samples
+from gonio.calibrate import calibrate, reference_rho
+from gonio.plan.build import Plan, build_plan
+from gonio.plan.grids import ADAPTIVE_MAX_BUDGET_S, ADAPTIVE_MAX_POSES, GridPoses, parse_grid
+from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, step_table
+
+__all__ = ["pilot_plan", "round_size", "journal_samples", "next_round", "expected_steps", "budget_text",
+           "MIN_ROUND", "SEED"]
+
+#: Least poses of a round (the last one excepted).
+MIN_ROUND = 10
+#: Seed of the rounds' random trial points (:func:`gonio.adaptive.refine.plan_round`).
+SEED = 0
+
+
+def _given(theta_i, phi_i, theta_o, phi_o) -> GridPoses:
+    n = np.size(theta_i)
+    return GridPoses(*(np.asarray(a, np.float64) for a in (theta_i, phi_i, theta_o, phi_o)),
+                     np.arange(n, dtype=np.int64)[:, None], {"grid": int(n)})
+
+
+def _theta_max_deg(spec, cfg) -> float:
+    return spec.theta_max_deg if spec.theta_max_deg is not None else cfg.kinematics.theta_max_deg
+
+
+def pilot_plan(grid: str, cfg, kin=None) -> tuple[Plan, dict]:
+    """The pilot's plan of the adaptive ``grid`` on the gantry ``cfg``, and the ``adaptive`` meta the
+    journal keeps (the budget, the pilot's size and estimate, the rounds so far: none).
+
+    Raises
+    ------
+    ValueError
+        A budget below the pilot's (naming the option and the least it may be).
+    """
+    from gonio.kinematics import make_kinematics
+
+    spec = parse_grid(grid)
+    kin = make_kinematics(cfg) if kin is None else kin
+    tmax_deg = _theta_max_deg(spec, cfg)
+    tmax = np.radians(tmax_deg)
+
+    def plan(m):
+        ti, to, d = lattice(m, tmax)
+        return build_plan(grid, cfg, kin, poses=_given(ti, np.zeros_like(ti), to, d))
+
+    if spec.poses is not None:
+        m = pilot_nodes(kin, tmax, max(1, int(PILOT_FRACTION * spec.poses)))
+        pilot = plan(m)
+        if pilot.theta_i.size > spec.poses:
+            raise ValueError(f"grid '{spec.kind}': option 'poses' must be at least the pilot's "
+                             f"{pilot.theta_i.size} poses (and at most {ADAPTIVE_MAX_POSES:,}), got "
+                             f"{spec.poses}")
+    else:
+        m, pilot = 2, plan(2)
+        if pilot.estimated_s > spec.budget_s:
+            raise ValueError(f"grid '{spec.kind}': option 'budget_s' must be at least the pilot's "
+                             f"{pilot.estimated_s:,.0f} s of gantry time (up to "
+                             f"{ADAPTIVE_MAX_BUDGET_S:,.0f}), got {spec.budget_s:g}")
+        # The densest lattice within the pilot's share of the time (estimates grow with m; the smaller
+        # ones cost least to plan, so they are tried first), and within the pilot's share of the largest
+        # pose budget.
+        top = pilot_nodes(kin, tmax, int(PILOT_FRACTION * ADAPTIVE_MAX_POSES))
+        while m < top:
+            bigger = plan(m + 1)
+            if bigger.estimated_s > PILOT_FRACTION * spec.budget_s:
+                break
+            m, pilot = m + 1, bigger
+    n = int(pilot.theta_i.size)
+    meta = {"budget_poses": spec.poses, "budget_s": spec.budget_s, "pilot_nodes": int(m), "pilot_poses": n,
+            "pilot_s": float(pilot.estimated_s), "pilot_lower_bound_s": float(pilot.lower_bound_s),
+            "min_round": MIN_ROUND, "growth": GROWTH, "seed": SEED, "rounds": []}
+    return pilot, meta
+
+
+def round_size(adaptive: dict) -> int:
+    """Poses of the next round from the journal's ``adaptive`` meta (module docstring); 0: the budget is
+    spent."""
+    rounds = adaptive["rounds"]
+    if adaptive["budget_poses"] is not None:
+        sizes = _sizes(adaptive)
+        return sizes[len(rounds)] if len(rounds) < len(sizes) else 0
+    poses = adaptive["pilot_poses"] + sum(r["poses"] for r in rounds)
+    spent = adaptive["pilot_s"] + sum(r["estimated_s"] for r in rounds)
+    left = min(int((adaptive["budget_s"] - spent) / (spent / poses)), ADAPTIVE_MAX_POSES - poses)
+    return max(0, min(max(adaptive["min_round"], int(adaptive["growth"] * poses)), left))
+
+
+def _sizes(adaptive: dict) -> list[int]:
+    """Every round's size under a pose budget."""
+    pilot = adaptive["pilot_poses"]
+    return round_sizes(pilot, max(pilot, adaptive["budget_poses"]), adaptive["growth"], adaptive["min_round"])
+
+
+def journal_samples(journal, cfg) -> Samples:
+    """The samples of every committed pose reading, calibrated (:func:`gonio.calibrate.calibrate`) at
+    their planned poses (θi, θo, Δφ = φo − φi)."""
+    rho, _ = reference_rho(cfg.reference, journal.detector())
+    cal = calibrate(journal.measurements(), rho)
+    steps = journal.steps()
+    ti, pi_, to, po = (np.radians(steps[f"{a}_deg"][cal.steps])
+                       for a in ("theta_i", "phi_i", "theta_o", "phi_o"))
+    d = np.where(to > 0, np.mod(po - pi_, 2.0 * np.pi), 0.0)
+    return Samples(ti, to, d, cal.value)
+
+
+def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
+    """The next round of the adaptive campaign in ``journal`` (every step of it measured): (steps to
+    append, meta to set, a line saying what it is) for :meth:`gonio.store.Journal.append_steps`, or None
+    when the budget is spent. A pure function of the journal (its meta, config snapshot and readings)."""
+    from gonio.kinematics import make_kinematics
+
+    meta = journal.meta()
+    adaptive = meta["adaptive"]
+    n = round_size(adaptive)
+    if n == 0:
+        return None
+    kin = make_kinematics(cfg) if kin is None else kin
+    spec = parse_grid(meta["grid"])
+    tmax = np.radians(_theta_max_deg(spec, cfg))
+    samples = journal_samples(journal, cfg)
+    ti, to, d = plan_round(samples, n, kin, tmax, seed=adaptive["seed"])
+    plan = build_plan(meta["grid"], cfg, kin, poses=_given(ti, np.zeros_like(ti), to, d))
+    steps = step_table(plan, cfg)
+    if not (steps["kind"][0] == STEP_DARK and steps["kind"][1] == STEP_REFERENCE):  # pragma: no cover
+        raise AssertionError("a plan's steps begin with a checkpoint")
+    steps = {k: v[2:] for k, v in steps.items()}
+    steps["pose"] = np.where(steps["kind"] == STEP_POSE, steps["pose"] + int(meta["poses"]), -1)
+    added = int(plan.theta_i.size)
+    entry = {"poses": added, "estimated_s": float(plan.estimated_s),
+             "lower_bound_s": float(plan.lower_bound_s), "first_step": journal.step_count(),
+             "steps": int(steps["kind"].size)}
+    rounds = adaptive["rounds"] + [entry]
+    line = (f"round {len(rounds)}: {added} poses placed from {len(samples)} samples, estimated "
+            f"{plan.estimated_s:.0f} s")
+    return steps, {"adaptive": {**adaptive, "rounds": rounds}, "poses": int(meta["poses"]) + added}, line
+
+
+def expected_steps(meta: dict, steps: int) -> int:
+    """The steps an adaptive campaign will hold when done, estimated from its meta and the ``steps`` its
+    journal holds now (a progress bar's total): each round to come adds its poses and one checkpoint."""
+    adaptive = meta["adaptive"]
+    poses = int(meta["poses"])
+    if adaptive["budget_poses"] is not None:
+        left = len(_sizes(adaptive)) - len(adaptive["rounds"])
+        return steps + max(0, adaptive["budget_poses"] - poses) + 2 * max(0, left)
+    spent = adaptive["pilot_s"] + sum(r["estimated_s"] for r in adaptive["rounds"])
+    return max(steps, int(steps * adaptive["budget_s"] / spent))
+
+
+def budget_text(adaptive: dict) -> str:
+    """The budget in words: ``1,000 poses`` or ``3,600 s of gantry time``."""
+    if adaptive["budget_poses"] is not None:
+        return f"{adaptive['budget_poses']:,} poses"
+    return f"{adaptive['budget_s']:,.0f} s of gantry time"

@@ -1,0 +1,157 @@
+"""The ``adaptive`` grid kind: its GRID string, ``gonio plan`` (the pilot and the budget), bad input (one
+line, exit 2, nothing written), and ``gonio simulate`` running the pilot and the rounds to the budget,
+each round planned from the journal alone and appended to it whole."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from cli_helpers import one_clear_line
+
+from gonio.adaptive.plan import next_round, round_size
+from gonio.campaign import open_campaign
+from gonio.cli import main
+from gonio.dataset import read_brdf
+from gonio.plan.grids import parse_grid
+from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
+
+MATERIAL = "ggx:alpha=0.15,metal=gold"
+
+
+def _simulate(out, grid, *extra):
+    return main(["simulate", MATERIAL, "--grid", grid, "--out", str(out), "--quiet", *extra])
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    out = tmp_path_factory.mktemp("adaptive") / "c"
+    assert _simulate(out, "adaptive:poses=45") == 0
+    return out
+
+
+def test_the_grid_string_spells_its_budget():
+    spelled = parse_grid("adaptive: poses=400, theta_max=70").normalized
+    assert spelled == "adaptive:poses=400,theta_max=70,order=auto"
+    assert parse_grid("adaptive:budget_s=3600").budget_s == 3600.0
+
+
+@pytest.mark.parametrize(("grid", "needles"), [
+    ("adaptive:poses=0", ("'poses'", "from 1 to 100,000", "got 0")),
+    ("adaptive:poses=2", ("'poses'", "at least the pilot's 3 poses", "got 2")),
+    ("adaptive:budget_s=5", ("'budget_s'", "at least the pilot's 15 s", "got 5")),
+    ("adaptive:poses=50,budget_s=60", ("exactly one of 'poses'", "'budget_s'")),
+    ("adaptive:poses=50,step=5", ("unknown option 'step'", "allowed: poses, budget_s")),
+    ("adaptive:poses=50,order=fly", ("order=fly", "no round of an adaptive grid can fly")),
+])
+@pytest.mark.parametrize("command", ["plan", "simulate"])
+def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, grid, needles, command):
+    out = tmp_path / "out"
+    argv = ["plan", "--grid", grid] if command == "plan" else ["simulate", MATERIAL, "--grid", grid, "--out",
+                                                                  str(out), "--quiet"]
+    assert main(argv) == 2
+    one_clear_line(capsys, *needles)
+    assert not out.exists()
+
+
+def test_plan_states_the_pilot_and_the_budget(capsys):
+    assert main(["plan", "--grid", "adaptive:poses=1000"]) == 0
+    text = capsys.readouterr().out
+    assert "pilot: 66 poses (a 4-node lattice), estimated 0:01:32 (91.5 s) of gantry time" in text
+    assert "budget: 1,000 poses, pilot included" in text
+    assert main(["plan", "--grid", "adaptive:budget_s=900"]) == 0
+    text = capsys.readouterr().out
+    # the densest lattice whose plan is estimated within 10 % of the budget
+    assert "budget: 900 s of gantry time" in text
+    assert "pilot: 18 poses (a 3-node lattice), estimated 0:00:37" in text
+
+
+def test_a_simulated_campaign_spends_its_pose_budget_in_journaled_rounds(campaign):
+    b = read_brdf(campaign / "brdf.h5")
+    assert len(b.value) == 45 and np.all(np.isfinite(b.value))
+    assert b.attrs["grid"] == "adaptive:poses=45,theta_max=80,order=tour"
+    c = open_campaign(campaign, readonly=True)
+    try:
+        meta, steps, events = c.meta, c.journal.steps(), c.journal.events()
+    finally:
+        c.close()
+    a = meta["adaptive"]
+    # pilot 3 poses, then rounds of at least 10 (the last one excepted) growing by 20 %: 10, 10, 10, 12
+    assert (a["pilot_poses"], [r["poses"] for r in a["rounds"]]) == (3, [10, 10, 10, 12])
+    assert meta["poses"] == 45 and round_size(a) == 0
+    kind = steps["kind"]
+    assert np.count_nonzero(kind == STEP_POSE) == 45
+    # Each round's steps follow the phase before it, whose closing checkpoint brackets its first run, and
+    # end with a checkpoint of their own; its poses are numbered on from the phase before.
+    for r in a["rounds"]:
+        first, count = r["first_step"], r["steps"]
+        assert kind[first - 2: first].tolist() == [STEP_DARK, STEP_REFERENCE]
+        assert kind[first] == STEP_POSE and kind[first + count - 2:first + count].tolist() == [STEP_DARK,
+                                                                                             STEP_REFERENCE]
+    assert sorted(steps["pose"][kind == STEP_POSE].tolist()) == list(range(45))
+    appended = [e for e in events if e["kind"] == "append"]
+    assert [e["step"] for e in appended] == [r["first_step"] for r in a["rounds"]]
+    assert appended[0]["message"].startswith("round 1: 10 poses placed from 3 samples")
+
+
+def test_a_round_is_a_pure_function_of_the_journal(campaign, tmp_path):
+    """The round after the pilot, planned again from a copy of the journal holding only the pilot's
+    readings, is the one the campaign measured, bit for bit."""
+    import shutil
+    import sqlite3
+
+    shutil.copytree(campaign, tmp_path / "c")
+    c = open_campaign(tmp_path / "c")
+    try:
+        a = c.meta["adaptive"]
+        first = a["rounds"][0]["first_step"]
+        measured = {k: v[first:first + a["rounds"][0]["steps"]] for k, v in c.journal.steps().items()}
+        conn = sqlite3.connect(tmp_path / "c" / "campaign.sqlite")
+        with conn:
+            conn.execute("DELETE FROM measurements WHERE step >= ?", (first,))
+            conn.execute("DELETE FROM steps WHERE step >= ?", (first,))
+        conn.close()
+        c.journal.set_meta("adaptive", {**a, "rounds": []})
+        c.journal.set_meta("poses", a["pilot_poses"])
+        steps, meta, _ = next_round(c.journal, c.cfg)
+    finally:
+        c.close()
+    for key, value in measured.items():
+        assert np.asarray(steps[key]).tobytes() == np.asarray(value).tobytes(), key
+    assert meta["adaptive"]["rounds"][0]["poses"] == 10
+
+
+def test_a_time_budget_stops_the_rounds_within_it(tmp_path):
+    out = tmp_path / "t"
+    assert _simulate(out, "adaptive:budget_s=60") == 0
+    c = open_campaign(out, readonly=True)
+    a = c.meta["adaptive"]
+    c.close()
+    spent = a["pilot_s"] + sum(r["estimated_s"] for r in a["rounds"])
+    assert a["rounds"] and round_size(a) == 0
+    # Each round is sized to the time left at the pace so far; the last one may overrun by its own
+    # estimate's error only.
+    assert spent <= 60.0 * 1.2, spent
+
+
+def test_the_report_shows_where_the_poses_went(campaign):
+    from gonio.report import build_report
+
+    rep = build_report(campaign, "lambert", starts=1)
+    assert rep.figures["adaptive"].startswith(b"\x89PNG")
+    # The shares of poses near the specular direction, from the file's planned directions: the half
+    # vector's angle to the normal.
+    b = read_brdf(campaign / "brdf.h5")
+    p = np.radians(b.planned)
+    wi = np.stack([np.sin(p[:, 0]) * np.cos(p[:, 1]), np.sin(p[:, 0]) * np.sin(p[:, 1]), np.cos(p[:, 0])], 1)
+    wo = np.stack([np.sin(p[:, 2]) * np.cos(p[:, 3]), np.sin(p[:, 2]) * np.sin(p[:, 3]), np.cos(p[:, 2])], 1)
+    h = wi + wo
+    near = h[:, 2] / np.linalg.norm(h, axis=1) >= np.cos(np.radians(10.0))
+    pilot = b.step < 7   # the pilot's 3 poses and its 4 checkpoint readings
+    assert rep.adaptive == {"pilot": near[pilot].mean(), "rounds": near[~pilot].mean()}
+    from html import escape
+
+    assert escape(f"{100 * near[pilot].mean():.0f} % of the pilot's, {100 * near[~pilot].mean():.0f} % of "
+                  "the rounds'") in rep.html
+    assert "Adaptive acquisition: where the poses went" in rep.html
+    assert "4: 10, 10, 10, 12 poses" in rep.html and "3 poses (a 2-node lattice" in rep.html
+    assert "pilot feasible 3 → with the rounds 45" in rep.html
