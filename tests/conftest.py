@@ -8,6 +8,22 @@ from jit_backends import backend_params
 from gonio.jit import ENV_VAR, array_types
 
 
+@pytest.hookimpl(tryfirst=True)   # before pytest-xdist reads the xdist_group marks
+def pytest_collection_modifyitems(items):
+    """Order and units of work for ``make test``, which runs on every core (pytest-xdist, ``--dist loadgroup
+    --no-loadscope-reorder``: each worker is handed the next unit as it finishes one, in this order).
+
+    The tests marked ``slow`` (whole campaigns, subprocesses, emulators on the wall clock) come first, one
+    unit each, so that they run beside each other and beside the short ones instead of one being left to
+    run alone at the end. Each module's other tests are one unit (``xdist_group``, unless the test names
+    its own): its module-scoped fixtures (a campaign, a plan) are built once, on one worker. Without
+    xdist the order is the only change, and a stable sort keeps each group in its collected order."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    for item in items:
+        if item.get_closest_marker("slow") is None and item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::", 1)[0]))
+
+
 @pytest.fixture
 def make_sampled():
     """``sampled(spec, grid, theta_max_deg=85, rel_sd=0.01)``: a SampledBRDF from a material's own eval."""

@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-pytestmark = pytest.mark.slow
+# One unit of work under pytest-xdist: the three tests share one wheel build (the module's fixtures).
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("tests/test_install.py")]
 
 
 def _run(argv, **kw):
