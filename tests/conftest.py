@@ -8,20 +8,15 @@ from jit_backends import backend_params
 from gonio.jit import ENV_VAR, array_types
 
 
-@pytest.hookimpl(tryfirst=True)   # before pytest-xdist reads the xdist_group marks
 def pytest_collection_modifyitems(items):
-    """Order and units of work for ``make test``, which runs on every core (pytest-xdist, ``--dist loadgroup
-    --no-loadscope-reorder``: each worker is handed the next unit as it finishes one, in this order).
+    """The tests marked ``slow`` (whole campaigns, subprocesses, emulators on the wall clock) first, each
+    group in its collected order (a stable sort). ``make test`` runs on every core (pytest-xdist, ``--dist
+    load``), which deals the first quarter of this order out in turn and the rest to whichever worker is
+    free: the long tests run beside each other and beside the short ones, none is left alone at the end.
 
-    The tests marked ``slow`` (whole campaigns, subprocesses, emulators on the wall clock) come first, one
-    unit each, so that they run beside each other and beside the short ones instead of one being left to
-    run alone at the end. Each module's other tests are one unit (``xdist_group``, unless the test names
-    its own): its module-scoped fixtures (a campaign, a plan) are built once, on one worker. Without
-    xdist the order is the only change, and a stable sort keeps each group in its collected order."""
+    Not ``--dist loadgroup``/``loadscope``: they keep their units by test id, and the daemon's fuzz test
+    gives every API operation the same id (schemathesis), so they would run one operation of 13."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
-    for item in items:
-        if item.get_closest_marker("slow") is None and item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::", 1)[0]))
 
 
 @pytest.fixture

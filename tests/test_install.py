@@ -13,8 +13,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-# One unit of work under pytest-xdist: the three tests share one wheel build (the module's fixtures).
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("tests/test_install.py")]
+pytestmark = pytest.mark.slow
 
 
 def _run(argv, **kw):
