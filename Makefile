@@ -26,8 +26,10 @@ demo: $(RUNTIME)
 		--grid iso:step=10 --out $(DEMO) --seed 1
 	$(VENV)/bin/gonio plot $(DEMO) --kind polar --out $(DEMO)/polar.png --force
 
+# On every core (pytest-xdist): each worker is handed the next tests as it finishes, in the order
+# tests/conftest.py sets (the slow tests first, so that none is left to run alone at the end).
 test: $(DEV)
-	$(PY) -m pytest -q -p no:cacheprovider --durations=15
+	$(PY) -m pytest -q -p no:cacheprovider -n auto --dist load --durations=15
 
 lint: $(DEV)
 	$(VENV)/bin/ruff check gonio drivers sim tests tools examples

@@ -8,6 +8,17 @@ from jit_backends import backend_params
 from gonio.jit import ENV_VAR, array_types
 
 
+def pytest_collection_modifyitems(items):
+    """The tests marked ``slow`` (whole campaigns, subprocesses, emulators on the wall clock) first, each
+    group in its collected order (a stable sort). ``make test`` runs on every core (pytest-xdist, ``--dist
+    load``), which deals the first quarter of this order out in turn and the rest to whichever worker is
+    free: the long tests run beside each other and beside the short ones, none is left alone at the end.
+
+    Not ``--dist loadgroup``/``loadscope``: they keep their units by test id, and the daemon's fuzz test
+    gives every API operation the same id (schemathesis), so they would run one operation of 13."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 @pytest.fixture
 def make_sampled():
     """``sampled(spec, grid, theta_max_deg=85, rel_sd=0.01)``: a SampledBRDF from a material's own eval."""

@@ -52,6 +52,7 @@ def test_lambert_campaign_is_albedo_over_pi_within_1_percent(tmp_path):
     assert np.all(stddev > 0.0) and np.all(stddev < 2e-3 * value)
 
 
+@pytest.mark.slow
 def test_rough_cook_torrance_matches_its_eval_at_the_stored_directions(tmp_path):
     cfg = load_config()
     spec = "cook-torrance:d=beckmann,m=0.3,metal=gold"

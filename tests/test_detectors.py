@@ -255,6 +255,7 @@ def test_saturated_pixels_in_the_sample_region_are_refused_without_brackets():
 
 
 # -- quality: calibrated camera readings against the materials -------------------------------------------
+@pytest.mark.slow
 def test_camera_lambert_half_against_the_099_reference_is_half_over_pi_within_1_percent_to_70_deg(tmp_path):
     c, state, _ = _campaign(tmp_path, _cfg("camera"), "lambert:albedo=0.5", "iso:step=10,theta_max=70")
     c.close()

@@ -193,6 +193,7 @@ def _noisy_config():
     return parse_config(data)
 
 
+@pytest.mark.slow
 def test_with_sensor_noise_the_truth_lies_within_two_reported_sigma_in_90_percent_of_trials(tmp_path):
     """20 seeded campaigns (iso:step=30, 26 poses) of a ggx with a diffuse part under shot, read and dark
     noise. The samples share their white references and darks; without that correlation (samples taken

@@ -162,6 +162,7 @@ def _crashed_equals_uninterrupted(tmp_path, monkeypatch, material, grid, config,
     return _equal_to(ref, out)
 
 
+@pytest.mark.slow
 def test_crashes_at_random_journal_writes_then_resume_equal_an_uninterrupted_run(tmp_path, monkeypatch):
     # Chunks of 8 steps (one transaction each): ~40 commits a run, so the random crashes fall mid-campaign,
     # and a crash inside a chunk loses it and the resumed run measures it again, bit for bit.
@@ -170,6 +171,7 @@ def test_crashes_at_random_journal_writes_then_resume_equal_an_uninterrupted_run
                                   _config(tmp_path), kills=10, seed=1)
 
 
+@pytest.mark.slow
 def test_crashes_with_a_drifting_lamp_and_dark_offset_match_the_truth_within_its_uncertainty(tmp_path,
                                                                                              monkeypatch):
     config = _config(tmp_path, drift_per_hour=-0.3, dark_offset=2.0, shot_counts_per_unit=50.0,

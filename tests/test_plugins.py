@@ -14,6 +14,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from gonio.config import CONFIG_DIR
 from gonio.dataset import read_brdf
@@ -38,6 +39,7 @@ def test_each_toy_is_within_its_file_budget():
         assert 1 <= len(files) <= budget, (plugin, files)
 
 
+@pytest.mark.slow
 def test_an_export_format_is_one_file(tmp_path):
     """``jsonl`` is listed by ``gonio export --help``, accepted by ``--export`` and written into the
     campaign folder under its registered name, holding every sample of brdf.h5."""
@@ -142,6 +144,7 @@ def test_a_detector_is_its_config_model_and_its_device(tmp_path):
                                              "(5), got 8"]
 
 
+@pytest.mark.slow
 def test_a_gantry_design_measures_what_the_material_is(tmp_path):
     """A campaign on the toy design's simulated gantry measures the Lambertian it renders: its inverse and
     forward kinematics agree with the sample's frame."""

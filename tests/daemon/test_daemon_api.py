@@ -203,6 +203,7 @@ def test_halt_stops_the_running_campaign_and_resume_finishes_it(serve):
         j.close()
 
 
+@pytest.mark.slow
 def test_an_aborted_queued_campaign_never_runs_and_a_paused_one_can_be_aborted(serve):
     r = serve(pace=0.01)   # the first still runs when the second, planned meanwhile, comes
     submit(r.client, grid="iso:step=15")
@@ -217,6 +218,7 @@ def test_an_aborted_queued_campaign_never_runs_and_a_paused_one_can_be_aborted(s
     assert r.client.get("/campaigns/c00001/brdf").status_code == 409
 
 
+@pytest.mark.slow
 def test_an_abort_that_comes_as_the_paused_runner_leaves_is_not_lost(serve, monkeypatch):
     """The window between the runner stopping (paused) and the campaign leaving the worker: the
     runner is gone, so nobody but the worker can record the abort."""

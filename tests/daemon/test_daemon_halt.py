@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 
 import httpx
+import pytest
 from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
 
 from gonio.store import JOURNAL_NAME, Journal
@@ -22,6 +23,7 @@ def _journal_state(r) -> str:
         j.close()
 
 
+@pytest.mark.slow
 def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
     r = serve(token=TOKEN, pace=0.5)
     submit(r.client, grid="iso:step=15")    # half a real second per gantry second: it outlasts the test

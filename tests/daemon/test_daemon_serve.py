@@ -59,6 +59,7 @@ def test_serve_refuses_weak_tokens_and_bad_options_before_writing_anything(tmp_p
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "d").exists()
 
 
+@pytest.mark.slow
 def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path):
     data = tmp_path / "data"
     s = Serve(data, "--pace", "0.005")
@@ -142,6 +143,7 @@ def _samples(path: Path) -> dict:
 PACE = "0.01"
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_result(tmp_path):
     material, grid, seed = "ggx:alpha=0.2,metal=gold", "iso:step=12", 5
     ref = _reference(tmp_path, material, grid, seed)

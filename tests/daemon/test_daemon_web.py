@@ -34,6 +34,7 @@ def page():
             browser.close()
 
 
+@pytest.mark.slow
 def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_path):
     from PIL import Image
 
