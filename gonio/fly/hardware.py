@@ -54,10 +54,12 @@ A reading at rest (a checkpoint, a pose read stop-and-go) is the engine's stop-a
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from gonio.fly.blur import motion_blur
+from gonio.motion.trapezoid import move_time
 from gonio.plan.fly import FLY_TOL_DEG, FlyLine
 from gonio.plan.schedule import STEP_POSE
 from gonio.store import Measurement
@@ -110,30 +112,58 @@ class FlySweeper:
         self.read_s = float(read_s)
         self.subreads = subreads
         self._gaps: list[float] = []   # the latest dead times between sub-reads, over sweeps
+        self._turned: FlyLine | None = None   # the line a swept turnaround just brought the axes to
 
-    def sweep(self, line: FlyLine, step: int, attempt: int) -> list[Measurement]:
-        """The readings of ``line`` (steps from ``step``), attempt ``attempt`` (from 1)."""
+    def sweep(self, line: FlyLine, step: int, attempt: int, then: FlyLine | None = None) -> list[Measurement]:
+        """The readings of ``line`` (steps from ``step``), attempt ``attempt`` (from 1); ``then``: the
+        next line, where the plan enters it through a swept turnaround (the other axes make their change
+        while this line's axis runs out)."""
         ex, flies = self.executor, self.flies
+        turned, self._turned = self._turned is line, None
         if not line.moving:  # a pose read stop-and-go
             return [self.engine.reader.read(step, attempt)]
         kin, clock = ex.kinematics, ex.gantry.clock
         name = kin.axis_names[line.axis]
         start, end = on_limits(kin, line.start_deg), on_limits(kin, line.end_deg)
-        ex.goto(start)
-        ex.settle()
+        # Entered through a swept turnaround the axes arrived at the start already (unless something
+        # moved them since: a pause parks the gantry).
+        tol = ex.rc.position_tolerance_deg
+        if not (turned and np.all(np.abs(ex.positions() - start) <= tol)):
+            ex.goto(start)
+            ex.settle()
         reads: list[tuple[np.ndarray, np.ndarray]] = []
-        v, a = ex.command(lambda: flies.sweep(name, float(end[line.axis]), line.speed_deg_s,
-                                              line.accel_deg_s2))
-        t_go = clock.now()
+        went: list[tuple[float, float, float]] = []    # (v, a, t) of the kickoff, once made
+
+        def go() -> tuple[float, float]:
+            v, a = ex.command(lambda: flies.sweep(name, float(end[line.axis]), line.speed_deg_s,
+                                                  line.accel_deg_s2))
+            went.append((v, a, clock.now()))
+            return v, a
+
         try:
-            out = self._readings(line, step, attempt, v, reads)
+            out = self._readings(line, step, attempt, go, reads)
             # The run-down: the axis arrives at the line's end (the executor faults one that stopped short).
-            ex.arrive(start, end, max(t_go + line.duration_s - clock.now(), 0.0))
+            v, a, t_go = went[0]
+            left = t_go + line.duration_s - sum(line.pads()) - clock.now()
+            if then is not None:
+                # The turnaround: the other axes go to the next line's start now (the last exposure
+                # is over) while this axis runs out; the planner certified every position between.
+                target = on_limits(kin, then.start_deg)
+                target[line.axis] = end[line.axis]
+                ex.send_move(end, target)
+                cross = np.delete(np.abs(target - end), line.axis)
+                left = max(left, float(np.max(move_time(cross, *(np.delete(x, line.axis) for x in (
+                    kin.velocity_deg_s, kin.accel_deg_s2))))))
+                end = target
+            ex.arrive(start, end, max(left, 0.0))
+            if then is not None:
+                self._turned = then
         except BaseException:
-            try:
-                flies.end_sweep(name)
-            except Exception:  # noqa: S110 - the first failure is the one to report; the next move restores
-                pass
+            if went:
+                try:
+                    flies.end_sweep(name)
+                except Exception:  # noqa: S110 - the first failure is the one to report; the next move restores
+                    pass
             raise
         flies.end_sweep(name)
         for m in out:
@@ -145,24 +175,39 @@ class FlySweeper:
         reads.append((t, x))
         return t, x
 
-    def _readings(self, line: FlyLine, step: int, attempt: int, v: float, reads) -> list[Measurement]:
+    def _readings(self, line: FlyLine, step: int, attempt: int, go, reads) -> list[Measurement]:
         ex = self.executor
         g, kin, clock = ex.gantry, ex.kinematics, ex.gantry.clock
         ax, e = line.axis, line.exposure_s
-        sign = math.copysign(1.0, line.step_deg)
         feed = self.feed_s
         m = max(self.subreads, math.ceil(e / feed) if feed else 0)
         planned = line.readings_deg()
         self._look(reads)
         spans, signals, variances, ends = [], [], [], []
         gaps = self._gaps   # dead time between sub-reads seen so far (their reads and replies)
+        runs = due = None
+
+        def kickoff():
+            nonlocal runs, due
+            v, a = go()
+            # The servo's own profile (its quantised speed and acceleration) from rest at the start.
+            runs = replace(line, speed_deg_s=v, accel_deg_s2=a)
+            due = runs.time_at(planned[:, ax])
+
+        # A line whose first reading is at its start (no run-up: the plan rests half an exposure before
+        # the motion) starts that reading at rest and sets the axis going halfway through it (at its
+        # mid-time); one with a run-up sets it going now.
+        at_start = line.pads()[0] > 0.0
+        if not at_start:
+            kickoff()
         for j in range(line.n):
-            # Start when the axis, at its speed from the last read, passes the pose at the mid-time of
-            # the sub-reads (their exposures and the dead time between them, as seen so far).
+            # Each reading (but a first one at the start) starts when the axis, on its profile from the
+            # last read, passes the pose at the mid-time of the sub-reads (their exposures and the dead
+            # time between them, as seen so far).
             span = e + (m - 1) * (float(np.median(gaps)) if gaps else 0.0)
-            while True:
+            while j or not at_start:
                 t, x = reads[-1][0][ax], reads[-1][1][ax]
-                start = t + sign * (planned[j, ax] - x) / v - 0.5 * span
+                start = t + float(due[j] - runs.time_at(x)) - 0.5 * span
                 wait = start - clock.now()
                 if wait <= self.read_s:
                     if wait > 0:
@@ -172,6 +217,8 @@ class FlySweeper:
                 self._look(reads)
             subs, var, mids = [], [], []
             for k in range(m):
+                if runs is None and k == m // 2:
+                    kickoff()
                 t0 = clock.now()
                 if k:
                     gaps.append(t0 - mids[-1] - 0.5 * e / m)

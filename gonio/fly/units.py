@@ -90,7 +90,8 @@ def fly_units(engine) -> list[Unit]:
         if kind == "checkpoint":
             units.append(Unit(step, 2, partial(_checkpoint, reader, step)))
         else:
-            units.append(Unit(step, fp.lines[k].n, partial(sweeper.sweep, fp.lines[k], step)))
+            then = fp.lines[k + 1] if k + 1 < len(fp.lines) and fp.swept_turn(k + 1) else None
+            units.append(Unit(step, fp.lines[k].n, partial(sweeper.sweep, fp.lines[k], step, then=then)))
     return units
 
 

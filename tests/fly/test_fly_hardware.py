@@ -303,7 +303,8 @@ def test_a_servo_hardware_error_mid_sweep_faults_naming_the_axis(tmp_path):
             fired.append(moving[0])
 
         fired: list[str] = []
-        state, runner, c = _fly(folder, emu, clock, detector_hook=_after_subreads(10, overload))
+        # The 11th sub-read: the third of a reading (a line's axis is set going halfway through its first).
+        state, runner, c = _fly(folder, emu, clock, detector_hook=_after_subreads(11, overload))
         assert state == State.FAULTED
         assert fired and fired[0] in runner.fault and "hardware error" in runner.fault, runner.fault
         assert "overload" in runner.fault
