@@ -53,167 +53,23 @@ import numpy as np
 from gonio.motion.metric import MoveMetric
 from gonio.motion.safe import path_time, safe_path
 from gonio.motion.trapezoid import move_time
+from gonio.plan.flyline import FLY_DUTY, FLY_TOL_DEG, FlyLine
+from gonio.plan.flypath import COORDINATED, PathLine, path_line, ring_runs
 from gonio.plan.schedule import STEP_REFERENCE, schedule_runs
 
 __all__ = ["FLY_DUTY", "FLY_MOTION", "FLY_TOL_DEG", "FlyLine", "FlyPlan", "fly_plan", "fly_summary",
            "fly_steps", "fly_step_table", "line_lengths", "physical_floor"]
 
-#: Exposure / time between readings at the axis's top speed: the axis travels this fraction of a grid
-#: step during one exposure.
-FLY_DUTY = 0.5
 #: The motion model of the lines (journaled in a fly campaign's meta): 2 since lines run rest to rest
 #: between their end poses (1, unjournaled: constant velocity with run-ups beyond the ends, slower or
 #: trimmed to stop-and-go readings where they had no room). A campaign resumes only under its own model.
 FLY_MOTION = 2
-#: Degrees: two positions closer than this on an axis count as equal; steps equal within it are equal.
-FLY_TOL_DEG = 1e-6
 #: Above this many lines the entry bound searches a k-d tree instead of every pair (same values).
 _PAIRWISE_MAX_LINES = 200
+#: Δφ steps per block of the physical floor (memory of the branch-pair temporaries).
+_FLOOR_BLOCK = 20000
 #: Lines per block of the pairwise bound (memory of the (block, lines, 4, n_axes) temporaries).
 _BLOCK = 256
-
-
-@dataclass(frozen=True)
-class FlyLine:
-    """One sweep: readings of the plan's poses ``poses`` while ``axis`` moves at ``speed_deg_s``.
-
-    Attributes
-    ----------
-    poses : ndarray of int64, shape (n,)
-        The plan's pose indices, in reading order.
-    axis : int
-        The sweeping axis (column of the plan's axes); -1 for a stop-and-go reading (n = 1).
-    first_deg : ndarray, shape (n_axes,)
-        Axis positions at the first reading's mid-time.
-    step_deg : float
-        Signed travel of ``axis`` from one reading to the next (0 for a stop-and-go reading).
-    speed_deg_s : float
-        Top speed of the sweep (0 for a stop-and-go reading).
-    accel_deg_s2 : float
-        The axis's acceleration from rest at the first pose and to rest at the last one.
-    exposure_s : float
-        Exposure of each reading.
-    note : str
-        Why the line was split ("" when it was not).
-    """
-
-    poses: np.ndarray
-    axis: int
-    first_deg: np.ndarray
-    step_deg: float
-    speed_deg_s: float
-    accel_deg_s2: float
-    exposure_s: float
-    note: str = ""
-    #: Travel (°) from rest before the first reading's pose (the run-up of a swept turnaround).
-    lead: float = 0.0
-    #: Travel (°) past the last reading's pose to rest (the run-out of a swept turnaround).
-    tail: float = 0.0
-
-    @property
-    def n(self) -> int:
-        return int(self.poses.size)
-
-    @property
-    def moving(self) -> bool:
-        return self.axis >= 0
-
-    @property
-    def span_deg(self) -> float:
-        return abs(self.step_deg) * (self.n - 1)
-
-    def readings_deg(self) -> np.ndarray:
-        """Axis positions (n, n_axes) at each reading's mid-time."""
-        out = np.repeat(self.first_deg[None, :], self.n, axis=0)
-        if self.moving:
-            out[:, self.axis] += self.step_deg * np.arange(self.n)
-        return out
-
-    @property
-    def start_deg(self) -> np.ndarray:
-        """Where the axes rest before the line: its first reading's pose, ``lead`` back."""
-        out = self.first_deg.copy()
-        if self.moving:
-            out[self.axis] -= np.sign(self.step_deg) * self.lead
-        return out
-
-    @property
-    def end_deg(self) -> np.ndarray:
-        """Where the axes rest after the line: its last reading's pose, ``tail`` on."""
-        out = self.readings_deg()[-1].copy()
-        if self.moving:
-            out[self.axis] += np.sign(self.step_deg) * self.tail
-        return out
-
-    # -- the motion: a trapezoid (or triangle) from rest at start_deg to rest at end_deg ---------------
-    def _profile(self) -> tuple[float, float, float, float]:
-        """(travel, peak speed, acceleration time, motion time) of the rest-to-rest move."""
-        d = self.lead + self.span_deg + self.tail
-        a = self.accel_deg_s2
-        v = min(self.speed_deg_s, float(np.sqrt(a * d)))
-        t_acc = v / a
-        return d, v, t_acc, 2.0 * t_acc + (d - v * t_acc) / v if v > 0 else 0.0
-
-    def _motion_time(self, s) -> np.ndarray:
-        """Time after the motion starts at which the axis has travelled ``s`` (0..travel)."""
-        d, v, t_acc, total = self._profile()
-        a = self.accel_deg_s2
-        s = np.clip(np.asarray(s, dtype=np.float64), 0.0, d)
-        d_acc = 0.5 * v * t_acc
-        up = np.sqrt(2.0 * np.minimum(s, d_acc) / a)
-        cruise = np.clip(s - d_acc, 0.0, d - 2 * d_acc) / v
-        down_s = np.clip(s - (d - d_acc), 0.0, d_acc)
-        down = t_acc - np.sqrt(np.maximum(t_acc * t_acc - 2.0 * down_s / a, 0.0))
-        return up + cruise + down
-
-    def pads(self) -> tuple[float, float]:
-        """Rest before the motion and after it, so that every exposure lies in the line's time: where
-        the first reading is at the line's start (no lead), its exposure starts half an exposure before
-        the axis does; the same at the end."""
-        if not self.moving:
-            return 0.0, 0.0
-        total = self._profile()[3]
-        first = float(self._motion_time(self.lead))
-        last = float(self._motion_time(self.lead + self.span_deg))
-        half = 0.5 * self.exposure_s
-        return max(0.0, half - first), max(0.0, half - (total - last))
-
-    @property
-    def duration_s(self) -> float:
-        """Rest to rest: run-up, the readings, run-down (a stop-and-go reading: its exposure only)."""
-        if not self.moving:
-            return self.exposure_s
-        front, back = self.pads()
-        return front + self._profile()[3] + back
-
-    def mid_times(self) -> np.ndarray:
-        """Each reading's mid-time, seconds after the line starts (the moment the axis passes its pose)."""
-        if not self.moving:
-            return np.array([0.5 * self.exposure_s])
-        return self.pads()[0] + self._motion_time(self.lead + abs(self.step_deg) * np.arange(self.n))
-
-    def time_at(self, along_deg) -> np.ndarray:
-        """When (s after the line starts) the sweeping axis passes ``along_deg`` (its position), on the
-        planned profile; clipped to the travel."""
-        s = np.sign(self.step_deg) * (np.asarray(along_deg, dtype=np.float64) - self.start_deg[self.axis])
-        return self.pads()[0] + self._motion_time(s)
-
-    def position_at(self, t_s) -> np.ndarray:
-        """Axis positions (..., n_axes) at times ``t_s`` (s after the line starts): at rest, accelerate
-        at ``accel_deg_s2``, cruise at ``speed_deg_s`` (where the travel is long enough), decelerate, at
-        rest, as :meth:`duration_s` has it; constant outside."""
-        t = np.asarray(t_s, dtype=np.float64)
-        start = self.start_deg
-        out = np.broadcast_to(start, t.shape + start.shape).copy()
-        if not self.moving:
-            return out
-        d, v, t_acc, total = self._profile()
-        a = self.accel_deg_s2
-        tc = np.clip(t - self.pads()[0], 0.0, total)
-        s = (0.5 * a * np.minimum(tc, t_acc) ** 2 + v * np.clip(tc - t_acc, 0.0, total - t_acc)
-             - 0.5 * a * np.clip(tc - (total - t_acc), 0.0, t_acc) ** 2)
-        out[..., self.axis] += np.sign(self.step_deg) * s
-        return out
 
 
 @dataclass
@@ -349,7 +205,7 @@ def _turnarounds(lines: list[FlyLine], kin) -> np.ndarray:
     cross = np.full(len(lines), np.nan)
     for k in range(1, len(lines)):
         p, q = lines[k - 1], lines[k]
-        if not (p.moving and q.moving and p.axis == q.axis and p.step_deg * q.step_deg < 0):
+        if not (p.moving and q.moving and p.axis == q.axis >= 0 and p.step_deg * q.step_deg < 0):
             continue
         ax, last, first = p.axis, p.readings_deg()[-1], q.first_deg
         d = np.abs(first - last)
@@ -428,13 +284,26 @@ def fly_plan(plan, cfg, kin=None) -> FlyPlan:
     home = np.asarray(kin.home_deg, dtype=np.float64)
     ref = np.asarray(plan.reference_axes_deg, dtype=np.float64)
 
-    lines: list[FlyLine] = []
+    lines: list = []
+    rest = [None]   # the first pose of a run of poses that step along no single axis
+
+    def flush(j):
+        # Poses no single axis sweeps: coordinated lines along the rings among them (several axes
+        # moving together, :mod:`gonio.plan.flypath`), the others read stop-and-go.
+        if rest[0] is not None:
+            for a, b in ring_runs(plan, axes, spec.step_deg, rest[0], j):
+                lines.extend(path_line(kin, plan, axes, a, b, spec.step_deg) if b - a > 1 else
+                             [_still(axes, a, "")])
+        rest[0] = None
+
     for i, j, axis, step in _runs(axes):
         if axis < 0 or abs(abs(step) - spec.step_deg) > FLY_TOL_DEG:   # not a step along a line of the grid
-            lines.extend(_still(axes, k, "") for k in range(i, j))
+            rest[0] = i if rest[0] is None else rest[0]
             continue
+        flush(i)
         exposure = FLY_DUTY * abs(step) / float(kin.velocity_deg_s[axis])
         lines.extend(_lines_of_run(kin, axes, i, j, axis, step, exposure))
+    flush(len(axes))
     lines = [ln if ln.moving else FlyLine(ln.poses, -1, ln.first_deg, 0.0, 0.0, 1.0, reading_s, ln.note)
              for ln in lines]
 
@@ -544,6 +413,7 @@ def _schedule(fp: FlyPlan, kin, metric: MoveMetric, interval: float) -> None:
     fp.timing.update({
         "estimate": {**parts, "total_s": float(t)},
         "lines": len(moving), "stop_and_go_readings": len(fp.lines) - len(moving),
+        "coordinated_lines": sum(1 for ln in moving if ln.axis == COORDINATED),
         "readings": int(sum(ln.n for ln in fp.lines)),
         "checkpoints": int(fp.checkpoint_before.sum()),
         "max_blur_deg": max((ln.speed_deg_s * ln.exposure_s for ln in moving), default=0.0),
@@ -559,7 +429,10 @@ def _bound(fp: FlyPlan, kin, metric: MoveMetric) -> tuple[float, dict]:
     inner = 0.0
     fixed = 0.0
     for ln in lines:
-        if ln.moving:
+        if isinstance(ln, PathLine):
+            # No path through its poses in order is quicker than its slowest axis's travel at top speed.
+            inner += max(float(np.max(ln.travel_deg() / v_max)), (ln.n - 1) * ln.exposure_s)
+        elif ln.moving:
             v, a = float(v_max[ln.axis]), float(a_max[ln.axis])
             r = ln.readings_deg()
             sign = float(np.sign(ln.step_deg))
@@ -574,19 +447,23 @@ def _bound(fp: FlyPlan, kin, metric: MoveMetric) -> tuple[float, dict]:
     # Entry of every line: from another line's end (either direction), a checkpoint or home.
     n = len(lines)
     ends = np.empty((n, 2, kin.limits_deg.shape[0]))
-    axis = np.array([ln.axis for ln in lines])
+    moves = np.zeros((n, ends.shape[2]), dtype=bool)   # the axes that move at a line's ends
     for k, ln in enumerate(lines):
         r = ln.readings_deg()
         ends[k, 0], ends[k, 1] = r[0], r[-1]
+        if isinstance(ln, PathLine):
+            moves[k] = ln.moving_axes
+        elif ln.moving:
+            moves[k, ln.axis] = True
     rest = np.stack([fp.reference_deg, fp.home_deg])
     if n <= _PAIRWISE_MAX_LINES:
-        entry, method = _entries_pairwise(ends, axis, rest, v_max, a_max), "pairwise"
+        entry, method = _entries_pairwise(ends, moves, rest, v_max, a_max), "pairwise"
     else:
-        entry, method = _entries_nearest(ends, axis, rest, v_max, a_max), "nearest (k-d tree)"
-    moves = float(entry.sum())
-    total = inner + fixed + moves
+        entry, method = _entries_nearest(ends, moves, rest, v_max, a_max), "nearest (k-d tree)"
+    entries = float(entry.sum())
+    total = inner + fixed + entries
     fp.timing["entries_method"] = method
-    return total, {"sweeps_s": inner, "fixed_s": fixed, "entries_s": moves, "total_s": total}
+    return total, {"sweeps_s": inner, "fixed_s": fixed, "entries_s": entries, "total_s": total}
 
 
 def _least_traverse_s(d: float, v: float, a: float, v0: float, v1: float) -> float:
@@ -607,26 +484,26 @@ def _entry_times(d, still, v_max, a_max):
     return np.where(still, move_time(d, v_max, a_max), d / v_max)
 
 
-def _entries_pairwise(ends, axis, rest, v_max, a_max) -> np.ndarray:
-    """Each line's least entry time over every other line's ends and the rest positions, exactly."""
+def _entries_pairwise(ends, moves, rest, v_max, a_max) -> np.ndarray:
+    """Each line's least entry time over every other line's ends and the rest positions, exactly;
+    ``moves`` (n, A): the axes that move at each line's ends (at top speed there, not from rest)."""
     n = ends.shape[0]
     entry = np.full(n, np.inf)
-    cols = np.arange(v_max.size)
     for b0 in range(0, n, _BLOCK):
         blk = slice(b0, min(b0 + _BLOCK, n))
         to = ends[blk]                                             # (B, 2, A)
         d = np.abs(to[:, None, :, None, :] - ends[None, :, None, :, :])   # (B, n, 2, 2, A)
-        still = (cols[None, None, :] != axis[blk, None, None]) & (cols[None, None, :] != axis[None, :, None])
+        still = ~moves[blk, None, :] & ~moves[None, :, :]          # (B, n, A)
         t = _entry_times(d, still[:, :, None, None, :], v_max, a_max).max(axis=-1).min(axis=(2, 3))
         own = np.arange(blk.start, blk.stop)
         t[own - blk.start, own] = np.inf
         dr_ = np.abs(to[:, :, None, :] - rest[None, None, :, :])   # (B, 2, 2, A)
-        tr = _entry_times(dr_, (cols[None, :] != axis[blk, None])[:, None, None, :], v_max, a_max)
+        tr = _entry_times(dr_, ~moves[blk, None, None, :], v_max, a_max)
         entry[blk] = np.minimum(t.min(axis=1), tr.max(axis=-1).min(axis=(1, 2)))
     return entry
 
 
-def _entries_nearest(ends, axis, rest, v_max, a_max) -> np.ndarray:
+def _entries_nearest(ends, moves, rest, v_max, a_max) -> np.ndarray:
     """:func:`_entries_pairwise` for many lines, the same values: no move is quicker than its largest
     |change| / v_max over axes, a Chebyshev distance in axis space scaled by 1/v_max; so for each line
     the exact times of its nearest candidates in that distance give a time t, and only candidates
@@ -636,9 +513,8 @@ def _entries_nearest(ends, axis, rest, v_max, a_max) -> np.ndarray:
     n, _, n_axes = ends.shape
     cand = np.concatenate([ends.reshape(2 * n, n_axes), rest])
     owner = np.concatenate([np.repeat(np.arange(n), 2), np.full(len(rest), -1)])
-    moving_axis = np.concatenate([np.repeat(axis, 2), np.full(len(rest), -1)])
+    cand_moves = np.concatenate([np.repeat(moves, 2, axis=0), np.zeros((len(rest), n_axes), dtype=bool)])
     tree = cKDTree(cand / v_max)
-    cols = np.arange(n_axes)
     entry = np.full(n, np.inf)
 
     def exact(j, e, idx):
@@ -646,7 +522,7 @@ def _entries_nearest(ends, axis, rest, v_max, a_max) -> np.ndarray:
         if idx.size == 0:
             return np.inf
         d = np.abs(cand[idx] - ends[j, e])
-        still = (cols[None, :] != axis[j]) & (cols[None, :] != moving_axis[idx, None])
+        still = ~moves[j][None, :] & ~cand_moves[idx]
         return float(_entry_times(d, still, v_max, a_max).max(axis=-1).min())
 
     k = min(8, cand.shape[0])
@@ -667,7 +543,7 @@ def physical_floor(plan, kin) -> tuple[float, int]:
     axes' top speeds, no stops (no acceleration, no exposure, no transit, no reference): the least
     campaign any fly scan of these poses can take. Returns (seconds, Δφ steps counted).
 
-    A ring is the plan's poses at one (θi, θo); its arcs join the poses whose Δφ differ by one grid step
+    A ring is the plan's poses at one (θi, φi, θo); its arcs join the poses whose Δφ differ by one grid step
     (around the circle). One step costs the least time at top speed, max over axes of |change| / v_max,
     between any valid branches of its two poses (on the two-arm gantry one azimuth turns by the step; on
     the sample stage a Δφ step moves both detector axes together).
@@ -678,12 +554,14 @@ def physical_floor(plan, kin) -> tuple[float, int]:
     if step is None:
         raise ValueError(f"grid '{plan.grid}': the floor needs the lines of a lattice (iso or full grids)")
     ti, to = (np.round(np.degrees(np.asarray(x, dtype=np.float64)), 6) for x in (plan.theta_i, plan.theta_o))
+    pi = np.round(np.mod(np.degrees(np.asarray(plan.phi_i, dtype=np.float64)), 360.0), 6) % 360.0
     dphi = np.round(np.mod(np.degrees(np.asarray(plan.phi_o) - np.asarray(plan.phi_i)), 360.0), 6) % 360.0
-    # Poses at a pole have no Δφ (a point, not an arc); the rest, grouped by ring and sorted by Δφ.
+    # Poses at a pole have no Δφ (a point, not an arc); the rest, grouped by ring (θi, φi, θo: an iso
+    # grid has one φi, a full grid many) and sorted by Δφ.
     arc = (ti > 1e-6) & (to > 1e-6)
     idx = np.flatnonzero(arc)
-    order = idx[np.lexsort((dphi[idx], to[idx], ti[idx]))]
-    ring = np.stack([ti[order], to[order]], axis=1)
+    order = idx[np.lexsort((dphi[idx], to[idx], pi[idx], ti[idx]))]
+    ring = np.stack([ti[order], pi[order], to[order]], axis=1)
     starts = np.sort(np.unique(ring, axis=0, return_index=True)[1])
     ends = np.append(starts[1:], order.size)
     pairs = []
@@ -699,14 +577,19 @@ def physical_floor(plan, kin) -> tuple[float, int]:
         pairs += list(zip(members[near], np.roll(members, -1)[near], strict=True))
     if not pairs:
         return 0.0, 0
-    a, b = np.array(pairs).T
+    pa, pb = np.array(pairs).T
     rad = [np.asarray(x, dtype=np.float64) for x in (plan.theta_i, plan.phi_i, plan.theta_o, plan.phi_o)]
-    sa = kin.solutions(*(x[a] for x in rad))                        # (P, S, A)
-    sb = kin.solutions(*(x[b] for x in rad))
     v = np.asarray(kin.velocity_deg_s, dtype=np.float64)
-    t = (np.abs(sa[:, :, None, :] - sb[:, None, :, :]) / v).max(axis=-1)
-    t = np.where(np.isnan(t), np.inf, t).min(axis=(1, 2))
-    return float(t[np.isfinite(t)].sum()), int(np.isfinite(t).sum())
+    total, counted = 0.0, 0
+    for b0 in range(0, pa.size, _FLOOR_BLOCK):
+        a, b = pa[b0:b0 + _FLOOR_BLOCK], pb[b0:b0 + _FLOOR_BLOCK]
+        sa = kin.solutions(*(x[a] for x in rad))                        # (P, S, A)
+        sb = kin.solutions(*(x[b] for x in rad))
+        t = (np.abs(sa[:, :, None, :] - sb[:, None, :, :]) / v).max(axis=-1)
+        t = np.where(np.isnan(t), np.inf, t).min(axis=(1, 2))
+        total += float(t[np.isfinite(t)].sum())
+        counted += int(np.isfinite(t).sum())
+    return total, counted
 
 
 def fly_summary(fp: FlyPlan) -> dict:

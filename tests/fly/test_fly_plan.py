@@ -244,11 +244,11 @@ def test_estimate_above_bound_for_any_order_of_the_lines(two_arm):
 def test_entry_bound_by_nearest_search_equals_the_pairwise_one(two_arm):
     cfg, kin, plan, fp = two_arm
     ends = np.stack([[ln.readings_deg()[0], ln.readings_deg()[-1]] for ln in fp.lines])
-    axis = np.array([ln.axis for ln in fp.lines])
+    moves = np.array([np.arange(4) == ln.axis for ln in fp.lines])
     rest = np.stack([fp.reference_deg, fp.home_deg])
     v, a = np.asarray(kin.velocity_deg_s), np.asarray(kin.accel_deg_s2)
-    pairwise = _entries_pairwise(ends, axis, rest, v, a)
-    assert np.allclose(_entries_nearest(ends, axis, rest, v, a), pairwise, rtol=0, atol=1e-12)
+    pairwise = _entries_pairwise(ends, moves, rest, v, a)
+    assert np.allclose(_entries_nearest(ends, moves, rest, v, a), pairwise, rtol=0, atol=1e-12)
 
 
 def test_estimate_adds_up_its_parts(two_arm):
