@@ -14,16 +14,20 @@ flight is done again from its start).
 A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
 
 1. the axes go to the line's start along a collision-free path and settle (the executor's moves: the
-   run-up, sweep and run-down were checked against the limits and the swept path when planned);
+   line's travel was checked against the limits and the swept path when planned); a line entered
+   through a swept turnaround is there already and does not settle (the plan has no settle there);
 2. the sweeping axis gets the line's velocity and acceleration and its goal at the line's far end
    (:meth:`gonio.gantry.AssembledGantry.sweep`: the axis's ``prepare`` and ``kickoff``; the servo
    quantises the profile, so the speed it runs at differs from the plan's a little: the pair it runs at
-   is journaled);
-3. each reading starts when the axis will pass its pose at the reading's mid-time: the time is
+   is journaled). A line whose first reading is at its start (the plan rests half an exposure there)
+   sets the axis going halfway through that reading's sub-reads, so the reading is centred on the
+   start as planned;
+3. each later reading starts when the axis will pass its pose at the reading's mid-time: the time is
    predicted from the latest timestamped axis read (:meth:`~gonio.gantry.AssembledGantry.stamped_positions`,
-   one Sync Read per bus stamped on the gantry clock) at the servo's quantised speed, and axes are read
-   every ``read_s`` until the start is nearer than that, so the prediction follows the axis, not the
-   plan's clock;
+   one Sync Read per bus stamped on the gantry clock) on the servo's own trapezoid (its quantised speed
+   and acceleration: the readings near the ends are taken while it speeds up or slows down), and axes
+   are read every ``read_s`` until the start is nearer than that, so the prediction follows the axis,
+   not the plan's clock;
 4. a reading is ``subreads`` sub-reads of the detector (exposure / subreads each), with a stamped axis
    read after each (so the exposure is bracketed by reads), their signals summed. A sub-read exposes
    from its request for its exposure (a request-triggered photodiode: its reply, processing and
@@ -31,11 +35,12 @@ A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
    the reading's mid-time is the mean of its sub-reads' mid-times, and the start of the next reading
    allows for the dead time seen between sub-reads. The axis positions at the mid-time are
    interpolated linearly in time between the reads around it, and their forward kinematics give the
-   sample's (θi, φi, θo, φo): the direction at the mean position of the exposure (on a
-   constant-velocity sweep the mean position is the mid-time one);
-5. after the last reading the axis runs down to the line's end; the executor's arrival check faults
-   an axis that stopped short; the campaign's profile is written back (``complete``; before any later
-   move if it could not be then).
+   sample's (θi, φi, θo, φo);
+5. after the last reading the axis runs down to the line's end; where the plan enters the next line
+   through a swept turnaround, the other axes are sent to that line's start at once (while this axis
+   runs out: the planner certified every position between, :meth:`Kinematics.box_clear`); the
+   executor's arrival check faults an axis that stopped short; the campaign's profile is written back
+   (``complete``; before any later move if it could not be then).
 
 A serial photodiode answers one request at a time, so the reads are taken between its sub-reads and
 between readings rather than beside them: the dead time of one Sync Read (~1 ms at 1 Mbit/s) per

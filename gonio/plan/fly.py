@@ -597,7 +597,8 @@ def fly_summary(fp: FlyPlan) -> dict:
     est = fp.timing["estimate"]
     return {
         "motion": FLY_MOTION, "estimated_s": fp.estimated_s, "lower_bound_s": fp.lower_bound_s,
-        "lines": fp.timing["lines"], "stop_and_go_readings": fp.timing["stop_and_go_readings"],
+        "lines": fp.timing["lines"], "coordinated_lines": fp.timing["coordinated_lines"],
+        "stop_and_go_readings": fp.timing["stop_and_go_readings"],
         "readings": fp.timing["readings"], "checkpoints": fp.timing["checkpoints"],
         "reference_interval_s": fp.timing["reference_interval_s"],
         "max_blur_deg": fp.timing["max_blur_deg"],
