@@ -21,6 +21,16 @@ up or slows down (slower: less blur), and each starts when the axis passes its p
 read stop-and-go for want of room before a limit or the other carriage, and no line is slowed for it
 (the time-optimal rest-to-rest profile over the line's span: travel beyond it only adds time).
 
+Serpentine passes. Where a line reads the next ring back from the position the line before it ended at
+(the same axis, the other direction, only other axes changing: the detector tilt by a grid step), the
+turnaround between them is swept (:func:`_turnarounds`): the axis runs on past the last pose (the line's
+``tail``) and back (the next line's ``lead``) while the other axes make their change, begun when the last
+exposure ends and over before the next line's first begins; the run-out is the one that reads both
+lines soonest within the room before a limit or a collision, and every position the turnaround can pass
+through lies in a box certified clear (:meth:`Kinematics.box_clear`). Lines so joined form a pass; a
+checkpoint between two lines ends a pass (they meet at rest through a safe transit). Coordinated lines
+(several axes along a path: :mod:`gonio.plan.flypath`) take the rings that no single axis steps along.
+
 Checks. Each line's whole travel, rest to rest, is one move of one axis between its end poses: its
 swept path is the set of positions of the rest-to-rest move between them, so
 :meth:`Kinematics.sweep_clearance` certifies it exactly, and both ends are poses of the plan (within
