@@ -265,11 +265,14 @@ def test_gonio_plan_reports_both_modes_with_their_bounds(capsys):
     assert main(["plan", "--grid", "iso:step=30"]) == 0
     text = capsys.readouterr().out
     assert "stop-and-go" in text and "fly" in text and "estimate / bound" in text
+    assert "swept turnarounds" in text
     assert main(["plan", "--grid", "iso:step=30,order=fly", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["grid"].endswith("order=fly")
     assert 0 < s["fly"]["lower_bound_s"] <= s["fly"]["estimated_s"]
     assert s["fly"]["readings"] == s["poses"]
+    assert s["fly"]["motion"] == 2 and s["fly"]["coordinated_lines"] == 0
+    assert s["fly"]["estimate"]["turnarounds"] >= 1
 
 
 def test_fly_on_merl_is_refused_naming_the_option(capsys):
