@@ -15,9 +15,9 @@ the stated stddev; also printed after the campaigns).
 ``--table`` prints, per grid and design (``iso:step=5`` and ``iso:step=2`` on the default two-arm gantry,
 ``iso:step=5`` and ``full:step=5`` on the sample stage; ``--table-grids CONFIG:GRID;...`` for others):
 the physical floor (:func:`gonio.plan.fly.physical_floor`: every Δφ step swept once at top speed, no
-stops), the fly bound, the fly estimate, the stop-and-go estimate, and the ratios; then whether a
-simulated fly campaign's gantry time (``--sim``: the campaign clock of :class:`FlySimulator` at the end,
-home included) equals the estimate.
+stops; iso grids only), the fly bound, the fly estimate, the stop-and-go estimate, and the ratios; then
+whether a simulated fly campaign's gantry time (``--sim``: the campaign clock of :class:`FlySimulator` at
+the end, home included) equals the estimate.
 
 Run: ``.venv/bin/python tools/bench_fly.py [--grid iso:step=2] [--plan-only iso:step=1] [--sharp-only]
 [--table [--sim]]``; print ``uptime`` beside the figures (the machine is shared).
@@ -119,11 +119,16 @@ def _table(items: str, simulate: bool) -> None:
         cfg = load_config(name)
         grid = grid if "order=" in grid else grid + ",order=fly"
         plan, fp, t_plan, t_fly = _plans(grid, cfg)
-        floor, _ = physical_floor(plan, make_kinematics(cfg))
+        try:
+            floor, _ = physical_floor(plan, make_kinematics(cfg))
+        except ValueError:   # defined for iso grids only
+            floor = float("nan")
         turns = fp.timing["estimate"]["turnarounds"]
-        print(f"| {cfg.kinematics.design} ({name}) | `{grid}` | {len(plan.theta_i):,} | {floor:,.0f} s | "
+        print(f"| {cfg.kinematics.design} ({name}) | `{grid}` | {len(plan.theta_i):,} | "
+              f"{'-' if floor != floor else f'{floor:,.0f} s'} | "
               f"{fp.lower_bound_s:,.0f} s | {fp.estimated_s:,.0f} s | {plan.estimated_s:,.0f} s | "
-              f"{fp.estimated_s / fp.lower_bound_s:.3f} | {fp.estimated_s / floor:.3f} | "
+              f"{fp.estimated_s / fp.lower_bound_s:.3f} | "
+              f"{'-' if floor != floor else f'{fp.estimated_s / floor:.3f}'} | "
               f"{plan.estimated_s / fp.estimated_s:.2f} | {fp.timing['lines']:,} ({turns:,}) | "
               f"{fp.timing['stop_and_go_readings']:,} | {t_plan:.1f} + {t_fly:.1f} s |")
         if simulate:

@@ -553,16 +553,20 @@ def physical_floor(plan, kin) -> tuple[float, int]:
     axes' top speeds, no stops (no acceleration, no exposure, no transit, no reference): the least
     campaign any fly scan of these poses can take. Returns (seconds, Δφ steps counted).
 
-    A ring is the plan's poses at one (θi, φi, θo); its arcs join the poses whose Δφ differ by one grid step
+    Defined for iso grids (ValueError for others). A ring is the plan's poses at one (θi, φi, θo); its
+    arcs join the poses whose Δφ differ by one grid step
     (around the circle). One step costs the least time at top speed, max over axes of |change| / v_max,
     between any valid branches of its two poses (on the two-arm gantry one azimuth turns by the step; on
     the sample stage a Δφ step moves both detector axes together).
     """
     from gonio.plan.grids import parse_grid
 
-    step = parse_grid(plan.grid).step_deg
-    if step is None:
-        raise ValueError(f"grid '{plan.grid}': the floor needs the lines of a lattice (iso or full grids)")
+    spec = parse_grid(plan.grid)
+    step = spec.step_deg
+    if spec.kind != "iso" or step is None:
+        # A full grid's poses can be swept along Δφ or along φ at fixed Δφ (the sample stage's rotation,
+        # faster): its Δφ arcs bound nothing.
+        raise ValueError(f"grid '{spec.kind}': the physical floor is defined for iso grids (Δφ rings)")
     ti, to = (np.round(np.degrees(np.asarray(x, dtype=np.float64)), 6) for x in (plan.theta_i, plan.theta_o))
     pi = np.round(np.mod(np.degrees(np.asarray(plan.phi_i, dtype=np.float64)), 360.0), 6) % 360.0
     dphi = np.round(np.mod(np.degrees(np.asarray(plan.phi_o) - np.asarray(plan.phi_i)), 360.0), 6) % 360.0

@@ -190,6 +190,10 @@ def test_physical_floor_sweeps_every_dphi_step_once_at_top_speed(two_arm):
         count += int(np.sum(np.abs(gaps - 10.0) < 1e-6)) - (1 if d.size == 2 else 0)
     assert steps == count
     assert fp.lower_bound_s > floor and fp.estimated_s < 1.5 * floor
+    # A full grid can be swept along Δφ or along φ: Δφ arcs bound nothing there.
+    full = build_plan("full:step=45,order=fly", cfg)
+    with pytest.raises(ValueError, match="iso grids"):
+        physical_floor(full, kin)
 
 
 def test_no_pose_read_stop_and_go_or_slowed_for_want_of_room(two_arm):
