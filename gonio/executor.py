@@ -194,7 +194,15 @@ class MotionExecutor:
                 raise
 
     def _move_leg(self, start: np.ndarray, target: np.ndarray) -> None:
-        moved = target != start
+        self.send_move(start, target)
+        expected = float(np.max(move_time(target - start, self._vmax, self._amax), initial=0.0))
+        self.arrive(start, target, expected)
+
+    def send_move(self, start: np.ndarray, target: np.ndarray) -> None:
+        """Command the axes whose ``target`` differs from ``start`` (one write per bus where the gantry
+        batches), without waiting (the caller then calls :meth:`arrive`). Unchecked: for a move whose
+        whole path its caller certified (a fly turnaround's change, while the sweeping axis runs out)."""
+        moved = np.asarray(target) != np.asarray(start)
         names = self.kinematics.axis_names
         batched = self.abilities.batched
 
@@ -207,8 +215,6 @@ class MotionExecutor:
                         axis.move_to(float(t))
 
         self.command(send)
-        expected = float(np.max(move_time(target - start, self._vmax, self._amax), initial=0.0))
-        self.arrive(start, target, expected)
 
     def arrive(self, start: np.ndarray, target: np.ndarray, expected: float) -> None:
         """Wait for a commanded move from ``start`` to ``target`` (``expected`` s) to end, then check

@@ -189,10 +189,17 @@ def test_crashes_with_a_drifting_lamp_and_dark_offset_match_the_truth_within_its
 def test_a_fly_campaign_crashed_at_random_journal_writes_resumes_to_the_uninterrupted_result(tmp_path,
                                                                                               monkeypatch):
     """The same for on-the-fly scanning (one journal transaction per sweep): a crash loses at most the
-    sweep in flight, and the resumed campaign is the uninterrupted one bit for bit."""
+    sweep in flight, and the resumed campaign is the uninterrupted one bit for bit. Most of its lines
+    are in serpentine passes (entered through a swept turnaround from the line before), so the crashes
+    cut passes: a resumed pass starts at its first line with no reading, moved to at rest."""
+    from gonio.fly.plans import fly_plans
+
+    config = _config(tmp_path)
+    _, fp = fly_plans("iso:step=15,order=fly", load_config(config))
+    turned = sum(fp.swept_turn(k) for k in range(len(fp.lines)))
+    assert turned >= 0.3 * len(fp.lines)
     b = _crashed_equals_uninterrupted(tmp_path, monkeypatch, "ward:rho_d=0.1,rho_s=0.05,alpha=0.15",
-                                      "iso:step=15,order=fly", _config(tmp_path), kills=6, seed=4,
-                                      creation=1)
+                                      "iso:step=15,order=fly", config, kills=6, seed=4, creation=1)
     assert len(b["value"]) == 304   # every pose of iso:step=15
 
 

@@ -45,7 +45,31 @@ def _run(folder, material):
         c.close()
 
 
-@pytest.mark.parametrize("kind", sorted(OLD_CAMPAIGNS))
+def test_a_fly_journal_of_the_first_motion_model_is_refused_naming_it_nothing_written(tmp_path):
+    """The fly fixture's lines ran at constant velocity with run-ups beyond their ends; today's run rest
+    to rest between their end poses (gonio.plan.fly.FLY_MOTION 2), so its sweeps cannot be timed as
+    planned: resuming it is refused before anything moves or is written."""
+    old = tmp_path / "old"
+    shutil.copytree(OLD / "fly", old)
+
+    def done():
+        j = Journal.open(old / JOURNAL_NAME, readonly=True)
+        try:
+            return j.done_count(), [m.step for m in j.measurements()]
+        finally:
+            j.close()
+
+    before = done()
+    c = open_campaign(old)
+    try:
+        with pytest.raises(ValueError, match="fly motion model 1 .* model 2"):
+            run_campaign(c, campaign_gantry(c, OLD_CAMPAIGNS["fly"][1]))
+    finally:
+        c.close()
+    assert done() == before and before[0] > 0 and not (old / "brdf.h5").exists()
+
+
+@pytest.mark.parametrize("kind", sorted(set(OLD_CAMPAIGNS) - {"fly"}))
 def test_a_journal_written_before_kinds_resumes_and_equals_an_uninterrupted_run(tmp_path, kind):
     """The fixture is a journal the code before this redesign wrote and a crash cut short (no ``kind`` in
     its meta; the fly one ran through the simulated-fly executor of the time). Today's lifecycle infers

@@ -12,8 +12,15 @@ times of another grid (e.g. ``iso:step=1``) without simulating it.
 ``--sharp-only`` prints only the z-scores of fly readings through sharp specular peaks (the blur term of
 the stated stddev; also printed after the campaigns).
 
-Run: ``.venv/bin/python tools/bench_fly.py [--grid iso:step=2] [--plan-only iso:step=1] [--sharp-only]``;
-print ``uptime`` beside the figures (the machine is shared).
+``--table`` prints, per grid and design (``iso:step=5`` and ``iso:step=2`` on the default two-arm gantry,
+``iso:step=5`` and ``full:step=5`` on the sample stage; ``--table-grids CONFIG:GRID;...`` for others):
+the physical floor (:func:`gonio.plan.fly.physical_floor`: every Δφ step swept once at top speed, no
+stops; iso grids only), the fly bound, the fly estimate, the stop-and-go estimate, and the ratios; then
+whether a simulated fly campaign's gantry time (``--sim``: the campaign clock of :class:`FlySimulator` at
+the end, home included) equals the estimate.
+
+Run: ``.venv/bin/python tools/bench_fly.py [--grid iso:step=2] [--plan-only iso:step=1] [--sharp-only]
+[--table [--sim]]``; print ``uptime`` beside the figures (the machine is shared).
 """
 
 from __future__ import annotations
@@ -26,8 +33,9 @@ import numpy as np
 from gonio.calibrate import calibrate
 from gonio.config import load_config
 from gonio.geometry import sph_to_vec
+from gonio.kinematics import make_kinematics
 from gonio.plan import build_plan
-from gonio.plan.fly import fly_plan
+from gonio.plan.fly import fly_plan, physical_floor
 from gonio.plan.report import hms
 from gonio.sim import materials
 from gonio.sim.fly import FlySimulator
@@ -98,12 +106,50 @@ def _sharp_peaks(cfg, spec: str = "ward:rho_d=0.1,rho_s=0.2,alpha=0.02", seeds=r
           "blur loss at the peak " + ", ".join(f"{100 * x:+.1f} %" for x in loss))
 
 
+TABLE = "sim:iso:step=5;sim:iso:step=2;sample-stage:iso:step=5;sample-stage:full:step=5"
+
+
+def _table(items: str, simulate: bool) -> None:
+    """The floor / bound / estimate / stop-and-go table (see the module docstring)."""
+    print("| design (config) | grid | poses | floor | fly bound | fly estimate | stop-and-go | fly / bound | "
+          "fly / floor | stop-and-go / fly | lines (turnarounds swept) | stop-and-go readings | planning |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for item in items.split(";"):
+        name, grid = item.split(":", 1)
+        cfg = load_config(name)
+        grid = grid if "order=" in grid else grid + ",order=fly"
+        plan, fp, t_plan, t_fly = _plans(grid, cfg)
+        try:
+            floor, _ = physical_floor(plan, make_kinematics(cfg))
+        except ValueError:   # defined for iso grids only
+            floor = float("nan")
+        turns = fp.timing["estimate"]["turnarounds"]
+        print(f"| {cfg.kinematics.design} ({name}) | `{grid}` | {len(plan.theta_i):,} | "
+              f"{'-' if floor != floor else f'{floor:,.0f} s'} | "
+              f"{fp.lower_bound_s:,.0f} s | {fp.estimated_s:,.0f} s | {plan.estimated_s:,.0f} s | "
+              f"{fp.estimated_s / fp.lower_bound_s:.3f} | "
+              f"{'-' if floor != floor else f'{fp.estimated_s / floor:.3f}'} | "
+              f"{plan.estimated_s / fp.estimated_s:.2f} | {fp.timing['lines']:,} ({turns:,}) | "
+              f"{fp.timing['stop_and_go_readings']:,} | {t_plan:.1f} + {t_fly:.1f} s |")
+        if simulate:
+            ms = FlySimulator(cfg, "lambert:albedo=0.5", seed=1).campaign(fp)
+            end = ms[-1].campaign_s + (fp.estimated_s - fp.checkpoints[-1][3] - fp.reading_s)
+            print(f"|  | simulated campaign: gantry time {end:,.3f} s against the estimate "
+                  f"{fp.estimated_s:,.3f} s ({end - fp.estimated_s:+.2e} s) |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--grid", default="iso:step=2")
     ap.add_argument("--plan-only", default=None)
     ap.add_argument("--sharp-only", action="store_true", help="only the z-scores through sharp peaks")
+    ap.add_argument("--table", action="store_true", help="only the floor/bound/estimate table")
+    ap.add_argument("--table-grids", default=TABLE, help="CONFIG:GRID;... for --table")
+    ap.add_argument("--sim", action="store_true", help="with --table: simulate each fly campaign")
     args = ap.parse_args()
+    if args.table:
+        _table(args.table_grids, args.sim)
+        return
     cfg = load_config(None)
     if args.sharp_only:
         _sharp_peaks(cfg)

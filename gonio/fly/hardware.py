@@ -14,16 +14,20 @@ flight is done again from its start).
 A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
 
 1. the axes go to the line's start along a collision-free path and settle (the executor's moves: the
-   run-up, sweep and run-down were checked against the limits and the swept path when planned);
+   line's travel was checked against the limits and the swept path when planned); a line entered
+   through a swept turnaround is there already and does not settle (the plan has no settle there);
 2. the sweeping axis gets the line's velocity and acceleration and its goal at the line's far end
    (:meth:`gonio.gantry.AssembledGantry.sweep`: the axis's ``prepare`` and ``kickoff``; the servo
    quantises the profile, so the speed it runs at differs from the plan's a little: the pair it runs at
-   is journaled);
-3. each reading starts when the axis will pass its pose at the reading's mid-time: the time is
+   is journaled). A line whose first reading is at its start (the plan rests half an exposure there)
+   sets the axis going halfway through that reading's sub-reads, so the reading is centred on the
+   start as planned;
+3. each later reading starts when the axis will pass its pose at the reading's mid-time: the time is
    predicted from the latest timestamped axis read (:meth:`~gonio.gantry.AssembledGantry.stamped_positions`,
-   one Sync Read per bus stamped on the gantry clock) at the servo's quantised speed, and axes are read
-   every ``read_s`` until the start is nearer than that, so the prediction follows the axis, not the
-   plan's clock;
+   one Sync Read per bus stamped on the gantry clock) on the servo's own trapezoid (its quantised speed
+   and acceleration: the readings near the ends are taken while it speeds up or slows down), and axes
+   are read every ``read_s`` until the start is nearer than that, so the prediction follows the axis,
+   not the plan's clock;
 4. a reading is ``subreads`` sub-reads of the detector (exposure / subreads each), with a stamped axis
    read after each (so the exposure is bracketed by reads), their signals summed. A sub-read exposes
    from its request for its exposure (a request-triggered photodiode: its reply, processing and
@@ -31,11 +35,12 @@ A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
    the reading's mid-time is the mean of its sub-reads' mid-times, and the start of the next reading
    allows for the dead time seen between sub-reads. The axis positions at the mid-time are
    interpolated linearly in time between the reads around it, and their forward kinematics give the
-   sample's (θi, φi, θo, φo): the direction at the mean position of the exposure (on a
-   constant-velocity sweep the mean position is the mid-time one);
-5. after the last reading the axis runs down to the line's end; the executor's arrival check faults
-   an axis that stopped short; the campaign's profile is written back (``complete``; before any later
-   move if it could not be then).
+   sample's (θi, φi, θo, φo);
+5. after the last reading the axis runs down to the line's end; where the plan enters the next line
+   through a swept turnaround, the other axes are sent to that line's start at once (while this axis
+   runs out: the planner certified every position between, :meth:`Kinematics.box_clear`); the
+   executor's arrival check faults an axis that stopped short; the campaign's profile is written back
+   (``complete``; before any later move if it could not be then).
 
 A serial photodiode answers one request at a time, so the reads are taken between its sub-reads and
 between readings rather than beside them: the dead time of one Sync Read (~1 ms at 1 Mbit/s) per
@@ -61,10 +66,12 @@ A reading at rest (a checkpoint, a pose read stop-and-go) is the engine's stop-a
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from gonio.fly.blur import motion_blur
+from gonio.motion.trapezoid import move_time
 from gonio.plan.fly import FLY_TOL_DEG, FlyLine
 from gonio.plan.schedule import STEP_POSE
 from gonio.protocols import DeviceFault
@@ -121,37 +128,61 @@ class FlySweeper:
         self.read_s = float(read_s)
         self.subreads = subreads
         self._gaps: list[float] = []   # the latest dead times between sub-reads, over sweeps
+        self._turned: FlyLine | None = None   # the line a swept turnaround just brought the axes to
 
-    def sweep(self, line: FlyLine, step: int, attempt: int) -> list[Measurement]:
-        """The readings of ``line`` (steps from ``step``), attempt ``attempt`` (from 1)."""
+    def sweep(self, line: FlyLine, step: int, attempt: int, then: FlyLine | None = None) -> list[Measurement]:
+        """The readings of ``line`` (steps from ``step``), attempt ``attempt`` (from 1); ``then``: the
+        next line, where the plan enters it through a swept turnaround (the other axes make their change
+        while this line's axis runs out)."""
         ex, flies = self.executor, self.flies
+        turned, self._turned = self._turned is line, None
         if not line.moving:  # a pose read stop-and-go
             return [self.engine.reader.read(step, attempt)]
         kin, clock = ex.kinematics, ex.gantry.clock
         name = kin.axis_names[line.axis]
         start, end = on_limits(kin, line.start_deg), on_limits(kin, line.end_deg)
-        ex.goto(start)
-        ex.settle()
+        # Entered through a swept turnaround the axes arrived at the start already (unless something
+        # moved them since: a pause parks the gantry).
+        tol = ex.rc.position_tolerance_deg
+        if not (turned and np.all(np.abs(ex.positions() - start) <= tol)):
+            ex.goto(start)
+            ex.settle()
         reads: list[tuple[np.ndarray, np.ndarray]] = []
+        went: list[tuple[float, float, float]] = []    # (v, a, t) of the kickoff, once made
+
+        def go() -> tuple[float, float]:
+            v, a = ex.command(lambda: flies.sweep(name, float(end[line.axis]), line.speed_deg_s,
+                                                  line.accel_deg_s2))
+            went.append((v, a, clock.now()))
+            return v, a
+
         if self.streams is not None:
             self.streams.start_stream()
         try:
-            v, a = ex.command(lambda: flies.sweep(name, float(end[line.axis]), line.speed_deg_s,
-                                                  line.accel_deg_s2))
-        except BaseException:
-            self._stop_stream()
-            raise
-        t_go = clock.now()
-        try:
-            out = self._readings(line, step, attempt, v, reads)
+            out = self._readings(line, step, attempt, go, reads)
             # The run-down: the axis arrives at the line's end (the executor faults one that stopped short).
-            ex.arrive(start, end, max(t_go + line.duration_s - clock.now(), 0.0))
+            v, a, t_go = went[0]
+            left = t_go + line.duration_s - sum(line.pads()) - clock.now()
+            if then is not None:
+                # The turnaround: the other axes go to the next line's start now (the last exposure
+                # is over) while this axis runs out; the planner certified every position between.
+                target = on_limits(kin, then.start_deg)
+                target[line.axis] = end[line.axis]
+                ex.send_move(end, target)
+                cross = np.delete(np.abs(target - end), line.axis)
+                left = max(left, float(np.max(move_time(cross, *(np.delete(x, line.axis) for x in (
+                    kin.velocity_deg_s, kin.accel_deg_s2))))))
+                end = target
+            ex.arrive(start, end, max(left, 0.0))
+            if then is not None:
+                self._turned = then
         except BaseException:
             self._stop_stream()
-            try:
-                flies.end_sweep(name)
-            except Exception:  # noqa: S110 - the first failure is the one to report; the next move restores
-                pass
+            if went:
+                try:
+                    flies.end_sweep(name)
+                except Exception:  # noqa: S110 - the first failure is the one to report; the next move restores
+                    pass
             raise
         flies.end_sweep(name)
         if self.streams is not None:
@@ -173,26 +204,40 @@ class FlySweeper:
         reads.append((t, x))
         return t, x
 
-    def _readings(self, line: FlyLine, step: int, attempt: int, v: float, reads) -> list[Measurement]:
+    def _readings(self, line: FlyLine, step: int, attempt: int, go, reads) -> list[Measurement]:
         ex = self.executor
         g, kin, clock = ex.gantry, ex.kinematics, ex.gantry.clock
         ax, e = line.axis, line.exposure_s
-        sign = math.copysign(1.0, line.step_deg)
         feed = self.feed_s
         m = max(self.subreads, math.ceil(e / feed) if feed else 0)
         planned = line.readings_deg()
         self._look(reads)
         spans, signals, variances, ends, windows = [], [], [], [], []
         gaps = self._gaps   # dead time between sub-reads seen so far (their reads and replies)
+        runs = due = None
+
+        def kickoff():
+            nonlocal runs, due
+            v, a = go()
+            # The servo's own profile (its quantised speed and acceleration) from rest at the start.
+            runs = replace(line, speed_deg_s=v, accel_deg_s2=a)
+            due = runs.time_at(planned[:, ax])
+
+        # A line whose first reading is at its start (no run-up: the plan rests half an exposure before
+        # the motion) starts that reading at rest and sets the axis going halfway through it (at its
+        # mid-time); one with a run-up sets it going now.
+        at_start = line.pads()[0] > 0.0
+        if not at_start:
+            kickoff()
         for j in range(line.n):
-            # Start when the axis, at its speed from the last read, passes the pose at the mid-time of
-            # the sub-reads (their exposures and the dead time between them, as seen so far; none when
-            # they come from a stream).
+            # Each reading (but a first one at the start) starts when the axis, on its profile from the
+            # last read, passes the pose at the mid-time of the sub-reads (their exposures and the dead
+            # time between them, as seen so far; none when they come from a stream).
             dead = float(np.median(gaps)) if gaps and self.streams is None else 0.0
             span = e + (m - 1) * dead
-            while True:
+            while j or not at_start:
                 t, x = reads[-1][0][ax], reads[-1][1][ax]
-                start = t + sign * (planned[j, ax] - x) / v - 0.5 * span
+                start = t + float(due[j] - runs.time_at(x)) - 0.5 * span
                 wait = start - clock.now()
                 if wait <= self.read_s:
                     if wait > 0:
@@ -205,6 +250,8 @@ class FlySweeper:
                 # while the instrument integrates on; their samples are gathered after the last reading.
                 t0 = clock.now()
                 for k in range(m):
+                    if runs is None and k == m // 2:
+                        kickoff()
                     ex.wait(max(t0 + (k + 1) * e / m - clock.now(), 0.0))
                     self._look(reads)
                 windows.append(t0)
@@ -213,6 +260,8 @@ class FlySweeper:
                 continue
             subs, var, mids = [], [], []
             for k in range(m):
+                if runs is None and k == m // 2:
+                    kickoff()
                 t0 = clock.now()
                 if k:
                     gaps.append(t0 - mids[-1] - 0.5 * e / m)

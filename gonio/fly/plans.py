@@ -7,7 +7,8 @@ line (:func:`gonio.plan.fly.fly_step_table`). Each sweep (and each checkpoint) i
 transaction, so a crash loses at most the sweep in flight, and a resumed campaign starts from the first
 sweep with no reading. The fly plan is not stored: it is rebuilt from the journal's grid and config
 snapshot (:func:`rebuild_fly_plan`), which gives the same plan (planning is deterministic), and
-checked against the steps table before anything is read.
+checked against the steps table and the motion model of its lines (``meta["fly"]["motion"]``,
+:data:`gonio.plan.fly.FLY_MOTION`) before anything is read.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 
 from gonio.config import GonioConfig
 from gonio.plan import Plan, build_plan, parse_grid
-from gonio.plan.fly import FlyPlan, fly_plan, fly_step_table
+from gonio.plan.fly import FLY_MOTION, FlyPlan, fly_plan, fly_step_table
 
 __all__ = ["fly_plans", "fly_plan_of", "rebuild_fly_plan"]
 
@@ -35,6 +36,12 @@ def rebuild_fly_plan(meta: dict, cfg: GonioConfig, steps: dict, where) -> FlyPla
     """The fly plan of a journal (its ``meta``, config snapshot ``cfg`` and ``steps`` table), rebuilt
     from its grid; a ValueError naming ``where`` when it does not give the journal's steps (a different
     gonio planned it)."""
+    motion = (meta.get("fly") or {}).get("motion", 1)
+    if motion != FLY_MOTION:
+        raise ValueError(f"{where}: planned with fly motion model {motion} (this gonio sweeps lines with "
+                         f"model {FLY_MOTION}: rest to rest between their end poses, turnarounds swept), so "
+                         "its sweeps cannot be timed as planned; finish it with the gonio version that "
+                         "planned it")
     _, fp = fly_plans(meta["grid"], cfg)
     kind, pose = fly_step_table(fp)
     if not (np.array_equal(kind, steps["kind"]) and np.array_equal(pose, steps["pose"])):

@@ -21,6 +21,7 @@ from gonio.config import GonioConfig
 from gonio.fly.plans import rebuild_fly_plan
 from gonio.gantry import abilities
 from gonio.plan.fly import FlyPlan, fly_steps
+from gonio.plan.flypath import COORDINATED
 from gonio.protocols import Gantry
 from gonio.store import Measurement
 from gonio.units import Unit
@@ -47,15 +48,27 @@ def check_fly_gantry(gantry: Gantry, cfg: GonioConfig, fp: FlyPlan) -> None:
             raise ValueError(why)
         return
     names = gantry.kinematics.axis_names
-    for axis in sorted({ln.axis for ln in fp.lines if ln.moving}):
+
+    def sweeps(ln, axis):
+        return bool(ln.moving_axes[axis]) if ln.axis == COORDINATED else ln.axis == axis
+
+    for axis in range(len(names)):
+        lines = sum(sweeps(ln, axis) for ln in fp.lines if ln.moving)
+        if not lines:
+            continue
         name = names[axis]
         if can.flies is None or not can.flies.can_sweep(name):
-            lines = sum(ln.axis == axis for ln in fp.lines)
             plural = "s" if lines != 1 else ""
             raise ValueError(f"axes.{name}: driver '{cfg.axes[name].driver}' cannot sweep a line of "
                              f"order=fly (it would sweep {lines} line{plural}; fly scanning on hardware "
                              "needs Dynamixel servos, whose velocity is set per sweep and whose positions "
                              "are sync-read with timestamps); use order=auto for this gantry")
+    coordinated = sum(ln.axis == COORDINATED for ln in fp.lines)
+    if coordinated:
+        raise ValueError(f"grid: order=fly would sweep {coordinated} coordinated line(s) (several axes along "
+                         "a path, gonio.plan.flypath), which only the simulated gantry flies so far (a "
+                         "configured gantry would need its servos' goals streamed along the path); use "
+                         "order=auto for this gantry")
     if not can.reads_on_the_fly:
         det = cfg.detector
         field, what = (("detector.sim.kind", det.sim.kind) if det.driver == "sim" else ("detector.driver",
@@ -90,7 +103,8 @@ def fly_units(engine) -> list[Unit]:
         if kind == "checkpoint":
             units.append(Unit(step, 2, partial(_checkpoint, reader, step)))
         else:
-            units.append(Unit(step, fp.lines[k].n, partial(sweeper.sweep, fp.lines[k], step)))
+            then = fp.lines[k + 1] if k + 1 < len(fp.lines) and fp.swept_turn(k + 1) else None
+            units.append(Unit(step, fp.lines[k].n, partial(sweeper.sweep, fp.lines[k], step, then=then)))
     return units
 
 

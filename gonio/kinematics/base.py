@@ -336,6 +336,19 @@ class Kinematics:
         value where that axis keeps the parts clear whatever the others do (none by default)."""
         return []
 
+    def box_clear(self, lo_deg, hi_deg) -> bool:
+        """Whether every position in the axis-aligned box [lo_deg, hi_deg] (n_axes each) is within the
+        limits and clear of collision, certified: any path that stays in the box is then clear (a
+        swept fly turnaround: one axis runs out and back while others move). The design's margin
+        changes by at most the axes' travel summed (the premise of
+        :func:`gonio.kinematics.sweep.lipschitz_min`), so the margin at the centre less the half
+        widths summed bounds it over the box."""
+        lo, hi = (np.asarray(x, dtype=np.float64) for x in (lo_deg, hi_deg))
+        if not (self.within_limits(lo[None])[0] and self.within_limits(hi[None])[0]):
+            return False
+        centre = [float(x) for x in 0.5 * (lo + hi)]
+        return self._sweep_margin_one(centre, centre) - float(np.sum(hi - lo)) / 2.0 >= -DEG_TOL
+
     def _sweep_margin(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """Smallest collision margin (M,) in degrees over moves (M, n_axes) -> (M, n_axes)."""
         raise NotImplementedError

@@ -181,6 +181,15 @@ class TwoArm(Kinematics):
         axes = np.asarray(axes_deg, dtype=np.float64).reshape(-1, 4)
         return np.floor((axes[:, 0] - axes[:, 2]) / 360.0).astype(np.int64)
 
+    def box_clear(self, lo_deg, hi_deg) -> bool:
+        """Exactly: the collision rule is the carriages' azimuth difference alone, whose range over the
+        box is [lo_light − hi_detector, hi_light − lo_detector]."""
+        lo, hi = (np.asarray(x, dtype=np.float64) for x in (lo_deg, hi_deg))
+        if not (self.within_limits(lo[None])[0] and self.within_limits(hi[None])[0]):
+            return False
+        margin = _ring_margin(np.array([lo[0] - hi[2]]), np.array([hi[0] - lo[2]]), self.arm_collision_deg)
+        return bool(margin[0] >= -DEG_TOL)
+
     def _sweep_margin(self, start, end):
         v, a = self.velocity_deg_s, self.accel_deg_s2
         lo, hi = difference_range(start[:, 0], end[:, 0], start[:, 2], end[:, 2], v[0], a[0], v[2], a[2])

@@ -135,18 +135,21 @@ def _format_fly(s: dict) -> list[str]:
              f"{'lower bound':<18}{hms(low):>14}{hms(flow):>14}",
              f"{'estimate / bound':<18}{ratio(est, low):>14}{ratio(fest, flow):>14}"]
     exposures = ", ".join(f"{1000 * e:.3g} ms" for e in f["exposure_s"]) or "-"
-    lines.append(f"fly          {f['lines']:,} lines sweep {f['readings'] - f['stop_and_go_readings']:,} "
+    coordinated = f.get("coordinated_lines", 0)
+    several = f" ({coordinated:,} of them coordinated: several axes along a path)" if coordinated else ""
+    lines.append(f"fly          {f['lines']:,} lines{several} sweep "
+                 f"{f['readings'] - f['stop_and_go_readings']:,} "
                  f"readings (exposure {exposures}, blur up to {f['max_blur_deg']:.2f}° of axis travel), "
                  f"{f['stop_and_go_readings']:,} read stop-and-go; {f['checkpoints']:,} dark + white "
                  f"reference checkpoints, one every {f['reference_interval_s']:.1f} s of gantry time")
     e, b = f["estimate"], f["lower_bound"]
-    lines.append("  estimate: lines {:,.1f} s (run-up, sweep, run-down), transits {:,.1f} s, checkpoints "
-                 "{:,.1f} s, stop-and-go readings {:,.1f} s".format(e["line_s"], e["transit_s"],
-                                                                    e["reference_s"],
-                                                                    e["settle_s"] + e["reading_s"]))
+    lines.append("  estimate: lines {:,.1f} s (rest to rest), transits {:,.1f} s, swept turnarounds "
+                 "{:,.1f} s ({:,} of them), checkpoints {:,.1f} s, stop-and-go readings {:,.1f} s".format(
+                     e["line_s"], e["transit_s"], e.get("turn_s", 0.0), int(e.get("turnarounds", 0)),
+                     e["reference_s"], e["settle_s"] + e["reading_s"]))
     lines.append("  bound (any order and direction of these lines): sweeps >= {:,.1f} s, entries >= {:,.1f} "
                  "s, settles and readings {:,.1f} s".format(b["sweeps_s"], b["entries_s"], b["fixed_s"]))
-    lines += [f"  {count:,} {'line' if 'slower' in note or 'split' in note else 'pose'}(s): {note}"
+    lines += [f"  {count:,} {'line' if 'split' in note else 'pose'}(s): {note}"
               for note, count in f["notes"].items()]
     return lines
 

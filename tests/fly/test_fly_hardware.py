@@ -313,7 +313,8 @@ def test_a_servo_hardware_error_mid_sweep_faults_naming_the_axis(tmp_path):
             fired.append(moving[0])
 
         fired: list[str] = []
-        state, runner, c = _fly(folder, emu, clock, detector_hook=_after_subreads(10, overload))
+        # The 11th sub-read: the third of a reading (a line's axis is set going halfway through its first).
+        state, runner, c = _fly(folder, emu, clock, detector_hook=_after_subreads(11, overload))
         assert state == State.FAULTED
         assert fired and fired[0] in runner.fault and "hardware error" in runner.fault, runner.fault
         assert "overload" in runner.fault
@@ -441,3 +442,44 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
         j.close()
     b = read_brdf(out / "brdf.h5")
     assert np.all(np.isfinite(b.value)) and np.all(b.value > 0)
+
+
+def test_a_swept_turnaround_sends_the_change_while_the_sweeping_servo_runs_out(tmp_path, monkeypatch):
+    """At each turnaround the plan sweeps, the sweeper sends the other axes to the next line's start as
+    soon as the last reading is over: the sweeping servo (read from its emulator) is still moving then,
+    and the next line starts there with no move of its own."""
+    from gonio.executor import MotionExecutor
+
+    clock = SyncedVirtualClock()
+    sent, gotos = [], []
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+        send, goto = MotionExecutor.send_move, MotionExecutor.goto
+
+        def spy_send(self, start, target):
+            moving = [n for n, s in emu.servos.items() if s._moving() and n != "changer"]
+            changed = [self.kinematics.axis_names[i] for i in np.flatnonzero(np.asarray(target) != start)]
+            sent.append((moving, changed))
+            return send(self, start, target)
+
+        def spy_goto(self, target):
+            gotos.append(np.asarray(target, dtype=float).copy())
+            return goto(self, target)
+
+        monkeypatch.setattr(MotionExecutor, "send_move", spy_send)
+        monkeypatch.setattr(MotionExecutor, "goto", spy_goto)
+        state, runner, _ = _fly(tmp_path / "fly", emu, clock)
+        assert state == State.DONE, runner.fault
+    fp = fly_plan_of_folder(tmp_path / "fly")
+    turns = [k for k in range(len(fp.lines)) if fp.swept_turn(k)]
+    assert len(turns) >= 2
+    # send_move is also how every leg of a move is sent: the turnarounds' are those sent mid-sweep.
+    mid_sweep = [(moving, changed) for moving, changed in sent if moving]
+    assert len(mid_sweep) == len(turns)
+    for (moving, changed), k in zip(mid_sweep, turns, strict=True):
+        axis = fp.lines[k].axis
+        assert moving == [runner.gantry.kinematics.axis_names[axis]]
+        assert changed and axis not in [runner.gantry.kinematics.axis_names.index(n) for n in changed]
+    # The lines entered through a turnaround are not gone to: no goto targets their start.
+    for k in turns:
+        start = fp.lines[k].start_deg
+        assert not any(np.allclose(g, start, atol=1e-6) for g in gotos)
