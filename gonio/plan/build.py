@@ -81,12 +81,13 @@ TOUR_SEED_TRIALS_MAX_POSES = 1_500
 #: two-arm gantry the next distinct set is 2.3 % apart and loses).
 TOUR_SEED_MARGIN = 0.01
 #: Tours of at most this many poses are refined with every move priced after the branch choice, with
-#: this many double-bridge restarts and windows of this many stops solved exactly
-#: (:func:`gonio.motion.refine.refine_order`): on 8-12-pose subsets of the sample stage's plans, 8 kicks
-#: and no windows left 4 of 80 more than 3 % above the optimum, up to 5.6 % (``bench_plan.py --exact``).
+#: this many double-bridge restarts and then windows of this many stops solved exactly
+#: (:func:`gonio.motion.refine.refine_order`): with the exact shortcut off, 8 restarts and no windows left
+#: 8-12-pose subsets of the sample stage up to 5.6 % above the optimum, windows of 9 a 13-pose subset of
+#: the two-arm gantry's full:step=15 3.8 % above (``tools/bench_plan.py --subsets``).
 TOUR_REFINE_MAX_POSES = 24
 TOUR_REFINE_KICKS = 32
-TOUR_REFINE_WINDOW = 9
+TOUR_REFINE_WINDOW = 11
 #: Largest plan whose valid bound uses every pose (``iso:step=2``, 142,879 poses, takes ~4 s of it);
 #: above it an evenly spread subset of this many (the moves through a subset are no longer than
 #: through all: still a bound, a weaker one).
