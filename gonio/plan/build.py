@@ -86,7 +86,7 @@ TOUR_SEED_MARGIN = 0.01
 #: 8-12-pose subsets of the sample stage up to 5.6 % above the optimum, windows of 9 a 13-pose subset of
 #: the two-arm gantry's full:step=15 3.8 % above (``tools/bench_plan.py --subsets``).
 TOUR_REFINE_MAX_POSES = 24
-TOUR_REFINE_KICKS = 32
+TOUR_REFINE_KICKS = 16
 TOUR_REFINE_WINDOW = 11
 #: Largest plan whose valid bound uses every pose (``iso:step=2``, 142,879 poses, takes ~4 s of it);
 #: above it an evenly spread subset of this many (the moves through a subset are no longer than
