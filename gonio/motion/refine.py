@@ -7,6 +7,10 @@ programming over its poses' branches (the same Viterbi as :mod:`gonio.motion.bra
 candidates), the best improving move is taken, and that repeats until none improves. Then a few
 seeded double-bridge kicks (cut the walk in four, swap the middle stretches) followed by the same
 descent look past the local optimum (iterated local search); a kick is kept only when it ends shorter.
+Last, optionally, stretches of a few stops are solved exactly (:func:`gonio.motion.exact.exact_order`
+between the positions on either side; a closed walk's stretches wrap round its depot) and the descent
+resumes after each one that saves time: what no single move reaches (on the sample stage, a pose that
+belongs at the other end of the tour on its other tilt sign).
 
 The walk is ``start → poses → end`` with fixed ends (the reference pose, or the branches on either
 side of a window of a longer tour: :func:`refine_windows`). Batched pricing is O(N² · N · W²) per

@@ -525,7 +525,8 @@ def _tour_order(kin, angles, points, neighbours, depot, home, metric: MoveMetric
     choice (:func:`gonio.motion.exact.exact_order`; the search below ended up to 13 % above it on
     8-12-pose sets of the sample stage). More: nearest neighbour, 2-opt/Or-opt with kicks; then, for at
     most :data:`TOUR_REFINE_MAX_POSES` poses, the same moves priced after choosing every pose's branch
-    again (:func:`gonio.motion.refine.refine_order`), which finds what a search on fixed branches
+    again (:func:`gonio.motion.refine.refine_order`, :data:`TOUR_REFINE_KICKS` restarts, then windows of
+    :data:`TOUR_REFINE_WINDOW` stops solved exactly), which finds what a search on fixed branches
     cannot."""
     n = points.shape[0]
     if 2 <= n <= EXACT_MAX_POSES:
