@@ -8,6 +8,7 @@ printed, never asserted: they depend on the machine and its load.
     .venv/bin/python tools/bench_plan.py --transit  # iso:step=1 and the swept-path check alone
     .venv/bin/python tools/bench_plan.py --bounds   # valid bound, reference share, gap to the exact optimum
     .venv/bin/python tools/bench_plan.py --exact    # gaps to Held-Karp on 200 subsets per gantry
+    .venv/bin/python tools/bench_plan.py --subsets  # worst gap of tours on 8-12 (13-14) pose subsets, windows
     .venv/bin/python tools/bench_plan.py --orders   # serpentine vs tours (kicks, seeds) vs auto; bounds
 
 Figures:
@@ -41,6 +42,7 @@ from gonio.kinematics import make_kinematics
 from gonio.motion.bound import mst_edge_times, neighbour_times
 from gonio.motion.metric import MoveMetric
 from gonio.motion.order import improve_tour, nearest_neighbour_tour, neighbour_lists, tour_time
+from gonio.motion.refine import walk_costs
 from gonio.plan import build_plan
 
 CONFIGS = {"two-arm (sim.toml)": DEFAULT_CONFIG,
@@ -221,7 +223,7 @@ def exact_rows(seed: int, subsets: int = 200) -> None:
 
     from gonio.motion.bound import motion_lower_bound
     from gonio.motion.chain import free_azimuth
-    from gonio.motion.refine import refine_order, walk_costs
+    from gonio.motion.refine import refine_order
     from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "plan"))
     from exact import held_karp
@@ -268,6 +270,120 @@ def exact_rows(seed: int, subsets: int = 200) -> None:
               f"{100 * np.mean(g_new):.2f} % ({100 * np.max(g_new):.1f} %) | {optimal} | "
               f"{100 * np.mean(g_plan):.2f} % ({100 * np.max(g_plan):.1f} %) | "
               f"{int(np.sum(np.asarray(g_plan) < 1e-9))} |", flush=True)
+
+
+def _tour_gaps(kin, metric, angles, ref, home, sizes, count, seed, settings, exact_max) -> list[np.ndarray]:
+    """Gaps (gonio / optimum - 1) of ``build._tour_order`` on ``count`` random subsets of ``sizes`` poses,
+    under each of ``settings`` ((exact shortcut up to, refine kicks, refine window), patched into
+    gonio.plan.build for the call), from and back to the reference; the optimum by Held-Karp."""
+    import gonio.motion.exact as exact
+    import gonio.plan.build as build
+
+    rng = np.random.default_rng(seed)
+    gaps = np.zeros((len(settings), count))
+    names = ("EXACT_MAX_POSES", "TOUR_REFINE_KICKS", "TOUR_REFINE_WINDOW")
+    saved = [getattr(build, x) for x in names], exact.EXACT_MAX_POSES
+    exact.EXACT_MAX_POSES = exact_max
+    try:
+        for j in range(count):
+            idx = rng.choice(angles.shape[1], int(rng.integers(sizes[0], sizes[1] + 1)), replace=False)
+            sub = tuple(angles[:, idx])
+            table = build._branch_table(kin, sub, home, ref)
+            optimum = exact.exact_order(table, ref, ref, metric)[1]
+            seeds = build._tour_seeds(kin, sub, np.vstack([home, ref[None]]), metric)[:build.TOUR_SEED_TRIALS]
+            for i, setting in enumerate(settings):
+                for x, value in zip(names, setting, strict=True):
+                    setattr(build, x, value)
+                orders = np.array([build._tour_order(kin, sub, p, nb, ref, home, metric) for p, nb in seeds])
+                gaps[i, j] = float(walk_costs(table, orders, ref, ref, metric).min()) / optimum - 1.0
+    finally:
+        for x, value in zip(names, saved[0], strict=True):
+            setattr(build, x, value)
+        exact.EXACT_MAX_POSES = saved[1]
+    return list(gaps)
+
+
+def _gap_cells(g: np.ndarray) -> str:
+    return (f"{100 * g.max():.2f} % | {int(np.sum(g > 0.01))} / {int(np.sum(g > 0.03))} | "
+            f"{100 * np.median(g):.2f} % | {100 * np.percentile(g, 90):.2f} %")
+
+
+def _window_gaps(plan, kin, metric, count, seed) -> np.ndarray:
+    """Gaps of ``count`` random stretches of 8-12 consecutive poses of the plan (inside one run between
+    references) to the Held-Karp optimum over the same poses between the same two positions."""
+    from gonio.motion.exact import exact_order
+    from gonio.plan.build import _branch_table
+    from gonio.plan.schedule import STEP_POSE
+
+    n = plan.theta_i.size
+    steps = np.flatnonzero(plan.step_kind == STEP_POSE)
+    starts = plan.step_pose[steps[plan.step_kind[steps - 1] != STEP_POSE]]
+    ends = np.append(starts[1:], n)
+    angles = np.stack([plan.theta_i, plan.phi_i, plan.theta_o, plan.phi_o])
+    ref, home, axes = plan.reference_axes_deg, np.asarray(kin.home_deg, float), plan.axes_deg
+    rng = np.random.default_rng(seed)
+    gaps = np.zeros(count)
+    for j in range(count):
+        size = int(rng.integers(8, 13))
+        run = int(rng.choice(np.flatnonzero(ends - starts >= size)))
+        lo = int(rng.integers(starts[run], ends[run] - size + 1))
+        hi = lo + size
+        before = axes[lo - 1] if lo > starts[run] else ref
+        after = axes[hi] if hi < ends[run] else ref
+        walk = np.vstack([before, axes[lo:hi], after])
+        # The plan's own positions are branches too (a free azimuth stays where the pose before left it).
+        table = np.concatenate([_branch_table(kin, tuple(angles[:, lo:hi]), home, ref), axes[lo:hi, None]],
+                               axis=1)
+        optimum = exact_order(table, before, after, metric)[1]
+        gaps[j] = float(np.sum(metric.time(walk[:-1], walk[1:]))) / optimum - 1.0
+    return gaps
+
+
+def subset_rows(seed: int, count: int = 40) -> None:
+    """Tours on small pose sets against Held-Karp over orders x branches (gonio.motion.exact), worst
+    case first: random 8-12-pose subsets of each grid's reachable poses, ordered by the planner on that
+    subset alone (``build._tour_order``: the tour a plan of just those poses gets, from and back to the
+    reference), three ways: as shipped (at most 12 poses solved exactly, so 0 by construction), with the
+    exact shortcut off (the local search that orders tours of 13-24 poses: nearest neighbour, kicked
+    2-opt/Or-opt, then 2-opt/Or-opt priced after the branch choice with TOUR_REFINE_KICKS restarts and
+    exact windows), and that search as it was (8 restarts, no windows: the baseline); then 13-14-pose
+    subsets (local search as shipped and as it was, Held-Karp raised to 14 poses for the comparison);
+    then stretches of 8-12 consecutive poses of the full plan (order=tour) against the optimum between
+    the same two positions."""
+    import gonio.plan.build as build
+    from gonio.plan.grids import enumerate_grid, parse_grid
+
+    shipped = (build.EXACT_MAX_POSES, build.TOUR_REFINE_KICKS, build.TOUR_REFINE_WINDOW)
+    search = (1,) + shipped[1:]
+    before = (1, 8, 0)
+    old = "local search before (8 kicks, no windows)"
+    print("| gantry | grid | poses per subset | tour | subsets | worst gap | > 1 % / > 3 % | median "
+          "| 90th pct |")
+    print("|---|---|---|---|---:|---:|---:|---:|---:|")
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
+        home = np.asarray(kin.home_deg, float)
+        ref = build._reference_branches(kin, build._reference_angles(cfg), home)
+        ref = ref[kin.free_component(ref) == kin.free_component(home)[0]]
+        ref = ref[int(np.argmin(metric.time(home, ref)))]
+        for grid in ("iso:step=10", "full:step=15"):
+            poses = enumerate_grid(parse_grid(grid), cfg.kinematics.theta_max_deg)
+            angles = np.stack([poses.theta_i, poses.phi_i, poses.theta_o, poses.phi_o])
+            angles = angles[:, kin.feasibility(*angles) == 0]
+            labels = ("planner (exact up to 12)", "local search alone", old)
+            for label, g in zip(labels, _tour_gaps(kin, metric, angles, ref, home, (8, 12), count, seed,
+                                                   (shipped, search, before), 12), strict=True):
+                print(f"| {name} | `{grid}` | 8-12 | {label} | {count} | {_gap_cells(g)} |", flush=True)
+            labels = ("local search alone", old)
+            for label, g in zip(labels, _tour_gaps(kin, metric, angles, ref, home, (13, 14), count // 4, seed,
+                                                   (search, before), 14), strict=True):
+                print(f"| {name} | `{grid}` | 13-14 | {label} | {count // 4} | {_gap_cells(g)} |", flush=True)
+            plan = build_plan(f"{grid},order=tour", cfg, kin)
+            g = _window_gaps(plan, kin, metric, count, seed)
+            print(f"| {name} | `{grid}` | 8-12 consecutive | the plan's own tour "
+                  f"({plan.theta_i.size:,} poses) | {count} | {_gap_cells(g)} |", flush=True)
 
 
 def order_rows() -> None:
@@ -326,6 +442,9 @@ def main() -> None:
                          "gap to the exact optimum on 200 subsets, iso:step=1 build time")
     ap.add_argument("--exact", action="store_true",
                     help="only the gaps to the exact optimum on 200 random subsets per gantry")
+    ap.add_argument("--subsets", action="store_true",
+                    help="worst gap to the exact optimum of tours on 8-12 and 13-14-pose subsets and of "
+                         "8-12-pose stretches of full tours")
     ap.add_argument("--orders", action="store_true",
                     help="estimate / bound of the serpentine, the tours (kicks, seeds), auto; the bound "
                          "without the Lagrangian")
@@ -342,6 +461,10 @@ def main() -> None:
         return
     if args.exact:
         exact_rows(args.seed)
+        print(f"\nload average at end {os.getloadavg()[0]:.2f}")
+        return
+    if args.subsets:
+        subset_rows(args.seed)
         print(f"\nload average at end {os.getloadavg()[0]:.2f}")
         return
     if args.orders:

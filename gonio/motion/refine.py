@@ -7,6 +7,10 @@ programming over its poses' branches (the same Viterbi as :mod:`gonio.motion.bra
 candidates), the best improving move is taken, and that repeats until none improves. Then a few
 seeded double-bridge kicks (cut the walk in four, swap the middle stretches) followed by the same
 descent look past the local optimum (iterated local search); a kick is kept only when it ends shorter.
+Last, optionally, stretches of a few stops are solved exactly (:func:`gonio.motion.exact.exact_order`
+between the positions on either side; a closed walk's stretches wrap round its depot) and the descent
+resumes after each one that saves time: what no single move reaches (on the sample stage, a pose that
+belongs at the other end of the tour on its other tilt sign).
 
 The walk is ``start → poses → end`` with fixed ends (the reference pose, or the branches on either
 side of a window of a longer tour: :func:`refine_windows`). Batched pricing is O(N² · N · W²) per
@@ -16,8 +20,11 @@ ones.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
+from gonio.motion.exact import exact_order
 from gonio.motion.metric import MoveMetric
 
 __all__ = ["walk_costs", "best_walk", "candidate_orders", "refine_order", "refine_windows"]
@@ -82,7 +89,13 @@ def best_walk(branches, order, start_deg, end_deg, metric: MoveMetric) -> np.nda
 def candidate_orders(order) -> np.ndarray:
     """Every 2-opt and Or-opt neighbour (C, L) of ``order`` (a walk with fixed ends)."""
     order = np.asarray(order, dtype=np.int64)
-    n = order.size
+    return order[_moves(order.size)]
+
+
+@functools.lru_cache(maxsize=64)
+def _moves(n: int) -> np.ndarray:
+    """The 2-opt and Or-opt neighbours (C, n) of the walk 0..n-1: every walk's are these positions."""
+    order = np.arange(n)
     out = []
     for i in range(n - 1):
         for j in range(i + 1, n):
@@ -101,7 +114,9 @@ def candidate_orders(order) -> np.ndarray:
                 out.append(np.concatenate([rest[:k], piece, rest[k:]]))
                 if seg > 1:
                     out.append(np.concatenate([rest[:k], piece[::-1], rest[k:]]))
-    return np.array(out, dtype=np.int64).reshape(-1, n)
+    moves = np.array(out, dtype=np.int64).reshape(-1, n)
+    moves.flags.writeable = False
+    return moves
 
 
 def _descend(tables, order, cost):
@@ -116,8 +131,73 @@ def _descend(tables, order, cost):
         order, cost = cands[k], float(costs[k])
 
 
+def _exact_windows(branches, tables, order, cost, start, end, metric, window):
+    """Each stretch of ``window`` stops of the walk (overlapping by half) replaced by the exact optimum
+    between the positions the walk stands on before and after it (:func:`gonio.motion.exact.exact_order`),
+    kept when the whole walk, its branches chosen again, ends shorter; the new order and its cost.
+
+    A closed walk (``start`` equal to ``end``: a tour from and back to the reference) is a cycle whose
+    depot is one more stop with the one position: windows wrap round it, so the poses just before and
+    just after the depot can trade places (the end of a tour is as much its start)."""
+    n = order.size
+    closed = bool(np.array_equal(start, end))
+    if closed:
+        depot = np.broadcast_to(start, (1,) + branches.shape[1:])
+        stops = np.concatenate([branches, depot])              # stop n is the depot
+        nodes = np.concatenate([[n], order])
+    else:
+        stops, nodes = branches, order
+    m = nodes.size
+    if m <= window + (0 if closed else -1):
+        return order, cost
+    step = max(window // 2, 1)
+    firsts = list(range(0, m, step)) if closed else list(range(0, m - window, step)) + [m - window]
+
+    def positions(order):
+        walk = best_walk(branches, order, start, end, metric)
+        return np.concatenate([start[None], walk]) if closed else walk
+
+    at = positions(order)
+    for lo in firsts:
+        idx = (lo + np.arange(window)) % m
+        if closed:
+            before, after = at[(lo - 1) % m], at[(lo + window) % m]
+        else:
+            before = at[lo - 1] if lo else start
+            after = at[lo + window] if lo + window < m else end
+        piece = nodes[idx]
+        sub, _ = exact_order(stops[piece], before, after, metric)
+        if np.array_equal(sub, np.arange(window)):
+            continue
+        cycle = nodes.copy()
+        cycle[idx] = piece[sub]
+        if closed:
+            k = int(np.flatnonzero(cycle == n)[0])
+            new = np.concatenate([cycle[k + 1:], cycle[:k]])
+        else:
+            new = cycle
+        new_cost = float(_priced(tables, new[None])[0])
+        if new_cost < cost - _GAIN_EPS:
+            order, cost = new, new_cost
+            nodes = np.concatenate([[n], order]) if closed else order
+            at = positions(order)
+    return order, cost
+
+
+def _improve(branches, tables, order, cost, start, end, metric, window):
+    """2-opt/Or-opt descent and exact windows in turn until neither saves anything."""
+    while True:
+        order, cost = _descend(tables, order, cost)
+        if window < 2:
+            return order, cost
+        order, new_cost = _exact_windows(branches, tables, order, cost, start, end, metric, window)
+        if new_cost >= cost - _GAIN_EPS:
+            return order, cost
+        cost = new_cost
+
+
 def refine_order(branches, order, start_deg, end_deg, metric: MoveMetric, kicks: int = 8,
-                 seed: int = 0) -> tuple[np.ndarray, float]:
+                 seed: int = 0, window: int = 0) -> tuple[np.ndarray, float]:
     """Best-improvement 2-opt/Or-opt descent with exact branch pricing, then ``kicks`` double-bridge
     restarts (seeded; each kept only if it ends shorter).
 
@@ -134,6 +214,12 @@ def refine_order(branches, order, start_deg, end_deg, metric: MoveMetric, kicks:
         Double-bridge restarts.
     seed : int
         Seed of the kicks' cut points.
+    window : int
+        Once 2-opt/Or-opt find nothing, stretches of this many stops (poses, and the depot of a closed
+        walk) are solved exactly between the positions on either side of them, overlapping by half, and
+        the descent resumes after any that saves time (at most
+        :data:`gonio.motion.exact.EXACT_MAX_POSES`; below 2, none: the default). A walk no longer than a
+        window is left to the moves (solve it with :func:`gonio.motion.exact.exact_order`).
 
     Returns
     -------
@@ -147,7 +233,9 @@ def refine_order(branches, order, start_deg, end_deg, metric: MoveMetric, kicks:
         return order.copy(), 0.0
     # Only the poses of the walk, renumbered, so the tables stay small.
     poses = order.copy()
-    tables = _tables(np.asarray(branches)[poses], start_deg, end_deg, metric)
+    pose_b = np.asarray(branches, dtype=np.float64)[poses]
+    start, end = np.asarray(start_deg, float), np.asarray(end_deg, float)
+    tables = _tables(pose_b, start, end, metric)
     local = np.arange(order.size)
     cost = float(_priced(tables, local[None])[0])
     if order.size < 2:
@@ -162,6 +250,8 @@ def refine_order(branches, order, start_deg, end_deg, metric: MoveMetric, kicks:
         kicked, k_cost = _descend(tables, kicked, k_cost)
         if k_cost < cost - _GAIN_EPS:
             best, cost = kicked, k_cost
+    # Exact windows last: the kicks' descents are cheap, a window pass is not.
+    best, cost = _improve(pose_b, tables, best, cost, start, end, metric, window)
     return poses[best], cost
 
 

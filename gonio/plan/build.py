@@ -88,8 +88,14 @@ TOUR_SEED_TRIALS_MAX_POSES = 1_500
 #: than the closest set's (on the sample stage's iso:step=10 the best two differ by 0.3 %; on the
 #: two-arm gantry the next distinct set is 2.3 % apart and loses).
 TOUR_SEED_MARGIN = 0.01
-#: Tours of at most this many poses are refined with every move priced after the branch choice.
+#: Tours of at most this many poses are refined with every move priced after the branch choice, with
+#: this many double-bridge restarts and then windows of this many stops solved exactly
+#: (:func:`gonio.motion.refine.refine_order`): with the exact shortcut off, 8 restarts and no windows left
+#: 8-12-pose subsets of the sample stage up to 5.6 % above the optimum, windows of 9 a 13-pose subset of
+#: the two-arm gantry's full:step=15 3.8 % above (``tools/bench_plan.py --subsets``).
 TOUR_REFINE_MAX_POSES = 24
+TOUR_REFINE_KICKS = 16
+TOUR_REFINE_WINDOW = 11
 #: Largest plan whose valid bound uses every pose (``iso:step=2``, 142,879 poses, takes ~4 s of it);
 #: above it an evenly spread subset of this many (the moves through a subset are no longer than
 #: through all: still a bound, a weaker one).
@@ -533,7 +539,8 @@ def _tour_order(kin, angles, points, neighbours, depot, home, metric: MoveMetric
     choice (:func:`gonio.motion.exact.exact_order`; the search below ended up to 13 % above it on
     8-12-pose sets of the sample stage). More: nearest neighbour, 2-opt/Or-opt with kicks; then, for at
     most :data:`TOUR_REFINE_MAX_POSES` poses, the same moves priced after choosing every pose's branch
-    again (:func:`gonio.motion.refine.refine_order`), which finds what a search on fixed branches
+    again (:func:`gonio.motion.refine.refine_order`, :data:`TOUR_REFINE_KICKS` restarts, then windows of
+    :data:`TOUR_REFINE_WINDOW` stops solved exactly), which finds what a search on fixed branches
     cannot."""
     n = points.shape[0]
     if 2 <= n <= EXACT_MAX_POSES:
@@ -542,7 +549,8 @@ def _tour_order(kin, angles, points, neighbours, depot, home, metric: MoveMetric
     perm = perturb_tour(points, perm, metric, depot, neighbours,
                         kicks=min(TOUR_KICKS_PER_POSE * n, TOUR_KICKS_MAX))
     if 2 <= n <= TOUR_REFINE_MAX_POSES:
-        perm, _ = refine_order(_branch_table(kin, angles, home, depot), perm, depot, depot, metric)
+        perm, _ = refine_order(_branch_table(kin, angles, home, depot), perm, depot, depot, metric,
+                               kicks=TOUR_REFINE_KICKS, window=TOUR_REFINE_WINDOW)
     return perm
 
 
