@@ -170,15 +170,43 @@ def corner(kin, seg: Segment, now_deg: np.ndarray, was_deg_s: np.ndarray) -> tup
     u0 = (np.asarray(was_deg_s, dtype=np.float64) * sign)[ax]     # toward the new goal (< 0: away)
     left = np.abs(seg.end_deg - now_deg)[ax]
     plan = seg.speed_deg_s[ax]
-    t_c = max(float(np.max(np.abs(plan - u0) / amax[ax])), 1e-3)
     lead = ax.index(seg.lead_axis)
-    span = (left[lead] + (plan[lead] - u0[lead]) * t_c / 2.0) / plan[lead]
-    v = np.clip((left - u0 * t_c / 2.0) / max(span - t_c / 2.0, 1e-3), SPEED_FLOOR * vmax[ax], vmax[ax])
-    v[lead] = plan[lead]
-    room = np.maximum(np.abs(seg.goal_deg - now_deg)[ax], 1e-6)
-    last = bool(np.all(seg.goal_deg == seg.end_deg))
-    hold = v * v / (2.0 * room) * (1.0 / 0.9 if last else 1.25)
+    if np.all(seg.goal_deg == seg.end_deg):
+        return _to_rest(seg, ax, u0, left, plan, lead, vmax, amax)
+    v = plan
+    for _ in range(4):    # the ramp time from the speeds, the speeds from the ramp time: a few rounds
+        t_c = max(float(np.max(np.abs(v - u0) / amax[ax])), 1e-3)
+        span = (left[lead] + (plan[lead] - u0[lead]) * t_c / 2.0) / plan[lead]
+        v = np.clip((left - u0 * t_c / 2.0) / max(span - t_c / 2.0, 1e-3), SPEED_FLOOR * vmax[ax], vmax[ax])
+        v[lead] = plan[lead]
+    # The servo brakes toward its goal once the goal is its braking distance away: not before it passes
+    # the segment's end pose, where the next segment is written.
+    room = np.maximum(np.abs(seg.goal_deg - seg.end_deg)[ax], 1e-6)
+    hold = 1.25 * v * v / (2.0 * room)
     a = np.clip(np.maximum(np.abs(v - u0) / t_c, hold), ACCEL_FLOOR * amax[ax], amax[ax])
+    speed, accel = np.zeros_like(vmax), np.zeros_like(amax)
+    speed[ax], accel[ax] = v, a
+    return speed, accel
+
+
+def _to_rest(seg: Segment, ax: list[int], u0, left, plan, lead: int, vmax, amax):
+    """The last segment's speeds and accelerations: every axis brakes onto the last pose over the same
+    time (accelerations in proportion to speeds, the one braking hardest at its top acceleration; more
+    for an axis that comes in too fast to stop there), each speed such that, its ramp from ``u0``
+    included, it comes to rest there when the lead axis does."""
+    t_b = float(np.max(plan / amax[ax]))
+    ramp = np.abs(plan - u0) * t_b / plan
+    end = (left[lead] + ramp[lead] * (plan[lead] - u0[lead]) / 2.0) / plan[lead] + t_b / 2.0
+    v = plan.copy()
+    for _ in range(6):
+        ramp = np.abs(v - u0) * t_b / v
+        v = np.clip((left + ramp * (v - u0) / 2.0) / max(end - t_b / 2.0, 1e-3), SPEED_FLOOR * vmax[ax],
+                    vmax[ax])
+        v[lead] = plan[lead]
+    # no less than what lets an axis coming in faster stop on the pose (else it would overshoot, stop
+    # and come back)
+    need = u0 * u0 / (1.8 * np.maximum(left, 1e-6))
+    a = np.clip(np.maximum(v / t_b, need), ACCEL_FLOOR * amax[ax], amax[ax])
     speed, accel = np.zeros_like(vmax), np.zeros_like(amax)
     speed[ax], accel[ax] = v, a
     return speed, accel

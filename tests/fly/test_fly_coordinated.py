@@ -119,3 +119,62 @@ def test_coordinated_lines_are_refused_where_an_axis_cannot_sweep(tmp_path):
             check_fly_gantry(g, c.cfg, fly_plan_of(c))
     finally:
         c.close()
+
+
+def _stage_kin():
+    from gonio.kinematics import make_kinematics
+
+    return make_kinematics(load_config(STAGE))
+
+
+def test_segments_run_along_the_chords_past_each_pose_and_end_on_the_last(stage_flown):
+    """Pure plan of every coordinated line: a segment's goal lies on its chord's extension (inside the
+    limits, the straight sweep to it clear), the last one on the last pose; speeds in proportion to each
+    axis's travel (above the floors), the first segment's accelerations likewise."""
+    _folder, _meta, fp, _ = stage_flown
+    kin = _stage_kin()
+    for line in (ln for ln in fp.lines if ln.axis == COORDINATED):
+        poses = on_limits(kin, line.readings_deg())
+        segs = path_segments(kin, line, poses)
+        assert len(segs) == line.n - 1
+        for k, s in enumerate(segs):
+            ax = list(s.axes)
+            d, past = (s.end_deg - s.start_deg)[ax], (s.goal_deg - s.end_deg)[ax]
+            np.testing.assert_array_equal(s.start_deg, poses[k])
+            if k == len(segs) - 1:
+                np.testing.assert_array_equal(s.goal_deg, poses[-1])
+            else:
+                ratio = past / d
+                assert np.all(ratio > 0) and np.ptp(ratio) < 1e-9        # on the extension, forward
+            assert kin.sweep_clear_one(s.start_deg, s.goal_deg)[0]
+            big = np.abs(d) * s.rate > 0.02 * np.asarray(kin.velocity_deg_s)[ax]
+            np.testing.assert_allclose(s.speed_deg_s[ax][big], np.abs(d[big]) * s.rate)
+        first = segs[0]
+        ax = list(first.axes)
+        d = np.abs(first.end_deg - first.start_deg)[ax]
+        big = first.accel_deg_s2[ax] > 0.1 * np.asarray(kin.accel_deg_s2)[ax] + 1e-9
+        per = (first.accel_deg_s2[ax] / d)[big]
+        assert per.size == 0 or np.ptp(per) < 1e-9
+
+
+def test_a_corner_brings_every_axis_to_the_next_pose_with_the_lead():
+    """Written as the axes pass a pose, one of them 0.3° ahead and all at their last speeds: every axis
+    ramps over the same time and reaches the segment's end pose when the lead axis does."""
+    from gonio.fly.segments import Segment, corner
+
+    kin = _stage_kin()
+    start, end = np.array([0.0, 0.0, 20.0, 30.0]), np.array([0.0, 0.0, 40.0, 36.0])
+    seg = Segment(start, end, end + (end - start) * 0.8, (2, 3), np.array([0, 0, 20.0, 6.0]),
+                  np.array([0, 0, 50.0, 50.0]), 1.0)
+    was = np.array([0.0, 0.0, 17.0, 9.0])
+    now = start + np.array([0.0, 0.0, 0.0, 0.3])
+    speed, accel = corner(kin, seg, now, was)
+    arrive = []
+    for i in (2, 3):
+        u0, v, a = was[i], speed[i], accel[i]
+        ramp = abs(v - u0) / a
+        covered = (u0 + v) / 2 * ramp
+        arrive.append(ramp + (abs(end[i] - now[i]) - covered) / v)
+    assert abs(arrive[0] - arrive[1]) < 1e-5          # s (the speeds and the ramp: a few rounds)
+    assert abs(abs(speed[2] - was[2]) / accel[2] - abs(speed[3] - was[3]) / accel[3]) < 1e-5  # one ramp time
+    assert speed[3] < 6.0 * (1 - 0.3 / 6.0) + 0.5     # the axis ahead slows to wait for the lead
