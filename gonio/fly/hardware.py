@@ -42,6 +42,17 @@ A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
    executor's arrival check faults an axis that stopped short; the campaign's profile is written back
    (``complete``; before any later move if it could not be then).
 
+A coordinated line (:class:`gonio.plan.flypath.PathLine`: several axes along a ring) is flown as its
+chords (:mod:`gonio.fly.segments`): after the safe move and settle, the first segment starts every moving
+axis with one command (:meth:`~gonio.gantry.AssembledGantry.sweep_axes`: one Sync Write per Dynamixel bus
+of each servo's goal and profile) halfway through the first reading; each later one is written halfway
+through the reading of the pose the axes are passing (:func:`gonio.fly.segments.corner`: from where the
+latest stamped read puts them); each reading starts when the lead axis of the segment ending at its pose
+will pass it, on that servo's profile from the latest read; the positions of a reading are interpolated
+from the stamped reads of every axis as for a one-axis line. A coordinated line starts with its own
+safe move and settle (nil where a swept turnaround brought the axes to its start) and ends at rest on
+its last pose.
+
 A serial photodiode answers one request at a time, so the reads are taken between its sub-reads and
 between readings rather than beside them: the dead time of one Sync Read (~1 ms at 1 Mbit/s) per
 sub-read is lost to the exposure and the interpolation spans at most one sub-read. The reads between
