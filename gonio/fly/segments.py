@@ -18,10 +18,12 @@ No stop at the poses in between: a segment's goal lies past its end pose, on the
 the braking distance at speed (ω²/2β segments) and half a segment more, so the servos pass the pose at
 full speed and do not brake before the next segment's command, which is written as they pass it (a
 goal written during a move is planned from the present velocity: the e-Manual's Velocity Override). The
-last segment ends on the last pose, at rest. Where the extension is not clear of collision or leaves a
-limit (:meth:`Kinematics.sweep_clear_one`), it is shortened (halved, down to none: that segment then
-slows toward its pose); a chord that is not clear itself makes the line unflyable on hardware (a
-ValueError naming it: the planner's certificate covers the curve, not its chords).
+last segment ends on the last pose, at rest, every axis braking over the same time. Where the extension
+is not clear of collision or leaves a limit (:meth:`Kinematics.sweep_clear_one`), it is shortened
+(halved, down to none: that segment then slows toward its pose); a chord that is not clear itself makes
+the line unflyable on hardware (a ValueError naming it: the planner's certificate covers the curve, not
+its chords). Should gonio fall silent mid-line, every servo heads for a goal whose straight sweep from
+the segment's start was checked clear, and its bus watchdog stops it.
 
 The servos quantise speeds and accelerations (a Dynamixel: 0.229 rev/min and 214.577 rev/min² steps),
 so the scaling holds to a step: the positions of a reading come from the timestamped reads of every
