@@ -389,14 +389,40 @@ class AssembledGantry:
         ValueError
             ``name`` is unknown, or its driver cannot sweep (the message names it and why).
         """
-        if name not in self.axes:
-            raise ValueError(f"axes: unknown {name}; known: {', '.join(self.axes)}")
-        if not self.can_sweep(name):
-            raise ValueError(f"axes.{name}: its driver cannot sweep at a set velocity (on-the-fly "
-                             "scanning needs a Dynamixel servo)")
-        axis = self.axes[name]
-        out = axis.prepare(float(velocity_deg_s), float(accel_deg_s2))
-        axis.kickoff(float(target_deg))
+        return self.sweep_axes({name: (target_deg, velocity_deg_s, accel_deg_s2)})[name]
+
+    def sweep_axes(self, sweeps: Mapping[str, tuple[float, float, float]]) -> dict[str, tuple[float, float]]:
+        """Start several axes at once, each toward its target at its own velocity and acceleration:
+        ``sweeps`` maps a name to (target °, velocity °/s, acceleration °/s²). Every profile is prepared
+        (checked, quantised) first, so nothing moves if one is refused; then the axes of one bus start
+        with one packet (:meth:`DynamixelGroup.start_sweeps`: goal and profile of every servo in one Sync
+        Write) and any other sweeping axis by its own kickoff. Returns each axis's (velocity, acceleration)
+        as its driver quantised them.
+
+        Raises
+        ------
+        ValueError
+            A name is unknown, or its driver cannot sweep (the message names it and why), or a profile or
+            target is refused.
+        """
+        for name in sweeps:
+            if name not in self.axes:
+                raise ValueError(f"axes: unknown {name}; known: {', '.join(self.axes)}")
+            if not self.can_sweep(name):
+                raise ValueError(f"axes.{name}: its driver cannot sweep at a set velocity (on-the-fly "
+                                 "scanning needs a Dynamixel servo)")
+        out = {n: self.axes[n].prepare(float(v), float(a)) for n, (_t, v, a) in sweeps.items()}
+        for n, (t, _v, _a) in sweeps.items():
+            self.axes[n].check_target(float(t))
+        grouped = set()
+        for group, _ in self._groups:
+            mine = {n: float(sweeps[n][0]) for n in sweeps if n in group.axes}
+            if mine:
+                group.start_sweeps(mine)
+                grouped |= set(mine)
+        for n, (t, _v, _a) in sweeps.items():
+            if n not in grouped:
+                self.axes[n].kickoff(float(t))
         self._last_read = self.clock.now()
         return out
 

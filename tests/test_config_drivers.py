@@ -3,7 +3,8 @@ validated values, and a section's errors still name its field and what is allowe
 
 ``data/config_dumps_before_registries.json`` holds, for every shipped config, the full ``model_dump`` and
 the journal's snapshot (``exclude_defaults``) made by gonio before the drivers owned their models (one
-flat axis model held every driver's fields then)."""
+flat axis model held every driver's fields then); a config shipped since (emulated-sample-stage-dynamixel)
+was dumped when it was added."""
 
 from __future__ import annotations
 

@@ -18,7 +18,6 @@ from gonio.clock import WallClock
 from gonio.config import load_config, parse_config
 from gonio.dataset import read_brdf
 from gonio.lifecycle import run_campaign
-from gonio.motion.trapezoid import move_time
 from gonio.runner import State
 from gonio.sim.emulators.dxl_packet import Inst
 from gonio.sim.emulators.gantry import EmulatedGantry
@@ -288,8 +287,8 @@ def test_gonio_run_killed_mid_move_leaves_the_servos_stopped_by_their_bus_watchd
             while victim is None and time.monotonic() < deadline and proc.poll() is None:
                 with bus.lock:
                     for name, s in emu.servos.items():
-                        t0, start, goal, v, a = s._move
-                        left = t0 + float(move_time(goal - start, v, a)) - emu.clock.now()
+                        plan = s.trajectory
+                        left = plan.t0 + plan.duration - emu.clock.now()
                         if s.value(98) > 0 and s.value(122) and left > 3 * watchdog_s:
                             victim = name
                             break
@@ -303,7 +302,7 @@ def test_gonio_run_killed_mid_move_leaves_the_servos_stopped_by_their_bus_watchd
                 proc.kill()
                 proc.wait(10)
         s = emu.servos[victim]
-        goal = s._move[2]
+        goal = s.trajectory.end
         deadline = time.monotonic() + 10 * watchdog_s
         while time.monotonic() < deadline:
             with bus.lock:
@@ -336,8 +335,7 @@ def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp
         for s in emu.servos.values():
             def start(goal, s=s, start=s._start_move):
                 start(goal)
-                _t0, a, b, v, acc = s._move
-                lasted.append(float(move_time(b - a, v, acc)))
+                lasted.append(s.trajectory.duration)
             s._start_move = start
         (state, runner), _ = _emulated_run(tmp_path / "emu", emu, clock, grid="iso:step=45")
         assert state == State.DONE, runner.fault

@@ -744,6 +744,29 @@ class DynamixelAxis:
         profile, self._prepared = self._prepared, None
         self._write_goal(goal, profile)
 
+    def sweep_start(self, target_deg: float) -> tuple[int, int, int]:
+        """For a group that starts several prepared sweeps in one Sync Write
+        (:meth:`DynamixelGroup.start_sweeps`): (goal ticks, Profile Velocity, Profile Acceleration) of the
+        sweep :meth:`prepare` set toward ``target_deg``; nothing is written, the sweep stays prepared.
+
+        Raises
+        ------
+        ValueError
+            The target is outside the limits, or no sweep was prepared.
+        DynamixelHardwareError
+            A hardware error is latched.
+        """
+        goal = self.check_target(target_deg)
+        if self._prepared is None:
+            raise ValueError(f"axis '{self.name}': kickoff without a prepared sweep (prepare first)")
+        return goal, *self._prepared
+
+    def took_sweep(self) -> None:
+        """The group is writing the prepared sweep's profile and goal: the campaign's profile is replaced
+        until :meth:`complete`."""
+        self._prepared = None
+        self._profile_dirty = True
+
     def complete(self) -> None:
         """After a sweep: the campaign's profile written back (see :meth:`restore_profile`)."""
         self.restore_profile()

@@ -395,16 +395,37 @@ class DynamixelBus:
 
     def sync_write(self, field: Field, values: Mapping[int, int]) -> None:
         """One Sync Write of ``field`` for every servo in ``values`` (no status packets)."""
-        params = [field.address & 0xFF, field.address >> 8, field.size & 0xFF, field.size >> 8]
-        for dxl_id, v in values.items():
-            params += [dxl_id, *field.encode(int(v)).to_bytes(field.size, "little")]
+        self.sync_write_block(field.address, field.size,
+                              {i: field.encode(int(v)).to_bytes(field.size, "little")
+                               for i, v in values.items()},
+                              what=f"sync write {field.name}")
+
+    def sync_write_block(self, address: int, length: int, blocks: Mapping[int, bytes], *,
+                         what: str | None = None) -> None:
+        """One Sync Write (instruction 0x83 to the broadcast ID) of ``length`` bytes at ``address`` for
+        every servo in ``blocks`` (ID -> its bytes): ``4 + (1 + length) * len(blocks)`` parameters, no
+        status packet. Every servo named applies its own bytes as the packet ends, so contiguous items
+        written together (Profile Acceleration, Profile Velocity and Goal Position: 108..119) take effect
+        at once on every servo: a servo plans its goal with the profile written beside it.
+
+        Raises
+        ------
+        ValueError
+            A block of another length than ``length``, or an ID outside 0..252 (nothing is sent).
+        """
+        params = [address & 0xFF, address >> 8, length & 0xFF, length >> 8]
+        for dxl_id, data in blocks.items():
+            if not 0 <= dxl_id <= 252 or len(data) != length:
+                raise ValueError(f"dynamixel bus '{self.name}': sync write at {address}: servo {dxl_id} "
+                                 f"with {len(data)} bytes (want an ID in 0..252 and {length} bytes)")
+            params += [dxl_id, *bytes(data)]
 
         def op():
             comm = self._send(BROADCAST_ID, sdk.INST_SYNC_WRITE, params)
             self._port.is_using = False
             return None, comm, 0
 
-        self._call(f"sync write {field.name}", None, op)
+        self._call(what or f"sync write {length} bytes at {address}", None, op)
 
     def sync_read(self, address: int, length: int, ids: Iterable[int],
                   room: tuple[int, int] = (0, 0)) -> dict[int, bytes]:

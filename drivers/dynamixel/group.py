@@ -13,7 +13,10 @@ from collections.abc import Mapping, Sequence
 from gonio.drivers.dynamixel.errors import DynamixelCommError
 from gonio.drivers.dynamixel.state import BLOCK_LEN, BLOCK_START, READS, AxisState
 
-__all__ = ["DynamixelGroup"]
+__all__ = ["DynamixelGroup", "PROFILE_BLOCK"]
+
+#: The contiguous items a sweep's start writes, in address order (108, 112, 116 on the X-series).
+PROFILE_BLOCK = ("profile_acceleration", "profile_velocity", "goal_position")
 
 
 class DynamixelGroup:
@@ -35,13 +38,18 @@ class DynamixelGroup:
             raise ValueError("dynamixel group: every axis must be on the same bus")
         if len({a.dxl_id for a in axes}) != len(axes):
             raise ValueError("dynamixel group: servo IDs must be distinct")
-        shared = ("bus_watchdog", "goal_position", "present_velocity", "present_position", "moving")
+        shared = ("bus_watchdog", "goal_position", "present_velocity", "present_position", "moving",
+                  *PROFILE_BLOCK)
         if any(a.table[f] != axes[0].table[f] for a in axes for f in shared):
             raise ValueError("dynamixel group: the axes' control tables must place the watchdog, goal and "
                              "present fields at the same addresses")
         self.bus = bus
         self.axes = {a.name: a for a in axes}
         self._table = axes[0].table
+        if [self._table[f].address for f in PROFILE_BLOCK] != [108, 112, 116] \
+                or any(self._table[f].size != 4 for f in PROFILE_BLOCK):
+            raise ValueError("dynamixel group: Profile Acceleration, Profile Velocity and Goal Position must "
+                             "be contiguous 4-byte items at 108, 112, 116 (X-series)")
         rooms = [a.table.room(BLOCK_START, BLOCK_LEN) for a in axes]
         self._room = (min(r[0] for r in rooms), min(r[1] for r in rooms))
 
@@ -67,14 +75,49 @@ class DynamixelGroup:
             for n in targets:  # a power cycle since the servo last failed; a sweep's profile left behind
                 self.axes[n].prepare_goal()
                 self.axes[n].restore_profile()
-            arm = {a.dxl_id: a.watchdog_units for a in self.axes.values()
-                   if a.name in targets and not a.armed and a.watchdog_units}
-            if arm:
-                self.bus.sync_write(self._table["bus_watchdog"], arm)
-                for a in self.axes.values():
-                    if a.dxl_id in arm:
-                        a.mark_armed(True)
+            self._arm(targets)
             self.bus.sync_write(self._table["goal_position"], goals)
+
+    def _arm(self, names) -> None:
+        """One Sync Write arming the bus watchdog of the named servos not armed yet (none: nothing sent)."""
+        arm = {a.dxl_id: a.watchdog_units for a in self.axes.values()
+               if a.name in names and not a.armed and a.watchdog_units}
+        if arm:
+            self.bus.sync_write(self._table["bus_watchdog"], arm)
+            for a in self.axes.values():
+                if a.dxl_id in arm:
+                    a.mark_armed(True)
+
+    def start_sweeps(self, targets: Mapping[str, float]) -> None:
+        """Start the sweeps the named axes prepared (:meth:`DynamixelAxis.prepare`) toward ``targets``
+        (°) with ONE Sync Write of Profile Acceleration(108), Profile Velocity(112) and Goal Position(116),
+        12 contiguous bytes per servo: every servo starts as the packet ends, each with its own profile
+        (the e-Manual: a goal written with its profile is planned on that profile). Every target and
+        every prepared profile is checked first (nothing is written if one is refused); the watchdogs
+        not armed yet are armed first (one Sync Write). The axes' campaign profiles stay replaced until
+        their ``complete()`` (or the next move).
+
+        Raises
+        ------
+        ValueError
+            An unknown axis, a target outside its limits, or an axis with no prepared sweep.
+        """
+        unknown = set(targets) - set(self.axes)
+        if unknown:
+            raise ValueError(f"dynamixel group: unknown axes {sorted(unknown)}; known: {sorted(self.axes)}")
+        t = self._table
+        starts = {n: self.axes[n].sweep_start(v) for n, v in targets.items()}
+        blocks = {self.axes[n].dxl_id: b"".join(t[f].encode(int(x)).to_bytes(4, "little")
+                                                for f, x in zip(PROFILE_BLOCK, (acc, vel, goal), strict=True))
+                  for n, (goal, vel, acc) in starts.items()}
+        with self.bus.lock:
+            for n in targets:
+                self.axes[n].prepare_goal()
+            self._arm(targets)
+            for n in targets:
+                self.axes[n].took_sweep()
+            self.bus.sync_write_block(t[PROFILE_BLOCK[0]].address, 12, blocks,
+                                      what=f"start sweeps of {', '.join(targets)}")
 
     def read_stamped(self, clock) -> tuple[float, dict[str, AxisState]]:
         """:meth:`read`, stamped: (time, states), the time on ``clock`` (the gantry's) halfway through

@@ -42,6 +42,17 @@ A line (:class:`gonio.plan.fly.FlyLine`), by :class:`FlySweeper`:
    executor's arrival check faults an axis that stopped short; the campaign's profile is written back
    (``complete``; before any later move if it could not be then).
 
+A coordinated line (:class:`gonio.plan.flypath.PathLine`: several axes along a ring) is flown as its
+chords (:mod:`gonio.fly.segments`): after the safe move and settle, the first segment starts every moving
+axis with one command (:meth:`~gonio.gantry.AssembledGantry.sweep_axes`: one Sync Write per Dynamixel bus
+of each servo's goal and profile) halfway through the first reading; each later one is written halfway
+through the reading of the pose the axes are passing (:func:`gonio.fly.segments.corner`: from where the
+latest stamped read puts them); each reading starts when the lead axis of the segment ending at its pose
+will pass it, on that servo's profile from the latest read; the positions of a reading are interpolated
+from the stamped reads of every axis as for a one-axis line. A coordinated line starts with its own
+safe move and settle (nil where a swept turnaround brought the axes to its start) and ends at rest on
+its last pose.
+
 A serial photodiode answers one request at a time, so the reads are taken between its sub-reads and
 between readings rather than beside them: the dead time of one Sync Read (~1 ms at 1 Mbit/s) per
 sub-read is lost to the exposure and the interpolation spans at most one sub-read. The reads between
@@ -71,29 +82,80 @@ from dataclasses import replace
 import numpy as np
 
 from gonio.fly.blur import motion_blur
+from gonio.fly.segments import corner, on_limits, path_segments
 from gonio.motion.trapezoid import move_time
-from gonio.plan.fly import FLY_TOL_DEG, FlyLine
+from gonio.plan.fly import FlyLine
+from gonio.plan.flypath import COORDINATED
 from gonio.plan.schedule import STEP_POSE
 from gonio.protocols import DeviceFault
 from gonio.store import Measurement
 
 __all__ = ["FlySweeper", "on_limits", "READ_S", "SUBREADS"]
 
+
+class _AxisTiming:
+    """A one-axis line's motion: started by ``go()`` (its (velocity, acceleration) as the servo runs
+    them), each reading's mid-time predicted on the servo's own trapezoid (its quantised profile) from
+    rest at the start, from the latest stamped read of the axis."""
+
+    def __init__(self, line: FlyLine, go):
+        self.line, self.go = line, go
+        self.runs: FlyLine | None = None
+        self.due: np.ndarray | None = None
+
+    @property
+    def started(self) -> bool:
+        return self.runs is not None
+
+    def kickoff(self) -> None:
+        v, a = self.go()
+        self.runs = replace(self.line, speed_deg_s=v, accel_deg_s2=a)
+        self.due = self.runs.time_at(self.line.readings_deg()[:, self.line.axis])
+
+    def at_mid(self, j: int) -> None:
+        if self.runs is None:
+            self.kickoff()
+
+    def mid_time(self, j: int, t: np.ndarray, x: np.ndarray) -> float:
+        ax = self.line.axis
+        return float(t[ax] + self.due[j] - self.runs.time_at(x[ax]))
+
+
+class _PathTiming:
+    """A coordinated line's motion (:mod:`gonio.fly.segments`): ``write(k)`` starts segment k (returns
+    when, and each commanded axis's (velocity, acceleration) as quantised); reading j's mid-time is
+    when the lead axis of the segment ending at pose j passes it, on its servo's profile (from rest for
+    the first segment, from the last segment's speed after), from the latest stamped read."""
+
+    def __init__(self, segs, write):
+        self.segs, self.write = segs, write
+        self.sent: list[tuple[float, dict[int, tuple[float, float]]]] = []
+
+    @property
+    def started(self) -> bool:
+        return bool(self.sent)
+
+    def kickoff(self) -> None:
+        self.at_mid(0)
+
+    def at_mid(self, j: int) -> None:
+        if j == len(self.sent) and j < len(self.segs):
+            self.sent.append(self.write(j))
+
+    def mid_time(self, j: int, t: np.ndarray, x: np.ndarray) -> float:
+        seg = self.segs[j - 1]
+        ax = seg.lead_axis
+        v, a = self.sent[j - 1][1][ax]
+        v0 = self.sent[j - 2][1].get(ax, (0.0, 0.0))[0] if j >= 2 else 0.0
+        sign = np.sign(seg.goal_deg[ax] - seg.start_deg[ax])
+        at = sign * (x[ax] - seg.start_deg[ax])
+        to = abs(seg.end_deg[ax] - seg.start_deg[ax])
+        return float(t[ax] + seg.time_to(to, v0, v, a) - seg.time_to(at, v0, v, a))
+
 #: Seconds between timestamped axis reads while waiting for a reading's start.
 READ_S = 0.005
 #: Sub-reads per reading (at least; more where an exposure is longer than half the bus watchdog).
 SUBREADS = 4
-
-
-def on_limits(kin, axes_deg: np.ndarray) -> np.ndarray:
-    """A line's rest position with the planner's rounding at a limit taken off: the planner lets a run-up
-    end within its tolerance (``FLY_TOL_DEG``, 1e-6°) beyond a limit, which a driver refuses; further
-    than that is left for the driver to refuse."""
-    lo, hi = np.asarray(kin.limits_deg, dtype=np.float64).T
-    out = np.asarray(axes_deg, dtype=np.float64).copy()
-    near = ((out < lo) & (out >= lo - FLY_TOL_DEG)) | ((out > hi) & (out <= hi + FLY_TOL_DEG))
-    out[near] = np.clip(out, lo, hi)[near]
-    return out
 
 
 class FlySweeper:
@@ -138,6 +200,8 @@ class FlySweeper:
         turned, self._turned = self._turned is line, None
         if not line.moving:  # a pose read stop-and-go
             return [self.engine.reader.read(step, attempt)]
+        if line.axis == COORDINATED:
+            return self._sweep_path(line, step, attempt)
         kin, clock = ex.kinematics, ex.gantry.clock
         name = kin.axis_names[line.axis]
         start, end = on_limits(kin, line.start_deg), on_limits(kin, line.end_deg)
@@ -159,7 +223,7 @@ class FlySweeper:
         if self.streams is not None:
             self.streams.start_stream()
         try:
-            out = self._readings(line, step, attempt, go, reads)
+            out = self._readings(line, step, attempt, _AxisTiming(line, go), reads)
             # The run-down: the axis arrives at the line's end (the executor faults one that stopped short).
             v, a, t_go = went[0]
             left = t_go + line.duration_s - sum(line.pads()) - clock.now()
@@ -191,6 +255,63 @@ class FlySweeper:
             m.extra.update({"speed_deg_s": v, "accel_deg_s2": a, "planned_speed_deg_s": line.speed_deg_s})
         return out
 
+    def _sweep_path(self, line, step: int, attempt: int) -> list[Measurement]:
+        """The readings of a coordinated line (:class:`~gonio.plan.flypath.PathLine`): its straight
+        segments (:func:`gonio.fly.segments.path_segments`), each started by one command to every moving
+        axis (:meth:`~gonio.gantry.AssembledGantry.sweep_axes`: one Sync Write per bus), the next written
+        as the axes pass the pose between, halfway through that pose's reading; the line's readings
+        timed and placed as a one-axis line's, from the stamped reads of every axis."""
+        ex, flies = self.executor, self.flies
+        kin, clock = ex.kinematics, ex.gantry.clock
+        poses = on_limits(kin, line.readings_deg())
+        segs = path_segments(kin, line, poses)
+        names = [kin.axis_names[i] for i in segs[0].axes]
+        start, end = poses[0], poses[-1]
+        ex.goto(start)
+        ex.settle()
+
+        reads: list[tuple[np.ndarray, np.ndarray]] = []
+
+        def write(k: int) -> tuple[float, dict[int, tuple[float, float]]]:
+            seg = segs[k]
+            speed, accel = seg.speed_deg_s.copy(), seg.accel_deg_s2.copy()
+            if k:
+                # Where the axes are now: the latest read, carried on at the speeds they were given.
+                prev, given = segs[k - 1], timing.sent[-1][1]
+                t, x = reads[-1]
+                was = np.array([np.sign(prev.goal_deg[i] - prev.start_deg[i]) * given[i][0] if i in given
+                                else 0.0 for i in range(x.size)])
+                speed, accel = corner(kin, seg, x + was * (clock.now() - t), was)
+            sweeps = {kin.axis_names[i]: (float(seg.goal_deg[i]), float(speed[i]), float(accel[i]))
+                      for i in seg.axes}
+            got = ex.command(lambda: flies.sweep_axes(sweeps))
+            return clock.now(), {kin.axis_names.index(n): va for n, va in got.items()}
+
+        timing = _PathTiming(segs, write)
+        if self.streams is not None:
+            self.streams.start_stream()
+        try:
+            out = self._readings(line, step, attempt, timing, reads)
+            t, x = self._look(reads)
+            ex.arrive(start, end, max(timing.mid_time(line.n - 1, t, x) - clock.now(), 0.0))
+        except BaseException:
+            self._stop_stream()
+            if timing.started:
+                for n in names:
+                    try:
+                        flies.end_sweep(n)
+                    except Exception:  # noqa: S110 - the first failure is the one to report
+                        pass
+            raise
+        for n in names:
+            flies.end_sweep(n)
+        if self.streams is not None:
+            self.streams.stop_stream()
+        for m in out:
+            m.extra.update({"segments": len(segs), "segment_rate_hz": segs[0].rate,
+                            "planned_speed_deg_s": line.speed_deg_s})
+        return out
+
     def _stop_stream(self) -> None:
         """Stop the stream after a failure (the failure is the one to report)."""
         if self.streams is not None:
@@ -204,31 +325,25 @@ class FlySweeper:
         reads.append((t, x))
         return t, x
 
-    def _readings(self, line: FlyLine, step: int, attempt: int, go, reads) -> list[Measurement]:
+    def _readings(self, line, step: int, attempt: int, motion, reads) -> list[Measurement]:
+        """The readings of a line whose motion ``motion`` (:class:`_AxisTiming`, :class:`_PathTiming`)
+        starts and times."""
         ex = self.executor
         g, kin, clock = ex.gantry, ex.kinematics, ex.gantry.clock
-        ax, e = line.axis, line.exposure_s
+        e = line.exposure_s
         feed = self.feed_s
         m = max(self.subreads, math.ceil(e / feed) if feed else 0)
         planned = line.readings_deg()
         self._look(reads)
         spans, signals, variances, ends, windows = [], [], [], [], []
         gaps = self._gaps   # dead time between sub-reads seen so far (their reads and replies)
-        runs = due = None
-
-        def kickoff():
-            nonlocal runs, due
-            v, a = go()
-            # The servo's own profile (its quantised speed and acceleration) from rest at the start.
-            runs = replace(line, speed_deg_s=v, accel_deg_s2=a)
-            due = runs.time_at(planned[:, ax])
-
         # A line whose first reading is at its start (no run-up: the plan rests half an exposure before
-        # the motion) starts that reading at rest and sets the axis going halfway through it (at its
-        # mid-time); one with a run-up sets it going now.
+        # the motion) starts that reading at rest and sets the axes going halfway through it (at its
+        # mid-time); one with a run-up sets them going now. A coordinated line's next segment is
+        # written halfway through each reading (as the axes pass its pose).
         at_start = line.pads()[0] > 0.0
         if not at_start:
-            kickoff()
+            motion.kickoff()
         for j in range(line.n):
             # Each reading (but a first one at the start) starts when the axis, on its profile from the
             # last read, passes the pose at the mid-time of the sub-reads (their exposures and the dead
@@ -236,8 +351,7 @@ class FlySweeper:
             dead = float(np.median(gaps)) if gaps and self.streams is None else 0.0
             span = e + (m - 1) * dead
             while j or not at_start:
-                t, x = reads[-1][0][ax], reads[-1][1][ax]
-                start = t + float(due[j] - runs.time_at(x)) - 0.5 * span
+                start = motion.mid_time(j, *reads[-1]) - 0.5 * span
                 wait = start - clock.now()
                 if wait <= self.read_s:
                     if wait > 0:
@@ -250,8 +364,8 @@ class FlySweeper:
                 # while the instrument integrates on; their samples are gathered after the last reading.
                 t0 = clock.now()
                 for k in range(m):
-                    if runs is None and k == m // 2:
-                        kickoff()
+                    if k == m // 2:
+                        motion.at_mid(j)
                     ex.wait(max(t0 + (k + 1) * e / m - clock.now(), 0.0))
                     self._look(reads)
                 windows.append(t0)
@@ -260,8 +374,8 @@ class FlySweeper:
                 continue
             subs, var, mids = [], [], []
             for k in range(m):
-                if runs is None and k == m // 2:
-                    kickoff()
+                if k == m // 2:
+                    motion.at_mid(j)
                 t0 = clock.now()
                 if k:
                     gaps.append(t0 - mids[-1] - 0.5 * e / m)

@@ -19,6 +19,7 @@ from functools import partial
 
 from gonio.config import GonioConfig
 from gonio.fly.plans import rebuild_fly_plan
+from gonio.fly.segments import on_limits, path_segments
 from gonio.gantry import abilities
 from gonio.plan.fly import FlyPlan, fly_steps
 from gonio.plan.flypath import COORDINATED
@@ -33,8 +34,9 @@ def check_fly_gantry(gantry: Gantry, cfg: GonioConfig, fp: FlyPlan) -> None:
     """Whether ``gantry`` (wired from ``cfg``, connected or not) can fly the plan ``fp``, from the
     abilities its devices declare: it renders fly readings itself and says it can, or every axis that
     sweeps a line is :class:`~gonio.protocols.Flyable` (its velocity set per sweep, its position read
-    with timestamps) and the detector reads while the axes move (:class:`~gonio.protocols.ReadsOnTheFly`:
-    not a camera's frame).
+    with timestamps; a coordinated line's axes are started together, one packet per Dynamixel bus, along
+    chords that must be clear: :mod:`gonio.fly.segments`) and the detector reads while the axes move
+    (:class:`~gonio.protocols.ReadsOnTheFly`: not a camera's frame).
 
     Raises
     ------
@@ -63,12 +65,12 @@ def check_fly_gantry(gantry: Gantry, cfg: GonioConfig, fp: FlyPlan) -> None:
                              f"order=fly (it would sweep {lines} line{plural}; fly scanning on hardware "
                              "needs Dynamixel servos, whose velocity is set per sweep and whose positions "
                              "are sync-read with timestamps); use order=auto for this gantry")
-    coordinated = sum(ln.axis == COORDINATED for ln in fp.lines)
-    if coordinated:
-        raise ValueError(f"grid: order=fly would sweep {coordinated} coordinated line(s) (several axes along "
-                         "a path, gonio.plan.flypath), which only the simulated gantry flies so far (a "
-                         "configured gantry would need its servos' goals streamed along the path); use "
-                         "order=auto for this gantry")
+    # Coordinated lines fly as straight segments between their poses (gonio.fly.segments): each chord
+    # must be clear (the planner certified the curve through them).
+    kin = gantry.kinematics
+    for ln in fp.lines:
+        if ln.axis == COORDINATED:
+            path_segments(kin, ln, on_limits(kin, ln.readings_deg()))
     if not can.reads_on_the_fly:
         det = cfg.detector
         field, what = (("detector.sim.kind", det.sim.kind) if det.driver == "sim" else ("detector.driver",

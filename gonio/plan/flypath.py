@@ -25,8 +25,9 @@ summed over axes (max |q_i'| over the piece times its length) prove it clear whe
 line whose path is not proven clear is split at that step.
 
 Where it runs: the simulated gantry renders along Q(u(t)) (:mod:`gonio.sim.fly`); a configured gantry
-refuses a plan with coordinated lines (it would need the servos' goals streamed along the path), by
-name (:func:`gonio.fly.units.check_fly_gantry`).
+of Dynamixel servos flies it as straight segments between its poses, each started by one Sync Write of
+every moving servo's goal and profile (:mod:`gonio.fly.segments`, :mod:`gonio.fly.hardware`); a gantry
+whose moving axes cannot sweep refuses it by name (:func:`gonio.fly.units.check_fly_gantry`).
 """
 
 from __future__ import annotations

@@ -1,9 +1,10 @@
 """One emulated Dynamixel X-series servo (XM430-W350, XL430-W250): its control table and its shaft.
 
 The servo keeps the X-series control table (EEPROM below 64, writable only with torque off; RAM from 64,
-back to its initial values at power-up and after a reboot) and moves its shaft along the trapezoid
-profile (:func:`gonio.motion.trapezoid.position_at`) set by Profile Velocity and Acceleration, on an
-injected clock. What a driver must get right, as the e-Manual describes it:
+back to its initial values at power-up and after a reboot) and moves its shaft along the profile its
+Drive Mode(10), Profile Velocity and Acceleration set (:mod:`.dxl_profile`: velocity- or time-based, a goal
+written during a move re-planned from the present velocity), on an injected clock. What a driver must get
+right, as the e-Manual describes it:
 
 - Present Position counts turns while powered; at power-up, after a reboot and when Operating Mode
   changes, it restarts within one turn (0..4095 plus Homing Offset): behind a gear the axis angle is
@@ -34,7 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from gonio.clock import WallClock
-from gonio.motion.trapezoid import move_time, position_at
+from gonio.sim.emulators.dxl_profile import Trajectory, time_based, velocity_based
 
 __all__ = ["EmulatedServo", "MODELS", "ERR_RESULT_FAIL", "ERR_INSTRUCTION", "ERR_CRC", "ERR_DATA_RANGE",
            "ERR_DATA_LENGTH", "ERR_DATA_LIMIT", "ERR_ACCESS", "ALERT", "OVERLOAD_S"]
@@ -185,7 +186,13 @@ class EmulatedServo:
 
     # -- motion -----------------------------------------------------------------------------------------
     def _hold(self, raw_true: float) -> None:
-        self._move = (self.clock.now(), float(raw_true), float(raw_true), 1.0, 1.0)
+        self._move = Trajectory(self.clock.now(), float(raw_true))
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """The shaft's planned trajectory (ticks, the frame of ``position_ticks``; before the stops), from
+        the last goal (its ``t0``: when the goal was applied) or hold."""
+        return self._move
 
     def _clamp(self, x: float) -> float:
         lo, hi = self.stops_ticks
@@ -197,11 +204,8 @@ class EmulatedServo:
 
     def _true_f(self, t: float | None = None) -> float:
         """Where the shaft is (ticks, the frame of ``position_ticks``) at ``t`` (default now)."""
-        t0, start, goal, v, a = self._move
         t = self.clock.now() if t is None else t
-        if start == goal:
-            return goal
-        return self._clamp(float(position_at(t - t0, start, goal, v, a)))
+        return self._clamp(self._move.position(t))
 
     @property
     def true_ticks(self) -> float:
@@ -221,15 +225,13 @@ class EmulatedServo:
         return int(round(self._present_raw_f(t)))
 
     def _moving(self) -> bool:
-        t0, start, goal, v, a = self._move
-        return start != goal and self.clock.now() - t0 < float(move_time(goal - start, v, a))
+        return self._move.moving(self.clock.now())
 
     def _pushing(self, now: float) -> bool:
         """Whether the shaft is held by a stop short of where the profile wants it."""
-        t0, start, goal, v, a = self._move
-        if start == goal:
+        if not self._move.pieces:
             return False
-        want = float(position_at(now - t0, start, goal, v, a))
+        want = self._move.position(now)
         return self._clamp(want) != want
 
     def _velocity_ticks_s(self) -> float:
@@ -238,13 +240,26 @@ class EmulatedServo:
 
     def _accel_ticks_s2(self) -> float:
         pa = self._get(108, 4)
-        return pa * RPM2_PER_ACCEL_UNIT * TICKS_PER_REV / 3600.0 if pa else 1e9
+        return pa * RPM2_PER_ACCEL_UNIT * TICKS_PER_REV / 3600.0  # 0: infinite (dxl_profile)
+
+    @property
+    def time_based(self) -> bool:
+        """Drive Mode(10) bit 2: Profile Velocity and Acceleration are times (ms), not a speed and an
+        acceleration."""
+        return bool(self._get(10, 1) & 0x04)
 
     def _start_move(self, goal_present: int) -> None:
-        raw_goal = goal_present - self._get(20, 4, True) - self._count
+        """Plan the trajectory to a new goal from where the shaft is and how fast it goes (Velocity
+        Override), with the profile registers as they are now (written with the goal or before)."""
+        raw_goal = float(goal_present - self._get(20, 4, True) - self._count)
         now = self.clock.now()
-        self._move = (now, self._true_f(now), float(raw_goal), self._velocity_ticks_s(),
-                      self._accel_ticks_s2())
+        x = self._true_f(now)
+        v = 0.0 if self._pushing(now) else self._move.velocity(now)
+        if self.time_based and self._get(112, 4):
+            self._move = time_based(now, x, v, raw_goal, self._get(112, 4) / 1000.0,
+                                    self._get(108, 4) / 1000.0)
+        else:
+            self._move = velocity_based(now, x, v, raw_goal, self._velocity_ticks_s(), self._accel_ticks_s2())
 
     def _refresh(self) -> None:
         now = self.clock.now()
@@ -261,8 +276,7 @@ class EmulatedServo:
             current = self._get(102, 2, True) if self._get(11, 1) == 5 else self._get(38, 2)
         self._put(126, 2, current)
         self._put(132, 4, self._present_raw(now) + offset)
-        dt = 1e-3
-        v_ticks_s = ((self._true_f(now + dt) - self._true_f(now - dt)) / (2 * dt) if moving else 0.0)
+        v_ticks_s = self._move.velocity(now) if moving and not pushing else 0.0
         self._put(128, 4, int(round(v_ticks_s * 60.0 / TICKS_PER_REV / RPM_PER_VELOCITY_UNIT)))
         self._put(144, 2, self.voltage_dv)
         self._put(146, 1, self.temperature_c)

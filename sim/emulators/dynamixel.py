@@ -206,6 +206,8 @@ class DynamixelBusEmulator(EmulatorThread):
                                    int.from_bytes(prm[i + 3:i + 5], "little"))
                 out.append((dxl_id, status_packet(dxl_id, s.error_byte(err), data)))
             return out
+        if p.dxl_id != BROADCAST_ID or len(prm) < 4:
+            return out  # Sync Read/Write: Packet ID 0xFE (e-Manual); any other reaches no servo
         addr = int.from_bytes(prm[0:2], "little")
         length = int.from_bytes(prm[2:4], "little")
         body = prm[4:]
@@ -218,8 +220,14 @@ class DynamixelBusEmulator(EmulatorThread):
                 err, data = s.read(addr, length)
                 out.append((dxl_id, status_packet(dxl_id, s.error_byte(err), data)))
             return out
+        # Sync Write: an ID and ``length`` bytes per servo. No servo answers (the packet is broadcast), so
+        # what a servo refuses (an EEPROM item with torque on, a goal past its limits, an address no item
+        # covers) it refuses silently; a servo whose ID is not in the packet ignores it; a packet whose
+        # data do not divide into whole entries is dropped (no servo can know which bytes are its own).
         step = 1 + length
-        for i in range(0, len(body) - step + 1, step):
+        if length == 0 or len(body) % step:
+            return out
+        for i in range(0, len(body), step):
             s = self._servo(body[i])
             if s is not None:
                 s.heard()

@@ -33,6 +33,7 @@ out for another process.
 from __future__ import annotations
 
 import json
+import math
 import re
 import threading
 from urllib.parse import urlparse
@@ -157,8 +158,11 @@ class EmulatedGantry:
                         per_deg = _TICKS_PER_REV * a.gear_ratio / 360.0
                         return a.homing_offset_ticks + a.direction * deg * per_deg
 
+                    # Mechanical stops at the travel limits, on the encoder tick just inside each: a
+                    # carriage referenced against one then reads a position within its limits.
+                    lo, hi = sorted((ticks(a.min_deg), ticks(a.max_deg)))
                     stops = ((None, None) if a.operating_mode != "extended"
-                             else tuple(sorted((ticks(a.min_deg), ticks(a.max_deg)))))
+                             else (float(math.ceil(lo - 1e-9)), float(math.floor(hi + 1e-9))))
                     servo = EmulatedServo(a.id, _MODELS[a.family], self.clock,
                                           position_ticks=round(ticks(a.home_deg)), stops_ticks=stops,
                                           operating_mode=4 if a.operating_mode == "extended" else 3)
