@@ -15,6 +15,12 @@ Round sizes (:func:`round_size`) depend only on the journal's ``adaptive`` meta:
 (a round adds a dark and a white reference: 10 poses keep them within a fifth of the round); with
 ``budget_s=T`` the same growth, cut to the poses the time left holds at the estimated time per pose so
 far (estimates, not the clock: a resumed campaign plans the same round whatever the downtime).
+
+A round may find fewer poses than its size where the gantry's reach, its occlusion cone and theta_max
+leave no more new ones (:func:`gonio.adaptive.refine.plan_round`); it is measured as it is. A round
+that finds none ends the campaign short of its budget: :func:`next_round` returns no steps and the
+meta ``adaptive.ended`` (the round and the reason, in words), appended like a round in one transaction,
+so ``gonio status``, the report and a resume see it (:func:`ended_text`); no round is planned after it.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ from gonio.plan.grids import ADAPTIVE_MAX_BUDGET_S, ADAPTIVE_MAX_POSES, GridPose
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, step_table
 
 __all__ = ["pilot_plan", "round_size", "journal_samples", "next_round", "expected_steps", "budget_text",
-           "MIN_ROUND", "SEED"]
+           "ended_text", "MIN_ROUND", "SEED"]
 
 #: Least poses of a round (the last one excepted).
 MIN_ROUND = 10
@@ -102,6 +108,8 @@ def round_size(adaptive: dict) -> int:
     """Poses of the next round from the journal's ``adaptive`` meta (module docstring); 0: the budget is
     spent."""
     rounds = adaptive["rounds"]
+    if adaptive.get("ended"):
+        return 0
     if adaptive["budget_poses"] is not None:
         sizes = _sizes(adaptive)
         return sizes[len(rounds)] if len(rounds) < len(sizes) else 0
@@ -145,6 +153,13 @@ def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
     tmax = np.radians(_theta_max_deg(spec, cfg))
     samples = journal_samples(journal, cfg)
     ti, to, d = plan_round(samples, n, kin, tmax, seed=adaptive["seed"])
+    if ti.size == 0:
+        k = len(adaptive["rounds"]) + 1
+        reason = (f"round {k} found no reachable new pose (the gantry's reach, its occlusion cone and "
+                  f"theta_max leave none): ended with {int(meta['poses']):,} poses of a budget of "
+                  f"{budget_text(adaptive)}")
+        steps = {key: v[:0] for key, v in journal.steps().items()}
+        return steps, {"adaptive": {**adaptive, "ended": {"round": k, "reason": reason}}}, reason
     plan = build_plan(meta["grid"], cfg, kin, poses=_given(ti, np.zeros_like(ti), to, d))
     steps = step_table(plan, cfg)
     if not (steps["kind"][0] == STEP_DARK and steps["kind"][1] == STEP_REFERENCE):  # pragma: no cover
@@ -166,11 +181,19 @@ def expected_steps(meta: dict, steps: int) -> int:
     journal holds now (a progress bar's total): each round to come adds its poses and one checkpoint."""
     adaptive = meta["adaptive"]
     poses = int(meta["poses"])
+    if adaptive.get("ended"):
+        return steps
     if adaptive["budget_poses"] is not None:
         left = len(_sizes(adaptive)) - len(adaptive["rounds"])
         return steps + max(0, adaptive["budget_poses"] - poses) + 2 * max(0, left)
     spent = adaptive["pilot_s"] + sum(r["estimated_s"] for r in adaptive["rounds"])
     return max(steps, int(steps * adaptive["budget_s"] / spent))
+
+
+def ended_text(adaptive: dict) -> str | None:
+    """Why the campaign ended short of its budget (a round found no reachable new pose), or None."""
+    ended = adaptive.get("ended")
+    return ended["reason"] if ended else None
 
 
 def budget_text(adaptive: dict) -> str:

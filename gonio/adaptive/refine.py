@@ -18,7 +18,9 @@ turn): of :data:`TRIALS` seeded points in the ball of radius ρ_j around the sam
 every sample and every pose chosen before it in the round, among those the gantry can reach
 (:func:`gonio.adaptive.reach.reachable_iso`) and within theta_max. Whatever cannot be placed so (no
 reachable trial) is taken, farthest first, from the reachable uniform cloud, so a round returns exactly
-``n`` poses whenever the reachable domain holds them.
+``n`` poses whenever the reachable domain holds them, and fewer (none at all) where the gantry's reach,
+its occlusion cone and theta_max leave no more new poses: the caller decides what that means (an
+adaptive campaign ends, :func:`gonio.adaptive.plan.next_round`).
 
 Purity: the only inputs are the samples, ``n``, the gantry (its reach), theta_max, the domain and a
 seed; random numbers come from ``numpy.random.default_rng([seed, len(samples)])``; nothing reads a clock
@@ -73,12 +75,13 @@ def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: i
 
 def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CELLS,
                seed: int = 0, loo: tuple = LOO) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians), in the order chosen.
+    """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians), in the order chosen; fewer when
+    the reachable domain holds no more new poses (module docstring).
 
     Raises
     ------
     ValueError
-        When ``n`` is negative or fewer than ``n`` new reachable poses can be found.
+        When ``n`` is negative.
     """
     if n < 0:
         raise ValueError(f"n: must be >= 0, got {n}")
@@ -140,13 +143,14 @@ def _measurable(kin, points, theta_max, domain):
 
 
 def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
-    """``count`` reachable poses of the uniform cloud, farthest from the samples and each other first."""
+    """Up to ``count`` reachable poses of the uniform cloud, farthest from the samples and each other
+    first (fewer when the cloud holds no more reachable poses apart from every sample)."""
     wi, wo = random_pairs(CLOUD, theta_max, seed + 1)
     cloud = embed_pairs(domain, wi, wo)
     ok, ti, to, d = _measurable(kin, cloud, theta_max, domain)
     idx = np.flatnonzero(ok)
     if idx.size == 0:
-        raise ValueError(f"plan_round: no reachable pose left for {count} more")
+        return []
     gap = tree.query(cloud[idx])[0]
     if len(chosen):
         gap = np.minimum(gap, cKDTree(chosen).query(cloud[idx])[0])
@@ -154,7 +158,7 @@ def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
     for _ in range(count):
         best = int(np.argmax(gap))
         if gap[best] <= 0.0:
-            raise ValueError(f"plan_round: only {len(out)} of {count} more reachable new poses found")
+            break
         out.append((ti[idx[best]], to[idx[best]], d[idx[best]]))
         gap = np.minimum(gap, np.linalg.norm(cloud[idx] - cloud[idx[best]], axis=1))
     return out

@@ -132,6 +132,7 @@ def _section_adaptive(rep) -> str:
         ["rounds", f"{len(rounds)}: " + ", ".join(f"{r['poses']:,}" for r in rounds) + " poses"
                    if rounds else "none (the pilot spent the budget)"],
         ["estimated gantry time, all phases", _hms(spent)],
+        *([["ended short of the budget", a["ended"]["reason"]]] if a.get("ended") else []),
         ["poses near the specular direction (θh ≤ 10°)",
          f"{100 * rep.adaptive['pilot']:.0f} % of the pilot's, {100 * rep.adaptive['rounds']:.0f} % of the "
          "rounds'"],
