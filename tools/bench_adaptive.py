@@ -25,6 +25,15 @@ then ``adaptive:poses=N`` with its pose count N and ``adaptive:budget_s=T`` with
 read through ``gonio.brdf`` as users read it (``auto``: the lattice engine for iso, ``local`` for
 adaptive), with the gantry time each took (the campaign clock) and the wall time of the simulation.
 
+``--reach-time`` runs whole campaigns too: ``iso:step=5`` (its error through ``gonio.brdf`` is the target),
+then ``adaptive:budget_s=T`` for T from ``--reach-from-s`` up by 25 % until the error is at or below the
+target, once per ``--variants`` entry: ``before`` (motion ignored, a checkpoint closing every round: the
+campaigns of the first adaptive release), ``motion`` (a pose's gantry time in its worth,
+:data:`gonio.adaptive.plan.MOTION_WEIGHT`), ``checkpoints`` (checkpoints as needed,
+:data:`gonio.adaptive.plan.CHECKPOINTS_AS_NEEDED`), ``both`` (today's default). The gantry time to
+the target is interpolated between the last two campaigns (log error against log gantry time), and each
+campaign's poses, gantry time and error are printed. ``--campaigns`` takes ``--variants`` too.
+
 ``--export`` (ggx materials with a conductor Fresnel) runs whole campaigns, ``iso:step=5`` and
 ``adaptive:poses=N`` for each of ``--budgets``, exports each as a ``bsdf`` tensor file and scores the file
 as Mitsuba 3 reads it (the ``measured`` plugin, ``llvm_ad_rgb``) against Mitsuba's own ``roughconductor``
@@ -37,11 +46,13 @@ reconstruction's f̂(ω, ω)) and what the file's error would be with each.
     .venv/bin/python tools/bench_adaptive.py --full                # the isotropic panel, 4 counts, --reach
     .venv/bin/python tools/bench_adaptive.py --campaigns --steps 20,10   # whole simulated campaigns
     .venv/bin/python tools/bench_adaptive.py --export --budgets 600,1156,2299   # bsdf files in Mitsuba
+    .venv/bin/python tools/bench_adaptive.py --reach-time --variants before,motion,checkpoints,both
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import time
@@ -104,6 +115,11 @@ def main() -> None:
     parser.add_argument("--export", action="store_true", help="bsdf exports of iso:step=5 and adaptive "
                         "campaigns, read by Mitsuba 3, against its roughconductor")
     parser.add_argument("--budgets", default="600,1156,2299", help="adaptive pose counts of --export")
+    parser.add_argument("--reach-time", action="store_true", help="gantry time adaptive campaigns need for "
+                        "the iso:step=5 campaign's error, per motion weight")
+    parser.add_argument("--reach-from-s", type=float, default=200.0)
+    parser.add_argument("--variants", default=None, help="comma-separated of before, motion, checkpoints, "
+                        "both: how --campaigns and --reach-time place poses and checkpoints (default: both)")
     parser.add_argument("--pairs", type=int, default=20_000)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
@@ -130,8 +146,14 @@ def main() -> None:
         if args.pilots:
             _pilots(measure, kin, theta_max, truth, wi, wo)
             continue
+        variants = args.variants.split(",") if args.variants else ["both"]
         if args.campaigns:
-            _campaigns(spec, steps, truth, wi, wo)
+            for variant in variants:
+                with _variant(variant):
+                    _campaigns(spec, steps, truth, wi, wo)
+            continue
+        if args.reach_time:
+            _reach_time(spec, variants, args.reach_from_s, truth, wi, wo)
             continue
         if args.export:
             _exports(material, [int(b) for b in args.budgets.split(",")], wi, wo)
@@ -241,6 +263,58 @@ def _campaigns(spec, steps, truth, wi, wo):
                 print(f"  {grid:>26} {b.n_samples:>6} {gantry_s:>7.0f}s | {err:>7.4f} ({answered:>8.1%}) "
                       f"{b.method:>9} | {uniform / err:>11.1f}x | {wall:>6.1f}", flush=True)
 
+
+
+@contextlib.contextmanager
+def _variant(name):
+    """New adaptive campaigns journal this variant's motion weight and checkpoint rule while the block
+    runs (module docstring)."""
+    from gonio.adaptive import plan
+
+    kept = plan.MOTION_WEIGHT, plan.CHECKPOINTS_AS_NEEDED
+    weight = kept[0] if name in ("motion", "both") else 0.0
+    as_needed = name in ("checkpoints", "both")
+    if name not in ("before", "motion", "checkpoints", "both"):
+        raise SystemExit(f"--variants: {name!r} is not one of before, motion, checkpoints, both")
+    plan.MOTION_WEIGHT, plan.CHECKPOINTS_AS_NEEDED = weight, as_needed
+    print(f"  {name}: motion weight {weight:g}, checkpoints {'as needed' if as_needed else 'every round'}",
+          flush=True)
+    try:
+        yield
+    finally:
+        plan.MOTION_WEIGHT, plan.CHECKPOINTS_AS_NEEDED = kept
+
+
+def _reach_time(spec, variants, start_s, truth, wi, wo):
+    """The --reach-time panel (module docstring)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        b, uniform_s, _ = _simulated(f"{tmp}/iso5", "iso:step=5", spec)
+        target = weighted_l1(b.eval(wi, wo).value, truth, wi, wo)[0]
+        print(f"  iso:step=5: {b.n_samples} poses, gantry {uniform_s:.0f} s, error {target:.4f} (gonio.brdf)",
+              flush=True)
+        for variant in variants:
+            with _variant(variant):
+                budget, runs = start_s, []
+                while budget <= uniform_s:
+                    b, gantry_s, wall = _simulated(f"{tmp}/a{len(runs)}-{variant}",
+                                                   f"adaptive:budget_s={budget:.0f}", spec)
+                    err = weighted_l1(b.eval(wi, wo).value, truth, wi, wo)[0]
+                    runs.append((gantry_s, err))
+                    print(f"    budget_s={budget:>6.0f}: {b.n_samples:>5} poses, gantry {gantry_s:>6.0f} s, "
+                          f"error {err:.4f} ({wall:.0f} s wall)", flush=True)
+                    if err <= target:
+                        break
+                    budget *= 1.25
+                if runs[-1][1] > target:
+                    print(f"    not within {uniform_s:.0f} s of gantry time", flush=True)
+                    continue
+                (t0, e0), (t1, e1) = runs[-2] if len(runs) > 1 else runs[-1], runs[-1]
+                slope = (np.log(t1) - np.log(t0)) / (np.log(e1) - np.log(e0)) if e0 != e1 else 0.0
+                reach = float(np.exp(np.log(t0) + (np.log(target) - np.log(e0)) * slope)) if t0 != t1 else t1
+                print(f"    gantry time to the iso:step=5 error: {reach:.0f} s (interpolated), "
+                      f"{uniform_s / reach:.1f}x less than iso:step=5", flush=True)
 
 
 def _exports(material, budgets, wi, wo):

@@ -58,8 +58,10 @@ def round_sizes(pilot: int, budget: int, growth: float = GROWTH, least: int = 1)
 
 
 def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: float = PILOT_FRACTION,
-            domain: str = CELLS, seed: int = 0, growth: float = GROWTH, loo: tuple = LOO) -> Acquisition:
-    """Measure ``budget`` poses adaptively (module docstring).
+            domain: str = CELLS, seed: int = 0, growth: float = GROWTH, loo: tuple = LOO,
+            motion=None) -> Acquisition:
+    """Measure ``budget`` poses adaptively (module docstring); ``motion``: a
+    :class:`gonio.adaptive.motion.Motion` to weigh each round's poses by their gantry time.
 
     Raises
     ------
@@ -73,7 +75,7 @@ def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: floa
     samples = Samples(ti, to, d, measure(ti, to, d))
     phases = [len(samples)]
     for k, size in enumerate(sizes):
-        ti, to, d = plan_round(samples, size, kin, theta_max, domain, seed, loo)
+        ti, to, d = plan_round(samples, size, kin, theta_max, domain, seed, loo, motion)
         if ti.size == 0:
             return Acquisition(samples, tuple(phases), k + 1)
         samples = samples.extended(ti, to, d, measure(ti, to, d))

@@ -126,3 +126,29 @@ def test_a_kill_at_any_write_around_the_end_resumes_to_the_same_end(config, tmp_
                 np.testing.assert_array_equal(f["samples"][key][()], value, err_msg=key)
     # the kills came before the end was journaled and after it: both resumed to it
     assert ends[0] is None and ends[-1] is not None
+
+
+def test_an_end_after_rounds_without_a_closing_checkpoint_appends_one(config, tmp_path):
+    """Checkpoints as needed leave a round's readings without a reference after them until a later round
+    closes: an end found then appends the checkpoint (a dark where the gantry stands, the white
+    reference as the journal's first checkpoint read it) with the reason."""
+    from gonio.adaptive.plan import next_round
+    from gonio.campaign import open_campaign
+    from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
+
+    out = tmp_path / "c"
+    assert main(_argv(out, config) + ["--quiet"]) == 0
+    c = open_campaign(out)
+    try:
+        a = c.meta["adaptive"]
+        c.journal.set_meta("adaptive", {**{k: v for k, v in a.items() if k != "ended"},
+                                        "since_reference_s": 12.5})
+        journaled = c.journal.steps()
+        steps, meta, line = next_round(c.journal, c.cfg)
+    finally:
+        c.close()
+    assert steps["kind"].tolist() == [STEP_DARK, STEP_REFERENCE] and steps["pose"].tolist() == [-1, -1]
+    np.testing.assert_array_equal(steps["axes_deg"][0], journaled["axes_deg"][-1])
+    np.testing.assert_array_equal(steps["axes_deg"][1], journaled["axes_deg"][1])
+    assert meta["adaptive"]["since_reference_s"] == 0.0 and meta["adaptive"]["ended"]["reason"] == REASON
+    assert line == REASON
