@@ -134,7 +134,8 @@ def main() -> None:
     print(f"bench_adaptive: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
           f"{args.pairs:,} pairs (seed {args.seed}), θ <= {cfg.kinematics.theta_max_deg:g}°, gantry "
           f"{cfg.name}; " + ("whole simulated campaigns (the simulated detector: aperture, noise)"
-                               if args.campaigns or args.export else "noise-free f_r at the poses"))
+                               if args.campaigns or args.export or args.reach_time
+                               else "noise-free f_r at the poses"))
     for spec in specs:
         material = load(spec)
         measure = material_measure(material)

@@ -22,6 +22,10 @@ reachable trial) is taken, farthest first, from the reachable uniform cloud, so 
 its occlusion cone and theta_max leave no more new poses: the caller decides what that means (an
 adaptive campaign ends, :func:`gonio.adaptive.plan.next_round`).
 
+With a motion cost (:class:`gonio.adaptive.motion.Motion`), the :data:`POOL` · n cells of largest E_j
+are placed so, and n of those poses are taken by E_j per second of gantry time
+(:func:`gonio.adaptive.motion.cheapest_first`).
+
 Purity: the only inputs are the samples, ``n``, the gantry (its reach), theta_max, the domain and a
 seed; random numbers come from ``numpy.random.default_rng([seed, len(samples)])``; nothing reads a clock
 or a global state. The same inputs give the same poses, bit for bit, which is what lets a resume replay a

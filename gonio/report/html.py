@@ -141,7 +141,7 @@ def _section_adaptive(rep) -> str:
         rep.figures["adaptive"], "poses per phase and their half/difference angles",
         "Each round was planned from the journal's readings once the steps before it were measured: one "
         "new pose in each cell whose leave-one-out residual, weighted by its share of the error, was "
-        "largest.")
+        "largest (with a motion cost: per second of gantry time to reach it).")
 
 
 def _drift_words(channels, drift) -> str:
