@@ -12,7 +12,7 @@ the last phase brackets the round's first run, so the round's own first one is l
 
 Round sizes (:func:`round_size`) depend only on the journal's ``adaptive`` meta: with ``poses=N``,
 :func:`~gonio.adaptive.acquire.round_sizes` of the pilot and N, at least :data:`MIN_ROUND` poses each
-(a round adds a dark and a white reference: 10 poses keep them within a fifth of the round); with
+(a round of 10 poses is still worth its tour); with
 ``budget_s=T`` the same growth, cut to the poses the time left holds at the estimated time per pose so
 far (estimates, not the clock: a resumed campaign plans the same round whatever the downtime).
 
@@ -21,6 +21,12 @@ leave no more new ones (:func:`gonio.adaptive.refine.plan_round`); it is measure
 that finds none ends the campaign short of its budget: :func:`next_round` returns no steps and the
 meta ``adaptive.ended`` (the round and the reason, in words), appended like a round in one transaction,
 so ``gonio status``, the report and a resume see it (:func:`ended_text`); no round is planned after it.
+
+Gantry time: a round's poses are chosen with their motion cost (:data:`MOTION_WEIGHT`,
+:mod:`gonio.adaptive.motion`), and its checkpoints are kept only where the drift model needs them
+(:data:`CHECKPOINTS_AS_NEEDED`, :func:`_checkpoints`). Both are journaled in the ``adaptive`` meta of a
+new campaign (``motion_weight``, ``since_reference_s``), so a journal written before them replays its
+rounds as it planned them.
 """
 
 from __future__ import annotations
@@ -176,8 +182,10 @@ def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
         steps = {key: v[closing] for key, v in journaled.items()}
         if steps["kind"].size:   # the dark is read where the gantry stands: at the journal's last step
             steps["axes_deg"][0] = journaled["axes_deg"][-1]
-        ended = {"round": k, "reason": reason}
-        return steps, {"adaptive": {**adaptive, "ended": ended, "since_reference_s": 0.0}}, reason
+        after = {**adaptive, "ended": {"round": k, "reason": reason}}
+        if "since_reference_s" in adaptive:
+            after["since_reference_s"] = 0.0
+        return steps, {"adaptive": after}, reason
     plan = build_plan(meta["grid"], cfg, kin, poses=_given(ti, np.zeros_like(ti), to, d))
     steps = step_table(plan, cfg)
     if not (steps["kind"][0] == STEP_DARK and steps["kind"][1] == STEP_REFERENCE):  # pragma: no cover
