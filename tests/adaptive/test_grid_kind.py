@@ -96,6 +96,35 @@ def test_a_simulated_campaign_spends_its_pose_budget_in_journaled_rounds(campaig
     assert appended[0]["message"].startswith("round 1: 10 poses placed from 3 samples")
 
 
+def _first_round_again(folder, adaptive: dict) -> tuple[dict, dict, dict]:
+    """(the first round's steps as journaled, as planned again from the pilot's readings alone with the
+    ``adaptive`` meta given, the meta that planning returns): the campaign in ``folder`` is cut back to
+    its pilot."""
+    import sqlite3
+
+    c = open_campaign(folder)
+    try:
+        first = c.meta["adaptive"]["rounds"][0]["first_step"]
+        count = c.meta["adaptive"]["rounds"][0]["steps"]
+        measured = {k: v[first:first + count] for k, v in c.journal.steps().items()}
+        conn = sqlite3.connect(folder / "campaign.sqlite")
+        with conn:
+            conn.execute("DELETE FROM measurements WHERE step >= ?", (first,))
+            conn.execute("DELETE FROM steps WHERE step >= ?", (first,))
+        conn.close()
+        c.journal.set_meta("adaptive", {**adaptive, "rounds": []})
+        c.journal.set_meta("poses", adaptive["pilot_poses"])
+        steps, meta, _ = next_round(c.journal, c.cfg)
+    finally:
+        c.close()
+    return measured, steps, meta
+
+
+def _same_steps(a: dict, b: dict) -> None:
+    for key, value in a.items():
+        assert np.asarray(b[key]).tobytes() == np.asarray(value).tobytes(), key
+
+
 def test_a_journal_from_before_motion_and_checkpoints_as_needed_keeps_its_rounds(tmp_path, monkeypatch):
     """A campaign journaled without ``motion_weight`` and ``since_reference_s`` (the first adaptive
     release) plans its rounds as then: poses by error alone, every round closed by a checkpoint."""
@@ -105,64 +134,35 @@ def test_a_journal_from_before_motion_and_checkpoints_as_needed_keeps_its_rounds
     monkeypatch.setattr(adaptive_plan, "MOTION_WEIGHT", 0.0)
     out = tmp_path / "old"
     assert _simulate(out, "adaptive:poses=45") == 0
-    c = open_campaign(out)
+    c = open_campaign(out, readonly=True)
     try:
         a = c.meta["adaptive"]
-        assert "since_reference_s" not in a and a["motion_weight"] == 0.0
         kind = c.journal.steps()["kind"]
-        for r in a["rounds"]:
-            first, count = r["first_step"], r["steps"]
-            assert kind[first - 2: first].tolist() == [STEP_DARK, STEP_REFERENCE] and kind[first] == STEP_POSE
-            assert kind[first + count - 2:first + count].tolist() == [STEP_DARK, STEP_REFERENCE]
-        # without the key at all (as journaled then), the first round is planned again the same
-        first = a["rounds"][0]["first_step"]
-        measured = {k: v[first:first + a["rounds"][0]["steps"]] for k, v in c.journal.steps().items()}
     finally:
         c.close()
-    import sqlite3
-
-    conn = sqlite3.connect(out / "campaign.sqlite")
-    with conn:
-        conn.execute("DELETE FROM measurements WHERE step >= ?", (first,))
-        conn.execute("DELETE FROM steps WHERE step >= ?", (first,))
-    conn.close()
-    monkeypatch.setattr(adaptive_plan, "MOTION_WEIGHT", 2.0)   # what a new campaign would journal
-    c = open_campaign(out)
-    try:
-        old = {k: v for k, v in a.items() if k != "motion_weight"}
-        c.journal.set_meta("adaptive", {**old, "rounds": []})
-        c.journal.set_meta("poses", a["pilot_poses"])
-        steps, _, _ = next_round(c.journal, c.cfg)
-    finally:
-        c.close()
-    for key, value in measured.items():
-        assert np.asarray(steps[key]).tobytes() == np.asarray(value).tobytes(), key
+    assert "since_reference_s" not in a and a["motion_weight"] == 0.0
+    for r in a["rounds"]:
+        first, count = r["first_step"], r["steps"]
+        assert kind[first - 2: first].tolist() == [STEP_DARK, STEP_REFERENCE] and kind[first] == STEP_POSE
+        assert kind[first + count - 2:first + count].tolist() == [STEP_DARK, STEP_REFERENCE]
+    # without the key at all (as journaled then), the first round is planned again the same, whatever a
+    # new campaign would journal now
+    monkeypatch.setattr(adaptive_plan, "MOTION_WEIGHT", 2.0)
+    measured, steps, _ = _first_round_again(out, {k: v for k, v in a.items() if k != "motion_weight"})
+    _same_steps(measured, steps)
 
 
 def test_a_round_is_a_pure_function_of_the_journal(campaign, tmp_path):
     """The round after the pilot, planned again from a copy of the journal holding only the pilot's
     readings, is the one the campaign measured, bit for bit."""
     import shutil
-    import sqlite3
 
     shutil.copytree(campaign, tmp_path / "c")
-    c = open_campaign(tmp_path / "c")
-    try:
-        a = c.meta["adaptive"]
-        first = a["rounds"][0]["first_step"]
-        measured = {k: v[first:first + a["rounds"][0]["steps"]] for k, v in c.journal.steps().items()}
-        conn = sqlite3.connect(tmp_path / "c" / "campaign.sqlite")
-        with conn:
-            conn.execute("DELETE FROM measurements WHERE step >= ?", (first,))
-            conn.execute("DELETE FROM steps WHERE step >= ?", (first,))
-        conn.close()
-        c.journal.set_meta("adaptive", {**a, "rounds": [], "since_reference_s": 0.0})
-        c.journal.set_meta("poses", a["pilot_poses"])
-        steps, meta, _ = next_round(c.journal, c.cfg)
-    finally:
-        c.close()
-    for key, value in measured.items():
-        assert np.asarray(steps[key]).tobytes() == np.asarray(value).tobytes(), key
+    c = open_campaign(tmp_path / "c", readonly=True)
+    a = c.meta["adaptive"]
+    c.close()
+    measured, steps, meta = _first_round_again(tmp_path / "c", {**a, "since_reference_s": 0.0})
+    _same_steps(measured, steps)
     assert meta["adaptive"]["rounds"][0]["poses"] == 10
 
 
