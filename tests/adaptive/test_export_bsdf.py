@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gonio.adaptive import random_pairs
-from gonio.formats.rgl import build_measured, estimate_ndf, eval_measured, retro_from_samples
+from gonio.formats.rgl import NEAR_RETRO_DEG, build_measured, estimate_ndf, eval_measured, retro_from_samples
 from gonio.geometry import to_half_diff
 from gonio.sim.materials import load
 
@@ -59,7 +59,7 @@ def test_the_ndf_is_recovered_from_samples_near_retro_reflection():
     exact = estimate_ndf(lambda w: load(MATERIAL).eval(w, w, precision="float64").mean(axis=1), SHAPE)[0]
     assert _ggx_error(exact) < 0.005
     # samples far from retro-reflection alone tell nothing of it
-    far = to_half_diff(wi, wo)[2] > np.radians(25.0)
+    far = to_half_diff(wi, wo)[2] > np.radians(NEAR_RETRO_DEG + 5.0)
     assert retro_from_samples(wi[far], wo[far], fr[far]) is None
     # a wrong profile shows: samples up to 60° off retro-reflection (Fresnel and shadowing drift)
     wide = estimate_ndf(retro_from_samples(wi, wo, fr, theta_d_max_deg=60.0), SHAPE)[0]
@@ -88,12 +88,13 @@ def test_directions_past_the_datas_limit_take_the_value_on_it():
 
 
 def test_the_export_of_an_adaptive_campaign_matches_mitsubas_roughconductor(tmp_path):
-    """600 adaptive poses (1/15 of iso:step=5's) on the simulated gantry; the export read by Mitsuba."""
+    """The issue's bar: 1,156 adaptive poses (1/8 of iso:step=5's) on the simulated gantry, the export read
+    by Mitsuba, within 1 % of its roughconductor."""
     mi = pytest.importorskip("mitsuba")
     from gonio.cli import main
     from gonio.export import export
 
-    assert main(["simulate", MATERIAL, "--grid", "adaptive:poses=600", "--out", str(tmp_path / "c"),
+    assert main(["simulate", MATERIAL, "--grid", "adaptive:poses=1156", "--out", str(tmp_path / "c"),
                  "--quiet"]) == 0
     report = export(tmp_path / "c", "bsdf", tmp_path / "m.bsdf")
     assert any("from the measured samples within 20 deg" in n for n in report.notes)
@@ -115,5 +116,6 @@ def test_the_export_of_an_adaptive_campaign_matches_mitsubas_roughconductor(tmp_
         return out
 
     a, b = evaluate(measured), evaluate(rough)
-    # 1.29 % measured over 20,000 pairs (1.84 % with zeros past 80° and the NDF through the fit)
-    assert np.abs(a - b).sum() / b.sum() < 0.015
+    # 0.74 % over these pairs, 0.85 % over the bench's 20,000 (1.43 % with zeros past 80° and the NDF
+    # through the fit)
+    assert np.abs(a - b).sum() / b.sum() < 0.01
