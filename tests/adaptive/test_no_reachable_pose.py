@@ -13,10 +13,11 @@ import h5py
 import numpy as np
 import pytest
 from journal_crash import Crash, crash_at_write
+from zenith_gantry import zenith_light_config
 
 from gonio.adaptive import acquire, material_measure, plan_round
 from gonio.cli import main
-from gonio.config import load_config, resolve_config
+from gonio.config import load_config
 from gonio.kinematics import make_kinematics
 from gonio.sim.materials import load
 from gonio.store import JOURNAL_NAME, Journal
@@ -29,13 +30,7 @@ REASON = ("round 1 found no reachable new pose (the gantry's reach, its occlusio
 
 @pytest.fixture(scope="module")
 def config(tmp_path_factory):
-    text = resolve_config(None).read_text()
-    head, sep, tail = text.partition("[axes.light_tilt]")
-    tail = tail.replace("min_deg = -90.0", "min_deg = -0.001", 1).replace("max_deg = 90.0", "max_deg = 0.001",
-                                                                          1)
-    path = tmp_path_factory.mktemp("gantry") / "zenith-light.toml"
-    path.write_text(head + sep + tail)
-    return path
+    return zenith_light_config(tmp_path_factory.mktemp("gantry"))
 
 
 def _argv(out, config):
