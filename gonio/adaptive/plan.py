@@ -197,6 +197,8 @@ def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
     keep, since = _checkpoints(adaptive, steps["kind"], plan.step_end_s, cfg.reference.every_s, final)
     if keep.stop < steps["kind"].size:   # the closing checkpoint left to a later round
         estimated -= float(plan.step_end_s[-1] - plan.step_end_s[keep.stop - 1])
+    if "since_reference_s" in adaptive and not final:   # the gantry goes home after the last round only
+        estimated -= float(plan.timing["estimate"]["return_s"])
     if keep.start == 0:   # a dark is read where the gantry stands: after the journal's last step
         steps["axes_deg"][0] = journal.steps()["axes_deg"][-1]
     steps = {k: v[keep] for k, v in steps.items()}
