@@ -43,9 +43,9 @@ from gonio.formats import atomic_path
 from gonio.formats.csv import write_csv
 from gonio.formats.merl import MERL_BINS, write_merl
 from gonio.formats.radiance import LUMINANCE_WEIGHTS, write_pabopto
-from gonio.formats.rgl import build_measured
+from gonio.formats.rgl import NEAR_RETRO_DEG, build_measured, retro_from_samples
 from gonio.formats.tensor import write_tensor
-from gonio.geometry import from_half_diff, merl_bin_centres, merl_unindex
+from gonio.geometry import from_half_diff, merl_bin_centres, merl_unindex, sph_to_vec
 from gonio.registries import EXPORT_FORMATS
 
 __all__ = ["export", "ExportReport", "ExportJob", "parse_formats", "export_merl", "export_bsdf",
@@ -294,24 +294,55 @@ def _bsdf(job: ExportJob, out: Path, spectral: bool) -> ExportReport:
 
     meta = job.metadata("values are f_r*cos(theta_o)*4*sigma(wi)/D(m), jacobian=1 (Mitsuba 3 "
                         "'measured' convention)")
-    meta["ndf"] = "estimated from retro-reflection by fixed-point iteration (gonio.formats.rgl)"
+    isotropic = bool(brdf.symmetries["isotropy"])
+    retro = _measured_retro(job) if isotropic else None
+    if retro is None:
+        meta["ndf"] = ("estimated from retro-reflection by fixed-point iteration (gonio.formats.rgl), "
+                       f"retro-reflection evaluated through gonio.brdf ({brdf.method})")
+        retro = _through(values)
+    else:
+        meta["ndf"] = ("estimated from retro-reflection by fixed-point iteration (gonio.formats.rgl), "
+                       f"retro-reflection from the measured samples within {NEAR_RETRO_DEG:g} deg of it")
     if bridge is not None:
         meta["gaps"] = "cells in gaps of the lattice filled by the scattered engine (gonio.brdf)"
-    phi = (0.0,) if brdf.symmetries["isotropy"] else tuple(np.linspace(-180.0, 180.0, 25))
+    meta["beyond"] = (f"outgoing directions beyond the data's theta {brdf.theta_max_deg:.1f} deg take f_r at "
+                      "the same azimuth on that limit")
+    phi = (0.0,) if isotropic else tuple(np.linspace(-180.0, 180.0, 25))
     fields, counts = build_measured(lambda wi, wo: values(wi, wo, True),
                                     theta_i_deg=_theta_slices(brdf, job.theta_step_deg), phi_i_deg=phi,
                                     resolution=job.resolution, spectral_nm=SPECTRAL_NM if spectral else None,
-                                    description=meta, retro_fr=lambda w: values(w, w, False))
+                                    description=meta, retro_fr=retro, theta_max_deg=brdf.theta_max_deg)
     # Only the value grid counts (the retro-reflection probes of the NDF estimate are not cells).
     report.cells = counts["points"]
     report.interpolated = counts["filled"]
     report.empty = counts["empty"]
     report.notes = [meta["cosine"], meta["ndf"]]
+    if counts["extended"]:
+        report.notes.append(f"{counts['extended']} of the {counts['filled']} filled cells look beyond the "
+                            f"data's theta {brdf.theta_max_deg:.1f} deg: f_r at that azimuth on the limit")
     if bridged[0]:
         report.notes.append(f"{bridged[0]} of the {counts['filled']} filled cells lie in gaps of the lattice "
                             "(unmeasured poses, e.g. retro-reflection): filled by the scattered engine")
     report.paths.append(write_tensor(out, fields))
     return report
+
+
+def _through(values):
+    """f_r(ω, ω) through ``values`` (the export's evaluation), not counted as cells."""
+    return lambda w: values(w, w, False)
+
+
+def _measured_retro(job: ExportJob):
+    """The retro-reflection profile of the job's measured samples
+    (:func:`gonio.formats.rgl.retro_from_samples`), or None: an open MeasuredBRDF (no samples), or too few
+    samples near retro-reflection."""
+    if not job.has_data:
+        return None
+    data = job.data
+    wi = sph_to_vec(np.radians(data.theta_i), np.radians(data.phi_i))
+    wo = sph_to_vec(np.radians(data.theta_o), np.radians(data.phi_o))
+    profile = retro_from_samples(wi, wo, data.value)
+    return None if profile is None else (lambda w: np.repeat(profile(w)[:, None], 3, axis=1))
 
 
 def export_radiance(job: ExportJob, out: Path) -> ExportReport:

@@ -234,6 +234,8 @@ def status(folder: str | Path) -> dict:
     """A campaign's state, progress, ETA and last fault, read from its journal (read-only, safe while it
     runs). ``state`` is the journal's last; ``running`` or ``pausing`` with nobody holding the folder's
     lock is ``interrupted`` (no process runs it: running it again resumes); ``pid`` the holder's.
+    ``ended_short``: why an adaptive campaign ended short of its budget (a round found no reachable new
+    pose, :func:`gonio.adaptive.plan.ended_text`), else None.
 
     Raises
     ------
@@ -256,10 +258,12 @@ def status(folder: str | Path) -> dict:
         campaign_s, last_wall = j.campaign_clock()
     finally:
         j.close()
+    ended = None
     if kind_of(meta) == ADAPTIVE:   # its rounds are appended as it measures: the steps it will hold
-        from gonio.adaptive.plan import expected_steps
+        from gonio.adaptive.plan import ended_text, expected_steps
 
         total = expected_steps(meta, total)
+        ended = ended_text(meta["adaptive"])
     pid = CampaignLock.holder(folder)
     state = state_event["state"] if state_event else "created"
     interrupted = pid is None and state in ("running", "pausing")
@@ -272,4 +276,5 @@ def status(folder: str | Path) -> dict:
         "estimated_remaining_s": remaining, "last_update_unix": last_wall,
         "latched_fault": latched["reason"] if latched else None,
         "last_fault": fault_event["message"] if fault_event else None,
+        "ended_short": ended,
     }

@@ -25,14 +25,34 @@ then ``adaptive:poses=N`` with its pose count N and ``adaptive:budget_s=T`` with
 read through ``gonio.brdf`` as users read it (``auto``: the lattice engine for iso, ``local`` for
 adaptive), with the gantry time each took (the campaign clock) and the wall time of the simulation.
 
+``--reach-time`` runs whole campaigns too: ``iso:step=5`` (its error through ``gonio.brdf`` is the target),
+then ``adaptive:budget_s=T`` for T from ``--reach-from-s`` up by 25 % until the error is at or below the
+target, once per ``--variants`` entry: ``before`` (motion ignored, a checkpoint closing every round: the
+campaigns of the first adaptive release), ``motion`` (a pose's gantry time in its worth,
+:data:`gonio.adaptive.plan.MOTION_WEIGHT`), ``checkpoints`` (checkpoints as needed,
+:data:`gonio.adaptive.plan.CHECKPOINTS_AS_NEEDED`), ``both`` (today's default). The gantry time to
+the target is interpolated between the last two campaigns (log error against log gantry time), and each
+campaign's poses, gantry time and error are printed. ``--campaigns`` takes ``--variants`` too.
+
+``--export`` (ggx materials with a conductor Fresnel) runs whole campaigns, ``iso:step=5`` and
+``adaptive:poses=N`` for each of ``--budgets``, exports each as a ``bsdf`` tensor file and scores the file
+as Mitsuba 3 reads it (the ``measured`` plugin, ``llvm_ad_rgb``) against Mitsuba's own ``roughconductor``
+with the material's α, η and k: Σ|a − b| / Σ b of f·cos θo over the random pairs. It also scores the
+file's NDF against the analytic GGX D (relative L1 weighted by cos θm) and, for each adaptive campaign,
+the NDF estimators the export could use (the measured samples within θd of retro-reflection, or the
+reconstruction's f̂(ω, ω)) and what the file's error would be with each.
+
     .venv/bin/python tools/bench_adaptive.py                       # ggx α = 0.2, 148 and 1,156 poses
     .venv/bin/python tools/bench_adaptive.py --full                # the isotropic panel, 4 counts, --reach
     .venv/bin/python tools/bench_adaptive.py --campaigns --steps 20,10   # whole simulated campaigns
+    .venv/bin/python tools/bench_adaptive.py --export --budgets 600,1156,2299   # bsdf files in Mitsuba
+    .venv/bin/python tools/bench_adaptive.py --reach-time --variants before,motion,checkpoints,both
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import time
@@ -47,6 +67,8 @@ from gonio.kinematics import make_kinematics
 from gonio.plan.grids import enumerate_grid, parse_grid
 from gonio.sim.materials import load
 
+#: Rec. 709 luminance of R, G, B.
+LUMA = (0.2126, 0.7152, 0.0722)
 PANEL = ("ggx:alpha=0.05,metal=gold", "ggx:alpha=0.2,metal=gold",
          "cook-torrance:d=beckmann,m=0.3,metal=gold", "ggx:alpha=0.2,metal=gold,rho_d=0.2,rho_s=0.8")
 
@@ -90,6 +112,14 @@ def main() -> None:
     parser.add_argument("--pilots", action="store_true", help="pilot fractions and growths (1,156 poses)")
     parser.add_argument("--campaigns", action="store_true", help="whole simulated campaigns through "
                         "gonio.brdf, at equal poses and equal gantry time")
+    parser.add_argument("--export", action="store_true", help="bsdf exports of iso:step=5 and adaptive "
+                        "campaigns, read by Mitsuba 3, against its roughconductor")
+    parser.add_argument("--budgets", default="600,1156,2299", help="adaptive pose counts of --export")
+    parser.add_argument("--reach-time", action="store_true", help="gantry time adaptive campaigns need for "
+                        "the iso:step=5 campaign's error, per motion weight")
+    parser.add_argument("--reach-from-s", type=float, default=200.0)
+    parser.add_argument("--variants", default=None, help="comma-separated of before, motion, checkpoints, "
+                        "both: how --campaigns and --reach-time place poses and checkpoints (default: both)")
     parser.add_argument("--pairs", type=int, default=20_000)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
@@ -104,7 +134,8 @@ def main() -> None:
     print(f"bench_adaptive: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
           f"{args.pairs:,} pairs (seed {args.seed}), θ <= {cfg.kinematics.theta_max_deg:g}°, gantry "
           f"{cfg.name}; " + ("whole simulated campaigns (the simulated detector: aperture, noise)"
-                               if args.campaigns else "noise-free f_r at the poses"))
+                               if args.campaigns or args.export or args.reach_time
+                               else "noise-free f_r at the poses"))
     for spec in specs:
         material = load(spec)
         measure = material_measure(material)
@@ -116,8 +147,17 @@ def main() -> None:
         if args.pilots:
             _pilots(measure, kin, theta_max, truth, wi, wo)
             continue
+        variants = args.variants.split(",") if args.variants else ["both"]
         if args.campaigns:
-            _campaigns(spec, steps, truth, wi, wo)
+            for variant in variants:
+                with _variant(variant):
+                    _campaigns(spec, steps, truth, wi, wo)
+            continue
+        if args.reach_time:
+            _reach_time(spec, variants, args.reach_from_s, truth, wi, wo)
+            continue
+        if args.export:
+            _exports(material, [int(b) for b in args.budgets.split(",")], wi, wo)
             continue
         print(f"  {'grid':>12} {'poses':>6} | {'uniform, gonio.brdf':>22} | {'uniform, same':>13} | "
               f"{'adaptive':>8} | {'lattice/adaptive':>16} {'same/adaptive':>13} | {'adaptive s':>10}")
@@ -223,6 +263,147 @@ def _campaigns(spec, steps, truth, wi, wo):
                     runs += [f"adaptive:poses={b.n_samples}", f"adaptive:budget_s={gantry_s:.0f}"]
                 print(f"  {grid:>26} {b.n_samples:>6} {gantry_s:>7.0f}s | {err:>7.4f} ({answered:>8.1%}) "
                       f"{b.method:>9} | {uniform / err:>11.1f}x | {wall:>6.1f}", flush=True)
+
+
+
+@contextlib.contextmanager
+def _variant(name):
+    """New adaptive campaigns journal this variant's motion weight and checkpoint rule while the block
+    runs (module docstring)."""
+    from gonio.adaptive import plan
+
+    kept = plan.MOTION_WEIGHT, plan.CHECKPOINTS_AS_NEEDED
+    weight = kept[0] if name in ("motion", "both") else 0.0
+    as_needed = name in ("checkpoints", "both")
+    if name not in ("before", "motion", "checkpoints", "both"):
+        raise SystemExit(f"--variants: {name!r} is not one of before, motion, checkpoints, both")
+    plan.MOTION_WEIGHT, plan.CHECKPOINTS_AS_NEEDED = weight, as_needed
+    print(f"  {name}: motion weight {weight:g}, checkpoints {'as needed' if as_needed else 'every round'}",
+          flush=True)
+    try:
+        yield
+    finally:
+        plan.MOTION_WEIGHT, plan.CHECKPOINTS_AS_NEEDED = kept
+
+
+def _reach_time(spec, variants, start_s, truth, wi, wo):
+    """The --reach-time panel (module docstring)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        b, uniform_s, _ = _simulated(f"{tmp}/iso5", "iso:step=5", spec)
+        target = weighted_l1(b.eval(wi, wo).value, truth, wi, wo)[0]
+        print(f"  iso:step=5: {b.n_samples} poses, gantry {uniform_s:.0f} s, error {target:.4f} (gonio.brdf)",
+              flush=True)
+        for variant in variants:
+            with _variant(variant):
+                budget, runs = start_s, []
+                while budget <= uniform_s:
+                    b, gantry_s, wall = _simulated(f"{tmp}/a{len(runs)}-{variant}",
+                                                   f"adaptive:budget_s={budget:.0f}", spec)
+                    err = weighted_l1(b.eval(wi, wo).value, truth, wi, wo)[0]
+                    runs.append((gantry_s, err))
+                    print(f"    budget_s={budget:>6.0f}: {b.n_samples:>5} poses, gantry {gantry_s:>6.0f} s, "
+                          f"error {err:.4f} ({wall:.0f} s wall)", flush=True)
+                    if err <= target:
+                        break
+                    budget *= 1.25
+                if runs[-1][1] > target:
+                    print(f"    not within {uniform_s:.0f} s of gantry time", flush=True)
+                    continue
+                (t0, e0), (t1, e1) = runs[-2] if len(runs) > 1 else runs[-1], runs[-1]
+                slope = (np.log(t1) - np.log(t0)) / (np.log(e1) - np.log(e0)) if e0 != e1 else 0.0
+                reach = float(np.exp(np.log(t0) + (np.log(target) - np.log(e0)) * slope)) if t0 != t1 else t1
+                print(f"    gantry time to the iso:step=5 error: {reach:.0f} s (interpolated), "
+                      f"{uniform_s / reach:.1f}x less than iso:step=5", flush=True)
+
+
+def _exports(material, budgets, wi, wo):
+    """The --export panel (module docstring)."""
+    import tempfile
+
+    import drjit as dr
+    import mitsuba as mi
+
+    from gonio.dataset import read_brdf
+    from gonio.export import export
+    from gonio.formats.rgl import build_measured, estimate_ndf, retro_from_samples
+    from gonio.formats.tensor import read_tensor, write_tensor
+    from gonio.geometry import sph_to_vec
+
+    mi.set_variant("llvm_ad_rgb")
+    v = material.values()
+    alpha = v["alpha_u"]
+    rough = mi.load_dict({"type": "roughconductor", "distribution": "ggx", "alpha": alpha,
+                          "eta": {"type": "rgb", "value": list(v["eta"])},
+                          "k": {"type": "rgb", "value": list(v["k"])}})
+
+    def mitsuba(bsdf):
+        si = dr.zeros(mi.SurfaceInteraction3f, len(wi))
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+        si.wi = mi.Vector3f(*wi.astype(np.float32).T)
+        return np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*wo.astype(np.float32).T)))
+
+    reference = mitsuba(rough)
+    shape = (48, 48)
+    ux, uy = np.meshgrid(np.linspace(0, 1, shape[1]), np.linspace(0, 1, shape[0]))
+    theta_m = ux ** 2 * np.pi / 2
+
+    def ndf_error(ndf):
+        """Against GGX α: Σ |D̂ − D| cos θm dm / Σ D cos θm dm over the table's nodes (dm ∝ u_x sin θm)."""
+        c = np.cos(theta_m)
+        weight = c * ux * np.sin(theta_m)
+        truth = alpha ** 2 / (np.pi * (c * c * (alpha ** 2 - 1) + 1) ** 2)
+        return float((np.abs(ndf - truth) * weight).sum() / (truth * weight).sum())
+
+    def file_error(path):
+        return float(np.abs(mitsuba(mi.load_dict({"type": "measured", "filename": str(path)}))
+                            - reference).sum() / reference.sum())
+
+    print(f"  Mitsuba roughconductor α={alpha:g}, η={v['eta']}, k={v['k']} ({len(wi):,} pairs)")
+    print(f"  {'grid':>22} {'poses':>6} {'gantry':>8} | {'file vs roughconductor':>22} | "
+          f"{'file NDF vs GGX':>15} | {'export s':>8}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for grid in ["iso:step=5"] + [f"adaptive:poses={b}" for b in budgets]:
+            folder = f"{tmp}/{grid.replace(':', '-').replace('=', '')}"
+            b, gantry_s, _ = _simulated(folder, grid, material.spec)
+            t0 = time.perf_counter()
+            export(folder, "bsdf", f"{folder}/m.bsdf")
+            took = time.perf_counter() - t0
+            ndf = read_tensor(f"{folder}/m.bsdf")["ndf"].astype(np.float64)
+            err = file_error(f"{folder}/m.bsdf")
+            print(f"  {grid:>22} {b.n_samples:>6} {gantry_s:>7.0f}s | {err:>22.4f} | "
+                  f"{ndf_error(ndf):>15.4f} | {took:>8.2f}", flush=True)
+            if not grid.startswith("adaptive"):
+                continue
+            data = read_brdf(f"{folder}/brdf.h5")
+            swi = sph_to_vec(np.radians(data.theta_i), np.radians(data.phi_i))
+            swo = sph_to_vec(np.radians(data.theta_o), np.radians(data.phi_o))
+
+            def values(a, c, b=b):
+                return b.eval(a, c).value
+
+            retros = {f"samples θd <= {t}°": retro_from_samples(swi, swo, data.value, t)
+                      for t in (5, 10, 20, 30)}
+            retros["reconstruction f(ω, ω)"] = lambda w, values=values: values(w, w) @ LUMA
+            retros["exact (the material)"] = lambda w: material.eval(w, w) @ LUMA
+            for name, retro in retros.items():
+                if retro is None:
+                    print(f"      NDF from {name:<24}: too few samples")
+                    continue
+                fields, _ = build_measured(values, theta_i_deg=np.linspace(0, 80, 17), theta_max_deg=80.0,
+                                           retro_fr=lambda w, r=retro: np.repeat(r(w)[:, None], 3, axis=1))
+                path = f"{folder}/variant.bsdf"
+                write_tensor(path, fields)
+                nd = estimate_ndf(retro, shape)[0]
+                print(f"      NDF from {name:<24}: NDF vs GGX {ndf_error(nd):.4f}, file vs roughconductor "
+                      f"{file_error(path):.4f}", flush=True)
+            fields, _ = build_measured(values, theta_i_deg=np.linspace(0, 80, 17),
+                                       retro_fr=lambda w, r=retros["reconstruction f(ω, ω)"]:
+                                       np.repeat(r(w)[:, None], 3, axis=1))
+            write_tensor(f"{folder}/before.bsdf", fields)
+            print(f"      before (zeros past 80°, NDF through the reconstruction): file vs roughconductor "
+                  f"{file_error(f'{folder}/before.bsdf'):.4f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,8 @@ Each module is one idea:
 - :mod:`~gonio.adaptive.reconstruct`: f_r anywhere from scattered samples, and each sample's
   leave-one-out residual.
 - :mod:`~gonio.adaptive.refine`: one round: a pure function of the samples so far.
+- :mod:`~gonio.adaptive.motion`: what a round's poses cost in gantry time, and the choice that trades
+  error against it.
 - :mod:`~gonio.adaptive.acquire`: pilot + rounds until the budget is spent, around a measure callback.
 - :mod:`~gonio.adaptive.error`: the benchmark's error: cosine-weighted relative L1 at random pairs.
 """

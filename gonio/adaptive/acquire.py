@@ -3,7 +3,8 @@
 ``measure(theta_i, theta_o, dphi)`` (radians, φi = 0; the poses as the gantry drives them) returns f_r
 (n, C). Each round is :func:`gonio.adaptive.refine.plan_round` of the samples measured so far, so a run
 can be replayed from its samples alone: the rounds' sizes depend only on the budget and the pilot's
-size (:func:`round_sizes`).
+size (:func:`round_sizes`). A round that finds no reachable new pose ends the run short of its budget
+(:attr:`Acquisition.ended` says which round).
 """
 
 from __future__ import annotations
@@ -26,10 +27,12 @@ GROWTH = 0.2
 
 @dataclass(frozen=True)
 class Acquisition:
-    """The result: every sample in the order measured, and the size of each phase (pilot first)."""
+    """The result: every sample in the order measured, the size of each phase (pilot first), and the
+    round that found no reachable new pose (None: the budget was spent)."""
 
     samples: Samples
     phases: tuple[int, ...]
+    ended: int | None = None
 
 
 def round_sizes(pilot: int, budget: int, growth: float = GROWTH, least: int = 1) -> list[int]:
@@ -55,8 +58,10 @@ def round_sizes(pilot: int, budget: int, growth: float = GROWTH, least: int = 1)
 
 
 def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: float = PILOT_FRACTION,
-            domain: str = CELLS, seed: int = 0, growth: float = GROWTH, loo: tuple = LOO) -> Acquisition:
-    """Measure ``budget`` poses adaptively (module docstring).
+            domain: str = CELLS, seed: int = 0, growth: float = GROWTH, loo: tuple = LOO,
+            motion=None) -> Acquisition:
+    """Measure ``budget`` poses adaptively (module docstring); ``motion``: a
+    :class:`gonio.adaptive.motion.Motion` to weigh each round's poses by their gantry time.
 
     Raises
     ------
@@ -68,10 +73,14 @@ def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: floa
     ti, to, d = pilot_poses(kin, theta_max, max(1, int(pilot_fraction * budget)))
     sizes = round_sizes(ti.size, budget, growth)
     samples = Samples(ti, to, d, measure(ti, to, d))
-    for size in sizes:
-        ti, to, d = plan_round(samples, size, kin, theta_max, domain, seed, loo)
+    phases = [len(samples)]
+    for k, size in enumerate(sizes):
+        ti, to, d = plan_round(samples, size, kin, theta_max, domain, seed, loo, motion)
+        if ti.size == 0:
+            return Acquisition(samples, tuple(phases), k + 1)
         samples = samples.extended(ti, to, d, measure(ti, to, d))
-    return Acquisition(samples, (samples.theta_i.size - sum(sizes),) + tuple(sizes))
+        phases.append(int(ti.size))
+    return Acquisition(samples, tuple(phases))
 
 
 def material_measure(material):

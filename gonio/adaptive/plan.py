@@ -12,9 +12,21 @@ the last phase brackets the round's first run, so the round's own first one is l
 
 Round sizes (:func:`round_size`) depend only on the journal's ``adaptive`` meta: with ``poses=N``,
 :func:`~gonio.adaptive.acquire.round_sizes` of the pilot and N, at least :data:`MIN_ROUND` poses each
-(a round adds a dark and a white reference: 10 poses keep them within a fifth of the round); with
+(a round of 10 poses is still worth its tour); with
 ``budget_s=T`` the same growth, cut to the poses the time left holds at the estimated time per pose so
 far (estimates, not the clock: a resumed campaign plans the same round whatever the downtime).
+
+A round may find fewer poses than its size where the gantry's reach, its occlusion cone and theta_max
+leave no more new ones (:func:`gonio.adaptive.refine.plan_round`); it is measured as it is. A round
+that finds none ends the campaign short of its budget: :func:`next_round` returns no steps and the
+meta ``adaptive.ended`` (the round and the reason, in words), appended like a round in one transaction,
+so ``gonio status``, the report and a resume see it (:func:`ended_text`); no round is planned after it.
+
+Gantry time: a round's poses are chosen with their motion cost (:data:`MOTION_WEIGHT`,
+:mod:`gonio.adaptive.motion`), and its checkpoints are kept only where the drift model needs them
+(:data:`CHECKPOINTS_AS_NEEDED`, :func:`_checkpoints`). Both are journaled in the ``adaptive`` meta of a
+new campaign (``motion_weight``, ``since_reference_s``), so a journal written before them replays its
+rounds as it planned them.
 """
 
 from __future__ import annotations
@@ -22,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.adaptive.acquire import GROWTH, PILOT_FRACTION, round_sizes
+from gonio.adaptive.motion import round_motion
 from gonio.adaptive.pilot import lattice, pilot_nodes
 from gonio.adaptive.refine import plan_round
 from gonio.adaptive.samples import Samples
@@ -31,12 +44,18 @@ from gonio.plan.grids import ADAPTIVE_MAX_BUDGET_S, ADAPTIVE_MAX_POSES, GridPose
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, step_table
 
 __all__ = ["pilot_plan", "round_size", "journal_samples", "next_round", "expected_steps", "budget_text",
-           "MIN_ROUND", "SEED"]
+           "ended_text", "MIN_ROUND", "SEED", "MOTION_WEIGHT", "CHECKPOINTS_AS_NEEDED"]
 
 #: Least poses of a round (the last one excepted).
 MIN_ROUND = 10
 #: Seed of the rounds' random trial points (:func:`gonio.adaptive.refine.plan_round`).
 SEED = 0
+#: Exponent of a candidate pose's gantry time in its worth (:mod:`gonio.adaptive.motion`; 0: motion
+#: ignored), journaled with each new campaign (a journal without it replays its rounds with 0).
+MOTION_WEIGHT = 2.0
+#: Checkpoints as needed (:func:`_checkpoints`) for new campaigns, journaled as ``since_reference_s`` (a
+#: journal without it closes every round with a checkpoint).
+CHECKPOINTS_AS_NEEDED = True
 
 
 def _given(theta_i, phi_i, theta_o, phi_o) -> GridPoses:
@@ -94,7 +113,10 @@ def pilot_plan(grid: str, cfg, kin=None) -> tuple[Plan, dict]:
     n = int(pilot.theta_i.size)
     meta = {"budget_poses": spec.poses, "budget_s": spec.budget_s, "pilot_nodes": int(m), "pilot_poses": n,
             "pilot_s": float(pilot.estimated_s), "pilot_lower_bound_s": float(pilot.lower_bound_s),
-            "min_round": MIN_ROUND, "growth": GROWTH, "seed": SEED, "rounds": []}
+            "min_round": MIN_ROUND, "growth": GROWTH, "seed": SEED, "motion_weight": MOTION_WEIGHT,
+            "rounds": []}
+    if CHECKPOINTS_AS_NEEDED:
+        meta["since_reference_s"] = 0.0
     return pilot, meta
 
 
@@ -102,6 +124,8 @@ def round_size(adaptive: dict) -> int:
     """Poses of the next round from the journal's ``adaptive`` meta (module docstring); 0: the budget is
     spent."""
     rounds = adaptive["rounds"]
+    if adaptive.get("ended"):
+        return 0
     if adaptive["budget_poses"] is not None:
         sizes = _sizes(adaptive)
         return sizes[len(rounds)] if len(rounds) < len(sizes) else 0
@@ -144,33 +168,107 @@ def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
     spec = parse_grid(meta["grid"])
     tmax = np.radians(_theta_max_deg(spec, cfg))
     samples = journal_samples(journal, cfg)
-    ti, to, d = plan_round(samples, n, kin, tmax, seed=adaptive["seed"])
+    weight = adaptive.get("motion_weight", 0.0)
+    motion = round_motion(cfg, kin, weight) if weight else None
+    ti, to, d = plan_round(samples, n, kin, tmax, seed=adaptive["seed"], motion=motion)
+    if ti.size == 0:
+        k = len(adaptive["rounds"]) + 1
+        reason = (f"round {k} found no reachable new pose (the gantry's reach, its occlusion cone and "
+                  f"theta_max leave none): ended with {int(meta['poses']):,} poses of a budget of "
+                  f"{budget_text(adaptive)}")
+        # The readings since the last reference still need one after them (checkpoints as needed).
+        journaled = journal.steps()
+        closing = _closing_checkpoint(journaled) if adaptive.get("since_reference_s") else slice(0, 0)
+        steps = {key: v[closing] for key, v in journaled.items()}
+        if steps["kind"].size:   # the dark is read where the gantry stands: at the journal's last step
+            steps["axes_deg"][0] = journaled["axes_deg"][-1]
+        after = {**adaptive, "ended": {"round": k, "reason": reason}}
+        if "since_reference_s" in adaptive:
+            after["since_reference_s"] = 0.0
+        return steps, {"adaptive": after}, reason
     plan = build_plan(meta["grid"], cfg, kin, poses=_given(ti, np.zeros_like(ti), to, d))
     steps = step_table(plan, cfg)
     if not (steps["kind"][0] == STEP_DARK and steps["kind"][1] == STEP_REFERENCE):  # pragma: no cover
         raise AssertionError("a plan's steps begin with a checkpoint")
-    steps = {k: v[2:] for k, v in steps.items()}
-    steps["pose"] = np.where(steps["kind"] == STEP_POSE, steps["pose"] + int(meta["poses"]), -1)
     added = int(plan.theta_i.size)
-    entry = {"poses": added, "estimated_s": float(plan.estimated_s),
+    estimated = float(plan.estimated_s)
+    stub = {"poses": added, "estimated_s": estimated}
+    final = round_size({**adaptive, "rounds": [*adaptive["rounds"], stub]}) == 0
+    keep, since = _checkpoints(adaptive, steps["kind"], plan.step_end_s, cfg.reference.every_s, final)
+    if keep.stop < steps["kind"].size:   # the closing checkpoint left to a later round
+        estimated -= float(plan.step_end_s[-1] - plan.step_end_s[keep.stop - 1])
+    if "since_reference_s" in adaptive and not final:   # the gantry goes home after the last round only
+        estimated -= float(plan.timing["estimate"]["return_s"])
+    if keep.start == 0:   # a dark is read where the gantry stands: after the journal's last step
+        steps["axes_deg"][0] = journal.steps()["axes_deg"][-1]
+    steps = {k: v[keep] for k, v in steps.items()}
+    steps["pose"] = np.where(steps["kind"] == STEP_POSE, steps["pose"] + int(meta["poses"]), -1)
+    entry = {"poses": added, "estimated_s": estimated,
              "lower_bound_s": float(plan.lower_bound_s), "first_step": journal.step_count(),
              "steps": int(steps["kind"].size)}
     rounds = adaptive["rounds"] + [entry]
     line = (f"round {len(rounds)}: {added} poses placed from {len(samples)} samples, estimated "
             f"{plan.estimated_s:.0f} s")
-    return steps, {"adaptive": {**adaptive, "rounds": rounds}, "poses": int(meta["poses"]) + added}, line
+    after = {**adaptive, "rounds": rounds}
+    if "since_reference_s" in adaptive:
+        after["since_reference_s"] = since
+    return steps, {"adaptive": after, "poses": int(meta["poses"]) + added}, line
+
+
+def _checkpoints(adaptive: dict, kind, end_s, every_s, final: bool) -> tuple[slice, float]:
+    """Which of a round's planned steps to journal, and the estimated gantry time from its last reference
+    reading to its end (0 when it closes with a checkpoint).
+
+    A round's plan is [checkpoint, run, checkpoint, ..., run, checkpoint]. A campaign journaled before
+    checkpoints were placed as needed (no ``since_reference_s`` in its meta) drops the first (the one
+    closing the phase before brackets the first run) and keeps the rest. Otherwise the first is kept only
+    when the readings since the last reference and the round's first run would span more than
+    ``every_s`` between references (``reference.every_s``), and the last only in the ``final`` round
+    (the one that spends the budget): every reading is still bracketed by references at most about
+    ``every_s`` apart (estimates), as a uniform grid's are, without a detour to the reference after every
+    round. With no ``every_s`` (a count of poses between references instead) every round closes with its
+    checkpoint."""
+    size = len(kind)
+    since = adaptive.get("since_reference_s")
+    if since is None or every_s is None:
+        return slice(2, size), 0.0
+    refs = np.flatnonzero(np.asarray(kind) == STEP_REFERENCE)
+    first = 0 if since + float(end_s[refs[1]] - end_s[refs[0]]) > every_s else 2
+    if final:
+        return slice(first, size), 0.0
+    last = size - 2   # the closing checkpoint's dark: left out with its reference
+    kept = [r for r in refs[:-1] if r >= first]
+    start = end_s[kept[-1]] if kept else end_s[refs[0]] - since
+    return slice(first, last), float(end_s[last - 1] - start)
+
+
+def _closing_checkpoint(steps: dict) -> np.ndarray:
+    """Step indices of a checkpoint to close the journal with: a dark where the gantry stands (its last
+    step's axes) and the white reference as the journal's first checkpoint read it."""
+    dark = int(np.flatnonzero(steps["kind"] == STEP_DARK)[0])
+    return np.array([dark, int(np.flatnonzero(steps["kind"] == STEP_REFERENCE)[0])])
 
 
 def expected_steps(meta: dict, steps: int) -> int:
     """The steps an adaptive campaign will hold when done, estimated from its meta and the ``steps`` its
-    journal holds now (a progress bar's total): each round to come adds its poses and one checkpoint."""
+    journal holds now (a progress bar's total): each round to come adds its poses and one checkpoint
+    (with checkpoints as needed, :func:`_checkpoints`: the last round's only, a lower estimate)."""
     adaptive = meta["adaptive"]
     poses = int(meta["poses"])
+    if adaptive.get("ended"):
+        return steps
     if adaptive["budget_poses"] is not None:
-        left = len(_sizes(adaptive)) - len(adaptive["rounds"])
-        return steps + max(0, adaptive["budget_poses"] - poses) + 2 * max(0, left)
+        left = max(0, len(_sizes(adaptive)) - len(adaptive["rounds"]))
+        checkpoints = min(left, 1) if "since_reference_s" in adaptive else left
+        return steps + max(0, adaptive["budget_poses"] - poses) + 2 * checkpoints
     spent = adaptive["pilot_s"] + sum(r["estimated_s"] for r in adaptive["rounds"])
     return max(steps, int(steps * adaptive["budget_s"] / spent))
+
+
+def ended_text(adaptive: dict) -> str | None:
+    """Why the campaign ended short of its budget (a round found no reachable new pose), or None."""
+    ended = adaptive.get("ended")
+    return ended["reason"] if ended else None
 
 
 def budget_text(adaptive: dict) -> str:

@@ -18,7 +18,13 @@ turn): of :data:`TRIALS` seeded points in the ball of radius ρ_j around the sam
 every sample and every pose chosen before it in the round, among those the gantry can reach
 (:func:`gonio.adaptive.reach.reachable_iso`) and within theta_max. Whatever cannot be placed so (no
 reachable trial) is taken, farthest first, from the reachable uniform cloud, so a round returns exactly
-``n`` poses whenever the reachable domain holds them.
+``n`` poses whenever the reachable domain holds them, and fewer (none at all) where the gantry's reach,
+its occlusion cone and theta_max leave no more new poses: the caller decides what that means (an
+adaptive campaign ends, :func:`gonio.adaptive.plan.next_round`).
+
+With a motion cost (:class:`gonio.adaptive.motion.Motion`), the :data:`POOL` · n cells of largest E_j
+are placed so, and n of those poses are taken by E_j per second of gantry time
+(:func:`gonio.adaptive.motion.cheapest_first`).
 
 Purity: the only inputs are the samples, ``n``, the gantry (its reach), theta_max, the domain and a
 seed; random numbers come from ``numpy.random.default_rng([seed, len(samples)])``; nothing reads a clock
@@ -33,11 +39,13 @@ from scipy.spatial import cKDTree
 
 from gonio.adaptive.domain import embed_pairs, poses_of
 from gonio.adaptive.error import random_pairs
+from gonio.adaptive.motion import Motion, cheapest_first
 from gonio.adaptive.reach import reachable_iso
 from gonio.adaptive.reconstruct import loo_residual
 from gonio.adaptive.samples import Samples
 
-__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO"]
+__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO",
+           "POOL"]
 
 #: Seeded trial points per refined cell.
 TRIALS = 32
@@ -49,6 +57,8 @@ DENSITY_NEIGHBOURS = 24
 #: residuals, (θi, θo, Δφ) cells left 14-42 % less error than half/difference ones at 1,156 poses
 #: (``tools/bench_adaptive.py --engines``); with planes fitted to f_r it was the other way round.
 CELLS = "iso"
+#: With a motion cost: candidate poses placed per pose taken (the cells of the POOL · n largest errors).
+POOL = 3
 #: The fit whose leave-one-out residuals rate the cells: (domain, transform, degree) of
 #: :class:`gonio.adaptive.reconstruct.LocalFit`; the reconstruction's own. At 1,156 poses (measured with
 #: half/difference cells) it left 30 % less error than planes fitted to f_r in the half/difference
@@ -71,14 +81,17 @@ def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: i
     return np.abs(loo_residual(samples, *loo)).sum(axis=1) * mass
 
 
-def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CELLS,
-               seed: int = 0, loo: tuple = LOO) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians), in the order chosen.
+def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CELLS, seed: int = 0,
+               loo: tuple = LOO, motion: Motion | None = None) -> tuple[np.ndarray, ...]:
+    """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians), in the order chosen; fewer when
+    the reachable domain holds no more new poses (module docstring). With ``motion``, a pool of
+    :data:`POOL` · n poses is placed so and ``n`` of them are taken by their error per second of gantry
+    time (:func:`gonio.adaptive.motion.cheapest_first`).
 
     Raises
     ------
     ValueError
-        When ``n`` is negative or fewer than ``n`` new reachable poses can be found.
+        When ``n`` is negative.
     """
     if n < 0:
         raise ValueError(f"n: must be >= 0, got {n}")
@@ -90,20 +103,22 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
     tree = cKDTree(points)
     near = spacing(tree, points, owner, len(samples))
     score = cell_errors(samples, theta_max, domain, seed, loo)
-    # Cells by decreasing error; ties by sample index (lexsort is stable), cycled when n exceeds them.
+    m = n if motion is None else POOL * n
+    # Cells by decreasing error; ties by sample index (lexsort is stable), cycled when m exceeds them.
     order = np.lexsort((np.arange(len(samples)), -score))
-    cells = order[np.arange(n) % len(order)]
+    cells = order[np.arange(m) % len(order)]
     # Trial points uniform in the ball of radius ρ_j around each chosen cell's sample.
-    direction = rng.normal(size=(n, TRIALS, 3))
+    direction = rng.normal(size=(m, TRIALS, 3))
     direction /= np.linalg.norm(direction, axis=2, keepdims=True)
-    radius = near[cells][:, None] * rng.uniform(0.0, 1.0, (n, TRIALS)) ** (1.0 / 3.0)
+    radius = near[cells][:, None] * rng.uniform(0.0, 1.0, (m, TRIALS)) ** (1.0 / 3.0)
     trial = points[cells][:, None, :] + direction * radius[:, :, None]
     poses = _measurable(kin, trial.reshape(-1, 3), theta_max, domain)
-    ok = poses[0].reshape(n, TRIALS)
-    gap = tree.query(trial.reshape(-1, 3))[0].reshape(n, TRIALS)
+    ok = poses[0].reshape(m, TRIALS)
+    gap = tree.query(trial.reshape(-1, 3))[0].reshape(m, TRIALS)
     chosen: list[np.ndarray] = []
     chosen_poses: list[tuple[float, float, float]] = []
-    for c in range(n):
+    worth: list[float] = []
+    for c in range(m):
         d = np.where(ok[c], gap[c], -1.0)
         if chosen:
             apart = np.linalg.norm(trial[c][:, None, :] - np.asarray(chosen)[None], axis=2).min(axis=1)
@@ -112,7 +127,13 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
         if d[best] <= 0.0:
             continue
         chosen.append(trial[c, best])
-        chosen_poses.append(tuple(p.reshape(n, TRIALS)[c, best] for p in poses[1:]))
+        chosen_poses.append(tuple(p.reshape(m, TRIALS)[c, best] for p in poses[1:]))
+        worth.append(float(score[cells[c]]))
+    if motion is not None and len(chosen_poses) > n:
+        pool = np.asarray(chosen_poses, dtype=np.float64)
+        keep = cheapest_first(kin, motion, pool[:, 0], pool[:, 1], pool[:, 2], np.asarray(worth), n)
+        chosen = [chosen[k] for k in keep]
+        chosen_poses = [chosen_poses[k] for k in keep]
     if len(chosen) < n:
         chosen_poses += _fallback(samples, np.asarray(chosen).reshape(-1, 3), n - len(chosen), kin, theta_max,
                                   domain, seed, tree)
@@ -140,13 +161,14 @@ def _measurable(kin, points, theta_max, domain):
 
 
 def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
-    """``count`` reachable poses of the uniform cloud, farthest from the samples and each other first."""
+    """Up to ``count`` reachable poses of the uniform cloud, farthest from the samples and each other
+    first (fewer when the cloud holds no more reachable poses apart from every sample)."""
     wi, wo = random_pairs(CLOUD, theta_max, seed + 1)
     cloud = embed_pairs(domain, wi, wo)
     ok, ti, to, d = _measurable(kin, cloud, theta_max, domain)
     idx = np.flatnonzero(ok)
     if idx.size == 0:
-        raise ValueError(f"plan_round: no reachable pose left for {count} more")
+        return []
     gap = tree.query(cloud[idx])[0]
     if len(chosen):
         gap = np.minimum(gap, cKDTree(chosen).query(cloud[idx])[0])
@@ -154,7 +176,7 @@ def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
     for _ in range(count):
         best = int(np.argmax(gap))
         if gap[best] <= 0.0:
-            raise ValueError(f"plan_round: only {len(out)} of {count} more reachable new poses found")
+            break
         out.append((ti[idx[best]], to[idx[best]], d[idx[best]]))
         gap = np.minimum(gap, np.linalg.norm(cloud[idx] - cloud[idx[best]], axis=1))
     return out

@@ -357,10 +357,13 @@ def _campaign_command(args, cfg, request, *, material, model_check: bool, export
             t.join(timeout=30.0)
         c_done = c.journal.done_count()
         n_steps = c.journal.step_count() if c.kind == "adaptive" else n_steps   # its rounds were appended
+        ended = c.journal.meta()["adaptive"].get("ended") if c.kind == "adaptive" else None
         c.close()
     wall = time.perf_counter() - t0
     out(f"campaign {state}: {c_done}/{n_steps} steps, gantry time {_hms(runner.campaign_s())}, "
         f"wall time {wall:.1f} s")
+    if ended:
+        out(f"ended short of its budget: {ended['reason']}", style="yellow")
     if state == State.DONE:
         out(f"wrote {folder / 'brdf.h5'} and {folder / JOURNAL_NAME}")
         if model_check:
@@ -422,6 +425,8 @@ def cmd_status(args) -> int:
     if st["steps_done"] < st["steps"] and not st["state"].startswith("aborted"):
         lines.append(f"  ETA: about {_hms(st['estimated_remaining_s'])} of gantry time left (the plan's "
                      "estimate)")
+    if st["ended_short"]:
+        lines.append(f"  ended short of its budget: {st['ended_short']}")
     if st["latched_fault"]:
         lines.append(f"  latched fault: {st['latched_fault']} (resume with --clear-fault once fixed)")
     elif st["last_fault"]:

@@ -114,6 +114,8 @@ def cmd_queue(args) -> int:
             if st["steps_done"] < st["steps"] and st["state"] != "aborted":
                 eta = f"{_hms(st['eta_wall_s'])} wall, " if st["eta_wall_s"] is not None else ""
                 print(f"  ETA: {eta}about {_hms(st['eta_gantry_s'])} of gantry time left")
+            if st.get("ended_short"):
+                print(f"  ended short of its budget: {st['ended_short']}")
             for key in ("latched_fault", "last_fault", "error"):
                 if st[key]:
                     print(f"  {key.replace('_', ' ')}: {st[key]}")

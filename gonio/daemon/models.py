@@ -65,6 +65,7 @@ class CampaignStatus(BaseModel):
     last_fault: str | None
     error: str | None
     brdf: bool
+    ended_short: str | None = None   # why an adaptive campaign ended short of its budget
 
 
 class CampaignList(BaseModel):

@@ -393,6 +393,7 @@ class CampaignQueue:
             campaign_s, last_wall = j.campaign_clock()
             latched = j.latched_fault()
             fault = j.last_event("fault")
+            adaptive = j.meta().get("adaptive") if s["grid"].startswith("adaptive") else None
         finally:
             j.close()
         return {"id": rec.id, "state": state, "seq": rec.seq, "submitted_unix": rec.submitted_unix,
@@ -401,7 +402,8 @@ class CampaignQueue:
                 "last_update_unix": last_wall,
                 "latched_fault": latched["reason"] if latched else None,
                 "last_fault": fault["message"] if fault else None, "error": rec.error,
-                "brdf": (rec.folder / BRDF_NAME).is_file()}
+                "brdf": (rec.folder / BRDF_NAME).is_file(),
+                "ended_short": adaptive["ended"]["reason"] if adaptive and adaptive.get("ended") else None}
 
     # -- operator requests -----------------------------------------------------------------------
     def pause(self, cid: str) -> None:

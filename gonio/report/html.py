@@ -132,6 +132,7 @@ def _section_adaptive(rep) -> str:
         ["rounds", f"{len(rounds)}: " + ", ".join(f"{r['poses']:,}" for r in rounds) + " poses"
                    if rounds else "none (the pilot spent the budget)"],
         ["estimated gantry time, all phases", _hms(spent)],
+        *([["ended short of the budget", a["ended"]["reason"]]] if a.get("ended") else []),
         ["poses near the specular direction (θh ≤ 10°)",
          f"{100 * rep.adaptive['pilot']:.0f} % of the pilot's, {100 * rep.adaptive['rounds']:.0f} % of the "
          "rounds'"],
@@ -140,7 +141,7 @@ def _section_adaptive(rep) -> str:
         rep.figures["adaptive"], "poses per phase and their half/difference angles",
         "Each round was planned from the journal's readings once the steps before it were measured: one "
         "new pose in each cell whose leave-one-out residual, weighted by its share of the error, was "
-        "largest.")
+        "largest (with a motion cost: per second of gantry time to reach it).")
 
 
 def _drift_words(channels, drift) -> str:

@@ -80,44 +80,118 @@ def test_a_simulated_campaign_spends_its_pose_budget_in_journaled_rounds(campaig
     assert meta["poses"] == 45 and round_size(a) == 0
     kind = steps["kind"]
     assert np.count_nonzero(kind == STEP_POSE) == 45
-    # Each round's steps follow the phase before it, whose closing checkpoint brackets its first run, and
-    # end with a checkpoint of their own; its poses are numbered on from the phase before.
+    # The pilot opens and closes with a checkpoint; the rounds follow with checkpoints as needed (the
+    # shipped reference.every_s is 300 s, this campaign 80 s of gantry time): only the last round closes
+    # with one. Each round's poses are numbered on from the phase before.
+    first = a["rounds"][0]["first_step"]
+    checkpoint = [STEP_DARK, STEP_REFERENCE]
+    assert kind[:2].tolist() == kind[first - 2:first].tolist() == kind[-2:].tolist() == checkpoint
+    assert np.count_nonzero(kind != STEP_POSE) == 6 and a["since_reference_s"] == 0.0
     for r in a["rounds"]:
-        first, count = r["first_step"], r["steps"]
-        assert kind[first - 2: first].tolist() == [STEP_DARK, STEP_REFERENCE]
-        assert kind[first] == STEP_POSE and kind[first + count - 2:first + count].tolist() == [STEP_DARK,
-                                                                                             STEP_REFERENCE]
+        assert kind[r["first_step"]] == STEP_POSE
+    assert sum(r["steps"] for r in a["rounds"]) == 42 + 2   # 42 poses and the closing checkpoint
     assert sorted(steps["pose"][kind == STEP_POSE].tolist()) == list(range(45))
     appended = [e for e in events if e["kind"] == "append"]
     assert [e["step"] for e in appended] == [r["first_step"] for r in a["rounds"]]
     assert appended[0]["message"].startswith("round 1: 10 poses placed from 3 samples")
 
 
-def test_a_round_is_a_pure_function_of_the_journal(campaign, tmp_path):
-    """The round after the pilot, planned again from a copy of the journal holding only the pilot's
-    readings, is the one the campaign measured, bit for bit."""
-    import shutil
+def _first_round_again(folder, adaptive: dict) -> tuple[dict, dict, dict]:
+    """(the first round's steps as journaled, as planned again from the pilot's readings alone with the
+    ``adaptive`` meta given, the meta that planning returns): the campaign in ``folder`` is cut back to
+    its pilot."""
     import sqlite3
 
-    shutil.copytree(campaign, tmp_path / "c")
-    c = open_campaign(tmp_path / "c")
+    c = open_campaign(folder)
     try:
-        a = c.meta["adaptive"]
-        first = a["rounds"][0]["first_step"]
-        measured = {k: v[first:first + a["rounds"][0]["steps"]] for k, v in c.journal.steps().items()}
-        conn = sqlite3.connect(tmp_path / "c" / "campaign.sqlite")
+        first = c.meta["adaptive"]["rounds"][0]["first_step"]
+        count = c.meta["adaptive"]["rounds"][0]["steps"]
+        measured = {k: v[first:first + count] for k, v in c.journal.steps().items()}
+        conn = sqlite3.connect(folder / "campaign.sqlite")
         with conn:
             conn.execute("DELETE FROM measurements WHERE step >= ?", (first,))
             conn.execute("DELETE FROM steps WHERE step >= ?", (first,))
         conn.close()
-        c.journal.set_meta("adaptive", {**a, "rounds": []})
-        c.journal.set_meta("poses", a["pilot_poses"])
+        c.journal.set_meta("adaptive", {**adaptive, "rounds": []})
+        c.journal.set_meta("poses", adaptive["pilot_poses"])
         steps, meta, _ = next_round(c.journal, c.cfg)
     finally:
         c.close()
-    for key, value in measured.items():
-        assert np.asarray(steps[key]).tobytes() == np.asarray(value).tobytes(), key
+    return measured, steps, meta
+
+
+def _same_steps(a: dict, b: dict) -> None:
+    for key, value in a.items():
+        assert np.asarray(b[key]).tobytes() == np.asarray(value).tobytes(), key
+
+
+def test_a_journal_from_before_motion_and_checkpoints_as_needed_keeps_its_rounds(tmp_path, monkeypatch):
+    """A campaign journaled without ``motion_weight`` and ``since_reference_s`` (the first adaptive
+    release) plans its rounds as then: poses by error alone, every round closed by a checkpoint."""
+    import gonio.adaptive.plan as adaptive_plan
+
+    monkeypatch.setattr(adaptive_plan, "CHECKPOINTS_AS_NEEDED", False)
+    monkeypatch.setattr(adaptive_plan, "MOTION_WEIGHT", 0.0)
+    out = tmp_path / "old"
+    assert _simulate(out, "adaptive:poses=45") == 0
+    c = open_campaign(out, readonly=True)
+    try:
+        a = c.meta["adaptive"]
+        kind = c.journal.steps()["kind"]
+    finally:
+        c.close()
+    assert "since_reference_s" not in a and a["motion_weight"] == 0.0
+    for r in a["rounds"]:
+        first, count = r["first_step"], r["steps"]
+        assert kind[first - 2: first].tolist() == [STEP_DARK, STEP_REFERENCE] and kind[first] == STEP_POSE
+        assert kind[first + count - 2:first + count].tolist() == [STEP_DARK, STEP_REFERENCE]
+    # without the key at all (as journaled then), the first round is planned again the same, whatever a
+    # new campaign would journal now
+    monkeypatch.setattr(adaptive_plan, "MOTION_WEIGHT", 2.0)
+    measured, steps, _ = _first_round_again(out, {k: v for k, v in a.items() if k != "motion_weight"})
+    _same_steps(measured, steps)
+
+
+def test_a_round_is_a_pure_function_of_the_journal(campaign, tmp_path):
+    """The round after the pilot, planned again from a copy of the journal holding only the pilot's
+    readings, is the one the campaign measured, bit for bit."""
+    import shutil
+
+    shutil.copytree(campaign, tmp_path / "c")
+    c = open_campaign(tmp_path / "c", readonly=True)
+    a = c.meta["adaptive"]
+    c.close()
+    measured, steps, meta = _first_round_again(tmp_path / "c", {**a, "since_reference_s": 0.0})
+    _same_steps(measured, steps)
     assert meta["adaptive"]["rounds"][0]["poses"] == 10
+
+
+def test_checkpoints_as_needed_bracket_every_reading_within_every_s(tmp_path):
+    """With references due every 20 s of gantry time, rounds open with a checkpoint where the readings
+    since the last reference and their first run would span more; every pose reading, as the journal
+    timed it, lies between two reference readings at most about 20 s apart (the plans' estimates decide;
+    10 % slack), the last one included."""
+    from gonio.config import resolve_config
+
+    text = resolve_config(None).read_text().replace("every_s = 300.0", "every_s = 20.0", 1)
+    (tmp_path / "g.toml").write_text(text)
+    out = tmp_path / "e"
+    assert _simulate(out, "adaptive:poses=45", "--config", str(tmp_path / "g.toml")) == 0
+    c = open_campaign(out, readonly=True)
+    try:
+        kind = c.journal.steps()["kind"]
+        taken = {m.step: m.campaign_s for m in c.journal.measurements()}
+        rounds = c.meta["adaptive"]["rounds"]
+    finally:
+        c.close()
+    ref = np.array([taken[s] for s in np.flatnonzero(kind == STEP_REFERENCE)])
+    pose = np.array([taken[s] for s in np.flatnonzero(kind == STEP_POSE)])
+    after = np.searchsorted(ref, pose)
+    assert np.all(after > 0) and np.all(after < ref.size)   # a reference before and after each
+    assert np.max(ref[after] - ref[after - 1]) <= 20.0 * 1.1
+    # some rounds open with a checkpoint, some go on from the last one
+    opened = [kind[r["first_step"]] == STEP_DARK for r in rounds]
+    assert any(opened) and not all(opened)
 
 
 def test_a_time_budget_stops_the_rounds_within_it(tmp_path):

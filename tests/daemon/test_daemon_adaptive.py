@@ -49,3 +49,23 @@ def test_the_daemon_runs_an_adaptive_campaign_with_a_pause_to_its_budget(serve, 
     for name in ("theta_i", "phi_i", "theta_o", "phi_o", "step", "pose"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
     np.testing.assert_allclose(b.value, a.value, rtol=1e-6)
+
+
+def test_an_adaptive_campaign_that_reaches_no_more_poses_ends_done_and_says_why(serve, tmp_path, capsys):
+    """A gantry whose light cannot tilt: after the pilot no round finds a reachable pose. The daemon's
+    campaign ends ``done`` (never faulted), its status and `gonio status ID` say why it ended short."""
+    from zenith_gantry import zenith_light_config
+
+    from gonio.cli import main
+    from gonio.config import load_config
+
+    d = serve(pace=0.002, cfg=load_config(zenith_light_config(tmp_path)))
+    r = d.client.post("/campaigns", json={"grid": "adaptive:poses=100", "material": MATERIAL})
+    assert r.status_code == 201, r.text
+    cid = r.json()["id"]
+    done = wait_state(d.client, cid, {"done", "faulted"})
+    assert done["state"] == "done" and done["latched_fault"] is None, done
+    assert done["ended_short"].startswith("round 1 found no reachable new pose")
+    assert done["steps_done"] == 14
+    assert main(["status", cid, "--url", d.url]) == 0
+    assert f"ended short of its budget: {done['ended_short']}" in capsys.readouterr().out

@@ -123,7 +123,8 @@ def test_mitsuba_loads_the_export_of_a_gantry_campaign_within_2_percent(tmp_path
     wi, wo = _pairs(600)
     a = _mitsuba_eval(measured, wi, wo, False)
     b = _mitsuba_eval(rough, wi, wo, False)
-    assert np.abs(a - b).sum() / b.sum() < 0.02  # 1.3 % measured
+    # 0.52 % measured (1.3 % when the cells looking past the data's 80° were left 0)
+    assert np.abs(a - b).sum() / b.sum() < 0.01
 
 
 # -- a sphere rendered with each ---------------------------------------------------------------------
