@@ -1,0 +1,199 @@
+"""Several Modbus axes started together (Oriental Motor AZ, direct data operation): each move preloaded with
+trigger 0, then ONE start query, byte for byte on the wire: group send to the parent (only it answers;
+the children execute silently), or broadcast to unit 0 (nobody answers), or, with each unit behind its
+own TCP gateway, the trigger on every connection before any reply is read. The emulated units as the
+manuals have them: the group register volatile, a unit not in the group ignores the query, a trigger on
+data lost at power-off trips an alarm; every failed start found by reading the status, named."""
+
+from __future__ import annotations
+
+import pytest
+
+from gonio.drivers.modbus import ModbusAxis, ModbusStartGroup, SyncStartError, load_profile, make_client
+from gonio.sim.emulators.modbus import DATA_ALARM, ModbusBusEmulator, ModbusMotorEmulator
+
+AZ = "oriental_az_direct"
+GEAR = 18.0
+STEPS_PER_DEG = 1000 * GEAR / 360.0
+
+
+def crc16_modbus(data: bytes) -> int:
+    """CRC-16/MODBUS (polynomial 0xA001 reflected, initial 0xFFFF), as the serial line spec gives it."""
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+def _rtu_frame(unit: int, pdu: bytes) -> bytes:
+    crc = crc16_modbus(bytes([unit]) + pdu)
+    return bytes([unit]) + pdu + crc.to_bytes(2, "little")  # CRC low byte first on the wire
+
+
+TRIGGER_PDU = bytes([0x10, 0x00, 0x66, 0x00, 0x02, 0x04, 0, 0, 0, 1])  # trigger (0x0066) = 1, s32
+
+
+def _axis(name, client, unit, clock):
+    return ModbusAxis(name, client, AZ, device_id=unit, limits_deg=(-180.0, 180.0), gear_ratio=GEAR,
+                      velocity_deg_s=60.0, accel_deg_s2=120.0, clock=clock)
+
+
+@pytest.fixture
+def line(clock):
+    """Three AZ units (1, 2, 3) on one RTU line, all connected through one client."""
+    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=i) for i in (1, 2, 3)]
+    for u in units:
+        u.assume_referenced()
+    bus = ModbusBusEmulator(units)
+    client = make_client(f"rtu://{bus.start_rtu()}?baudrate=115200", timeout_s=0.5, retries=0)
+    axes = [_axis(f"ax{i}", client, i, clock) for i in (1, 2, 3)]
+    try:
+        for a in axes:
+            a.connect()
+        yield bus, units, axes
+    finally:
+        client.close()
+        bus.stop()
+
+
+MOVES = {"ax1": (30.0, 60.0, 120.0), "ax2": (-12.0, 24.0, 48.0), "ax3": (5.0, 10.0, 20.0)}
+
+
+def test_group_send_is_one_query_to_the_parent_executed_by_every_child(line, clock):
+    bus, units, axes = line
+    group = ModbusStartGroup(axes, "group")
+    group.join()
+    assert [u.group_id for u in units] == [-1, 1, 1]   # the children name the parent's address
+    n_req, n_rep = len(bus.requests), len(bus.replies)
+    goals = group.start(MOVES)
+    requests = bus.requests[n_req:]
+    # Three preloads (block at 0x0058, trigger 0), each to its own unit, then the start.
+    for i, raw in enumerate(requests[:3], start=1):
+        assert raw[:2] == bytes([i, 0x10]) and raw[2:4] == b"\x00\x58" and raw[-6:-2] == b"\0\0\0\0"
+    start = requests[3]
+    assert start == _rtu_frame(1, TRIGGER_PDU)
+    assert int.from_bytes(start[-2:], "little") == crc16_modbus(start[:-2])
+    # Only the parent answered the start: the reply after the three preload replies echoes address and
+    # count, from unit 1.
+    replies = bus.replies[n_rep:]
+    assert replies[3] == _rtu_frame(1, bytes([0x10, 0x00, 0x66, 0x00, 0x02]))
+    # Every unit started on that one query (its index on the line), each with its own profile.
+    index = n_req + 3
+    assert [u.starts[-1][1] for u in units] == [index] * 3
+    assert len({u.starts[-1][0] for u in units}) == 1
+    for u, (name, (deg, v, a)) in zip(units, MOVES.items(), strict=True):
+        assert goals[name] == round(deg * STEPS_PER_DEG)
+        t0, start_steps, goal, vel, acc = u._move  # noqa: SLF001 - the emulator's plan, for the test
+        assert goal == goals[name] and vel == round(v * STEPS_PER_DEG) and acc == round(a * STEPS_PER_DEG)
+    clock.sleep(10.0)
+    for a, (deg, _v, _acc) in zip(axes, MOVES.values(), strict=True):
+        assert abs(a.position_deg() - deg) < 0.05
+
+
+def test_a_child_that_lost_its_group_ignores_the_query_and_is_named(line, clock):
+    bus, units, axes = line
+    group = ModbusStartGroup(axes, "group")
+    group.join()
+    units[2].power_cycle()                       # the group is volatile
+    assert units[2].group_id == -1
+    with pytest.raises(SyncStartError) as err:
+        group.start(MOVES)
+    assert set(err.value.failed) == {"ax3"}
+    assert "not in the group" in err.value.failed["ax3"]
+    assert not units[2].starts                   # it executed nothing
+    # The two that started were stopped: a coordinated move does not go on with an axis missing.
+    assert not units[0].moving() and not units[1].moving()
+    group.join()
+    group.start(MOVES)
+    assert units[2].starts
+
+
+def test_an_alarm_and_data_lost_at_power_off_are_found_by_the_status_read(line, clock):
+    bus, units, axes = line
+    group = ModbusStartGroup(axes, "group")
+    group.join()
+    units[1].raise_alarm(0x30)
+    with pytest.raises(SyncStartError) as err:
+        group.start({"ax1": (10.0, None, None), "ax3": (10.0, None, None)})
+    # ax2 was told to stay where it is, and its preload was refused on the latched alarm? No: the alarm is
+    # seen by the status read after the query; the driver reads it and names the axis with its code.
+    assert "ax2" in str(err.value) and "0x0030" in err.value.failed["ax2"]
+    units[1].halt()
+    axes[1].clear_fault()
+    # A unit power cycled between its preload and the trigger holds no data any more: the trigger trips
+    # its operation data alarm, named.
+    group.join()
+    goals = {n: a.preload(*MOVES[n]) for n, a in group.axes.items()}
+    units[0].power_cycle()
+    group.join()
+    axes[0].write_words(0x0066, [0, 1], what="trigger to the parent")
+    assert units[0].alarm_code == DATA_ALARM and not units[0].starts[-1:] == []
+    with pytest.raises(Exception, match="ax1"):
+        axes[0].start_state(goals["ax1"])
+
+
+def test_broadcast_is_one_query_to_unit_0_that_nobody_answers(line, clock):
+    bus, units, axes = line
+    group = ModbusStartGroup(axes, "broadcast")
+    n_req, n_rep = len(bus.requests), len(bus.replies)
+    group.start(MOVES)
+    start = bus.requests[n_req + 3]
+    assert start == _rtu_frame(0, TRIGGER_PDU)
+    assert bus.broadcasts == 1
+    # The replies after the three preload replies answer the status reads, not the broadcast.
+    assert all(r[0] != 0 for r in bus.replies[n_rep:])
+    assert [u.starts[-1][1] for u in units] == [n_req + 3] * 3
+
+
+def test_group_start_refused_where_the_manual_gives_none(clock):
+    emu = ModbusMotorEmulator("generic", clock=clock)
+    try:
+        client = make_client(f"tcp://{':'.join(map(str, emu.start_tcp()))}", timeout_s=0.1, retries=0)
+        a = ModbusAxis("stage", client, "generic", limits_deg=(-180.0, 180.0), clock=clock)
+        with pytest.raises(ValueError, match=r"^modbus start group: axis 'stage': profile 'generic' has no "
+                                             r"\[sync_start\]"):
+            ModbusStartGroup([a], "group")
+        with pytest.raises(ValueError, match="no \\[sync_start\\]"):
+            a.preload(10.0)
+    finally:
+        emu.stop()
+    assert load_profile("leadshine_pr").sync_start is None
+    az = load_profile(AZ).sync_start
+    assert (az.trigger, az.hold, az.start, az.group_register, az.broadcast) == ("trigger", 0, 1, "group_id", True)
+    assert "group_id" in load_profile(AZ).secondary
+
+
+def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
+    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(3)]
+    axes = []
+    try:
+        for i, u in enumerate(units, start=1):
+            u.assume_referenced()
+            host, port = u.start_tcp()
+            axes.append(_axis(f"ax{i}", make_client(f"tcp://{host}:{port}", timeout_s=0.5, retries=0), 1, clock))
+            axes[-1].connect()
+        with pytest.raises(ValueError, match="same bus"):
+            ModbusStartGroup(axes, "group")
+        group = ModbusStartGroup(axes, "back_to_back")
+        counts = [len(u.requests) for u in units]
+        group.start(MOVES)
+        for u, n in zip(units, counts, strict=True):
+            preload, trigger = u.requests[n], u.requests[n + 1]
+            assert preload[7] == 0x10 and preload[8:10] == b"\x00\x58"
+            assert trigger[2:4] == b"\0\0" and trigger[6:] == bytes([1]) + TRIGGER_PDU  # MBAP, unit 1
+            assert u.starts[-1][1] == n + 1
+        clock.sleep(10.0)
+        for a, (deg, _v, _acc) in zip(axes, MOVES.values(), strict=True):
+            assert abs(a.position_deg() - deg) < 0.05
+        # A connection on which the unit raised an alarm: the others stopped, that one named.
+        units[1].raise_alarm(0x42)
+        with pytest.raises(SyncStartError) as err:
+            group.start({"ax1": (0.0, None, None), "ax2": (0.0, None, None)})
+        assert set(err.value.failed) == {"ax2"} and not units[0].moving()
+    finally:
+        for a in axes:
+            a.close()
+        for u in units:
+            u.stop()
