@@ -448,8 +448,9 @@ class ModbusAxis:
                              "no way to hold a move's data until a trigger)")
         steps = self.steps_for(target_deg)
         vel, acc = self.velocity_value, self.accel_value
-        tops = (p.velocity_rev_s(vel) * 360.0 / self.gear_ratio, p.accel_rev_s2(acc) * 360.0 / self.gear_ratio)
-        for key, v, top in (("velocity_deg_s", velocity_deg_s, tops[0]), ("accel_deg_s2", accel_deg_s2, tops[1])):
+        g = 360.0 / self.gear_ratio
+        for key, v, top in (("velocity_deg_s", velocity_deg_s, p.velocity_rev_s(vel) * g),
+                            ("accel_deg_s2", accel_deg_s2, p.accel_rev_s2(acc) * g)):
             if v is not None and not (math.isfinite(v) and 0 < v <= top * (1 + 1e-9)):
                 raise ValueError(f"axis '{self.name}': {key} {v} is outside (0, {top:g}] (the axis's own)")
         if velocity_deg_s is not None:

@@ -42,7 +42,8 @@ class SyncStartError(DeviceFault):
 
     def __init__(self, device: str, failed: Mapping[str, str]):
         self.failed = dict(failed)
-        super().__init__(device, "did not start: " + "; ".join(f"{n}: {why}" for n, why in self.failed.items()),
+        why = "; ".join(f"{n}: {why}" for n, why in self.failed.items())
+        super().__init__(device, f"did not start: {why}",
                          transient=False)
 
 
@@ -69,18 +70,20 @@ class ModbusStartGroup:
                 raise ValueError(f"modbus start group: axis '{a.name}': profile '{a.profile.name}' has no "
                                  "[sync_start] (its manual gives no held move and trigger)")
         self.mode = mode
+        #: Wall time (s) between the first and the last trigger sent, at the last back_to_back start.
+        self.send_spread_s = 0.0
         self.axes = {a.name: a for a in axes}
         if len(self.axes) != len(axes):
             raise ValueError("modbus start group: axis names must be distinct")
         clients = {id(a.client) for a in axes}
         if mode == "back_to_back":
             if len(clients) != len(axes) or not all(isinstance(a.client, ModbusTcpClient) for a in axes):
-                raise ValueError("modbus start group: back_to_back starts axes each behind its own Modbus TCP "
-                                 "connection")
+                raise ValueError("modbus start group: back_to_back starts axes each behind its own "
+                                 "Modbus TCP connection")
             return
         if len(clients) != 1:
-            raise ValueError(f"modbus start group: mode {mode!r} sends one query on one line: every axis must "
-                             "be on the same bus")
+            raise ValueError(f"modbus start group: mode {mode!r} sends one query on one line: every axis "
+                             "must be on the same bus")
         if len({a.device_id for a in axes}) != len(axes):
             raise ValueError("modbus start group: unit ids must be distinct")
         if mode == "group":
@@ -96,8 +99,21 @@ class ModbusStartGroup:
             if not isinstance(axes[0].client, ModbusSerialClient):
                 raise ValueError("modbus start group: broadcast needs an RTU line (a TCP gateway may take "
                                  "unit 0 for itself)")
-        #: Wall time (s) between the first and the last trigger sent, at the last start.
-        self.send_spread_s = 0.0
+
+    @classmethod
+    def for_axes(cls, axes: Sequence) -> ModbusStartGroup:
+        """The group in the mode the axes' links and profiles allow: one line -> ``"group"`` where every
+        profile has group send, else ``"broadcast"`` on RTU where every profile executes broadcasts;
+        each axis on its own TCP connection -> ``"back_to_back"``. Joined (group mode)."""
+        axes = list(axes)
+        if len({id(a.client) for a in axes}) > 1:
+            group = cls(axes, "back_to_back")
+        elif all(a.profile.sync_start is not None and a.profile.sync_start.group_register for a in axes):
+            group = cls(axes, "group")
+        else:
+            group = cls(axes, "broadcast")
+        group.join()
+        return group
 
     @property
     def parent(self):
@@ -131,7 +147,8 @@ class ModbusStartGroup:
         """
         unknown = set(moves) - set(self.axes)
         if unknown:
-            raise ValueError(f"modbus start group: unknown axes {sorted(unknown)}; known: {sorted(self.axes)}")
+            raise ValueError(f"modbus start group: unknown axes {sorted(unknown)}; "
+                             f"known: {sorted(self.axes)}")
         for n, (target, _v, _a) in moves.items():
             self.axes[n].check_target(target)
         goals = {}

@@ -101,6 +101,7 @@ class ModbusMotorEmulator:
         self.port: str | None = None
         #: The line this unit shares with others (set by :class:`ModbusBusEmulator`), or None.
         self.bus: ModbusBusEmulator | None = None
+        self._line = None
         sync = self.profile.sync_start
         self._group_reg = None if sync is None else sync.group_register
         if self._group_reg is not None:
@@ -362,10 +363,12 @@ class ModbusMotorEmulator:
         self._start(lambda: ModbusTcpServer(self._device(), address=self.address, trace_packet=self._trace))
         return self.address
 
-    def start_rtu(self, baudrate: int = 115200, *, units=None, trace=None) -> str:
+    def start_rtu(self, baudrate: int = 115200, *, units=None, trace=None, line=None) -> str:
         """Serve Modbus RTU on a pty; returns the port name a client opens. ``units`` (emulators,
-        default this one) share the line, each answering its own address (an address nobody has gets no
-        reply); ``trace`` replaces this unit's packet hook (:class:`ModbusBusEmulator` gives its own)."""
+        default this one) share the line, each answering its own address; ``trace`` replaces this unit's
+        packet hook and ``line`` (bytes from the master -> the bytes the units' server is given) sits on
+        the wire (:class:`ModbusBusEmulator` gives both)."""
+        self._line = line
         client_side, server_side = PtyLink("ttyMB"), PtyLink("ttyMBsrv")
         self._links = [client_side, server_side]
         self._relay_stop.clear()
@@ -393,6 +396,8 @@ class ModbusMotorEmulator:
             for fd in ready:
                 src, dst = fds[fd]
                 data = src.read(0.0)
+                if data and src is a and self._line is not None:
+                    data = self._line(data)
                 if data:
                     dst.write(data)
 
@@ -431,6 +436,7 @@ class ModbusBusEmulator:
         self.requests: list[bytes] = []  # every frame on the line from the master
         self.replies: list[bytes] = []   # every frame a unit sent
         self.broadcasts = 0
+        self._pending = b""
         self._host = ModbusMotorEmulator(units[0].profile, clock=units[0].clock, device_id=units[0].device_id)
         for u in units:
             u.bus = self
@@ -445,29 +451,54 @@ class ModbusBusEmulator:
     def _trace(self, sending: bool, data: bytes) -> bytes:
         if sending:
             self.replies.append(bytes(data))
-            return data
-        frame = bytes(data)
-        if frame[:1] == b"\0" and len(frame) >= 9 and frame[1] == 16:
-            # A broadcast, and what the master sent after it (the line's silence is not kept on a pty).
-            size = 9 + 2 * int.from_bytes(frame[4:6], "big")
-            frame, rest = frame[:size], frame[size:]
-            self.requests.append(frame)
-            if FramerRTU.compute_CRC(frame[:-2]) == int.from_bytes(frame[-2:], "big"):
-                self.broadcasts += 1
-                address, count = int.from_bytes(frame[2:4], "big"), int.from_bytes(frame[4:6], "big")
-                values = [int.from_bytes(frame[7 + 2 * i:9 + 2 * i], "big") for i in range(count)]
-                for u in self.units.values():
-                    u.execute_silently(address, values)
-            return self._trace(False, rest) if rest else b""
-        self.requests.append(frame)
-        if frame and frame[0] not in self.units:
-            return b""  # nobody on the line has that address: no unit answers
         return data
+
+    def _line(self, data: bytes) -> bytes:
+        """The master's bytes as the units see them, frame by frame: each recorded; a broadcast executed
+        by every unit (and given to none to answer); a frame to an address nobody has, dropped."""
+        self._pending += data
+        out = b""
+        while self._pending:
+            n = _request_len(self._pending)
+            if n > len(self._pending):
+                break
+            frame, self._pending = self._pending[:n], self._pending[n:]
+            self.requests.append(frame)
+            if frame[0] == 0:
+                self._broadcast(frame)
+            elif frame[0] in self.units:
+                out += frame
+        return out
+
+    def _broadcast(self, frame: bytes) -> None:
+        if frame[1] != 16 or FramerRTU.compute_CRC(frame[:-2]) != int.from_bytes(frame[-2:], "big"):
+            return  # only writes are broadcast; a frame with a bad CRC is not executed
+        self.broadcasts += 1
+        address, count = int.from_bytes(frame[2:4], "big"), int.from_bytes(frame[4:6], "big")
+        values = [int.from_bytes(frame[7 + 2 * i:9 + 2 * i], "big") for i in range(count)]
+        for u in self.units.values():
+            u.execute_silently(address, values)
 
     def start_rtu(self, baudrate: int = 115200) -> str:
         """Serve the line on a pty; returns the port name a client opens."""
-        self.port = self._host.start_rtu(baudrate, units=list(self.units.values()), trace=self._trace)
+        self.port = self._host.start_rtu(baudrate, units=list(self.units.values()), trace=self._trace,
+                                         line=self._line)
         return self.port
 
     def stop(self) -> None:
         self._host.stop()
+
+
+def _request_len(buf: bytes) -> int:
+    """The length of the RTU request frame at the head of ``buf`` (more than ``len(buf)`` while its
+    header is incomplete)."""
+    if len(buf) < 2:
+        return 2
+    fc = buf[1]
+    if fc in (1, 2, 3, 4, 5, 6):
+        return 8
+    if fc in (15, 16):
+        return 9 + buf[6] if len(buf) > 6 else 7
+    if fc == 23:
+        return 13 + buf[10] if len(buf) > 10 else 11
+    return len(buf)  # a function this line does not frame: passed on whole

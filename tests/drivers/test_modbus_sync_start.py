@@ -9,7 +9,14 @@ from __future__ import annotations
 
 import pytest
 
-from gonio.drivers.modbus import ModbusAxis, ModbusStartGroup, SyncStartError, load_profile, make_client
+from gonio.drivers.modbus import (
+    ModbusAlarmError,
+    ModbusAxis,
+    ModbusStartGroup,
+    SyncStartError,
+    load_profile,
+    make_client,
+)
 from gonio.sim.emulators.modbus import DATA_ALARM, ModbusBusEmulator, ModbusMotorEmulator
 
 AZ = "oriental_az_direct"
@@ -63,8 +70,8 @@ MOVES = {"ax1": (30.0, 60.0, 120.0), "ax2": (-12.0, 24.0, 48.0), "ax3": (5.0, 10
 
 def test_group_send_is_one_query_to_the_parent_executed_by_every_child(line, clock):
     bus, units, axes = line
-    group = ModbusStartGroup(axes, "group")
-    group.join()
+    group = ModbusStartGroup.for_axes(axes)            # one line, profiles with group send: joined
+    assert group.mode == "group"
     assert [u.group_id for u in units] == [-1, 1, 1]   # the children name the parent's address
     n_req, n_rep = len(bus.requests), len(bus.replies)
     goals = group.start(MOVES)
@@ -117,20 +124,19 @@ def test_an_alarm_and_data_lost_at_power_off_are_found_by_the_status_read(line, 
     units[1].raise_alarm(0x30)
     with pytest.raises(SyncStartError) as err:
         group.start({"ax1": (10.0, None, None), "ax3": (10.0, None, None)})
-    # ax2 was told to stay where it is, and its preload was refused on the latched alarm? No: the alarm is
-    # seen by the status read after the query; the driver reads it and names the axis with its code.
-    assert "ax2" in str(err.value) and "0x0030" in err.value.failed["ax2"]
-    units[1].halt()
+    # ax2, told to stay where it is, stood in alarm: the status read after the query finds it, and names
+    # it with its alarm code; the two that started are stopped.
+    assert set(err.value.failed) == {"ax2"} and "controller alarm 0x0030" in err.value.failed["ax2"]
+    assert not units[0].moving() and not units[2].moving()
     axes[1].clear_fault()
     # A unit power cycled between its preload and the trigger holds no data any more: the trigger trips
-    # its operation data alarm, named.
-    group.join()
+    # its operation data alarm instead of a move, and the start check names it.
     goals = {n: a.preload(*MOVES[n]) for n, a in group.axes.items()}
     units[0].power_cycle()
-    group.join()
-    axes[0].write_words(0x0066, [0, 1], what="trigger to the parent")
-    assert units[0].alarm_code == DATA_ALARM and not units[0].starts[-1:] == []
-    with pytest.raises(Exception, match="ax1"):
+    before = len(units[0].starts)
+    axes[0].write_words(0x0066, [0, 1], what="trigger")
+    assert units[0].alarm_code == DATA_ALARM and len(units[0].starts) == before
+    with pytest.raises(ModbusAlarmError, match="^ax1: controller alarm 0x0070"):
         axes[0].start_state(goals["ax1"])
 
 
@@ -161,7 +167,8 @@ def test_group_start_refused_where_the_manual_gives_none(clock):
         emu.stop()
     assert load_profile("leadshine_pr").sync_start is None
     az = load_profile(AZ).sync_start
-    assert (az.trigger, az.hold, az.start, az.group_register, az.broadcast) == ("trigger", 0, 1, "group_id", True)
+    assert (az.trigger, az.hold, az.start, az.group_register, az.broadcast) == \
+        ("trigger", 0, 1, "group_id", True)
     assert "group_id" in load_profile(AZ).secondary
 
 
@@ -172,11 +179,13 @@ def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
         for i, u in enumerate(units, start=1):
             u.assume_referenced()
             host, port = u.start_tcp()
-            axes.append(_axis(f"ax{i}", make_client(f"tcp://{host}:{port}", timeout_s=0.5, retries=0), 1, clock))
+            client = make_client(f"tcp://{host}:{port}", timeout_s=0.5, retries=0)
+            axes.append(_axis(f"ax{i}", client, 1, clock))
             axes[-1].connect()
         with pytest.raises(ValueError, match="same bus"):
             ModbusStartGroup(axes, "group")
-        group = ModbusStartGroup(axes, "back_to_back")
+        group = ModbusStartGroup.for_axes(axes)
+        assert group.mode == "back_to_back"
         counts = [len(u.requests) for u in units]
         group.start(MOVES)
         for u, n in zip(units, counts, strict=True):
