@@ -111,6 +111,12 @@ class ModbusMotorEmulator:
         self.starts: list[tuple[float, int, float]] = []
 
     @property
+    def plan(self) -> tuple[float, float, float, float, float]:
+        """The move under way or last made: (clock time it started, start and goal in shaft steps,
+        speed steps/s, acceleration steps/s²)."""
+        return self._move
+
+    @property
     def group_id(self) -> int:
         """The parent's address this unit executes group queries of (-1: none)."""
         return -1 if self._group_reg is None else self._get(self._group_reg)

@@ -92,7 +92,7 @@ def test_group_send_is_one_query_to_the_parent_executed_by_every_child(line, clo
     assert len({u.starts[-1][0] for u in units}) == 1
     for u, (name, (deg, v, a)) in zip(units, MOVES.items(), strict=True):
         assert goals[name] == round(deg * STEPS_PER_DEG)
-        t0, start_steps, goal, vel, acc = u._move  # noqa: SLF001 - the emulator's plan, for the test
+        _t0, _start, goal, vel, acc = u.plan
         assert goal == goals[name] and vel == round(v * STEPS_PER_DEG) and acc == round(a * STEPS_PER_DEG)
     clock.sleep(10.0)
     for a, (deg, _v, _acc) in zip(axes, MOVES.values(), strict=True):
@@ -206,3 +206,39 @@ def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
             a.close()
         for u in units:
             u.stop()
+
+
+def test_the_shipped_emulated_sample_stage_starts_its_detector_axes_back_to_back():
+    """emulated-sample-stage-modbus puts each AZ driver behind its own TCP gateway: no query reaches two,
+    so the group its axes make is back_to_back; both detector axes start on their trigger frames, each
+    moving at its own preloaded speed, and arrive."""
+    from gonio.config import load_config
+    from gonio.sim.emulators.gantry import EmulatedGantry
+    from gonio.sim.emulators.link import SyncedVirtualClock
+    from gonio.wiring import build_gantry
+
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(load_config("emulated-sample-stage-modbus"), "lambert:albedo=0.5", clock=clock,
+                        any_port=True, referenced=True) as emu:
+        gantry = build_gantry(emu.config(), clock=clock)
+        gantry.connect()
+        try:
+            names = ("detector_azimuth", "detector_tilt")
+            group = ModbusStartGroup.for_axes([gantry.axes[n] for n in names])
+            assert group.mode == "back_to_back"
+            counts = {n: len(emu.motors[n].requests) for n in names}
+            group.start({"detector_azimuth": (20.0, 10.0, 40.0), "detector_tilt": (-10.0, 5.0, 20.0)})
+            for n in names:
+                m = emu.motors[n]
+                assert m.requests[counts[n] + 1][7:] == TRIGGER_PDU   # the preload, then the trigger
+                assert m.starts[-1][1] == counts[n] + 1
+            t_start = {n: emu.motors[n].starts[-1][0] for n in names}
+            for n, v, a in (("detector_azimuth", 10.0, 40.0), ("detector_tilt", 5.0, 20.0)):
+                steps_per_deg = gantry.axes[n].steps_per_deg
+                assert emu.motors[n].plan[3:] == (round(v * steps_per_deg), round(a * steps_per_deg))
+            clock.sleep(30.0)
+            for n, deg in (("detector_azimuth", 20.0), ("detector_tilt", -10.0)):
+                assert abs(gantry.axes[n].position_deg() - deg) < 0.05
+            assert t_start["detector_azimuth"] == t_start["detector_tilt"]  # one instant of the gantry clock
+        finally:
+            gantry.close()
