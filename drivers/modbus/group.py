@@ -57,9 +57,13 @@ class ModbusStartGroup:
         parent in the ``"group"`` mode.
     mode : str
         One of :data:`START_MODES`.
+    turnaround_s : float
+        After a broadcast, how long (s, on the axes' clock) the line is left silent before the status
+        reads, so every unit has handled it (the Modbus serial line specification's turnaround delay,
+        typically 100 to 200 ms).
     """
 
-    def __init__(self, axes: Sequence, mode: str):
+    def __init__(self, axes: Sequence, mode: str, *, turnaround_s: float = 0.1):
         axes = list(axes)
         if mode not in START_MODES:
             raise ValueError(f"modbus start group: mode {mode!r} is not one of {', '.join(START_MODES)}")
@@ -69,7 +73,10 @@ class ModbusStartGroup:
             if a.profile.sync_start is None:
                 raise ValueError(f"modbus start group: axis '{a.name}': profile '{a.profile.name}' has no "
                                  "[sync_start] (its manual gives no held move and trigger)")
+        if not 0.0 <= turnaround_s <= 1.0:
+            raise ValueError(f"modbus start group: turnaround_s {turnaround_s} is outside [0, 1]")
         self.mode = mode
+        self.turnaround_s = float(turnaround_s)
         #: Wall time (s) between the first and the last trigger sent, at the last back_to_back start.
         self.send_spread_s = 0.0
         self.axes = {a.name: a for a in axes}
@@ -173,6 +180,7 @@ class ModbusStartGroup:
             first.write_words(address, words, what="group start (trigger to the group's parent)")
         elif self.mode == "broadcast":
             first.write_words(address, words, what="broadcast start (trigger to unit 0)", device_id=0)
+            first.clock.sleep(self.turnaround_s)
         else:
             self._back_to_back(axes)
 

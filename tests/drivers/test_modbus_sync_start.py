@@ -144,7 +144,11 @@ def test_broadcast_is_one_query_to_unit_0_that_nobody_answers(line, clock):
     bus, units, axes = line
     group = ModbusStartGroup(axes, "broadcast")
     n_req, n_rep = len(bus.requests), len(bus.replies)
+    t0 = clock.now()
     group.start(MOVES)
+    # The line left silent for the turnaround before the first status read: every start is checked after
+    # it (on the axes' clock).
+    assert clock.now() - t0 >= group.turnaround_s
     start = bus.requests[n_req + 3]
     assert start == _rtu_frame(0, TRIGGER_PDU)
     assert bus.broadcasts == 1
