@@ -7,6 +7,8 @@ data lost at power-off trips an alarm; every failed start found by reading the s
 
 from __future__ import annotations
 
+import tomllib
+
 import pytest
 
 from gonio.drivers.modbus import (
@@ -16,7 +18,9 @@ from gonio.drivers.modbus import (
     SyncStartError,
     load_profile,
     make_client,
+    parse_profile,
 )
+from gonio.drivers.modbus.profile import FAMILIES
 from gonio.sim.emulators.modbus import DATA_ALARM, ModbusBusEmulator, ModbusMotorEmulator
 
 AZ = "oriental_az_direct"
@@ -174,6 +178,13 @@ def test_group_start_refused_where_the_manual_gives_none(clock):
     assert (az.trigger, az.hold, az.start, az.group_register, az.broadcast) == \
         ("trigger", 0, 1, "group_id", True)
     assert "group_id" in load_profile(AZ).secondary
+    # A [sync_start] table that names what the profile does not have is refused, naming the field.
+    data = tomllib.loads(FAMILIES[AZ].extra["profile"].read_text())
+    for key, bad, msg in (("hold", 1, "sync_start.hold 1 must be an integer other than the trigger"),
+                          ("group_register", "nope", "sync_start.group_register 'nope' is not defined"),
+                          ("broadcast", "yes", "sync_start.broadcast 'yes' is not one of true, false")):
+        with pytest.raises(ValueError, match=f"^modbus profile az: {msg}"):
+            parse_profile({**data, "sync_start": {**data["sync_start"], key: bad}}, "az")
 
 
 def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
