@@ -95,7 +95,6 @@ def bench_rtu(n: int, starts: int) -> dict[str, list[float]]:
             a.connect()
         out = {"rtu sequential": _skews(units, axes, _sequential, starts)}
         group = ModbusStartGroup(axes, "group")
-        group.join()
         out["rtu group"] = _skews(units, axes, _synchronized(group), starts)
         out["rtu broadcast"] = _skews(units, axes, _synchronized(ModbusStartGroup(axes, "broadcast")), starts)
         return out

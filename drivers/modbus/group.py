@@ -5,10 +5,13 @@ Motor's direct data operation keeps target, speed and acceleration written with 
 write of trigger 1 alone starts the move with them), each write answered by its own unit. Then the
 start, one of three ways (``mode``):
 
-- ``"group"`` (Oriental Motor's group send, units on one line): :meth:`ModbusStartGroup.join` sets each
-  child's group register to the parent's address (the first axis; its own stays -1); ONE Write Multiple
-  Registers of the trigger to the parent's address is executed by every child and answered by the parent
-  alone. The group is lost at power-off: join again after a power cycle.
+- ``"group"`` (Oriental Motor's group send, units on one line): after the preloads, each child's group
+  register is set to the parent's address (the first axis; its own stays -1) and read back; ONE Write
+  Multiple Registers of the trigger to the parent's address is executed by every child and answered by
+  the parent alone; then every child leaves the group (-1 again). The group is held only for the start:
+  while it stands, every Write Multiple Registers to the parent (a move, a stop) is executed by every
+  child too, which a gantry's stop-and-go moves of the parent must never be. (The unit also drops it at
+  power-off.)
 - ``"broadcast"`` (units on one RTU line): ONE Write Multiple Registers of the trigger to address 0;
   every unit on the line executes it, none answers (so every unit of the line must be in the group).
 - ``"back_to_back"`` (each unit behind its own Modbus TCP gateway: no query reaches two): the trigger
@@ -119,7 +122,6 @@ class ModbusStartGroup:
             group = cls(axes, "group")
         else:
             group = cls(axes, "broadcast")
-        group.join()
         return group
 
     @property
@@ -128,13 +130,20 @@ class ModbusStartGroup:
 
     def join(self) -> None:
         """Group mode: each child's group register set to the parent's address, the parent's to -1
-        (individual); each write answered and read back."""
+        (individual); each write answered and read back. :meth:`start` joins and leaves by itself."""
+        self._group(self.parent.device_id)
+
+    def leave(self) -> None:
+        """Group mode: every unit individual again (-1), each write answered and read back."""
+        self._group(-1)
+
+    def _group(self, parent_id: int) -> None:
         if self.mode != "group":
             return
         parent = self.parent
         for a in self.axes.values():
             reg = a.profile.sync_start.group_register
-            want = -1 if a is parent else parent.device_id
+            want = -1 if a is parent else parent_id
             a.write_value(reg, want)
             got = a.read_value(reg)
             if got != want:
@@ -164,7 +173,11 @@ class ModbusStartGroup:
                 goals[a.name] = a.preload(*moves[a.name])
             elif self.mode != "back_to_back":  # it executes the query too: it is told to stay
                 goals[a.name] = a.preload(a.deg_of_steps(a.present_steps()))
-        self._trigger([self.axes[n] for n in goals if self.mode != "back_to_back" or n in moves])
+        self.join()  # after the preloads: a write to the parent while grouped is every child's too
+        try:
+            self._trigger([self.axes[n] for n in goals])
+        finally:
+            self.leave()
         self._check(goals)
         return {n: goals[n] for n in moves}
 
@@ -229,7 +242,7 @@ class ModbusStartGroup:
             clock.sleep(0.01)
         for n in pending:
             failed[n] = ("did not start: neither moving nor at its target"
-                         + (" (not in the group: power cycled? join again)" if self.mode == "group" else ""))
+                         + (" (not in the group: power cycled?)" if self.mode == "group" else ""))
         if failed:
             for n in goals:
                 if n not in failed:

@@ -74,49 +74,76 @@ MOVES = {"ax1": (30.0, 60.0, 120.0), "ax2": (-12.0, 24.0, 48.0), "ax3": (5.0, 10
 
 def test_group_send_is_one_query_to_the_parent_executed_by_every_child(line, clock):
     bus, units, axes = line
-    group = ModbusStartGroup.for_axes(axes)            # one line, profiles with group send: joined
+    group = ModbusStartGroup.for_axes(axes)            # one line, profiles with group send
     assert group.mode == "group"
-    assert [u.group_id for u in units] == [-1, 1, 1]   # the children name the parent's address
     n_req, n_rep = len(bus.requests), len(bus.replies)
     goals = group.start(MOVES)
-    requests = bus.requests[n_req:]
-    # Three preloads (block at 0x0058, trigger 0), each to its own unit, then the start.
+    requests, replies = bus.requests[n_req:], bus.replies[n_rep:]
+    # Three preloads (block at 0x0058, trigger 0), each to its own unit, while no unit is in a group.
     for i, raw in enumerate(requests[:3], start=1):
         assert raw[:2] == bytes([i, 0x10]) and raw[2:4] == b"\x00\x58" and raw[-6:-2] == b"\0\0\0\0"
-    start = requests[3]
+    # The group joined: each unit's Group register (0x0030) written (parent -1, children 1), read back.
+    joins = [r for r in requests[3:9] if r[1] == 0x10]
+    assert [(r[0], r[2:4], r[7:11]) for r in joins] == [
+        (1, b"\x00\x30", b"\xff\xff\xff\xff"), (2, b"\x00\x30", b"\0\0\0\1"), (3, b"\x00\x30", b"\0\0\0\1")]
+    # Then ONE start: the trigger to the parent, its CRC the serial line's.
+    start = requests[9]
     assert start == _rtu_frame(1, TRIGGER_PDU)
     assert int.from_bytes(start[-2:], "little") == crc16_modbus(start[:-2])
-    # Only the parent answered the start: the reply after the three preload replies echoes address and
-    # count, from unit 1.
-    replies = bus.replies[n_rep:]
-    assert replies[3] == _rtu_frame(1, bytes([0x10, 0x00, 0x66, 0x00, 0x02]))
+    # Only the parent answered it (the reply that follows the query, from unit 1, echoing address and
+    # count), and nobody else answered anything it was not asked: one reply per request addressed.
+    assert replies[9] == _rtu_frame(1, bytes([0x10, 0x00, 0x66, 0x00, 0x02]))
+    assert len(replies) == len(requests)
     # Every unit started on that one query (its index on the line), each with its own profile.
-    index = n_req + 3
+    index = n_req + 9
     assert [u.starts[-1][1] for u in units] == [index] * 3
     assert len({u.starts[-1][0] for u in units}) == 1
     for u, (name, (deg, v, a)) in zip(units, MOVES.items(), strict=True):
         assert goals[name] == round(deg * STEPS_PER_DEG)
         _t0, _start, goal, vel, acc = u.plan
         assert goal == goals[name] and vel == round(v * STEPS_PER_DEG) and acc == round(a * STEPS_PER_DEG)
+    # The group left right after: a later write to the parent is the parent's alone.
+    assert [u.group_id for u in units] == [-1, -1, -1]
     clock.sleep(10.0)
     for a, (deg, _v, _acc) in zip(axes, MOVES.values(), strict=True):
         assert abs(a.position_deg() - deg) < 0.05
 
 
-def test_a_child_that_lost_its_group_ignores_the_query_and_is_named(line, clock):
+def test_while_grouped_a_write_to_the_parent_is_every_childs_and_the_group_is_volatile(line, clock):
     bus, units, axes = line
     group = ModbusStartGroup(axes, "group")
     group.join()
-    units[2].power_cycle()                       # the group is volatile
+    assert [u.group_id for u in units] == [-1, 1, 1]   # the children name the parent's address
+    n = len(bus.replies)
+    axes[0].preload(40.0)                              # a block write to the parent ...
+    assert len(bus.replies) == n + 1                   # ... answered by the parent alone ...
+    # ... and held by every child too (each unit's target register read from it), none moving (trigger 0).
+    assert [a.goal_steps() for a in axes] == [round(40.0 * STEPS_PER_DEG)] * 3
+    assert not any(u.starts for u in units)
+    units[2].power_cycle()                             # the group is lost at power-off
     assert units[2].group_id == -1
+    group.leave()
+    assert [u.group_id for u in units] == [-1, -1, -1]
+
+
+def test_a_child_that_dropped_out_of_the_group_ignores_the_query_and_is_named(line, clock, monkeypatch):
+    bus, units, axes = line
+    group = ModbusStartGroup(axes, "group")
+    join = group.join
+
+    def join_then_power_cut():                         # ax3's power cut between the join and the start
+        join()
+        units[2].power_cycle()
+
+    monkeypatch.setattr(group, "join", join_then_power_cut)
     with pytest.raises(SyncStartError) as err:
         group.start(MOVES)
     assert set(err.value.failed) == {"ax3"}
     assert "not in the group" in err.value.failed["ax3"]
-    assert not units[2].starts                   # it executed nothing
+    assert not units[2].starts and units[2].alarm_code == 0   # it executed nothing
     # The two that started were stopped: a coordinated move does not go on with an axis missing.
     assert not units[0].moving() and not units[1].moving()
-    group.join()
+    monkeypatch.setattr(group, "join", join)
     group.start(MOVES)
     assert units[2].starts
 
@@ -124,7 +151,6 @@ def test_a_child_that_lost_its_group_ignores_the_query_and_is_named(line, clock)
 def test_an_alarm_and_data_lost_at_power_off_are_found_by_the_status_read(line, clock):
     bus, units, axes = line
     group = ModbusStartGroup(axes, "group")
-    group.join()
     units[1].raise_alarm(0x30)
     with pytest.raises(SyncStartError) as err:
         group.start({"ax1": (10.0, None, None), "ax3": (10.0, None, None)})
