@@ -11,7 +11,9 @@ start, one of three ways (``mode``):
   the parent alone; then every child leaves the group (-1 again). The group is held only for the start:
   while it stands, every Write Multiple Registers to the parent (a move, a stop) is executed by every
   child too, which a gantry's stop-and-go moves of the parent must never be. (The unit also drops it at
-  power-off.)
+  power-off. Should gonio die between the join and the leave, the children stay grouped until the next
+  start or a power cycle: the parent is preloaded first, so such a stale group's copy of its block is
+  overwritten by each child's own preload.)
 - ``"broadcast"`` (units on one RTU line): ONE Write Multiple Registers of the trigger to address 0;
   every unit on the line executes it, none answers (so every unit of the line must be in the group).
 - ``"back_to_back"`` (each unit behind its own Modbus TCP gateway: no query reaches two): the trigger
