@@ -10,6 +10,7 @@ _EXPORTS = {
     "ModbusAlarmError": "axis", "ModbusAxis": "axis", "ModbusCommError": "axis",
     "ModbusExceptionError": "axis", "make_client": "axis", "PROFILES": "profile", "MotorProfile": "profile",
     "Register": "profile", "load_profile": "profile", "parse_profile": "profile",
+    "ModbusStartGroup": "group", "SyncStartError": "group",
 }
 __all__ = list(_EXPORTS)
 __getattr__ = lazy_attributes(__name__, _EXPORTS)

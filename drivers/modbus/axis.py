@@ -223,6 +223,8 @@ class ModbusAxis:
                 break
             except ModbusException as exc:  # no reply / bad CRC after the client's own retries
                 raise ModbusCommError(self.name, f"{what}: {exc}") from exc
+            if response is None:  # a broadcast: nobody answers
+                return None
             dt = time.perf_counter() - t0
             self.round_trip_s = dt if self.round_trip_s is None else min(self.round_trip_s, dt)
             stray = self._stray(what, response, expect)
@@ -276,6 +278,22 @@ class ModbusAxis:
         else:
             self._call(f"write {name}", lambda: self.client.write_registers(
                 reg.address, words, device_id=self.device_id), (16, None))
+
+    def read_value(self, name: str) -> int:
+        """Register ``name`` of the profile, read (answered) and decoded."""
+        return self._read_value(name)
+
+    def write_value(self, name: str, value: int) -> None:
+        """Register ``name`` of the profile written with ``value`` (answered)."""
+        self._write(name, value)
+
+    def write_words(self, address: int, words: list[int], *, what: str, device_id: int | None = None) -> None:
+        """One Write Multiple Registers of ``words`` at ``address`` to unit ``device_id`` (default this
+        axis's) on this axis's link; a broadcast (unit 0) is sent and not answered."""
+        unit = self.device_id if device_id is None else int(device_id)
+        self._call(what, lambda: self.client.write_registers(address, words, device_id=unit,
+                                                             no_response_expected=unit == 0),
+                   None if unit == 0 else (16, None))
 
     def _command(self, cmd: Command) -> None:
         self._write(cmd.register, cmd.value)
@@ -356,17 +374,9 @@ class ModbusAxis:
         Multiple Registers that also reads the state back where the profile has ``write_read``), then
         wait until the moving bit rises or the position equals the target (at most ``start_timeout_s``)."""
         steps = self.steps_for(target_deg)
-        if self._fault is not None:
-            raise ModbusAlarmError(self.name, f"{self._fault} (latched; clear_fault() resets)",
-                                   self._alarm)
-        if not self.referenced():
-            raise NotReferencedFault(
-                self.name, f"controller {self.device_id} has no origin set (its position is lost at "
-                "power-off, or it was never referenced): run `gonio gantry reference`")
+        self._ready_to_move()
         p = self.profile
-        values = dict(p.move_constants, target_position=steps, velocity=self.velocity_value,
-                      acceleration=self.accel_value, deceleration=self.accel_value)
-        words = [w for name in p.move_block for w in p[name].encode(values[name], p.word_order)]
+        words = self._block_words(steps, self.velocity_value, self.accel_value)
         what = f"write move block at {p.block_start:#06x}"
         r = None
         if p.write_read and not self.write_read_refused:
@@ -403,6 +413,65 @@ class ModbusAxis:
                                       f"{self.start_timeout_s} s (moving bit never rose)")
             self.clock.sleep(0.002)
             status, at = self._look()
+
+    def _block_words(self, steps: int, velocity_value: int, accel_value: int, **constants) -> list[int]:
+        """The move block's words: target ``steps``, speed and acceleration register values, the profile's
+        constants (``constants`` overriding some)."""
+        p = self.profile
+        values = dict(p.move_constants, target_position=steps, velocity=velocity_value,
+                      acceleration=accel_value, deceleration=accel_value, **constants)
+        return [w for name in p.move_block for w in p[name].encode(values[name], p.word_order)]
+
+    def _ready_to_move(self) -> None:
+        if self._fault is not None:
+            raise ModbusAlarmError(self.name, f"{self._fault} (latched; clear_fault() resets)", self._alarm)
+        if not self.referenced():
+            raise NotReferencedFault(
+                self.name, f"controller {self.device_id} has no origin set (its position is lost at "
+                "power-off, or it was never referenced): run `gonio gantry reference`")
+
+    def preload(self, target_deg: float, velocity_deg_s: float | None = None,
+                accel_deg_s2: float | None = None) -> int:
+        """Write the move block with the profile's hold trigger (``[sync_start]``): the controller keeps
+        target, speed (default the axis's) and acceleration and does not move until a trigger write
+        (:class:`gonio.drivers.modbus.group.ModbusStartGroup`). Returns the target (steps).
+
+        Raises
+        ------
+        ValueError
+            The target outside the limits, a speed or acceleration not > 0 or out of its register's
+            range, or a profile with no ``[sync_start]``.
+        """
+        p = self.profile
+        if p.sync_start is None:
+            raise ValueError(f"axis '{self.name}': profile '{p.name}' has no [sync_start] (its manual gives "
+                             "no way to hold a move's data until a trigger)")
+        steps = self.steps_for(target_deg)
+        vel, acc = self.velocity_value, self.accel_value
+        g = 360.0 / self.gear_ratio
+        for key, v, top in (("velocity_deg_s", velocity_deg_s, p.velocity_rev_s(vel) * g),
+                            ("accel_deg_s2", accel_deg_s2, p.accel_rev_s2(acc) * g)):
+            if v is not None and not (math.isfinite(v) and 0 < v <= top * (1 + 1e-9)):
+                raise ValueError(f"axis '{self.name}': {key} {v} is outside (0, {top:g}] (the axis's own)")
+        if velocity_deg_s is not None:
+            vel = max(1, self.profile.velocity_value(velocity_deg_s * self.gear_ratio / 360.0))
+        if accel_deg_s2 is not None:
+            acc = max(1, self.profile.accel_value(accel_deg_s2 * self.gear_ratio / 360.0))
+        words = self._block_words(steps, vel, acc, **{p.sync_start.trigger: p.sync_start.hold})
+        self._ready_to_move()
+        self._call(f"preload move block at {p.block_start:#06x}", lambda: self.client.write_registers(
+            p.block_start, words, device_id=self.device_id), (16, None))
+        return steps
+
+    def start_state(self, steps: int) -> bool:
+        """Whether the move to ``steps`` has started (the moving bit, or the position there): one look
+        (raises :class:`ModbusAlarmError` on an alarm)."""
+        status, at = self._look()
+        if status >> self.profile.moving_bit & 1:
+            return True
+        if at is None:
+            at = self._read_value("actual_position")
+        return at == steps
 
     def _deg(self, steps: int) -> float:
         return self.direction * (steps - self.zero_steps) / self.steps_per_deg

@@ -25,6 +25,12 @@ Schema (all addresses are 0-based protocol addresses)::
       them (at most 125 words); adjacent registers are always read together
     write_read = true | false (default false): the controller supports function 23 (Read/Write
       Multiple Registers), so a move's block write also reads the status back in the same request
+    [sync_start] (optional): how several units start together (:mod:`gonio.drivers.modbus.group`):
+      hold = the value of the block's last register (the trigger) that stores the block's data without
+      starting; a later write of that register alone, with its [move] constant, starts the move with
+      the data held; group_register = NAME (optional): the unit's group address (the parent's
+      address; -1 individual): a Write Multiple Registers to the parent is executed by every child;
+      broadcast = true | false: the unit executes a write to address 0 (and answers none)
     secondary = [NAMES of fields taken from a secondary source, to verify on a real unit]
 """
 
@@ -37,7 +43,7 @@ from pathlib import Path
 
 from gonio.registry import Registry
 
-__all__ = ["Register", "Command", "MotorProfile", "load_profile", "FAMILIES", "PROFILES"]
+__all__ = ["Register", "Command", "SyncStart", "MotorProfile", "load_profile", "FAMILIES", "PROFILES"]
 
 _TYPES = {"u16": (1, False), "s16": (1, True), "u32": (2, False), "s32": (2, True)}
 _REQUIRED = ("target_position", "velocity", "acceleration", "deceleration", "actual_position", "status",
@@ -108,6 +114,19 @@ class Command:
 
 
 @dataclass(frozen=True)
+class SyncStart:
+    """How units of the profile start together: data held by the ``hold`` value of the ``trigger``
+    register (the move block's last), started by a write of ``start`` to it alone; by group send (the
+    unit's ``group_register``, or None) or broadcast."""
+
+    trigger: str
+    hold: int
+    start: int
+    group_register: str | None
+    broadcast: bool
+
+
+@dataclass(frozen=True)
 class MotorProfile:
     name: str
     description: str
@@ -129,6 +148,7 @@ class MotorProfile:
     origin: Command | None = None
     referenced_bit: int | None = None
     absolute: bool = True
+    sync_start: SyncStart | None = None
 
     def __getitem__(self, name: str) -> Register:
         try:
@@ -260,6 +280,7 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
     if unknown:  # a misspelt name would leave a field unmarked without a word
         raise _fail(where, f"secondary names {', '.join(map(repr, unknown))}: not a register nor one of "
                     f"{', '.join(_SECONDARY_KEYS)}")
+    sync = _sync_start(where, data.get("sync_start"), registers, block, constants)
     return MotorProfile(
         name=data.get("name", where), description=data.get("description", ""), word_order=word_order,
         steps_per_rev=steps, velocity_unit=data["velocity_unit"], accel_unit=data["accel_unit"],
@@ -269,8 +290,28 @@ def parse_profile(data: dict, where: str = "<dict>") -> MotorProfile:
         stop=_command(f"{where} [stop]", data.get("stop", {}), registers),
         alarm_reset=_command(f"{where} [alarm_reset]", data.get("alarm_reset", {}), registers),
         secondary=secondary, origin=origin,
-        referenced_bit=None if referenced_bit is None else int(referenced_bit), **flags,
+        referenced_bit=None if referenced_bit is None else int(referenced_bit), sync_start=sync, **flags,
     )
+
+
+def _sync_start(where: str, d, registers: dict, block: tuple, constants: dict) -> SyncStart | None:
+    if d is None:
+        return None
+    trigger = block[-1]
+    if trigger not in constants:
+        raise _fail(where, f"[sync_start] needs a trigger: move.block's last register {trigger!r} with a "
+                    "value in move.constants")
+    hold = d.get("hold")
+    if not isinstance(hold, int) or hold == constants[trigger]:
+        raise _fail(where, f"sync_start.hold {hold!r} must be an integer other than the trigger's start "
+                    f"value {constants[trigger]}")
+    group = d.get("group_register")
+    if group is not None and group not in registers:
+        raise _fail(where, f"sync_start.group_register {group!r} is not defined in [registers]")
+    broadcast = d.get("broadcast", False)
+    if not isinstance(broadcast, bool):
+        raise _fail(where, f"sync_start.broadcast {broadcast!r} is not one of true, false")
+    return SyncStart(trigger, hold, constants[trigger], group, broadcast)
 
 
 def load_profile(name_or_path: str | Path) -> MotorProfile:

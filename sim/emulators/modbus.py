@@ -14,6 +14,16 @@ that hangs), :meth:`power_cycle` cuts and restores its power (an incremental dri
 origin: it counts from 0 where the shaft stands); :attr:`ModbusMotorEmulator.refuse_gaps` answers a read
 that touches a register the profile does not name with exception 2, as some units do. Function 23
 (Read/Write Multiple Registers) writes, then reads.
+
+A profile with a ``[sync_start]`` table (Oriental Motor's direct data operation) holds the data of a
+block written with the hold trigger value (0): a later write of the trigger register alone starts the
+move with the data held. Those data are volatile: a power cycle clears them, and a trigger on them then
+(operating speed 0) trips the operation data alarm (:data:`DATA_ALARM`). Its group register (Oriental
+Motor's "Group" command; -1: individual) makes a unit a child of the parent unit it names: a Write
+Multiple Registers (0x10) query to the parent's address is executed by every child of it on the same
+bus, silently (only the parent answers; :class:`ModbusBusEmulator` puts several units on one RTU line).
+The group is volatile too: -1 again after a power cycle. A query to unit 0 (broadcast) is executed by
+every unit on the line and answered by none.
 """
 
 from __future__ import annotations
@@ -22,9 +32,11 @@ import asyncio
 import select
 import socket
 import threading
+import time
 from collections import deque
 
 from pymodbus.constants import ExcCodes
+from pymodbus.framer.rtu import FramerRTU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -33,7 +45,11 @@ from gonio.drivers.modbus.profile import MotorProfile, load_profile
 from gonio.motion.trapezoid import move_time, position_at
 from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, mangle
 
-__all__ = ["ModbusMotorEmulator"]
+__all__ = ["ModbusMotorEmulator", "ModbusBusEmulator", "DATA_ALARM"]
+
+#: The alarm a trigger on data the unit never received trips (the AZ's "operation data error", code
+#: from memory of its manual: secondary).
+DATA_ALARM = 0x70
 
 
 class ModbusMotorEmulator:
@@ -83,6 +99,27 @@ class ModbusMotorEmulator:
         self._relay: threading.Thread | None = None
         self.address: tuple[str, int] | None = None
         self.port: str | None = None
+        #: The line this unit shares with others (set by :class:`ModbusBusEmulator`), or None.
+        self.bus: ModbusBusEmulator | None = None
+        self._line = None
+        sync = self.profile.sync_start
+        self._group_reg = None if sync is None else sync.group_register
+        if self._group_reg is not None:
+            self._set(self._group_reg, -1)
+        #: (clock time, index of the request that started it in :attr:`requests` of this unit or its
+        #: bus, wall time perf_counter) of every move a trigger started.
+        self.starts: list[tuple[float, int, float]] = []
+
+    @property
+    def plan(self) -> tuple[float, float, float, float, float]:
+        """The move under way or last made: (clock time it started, start and goal in shaft steps,
+        speed steps/s, acceleration steps/s²)."""
+        return self._move
+
+    @property
+    def group_id(self) -> int:
+        """The parent's address this unit executes group queries of (-1: none)."""
+        return -1 if self._group_reg is None else self._get(self._group_reg)
 
     # -- the motor ------------------------------------------------------------------------------------
     def position_steps(self) -> int:
@@ -109,6 +146,11 @@ class ModbusMotorEmulator:
             self._hold()
             self.alarm_code = 0
             self._homing = False
+            if self.profile.sync_start is not None:  # the direct data and the group are volatile
+                for name in self.profile.move_block:
+                    self._set(name, 0)
+                if self._group_reg is not None:
+                    self._set(self._group_reg, -1)
             if not self.profile.absolute:
                 self._count = -self._shaft()
                 self.referenced = False
@@ -191,9 +233,15 @@ class ModbusMotorEmulator:
         v = v if v > 0 else p.steps_per_rev  # the origin operation before any move: a turn a second
         a = a if a > 0 else 4.0 * p.steps_per_rev
         if last in touched and self._get(last) == p.move_constants.get(last) and not self.alarm_code:
-            goal = float(self._get("target_position")) - self._count
-            self._move = (self.clock.now(), self._shaft(), goal, max(v, 1e-9), max(a, 1e-9))
-            self._homing = False
+            if self._get("velocity") <= 0 and p.sync_start is not None:
+                self._hold()  # a trigger on data it never received (lost at power-off)
+                self.alarm_code = DATA_ALARM
+            else:
+                goal = float(self._get("target_position")) - self._count
+                self._move = (self.clock.now(), self._shaft(), goal, max(v, 1e-9), max(a, 1e-9))
+                self._homing = False
+                log = self.bus.requests if self.bus is not None else self.requests
+                self.starts.append((self.clock.now(), len(log) - 1, time.perf_counter()))
         if (p.origin is not None and p.origin.register in touched and self._get(p.origin.register)
                 == p.origin.value and not self.alarm_code):
             self._move = (self.clock.now(), self._shaft(), float(self.home_steps), v, a)
@@ -223,7 +271,18 @@ class ModbusMotorEmulator:
                 return None
             self._regs[off:off + count] = [int(v) for v in set_values]
             self._written(address, count)
-            return None
+        if self.bus is not None and function_code == 16:
+            self.bus.group_write(self, address, set_values)
+        return None
+
+    def execute_silently(self, address: int, values) -> None:
+        """A write this unit executes without answering (a group or broadcast query)."""
+        with self._lock:
+            off = address - self._base
+            if off < 0 or off + len(values) > len(self._regs):
+                return  # the unit would answer exception 2, but it answers nothing here
+            self._regs[off:off + len(values)] = [int(v) for v in values]
+            self._written(address, len(values))
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
         if not sending:
@@ -310,16 +369,22 @@ class ModbusMotorEmulator:
         self._start(lambda: ModbusTcpServer(self._device(), address=self.address, trace_packet=self._trace))
         return self.address
 
-    def start_rtu(self, baudrate: int = 115200) -> str:
-        """Serve Modbus RTU on a pty; returns the port name a client opens."""
+    def start_rtu(self, baudrate: int = 115200, *, units=None, trace=None, line=None) -> str:
+        """Serve Modbus RTU on a pty; returns the port name a client opens. ``units`` (emulators,
+        default this one) share the line, each answering its own address; ``trace`` replaces this unit's
+        packet hook and ``line`` (bytes from the master -> the bytes the units' server is given) sits on
+        the wire (:class:`ModbusBusEmulator` gives both)."""
+        self._line = line
         client_side, server_side = PtyLink("ttyMB"), PtyLink("ttyMBsrv")
         self._links = [client_side, server_side]
         self._relay_stop.clear()
         self._relay = threading.Thread(target=self._bridge, daemon=True, name="emu-modbus-relay")
         self._relay.start()
         self.port = client_side.port
-        self._start(lambda: ModbusSerialServer(self._device(), port=server_side.port, baudrate=baudrate,
-                                               trace_packet=self._trace))
+        devices = self._device() if units is None else [u._device() for u in units]
+        self._start(lambda: ModbusSerialServer(devices, port=server_side.port, baudrate=baudrate,
+                                               trace_packet=trace or self._trace,
+                                               ignore_missing_devices=units is not None))
         return self.port
 
     def _bridge(self) -> None:
@@ -337,6 +402,8 @@ class ModbusMotorEmulator:
             for fd in ready:
                 src, dst = fds[fd]
                 data = src.read(0.0)
+                if data and src is a and self._line is not None:
+                    data = self._line(data)
                 if data:
                     dst.write(data)
 
@@ -354,3 +421,90 @@ class ModbusMotorEmulator:
         for link in self._links:
             link.close()
         self._links = []
+
+
+class ModbusBusEmulator:
+    """Several emulated units on one RTU line (one pty): each answers its own address; a unit that is
+    not addressed stays silent, as on RS-485. A Write Multiple Registers (0x10) query to a unit is also
+    executed, silently, by every unit whose group register names it (the parent answers alone); a
+    query to unit 0 (broadcast) is executed by every unit, and answered by none.
+
+    Parameters
+    ----------
+    units : sequence of ModbusMotorEmulator
+        Distinct device ids; not started on their own.
+    """
+
+    def __init__(self, units):
+        self.units = {u.device_id: u for u in units}
+        if len(self.units) != len(units):
+            raise ValueError("modbus bus emulator: device ids must be distinct")
+        self.requests: list[bytes] = []  # every frame on the line from the master
+        self.replies: list[bytes] = []   # every frame a unit sent
+        self.broadcasts = 0
+        self._pending = b""
+        self._host = ModbusMotorEmulator(units[0].profile, clock=units[0].clock, device_id=units[0].device_id)
+        for u in units:
+            u.bus = self
+        self.port: str | None = None
+
+    def group_write(self, parent: ModbusMotorEmulator, address: int, values) -> None:
+        """The children of ``parent`` execute the write it just executed."""
+        for u in self.units.values():
+            if u is not parent and u.group_id == parent.device_id:
+                u.execute_silently(address, values)
+
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        if sending:
+            self.replies.append(bytes(data))
+        return data
+
+    def _line(self, data: bytes) -> bytes:
+        """The master's bytes as the units see them, frame by frame: each recorded; a broadcast executed
+        by every unit (and given to none to answer); a frame to an address nobody has, dropped."""
+        self._pending += data
+        out = b""
+        while self._pending:
+            n = _request_len(self._pending)
+            if n > len(self._pending):
+                break
+            frame, self._pending = self._pending[:n], self._pending[n:]
+            self.requests.append(frame)
+            if frame[0] == 0:
+                self._broadcast(frame)
+            elif frame[0] in self.units:
+                out += frame
+        return out
+
+    def _broadcast(self, frame: bytes) -> None:
+        if frame[1] != 16 or FramerRTU.compute_CRC(frame[:-2]) != int.from_bytes(frame[-2:], "big"):
+            return  # only writes are broadcast; a frame with a bad CRC is not executed
+        self.broadcasts += 1
+        address, count = int.from_bytes(frame[2:4], "big"), int.from_bytes(frame[4:6], "big")
+        values = [int.from_bytes(frame[7 + 2 * i:9 + 2 * i], "big") for i in range(count)]
+        for u in self.units.values():
+            u.execute_silently(address, values)
+
+    def start_rtu(self, baudrate: int = 115200) -> str:
+        """Serve the line on a pty; returns the port name a client opens."""
+        self.port = self._host.start_rtu(baudrate, units=list(self.units.values()), trace=self._trace,
+                                         line=self._line)
+        return self.port
+
+    def stop(self) -> None:
+        self._host.stop()
+
+
+def _request_len(buf: bytes) -> int:
+    """The length of the RTU request frame at the head of ``buf`` (more than ``len(buf)`` while its
+    header is incomplete)."""
+    if len(buf) < 2:
+        return 2
+    fc = buf[1]
+    if fc in (1, 2, 3, 4, 5, 6):
+        return 8
+    if fc in (15, 16):
+        return 9 + buf[6] if len(buf) > 6 else 7
+    if fc == 23:
+        return 13 + buf[10] if len(buf) > 10 else 11
+    return len(buf)  # a function this line does not frame: passed on whole
