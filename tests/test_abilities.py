@@ -15,7 +15,7 @@ from gonio.gantry import abilities
 from gonio.lifecycle import Request, plan_request, run_campaign
 from gonio.protocols import Reading
 from gonio.runner import State
-from gonio.sim.emulators.gantry import EmulatedGantry
+from gonio.sim.emulators.gantry import EMULATOR_LATENCY_MS, EmulatedGantry
 from gonio.sim.emulators.link import SyncedVirtualClock
 from gonio.wiring import build_gantry
 
@@ -83,6 +83,9 @@ def test_every_device_describes_itself_into_the_journal_at_connect(tmp_path):
     clock = SyncedVirtualClock()
     with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         cfg = emu.config()
+        # the servos' emulator is a thread of a loaded host: its replies are allowed a longer latency
+        shipped = load_config(TWIN).buses["arm"].latency_timer_ms
+        assert cfg.buses["arm"].latency_timer_ms == EMULATOR_LATENCY_MS > shipped
         c = create_campaign(tmp_path / "c", cfg, grid="iso:step=45,theta_max=45", material=None, sample="x")
         try:
             state, runner = run_campaign(c, build_gantry(cfg, clock=clock))

@@ -46,7 +46,10 @@ def test_shipped_configs_keep_their_snapshot_and_values(name):
 
 
 def _section(cfg, where: str):
-    return cfg.axes[where.split(".")[1]] if where.startswith("axes.") else getattr(cfg, where)
+    for table in ("axes", "buses"):
+        if where.startswith(f"{table}."):
+            return getattr(cfg, table)[where.split(".")[1]]
+    return getattr(cfg, where)
 
 
 def _compare(new: dict, old: dict, where: str) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
@@ -100,6 +103,10 @@ def _data(name="emulated-two-arm-dynamixel") -> dict:
      "equal to 252"),
     (lambda d: d["buses"]["arm"].update(retries=9),
      "buses.arm.retries: Input should be less than or equal to 5"),
+    (lambda d: d["buses"]["arm"].update(latency_timer_ms=float("nan")),
+     "buses.arm.latency_timer_ms: Input should be a finite number"),
+    (lambda d: d["buses"]["arm"].update(latency_timer_ms=0),
+     "buses.arm.latency_timer_ms: Input should be greater"),
     (lambda d: d["detector"].update(wavelength_nm=50.0), "detector.wavelength_nm: Input should be greater"),
 ])
 def test_section_errors_name_the_field(edit, message):

@@ -84,6 +84,16 @@ class WaitingPortHandler(sdk.PortHandler):
     so replies are seen no later, and the time-outs are the SDK's own.
     """
 
+    #: The USB-serial adapter's latency timer (ms) a reply's time-out allows for, twice: the SDK's
+    #: fixed 16 ms (FTDI's default) unless the bus sets another (:class:`DynamixelBus`).
+    latency_timer_ms: float = 16.0
+
+    def setPacketTimeout(self, packet_length):  # noqa: N802 - the SDK's name
+        """The SDK's time-out (the packet's bytes on the wire, twice the latency timer, 2 ms) with this
+        port's :attr:`latency_timer_ms` in place of the SDK's module constant."""
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_timer_ms + 2.0
+
     def readPort(self, length):  # noqa: N802 - the SDK's name
         ser = self.ser
         try:
@@ -109,6 +119,12 @@ class DynamixelBus:
         Name used in error messages (e.g. ``"dxl0"``).
     retries : int
         Extra attempts after a time-out or corrupt reply (0..5).
+    latency_timer_ms : float
+        The latency timer of the USB-serial adapter (ms, 0 < x <= 500): a reply's time-out allows for
+        it twice, as the SDK does with its fixed 16 ms (FTDI's default). An adapter set to 1 ms can say
+        so and learn of a silent servo sooner; an emulator's pty, served by a thread on a loaded host,
+        needs more (:class:`gonio.sim.emulators.gantry.EmulatedGantry` writes 50 ms). Applies to a
+        :class:`WaitingPortHandler` (the default port).
     port_factory : callable, optional
         ``port_factory(port) -> PortHandler`` (default :class:`WaitingPortHandler`); tests and socket
         transports inject their own.
@@ -128,15 +144,20 @@ class DynamixelBus:
     """
 
     def __init__(self, port: str, baudrate: int = 1_000_000, *, name: str = "dxl", retries: int = 1,
+                 latency_timer_ms: float = WaitingPortHandler.latency_timer_ms,
                  port_factory: Callable[[str], sdk.PortHandler] | None = None):
         if baudrate not in _BAUD_RATES:
             raise ValueError(f"dynamixel bus '{name}': baudrate {baudrate} is not one of {_BAUD_RATES}")
         if not isinstance(retries, int) or not 0 <= retries <= 5:
             raise ValueError(f"dynamixel bus '{name}': retries {retries!r} is outside [0, 5]")
+        if not 0 < latency_timer_ms <= 500:  # NaN fails too
+            raise ValueError(f"dynamixel bus '{name}': latency_timer_ms {latency_timer_ms!r} is outside "
+                             "(0, 500]")
         self.port_name = port
         self.baudrate = baudrate
         self.name = name
         self.retries = retries
+        self.latency_timer_ms = float(latency_timer_ms)
         self._factory = port_factory or WaitingPortHandler
         self.lock = threading.RLock()
         self._port: sdk.PortHandler | None = None
@@ -190,6 +211,8 @@ class DynamixelBus:
         try:
             if self._port is None:
                 self._port = self._factory(self.port_name)
+                if isinstance(self._port, WaitingPortHandler):
+                    self._port.latency_timer_ms = self.latency_timer_ms
             if not self._port.openPort() or not self._port.setBaudRate(self.baudrate):
                 raise OSError("openPort/setBaudRate returned False")
         except _PORT_ERRORS as exc:

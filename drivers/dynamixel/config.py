@@ -20,11 +20,15 @@ class DynamixelBusConfig(BusConfig):
     port: str = Field(min_length=1)
     baudrate: Literal[9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000] = 1_000_000
     retries: int = Field(1, ge=0, le=5)
+    #: The USB-serial adapter's latency timer (ms) each reply's time-out allows for twice: 16 ms is
+    #: FTDI's default and the SDK's assumption; an adapter set to 1 ms may say 1.
+    latency_timer_ms: float = Field(16.0, gt=0, le=500, allow_inf_nan=False)
 
     def open(self, name: str):
         from gonio.drivers.dynamixel.bus import DynamixelBus
 
-        return DynamixelBus(self.port, self.baudrate, name=name, retries=self.retries)
+        return DynamixelBus(self.port, self.baudrate, name=name, retries=self.retries,
+                            latency_timer_ms=self.latency_timer_ms)
 
 
 class DynamixelAxisConfig(AxisConfig):

@@ -53,8 +53,8 @@ from gonio.sim.emulators.modbus import ModbusMotorEmulator
 from gonio.sim.emulators.scpi import CurrentSourceEmulator, Pm100Emulator
 from gonio.sim.emulators.tcp_link import TcpLink
 
-__all__ = ["EmulatedGantry", "SPECTROMETER_BANDS_NM", "to_toml", "LAMP_EMULATORS", "METER_EMULATORS",
-           "WATTS_PER_UNIT"]
+__all__ = ["EmulatedGantry", "EMULATOR_LATENCY_MS", "SPECTROMETER_BANDS_NM", "to_toml", "LAMP_EMULATORS",
+           "METER_EMULATORS", "WATTS_PER_UNIT"]
 
 #: Band centres (nm) the emulated spectrometer reports for the R, G, B of the rendered material.
 SPECTROMETER_BANDS_NM = (610.0, 550.0, 465.0)
@@ -69,6 +69,12 @@ SPECTROMETER_EMULATORS = {"acknowledging": SpectrometerEmulator}
 _LOOPBACK = ("127.0.0.1", "localhost")
 _VISA_SOCKET = re.compile(r"^TCPIP(\d*)::([^:]+)::(\d+)::SOCKET$", re.IGNORECASE)
 _VISA_ASRL = re.compile(r"^ASRL(.+)::INSTR$", re.IGNORECASE)
+
+
+#: The latency (ms) a Dynamixel bus's config allows an emulator's replies, twice per reply as for a
+#: USB adapter's latency timer: the servos' emulator is a thread on this host, and a host loaded by
+#: other work (a test suite on every core) can hold its reply for tens of ms past the SDK's 34 ms.
+EMULATOR_LATENCY_MS = 50.0
 
 
 def _socket_address(port: str) -> tuple[str, int, str] | None:
@@ -381,11 +387,15 @@ class EmulatedGantry:
         return dict(self._locations)
 
     def config(self) -> GonioConfig:
-        """The config with each bus's port or url pointing at its running emulator."""
+        """The config with each bus's port or url pointing at its running emulator. A Dynamixel bus
+        also allows :data:`EMULATOR_LATENCY_MS` for each reply where its config allowed less."""
         data = self.cfg.model_dump(mode="json")
         for name, where in self._locations.items():
-            key = "url" if data["buses"][name]["driver"] == "modbus" else "port"
-            data["buses"][name][key] = where
+            bus = data["buses"][name]
+            key = "url" if bus["driver"] == "modbus" else "port"
+            bus[key] = where
+            if bus["driver"] == "dynamixel":
+                bus["latency_timer_ms"] = max(bus["latency_timer_ms"], EMULATOR_LATENCY_MS)
         return GonioConfig.model_validate(data)
 
     def config_toml(self, header: str = "") -> str:

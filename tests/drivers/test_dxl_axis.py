@@ -205,6 +205,27 @@ def test_late_reply_is_not_taken_for_the_next_answer(rig, dxl_emu):
     assert bus.read(1, XM430["model_number"]) == 1020  # not the late temperature reply
 
 
+def test_the_bus_latency_timer_sets_how_long_a_reply_is_waited_for(dxl_emu):
+    """A reply 70 ms late misses the SDK's time-out (2 x 16 ms latency + 2 ms + the bytes: ~34 ms) and is
+    taken where the bus allows a 100 ms latency timer (~202 ms); the emulated gantry's config allows 50."""
+    for latency, taken in ((16.0, False), (100.0, True)):
+        bus = DynamixelBus(dxl_emu.port, name="dxl0", retries=0, latency_timer_ms=latency)
+        bus.connect()
+        try:
+            dxl_emu.faults.add("delay", match=(1, Inst.READ), delay_s=0.07)
+            if taken:
+                assert bus.read(1, XM430["model_number"]) == 1020
+            else:
+                with pytest.raises(DynamixelCommError, match="servo 1"):
+                    bus.read(1, XM430["model_number"])
+                assert dxl_emu.wait_received(len(dxl_emu.received))
+        finally:
+            bus.close()
+    for bad in (0.0, -1.0, float("nan"), 501.0):
+        with pytest.raises(ValueError, match="latency_timer_ms"):
+            DynamixelBus(dxl_emu.port, name="dxl0", latency_timer_ms=bad)
+
+
 def test_hardware_error_latches_and_only_clear_fault_reboots(rig, dxl_emu, clock):
     _bus, a, b = rig
     a.move_to(30.0)
