@@ -1,5 +1,9 @@
 """Fixtures shared across the test folders."""
 
+import os
+import resource
+import time
+
 import numpy as np
 import pytest
 from brdf_samples import sampled
@@ -17,6 +21,26 @@ def pytest_collection_modifyitems(items):
     Not ``--dist loadgroup``/``loadscope``: they keep their units by test id, and the daemon's fuzz test
     gives every API operation the same id (schemathesis), so they would run one operation of 13."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With ``GONIO_TEST_CPU=FILE``: one line per test appended to FILE.<worker>: the wall seconds and the CPU
+    seconds (user + system) of this process and of the subprocesses it waited for, set-up and tear-down
+    included (tools/test_cpu.py sums them). Off by default."""
+    log = os.environ.get("GONIO_TEST_CPU")
+    if not log:
+        yield
+        return
+    def cpu():
+        s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        return s.ru_utime + s.ru_stime, c.ru_utime + c.ru_stime
+    t0, (s0, c0) = time.perf_counter(), cpu()
+    yield
+    t1, (s1, c1) = time.perf_counter(), cpu()
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    with open(f"{log}.{worker}", "a", encoding="utf-8") as f:
+        f.write(f"{t1 - t0:.3f}\t{s1 - s0:.3f}\t{c1 - c0:.3f}\t{item.nodeid}\n")
 
 
 @pytest.fixture
