@@ -28,8 +28,12 @@ demo: $(RUNTIME)
 
 # On every core (pytest-xdist): each worker is handed the next tests as it finishes, in the order
 # tests/conftest.py sets (the slow tests first, so that none is left to run alone at the end).
+# Byte-code caches are written even where PYTHONDONTWRITEBYTECODE is set: tools/setup.sh installs with
+# --no-compile, so otherwise every worker and every `gonio` subprocess of the tests compiles numpy,
+# scipy, pydantic... from source again (1-2 s of CPU per command), and pytest rewrites the asserts
+# of ~450 plugin modules in every worker.
 test: $(DEV)
-	$(PY) -m pytest -q -p no:cacheprovider -n auto --dist load --durations=15
+	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q -p no:cacheprovider -n auto --dist load --durations=15
 
 lint: $(DEV)
 	$(VENV)/bin/ruff check gonio drivers sim tests tools examples
