@@ -26,10 +26,15 @@ demo: $(RUNTIME)
 		--grid iso:step=10 --out $(DEMO) --seed 1
 	$(VENV)/bin/gonio plot $(DEMO) --kind polar --out $(DEMO)/polar.png --force
 
-# On every core (pytest-xdist): each worker is handed the next tests as it finishes, in the order
-# tests/conftest.py sets (the slow tests first, so that none is left to run alone at the end).
+# On every core (pytest-xdist): each worker is handed the next test or two as it finishes, in the order
+# tests/conftest.py sets (the slow tests first, the longest first, so that none is left to run alone at
+# the end; without --maxschedchunk one worker is handed every slow test at the start).
+# Byte-code caches are written even where PYTHONDONTWRITEBYTECODE is set: tools/setup.sh installs with
+# --no-compile, so otherwise every worker and every `gonio` subprocess of the tests compiles numpy,
+# scipy, pydantic... from source again (1-2 s of CPU per command), and pytest rewrites the asserts
+# of ~450 plugin modules in every worker.
 test: $(DEV)
-	$(PY) -m pytest -q -p no:cacheprovider -n auto --dist load --durations=15
+	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q -p no:cacheprovider -n auto --dist load --maxschedchunk 2 --durations=15
 
 lint: $(DEV)
 	$(VENV)/bin/ruff check gonio drivers sim tests tools examples

@@ -1,5 +1,9 @@
 """Fixtures shared across the test folders."""
 
+import os
+import resource
+import time
+
 import numpy as np
 import pytest
 from brdf_samples import sampled
@@ -9,14 +13,42 @@ from gonio.jit import ENV_VAR, array_types
 
 
 def pytest_collection_modifyitems(items):
-    """The tests marked ``slow`` (whole campaigns, subprocesses, emulators on the wall clock) first, each
-    group in its collected order (a stable sort). ``make test`` runs on every core (pytest-xdist, ``--dist
-    load``), which deals the first quarter of this order out in turn and the rest to whichever worker is
-    free: the long tests run beside each other and beside the short ones, none is left alone at the end.
+    """The tests marked ``slow`` (whole campaigns, subprocesses, emulators on the wall clock) first, the
+    longest first (``slow(seconds=S)``: about how long it runs alone; unsaid, 0), then the rest, each group
+    in its collected order (a stable sort). ``make test`` runs on every core (pytest-xdist, ``--dist load
+    --maxschedchunk 2``): each worker is handed the next test or two of this order as it finishes, so the
+    long tests are shared out as the workers come free and none is left alone at the end.
 
-    Not ``--dist loadgroup``/``loadscope``: they keep their units by test id, and the daemon's fuzz test
-    gives every API operation the same id (schemathesis), so they would run one operation of 13."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    Without ``--maxschedchunk``, ``--dist load`` hands each worker a consecutive eighth of the suite at the
+    start (281 tests of 2254 on 2 workers): the first worker drew every slow test and ran 741 s of tests
+    while the other ran 569 s. Not ``--dist loadgroup``/``loadscope``: they keep their units by test id,
+    and the daemon's fuzz test gives every API operation the same id (schemathesis), so they would run one
+    operation of 13."""
+    def order(item):
+        slow = item.get_closest_marker("slow")
+        return (slow is None, -(slow.kwargs.get("seconds", 0) if slow is not None else 0))
+
+    items.sort(key=order)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With ``GONIO_TEST_CPU=FILE``: one line per test appended to FILE.<worker>: the wall seconds and the CPU
+    seconds (user + system) of this process and of the subprocesses it waited for, set-up and tear-down
+    included (tools/test_cpu.py sums them). Off by default."""
+    log = os.environ.get("GONIO_TEST_CPU")
+    if not log:
+        yield
+        return
+    def cpu():
+        s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        return s.ru_utime + s.ru_stime, c.ru_utime + c.ru_stime
+    t0, (s0, c0) = time.perf_counter(), cpu()
+    yield
+    t1, (s1, c1) = time.perf_counter(), cpu()
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    with open(f"{log}.{worker}", "a", encoding="utf-8") as f:
+        f.write(f"{t1 - t0:.3f}\t{s1 - s0:.3f}\t{c1 - c0:.3f}\t{item.nodeid}\n")
 
 
 @pytest.fixture

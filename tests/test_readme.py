@@ -31,6 +31,9 @@ ROOT = Path(__file__).resolve().parent.parent
 PAGES = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))]
 FENCE = re.compile(r"^```([^\n]*)\n(.*?)^```[ \t]*$", re.S | re.M)
 pytestmark = pytest.mark.slow
+#: About how long a page's blocks run alone (s), where it is among the longest tests of the suite: the
+#: order in which ``make test`` starts them (tests/conftest.py); the other pages take 10-30 s.
+SECONDS = {"README.md": 80, "docs/measure.md": 60, "docs/batch.md": 40}
 
 
 def blocks(page: str) -> list[tuple[int, str, dict, str]]:
@@ -86,7 +89,8 @@ def script(page: str, activated: bool) -> str:
     return "\n".join(lines) + "\n"
 
 
-@pytest.mark.parametrize("page", [p for p in PAGES if blocks(p)])
+@pytest.mark.parametrize("page", [pytest.param(p, marks=pytest.mark.slow(seconds=SECONDS.get(p, 20)))
+                                  for p in PAGES if blocks(p)])
 def test_every_command_block_runs_as_written(page, tmp_path):
     folder = _fresh_copy(tmp_path / "repo")
     env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH", "GONIO_URL",

@@ -210,7 +210,7 @@ def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path):
                            text=True, timeout=300)
         assert r.returncode == 0, r.stderr
         out = tmp_path / "run"
-        argv = [*GONIO, "run", "--config", str(written), "--grid", "iso:step=30", "--out", str(out),
+        argv = [*GONIO, "run", "--config", str(written), "--grid", "iso:step=45", "--out", str(out),
                 "--sample", "gold", "--quiet"]
         r = subprocess.run(argv, capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr

@@ -60,7 +60,7 @@ def _entries(small) -> list[str]:
 
 @pytest.mark.slow
 def test_a_full_disk_answers_507_and_a_runner_fault_is_journaled_at_the_next_start(small_disk):
-    s = Serve(small_disk.data, "--pace", "0.2", prefix=small_disk.prefix)
+    s = Serve(small_disk.data, "--pace", "0.05", prefix=small_disk.prefix)
     body = {"material": "lambert:albedo=0.5", "grid": "iso:step=15"}
     filler = _fill(small_disk.inside)
     before = _entries(small_disk)

@@ -44,15 +44,16 @@ def held_karp(branches, start, end, v, acc) -> float:
     dp = np.full((full, n, w), np.inf)
     for i in range(n):
         dp[1 << i, i] = first[i]
-    for mask in range(1, full):
-        cur = dp[mask]
-        if not np.isfinite(cur).any():
-            continue
-        # best[j, c] = min over (i, b) of cur[i, b] + d[i, b, j, c]
-        best = np.min(cur[:, :, None, None] + d, axis=(0, 1))
+    # One layer of sets at a time (those of k poses visited), all its sets at once:
+    # best[m, j, c] = min over (i, b) of dp[m, i, b] + d[i, b, j, c], then each j not in m extends m.
+    # Each (set of k+1, last pose) has exactly one set of k it comes from, so one assignment fills it.
+    masks = np.arange(full)
+    size = np.array([m.bit_count() for m in range(full)])
+    flat = d.reshape(n * w, n, w)
+    for k in range(1, n):
+        layer = masks[size == k]
+        best = np.min(dp[layer].reshape(layer.size, n * w, 1, 1) + flat[None], axis=1)   # (sets, n, w)
         for j in range(n):
-            bit = 1 << j
-            if mask & bit:
-                continue
-            np.minimum(dp[mask | bit, j], best[j], out=dp[mask | bit, j])
+            lacking = (layer & (1 << j)) == 0
+            dp[layer[lacking] | (1 << j), j] = best[lacking, j]
     return float(np.min(dp[full - 1] + last))
