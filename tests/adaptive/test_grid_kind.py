@@ -42,6 +42,8 @@ def test_the_grid_string_spells_its_budget():
     ("adaptive:poses=50,budget_s=60", ("exactly one of 'poses'", "'budget_s'")),
     ("adaptive:poses=50,step=5", ("unknown option 'step'", "allowed: poses, budget_s")),
     ("adaptive:poses=50,order=fly", ("order=fly", "no round of an adaptive grid can fly")),
+    ("adaptive:poses=200,anisotropic=true", ("option 'anisotropic' is not supported", "isotropic",
+                                             "'full:step=N'")),
 ])
 @pytest.mark.parametrize("command", ["plan", "simulate"])
 def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, grid, needles, command):
