@@ -24,7 +24,12 @@ import numpy as np
 
 from gonio.motion.metric import MoveMetric
 
-__all__ = ["Motion", "round_motion", "cheapest_first"]
+__all__ = ["Motion", "round_motion", "cheapest_first", "POOL"]
+
+#: Candidate poses placed per pose taken. At 148 poses (``iso:step=20``'s count) a pool of 3 · n let the
+#: cost pass over the worst cells: lambert+ggx 0.0567 (3.6x below the uniform grid), with 2 0.0472
+#: (4.3x); the other panel materials stay above 4x (BENCHMARKS.md, "Motion cost").
+POOL = 2
 
 
 @dataclass(frozen=True)
@@ -39,22 +44,27 @@ class Motion:
         Seconds each pose costs wherever it is (settle and reading).
     weight : float
         Exponent of the cost in a candidate's worth (0: motion ignored).
+    pool : int
+        Candidate poses placed per pose taken (:func:`gonio.adaptive.refine.plan_round`: the cells of
+        the pool · n largest errors).
     """
 
     start_deg: np.ndarray
     fixed_s: float
     weight: float = 1.0
+    pool: int = POOL
 
 
-def round_motion(cfg, kin, weight: float = 1.0) -> Motion:
+def round_motion(cfg, kin, weight: float = 1.0, pool: int = POOL) -> Motion:
     """The :class:`Motion` of the gantry ``cfg`` (``kin`` its kinematics): its reference pose's axis
-    positions nearest home, its settle time and its reading time per pose."""
+    positions nearest home, its settle time and its reading time per pose; ``pool`` candidates per pose
+    taken."""
     r = cfg.reference
     start = kin.inverse(*(np.radians([x]) for x in (r.theta_i_deg, 0.0, r.theta_o_deg, r.dphi_deg)))[0]
     if not np.all(np.isfinite(start)):
         start = np.asarray(kin.home_deg, dtype=np.float64)
     fixed = float(cfg.runner.settle_s + cfg.detector.exposure_s * cfg.detector.frames)
-    return Motion(np.asarray(start, dtype=np.float64), fixed, float(weight))
+    return Motion(np.asarray(start, dtype=np.float64), fixed, float(weight), int(pool))
 
 
 def cheapest_first(kin, motion: Motion, theta_i, theta_o, dphi, worth, n: int) -> np.ndarray:

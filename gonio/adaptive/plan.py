@@ -25,8 +25,8 @@ so ``gonio status``, the report and a resume see it (:func:`ended_text`); no rou
 Gantry time: a round's poses are chosen with their motion cost (:data:`MOTION_WEIGHT`,
 :mod:`gonio.adaptive.motion`), and its checkpoints are kept only where the drift model needs them
 (:data:`CHECKPOINTS_AS_NEEDED`, :func:`_checkpoints`). Both are journaled in the ``adaptive`` meta of a
-new campaign (``motion_weight``, ``since_reference_s``), so a journal written before them replays its
-rounds as it planned them.
+new campaign (``motion_weight``, ``motion_pool``, ``since_reference_s``), so a journal written before
+them replays its rounds as it planned them.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.adaptive.acquire import GROWTH, PILOT_FRACTION, round_sizes
-from gonio.adaptive.motion import round_motion
+from gonio.adaptive.motion import POOL, round_motion
 from gonio.adaptive.pilot import lattice, pilot_nodes
 from gonio.adaptive.refine import plan_round
 from gonio.adaptive.samples import Samples
@@ -44,7 +44,7 @@ from gonio.plan.grids import ADAPTIVE_MAX_BUDGET_S, ADAPTIVE_MAX_POSES, GridPose
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, step_table
 
 __all__ = ["pilot_plan", "round_size", "journal_samples", "next_round", "expected_steps", "budget_text",
-           "ended_text", "MIN_ROUND", "SEED", "MOTION_WEIGHT", "CHECKPOINTS_AS_NEEDED"]
+           "ended_text", "MIN_ROUND", "SEED", "MOTION_WEIGHT", "LEGACY_POOL", "CHECKPOINTS_AS_NEEDED"]
 
 #: Least poses of a round (the last one excepted).
 MIN_ROUND = 10
@@ -53,6 +53,8 @@ SEED = 0
 #: Exponent of a candidate pose's gantry time in its worth (:mod:`gonio.adaptive.motion`; 0: motion
 #: ignored), journaled with each new campaign (a journal without it replays its rounds with 0).
 MOTION_WEIGHT = 2.0
+#: The motion pool (:data:`gonio.adaptive.motion.POOL`) of journals written before it was journaled.
+LEGACY_POOL = 3
 #: Checkpoints as needed (:func:`_checkpoints`) for new campaigns, journaled as ``since_reference_s`` (a
 #: journal without it closes every round with a checkpoint).
 CHECKPOINTS_AS_NEEDED = True
@@ -114,6 +116,7 @@ def pilot_plan(grid: str, cfg, kin=None) -> tuple[Plan, dict]:
     meta = {"budget_poses": spec.poses, "budget_s": spec.budget_s, "pilot_nodes": int(m), "pilot_poses": n,
             "pilot_s": float(pilot.estimated_s), "pilot_lower_bound_s": float(pilot.lower_bound_s),
             "min_round": MIN_ROUND, "growth": GROWTH, "seed": SEED, "motion_weight": MOTION_WEIGHT,
+            "motion_pool": POOL,
             "rounds": []}
     if CHECKPOINTS_AS_NEEDED:
         meta["since_reference_s"] = 0.0
@@ -169,7 +172,8 @@ def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
     tmax = np.radians(_theta_max_deg(spec, cfg))
     samples = journal_samples(journal, cfg)
     weight = adaptive.get("motion_weight", 0.0)
-    motion = round_motion(cfg, kin, weight) if weight else None
+    # A journal from before the pool was journaled replays its rounds with the pool they were placed with.
+    motion = round_motion(cfg, kin, weight, adaptive.get("motion_pool", LEGACY_POOL)) if weight else None
     ti, to, d = plan_round(samples, n, kin, tmax, seed=adaptive["seed"], motion=motion)
     if ti.size == 0:
         k = len(adaptive["rounds"]) + 1

@@ -22,7 +22,7 @@ reachable trial) is taken, farthest first, from the reachable uniform cloud, so 
 its occlusion cone and theta_max leave no more new poses: the caller decides what that means (an
 adaptive campaign ends, :func:`gonio.adaptive.plan.next_round`).
 
-With a motion cost (:class:`gonio.adaptive.motion.Motion`), the :data:`POOL` · n cells of largest E_j
+With a motion cost (:class:`gonio.adaptive.motion.Motion`), the ``motion.pool`` · n cells of largest E_j
 are placed so, and n of those poses are taken by E_j per second of gantry time
 (:func:`gonio.adaptive.motion.cheapest_first`).
 
@@ -44,8 +44,7 @@ from gonio.adaptive.reach import reachable_iso
 from gonio.adaptive.reconstruct import loo_residual
 from gonio.adaptive.samples import Samples
 
-__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO",
-           "POOL"]
+__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO"]
 
 #: Seeded trial points per refined cell.
 TRIALS = 32
@@ -57,8 +56,6 @@ DENSITY_NEIGHBOURS = 24
 #: residuals, (θi, θo, Δφ) cells left 14-42 % less error than half/difference ones at 1,156 poses
 #: (``tools/bench_adaptive.py --engines``); with planes fitted to f_r it was the other way round.
 CELLS = "iso"
-#: With a motion cost: candidate poses placed per pose taken (the cells of the POOL · n largest errors).
-POOL = 3
 #: The fit whose leave-one-out residuals rate the cells: (domain, transform, degree) of
 #: :class:`gonio.adaptive.reconstruct.LocalFit`; the reconstruction's own. At 1,156 poses (measured with
 #: half/difference cells) it left 30 % less error than planes fitted to f_r in the half/difference
@@ -85,7 +82,7 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
                loo: tuple = LOO, motion: Motion | None = None) -> tuple[np.ndarray, ...]:
     """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians), in the order chosen; fewer when
     the reachable domain holds no more new poses (module docstring). With ``motion``, a pool of
-    :data:`POOL` · n poses is placed so and ``n`` of them are taken by their error per second of gantry
+    ``motion.pool`` · n poses is placed so and ``n`` of them are taken by their error per second of gantry
     time (:func:`gonio.adaptive.motion.cheapest_first`).
 
     Raises
@@ -103,7 +100,7 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
     tree = cKDTree(points)
     near = spacing(tree, points, owner, len(samples))
     score = cell_errors(samples, theta_max, domain, seed, loo)
-    m = n if motion is None else POOL * n
+    m = n if motion is None else motion.pool * n
     # Cells by decreasing error; ties by sample index (lexsort is stable), cycled when m exceeds them.
     order = np.lexsort((np.arange(len(samples)), -score))
     cells = order[np.arange(m) % len(order)]

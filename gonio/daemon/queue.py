@@ -370,7 +370,9 @@ class CampaignQueue:
 
     @staticmethod
     def _progress(st: dict, rec: Record, started) -> None:
-        total, done = st["steps"], st["steps_done"]
+        # A round appended since the cached read: the runner has measured at least this many steps.
+        total = st["steps"] = max(st["steps"], st["steps_done"])
+        done = st["steps_done"]
         st["progress"] = done / total if total else 1.0
         st["eta_gantry_s"] = rec.static["estimated_s"] * (total - done) / total if total else 0.0
         st["eta_wall_s"] = None
@@ -393,7 +395,12 @@ class CampaignQueue:
             campaign_s, last_wall = j.campaign_clock()
             latched = j.latched_fault()
             fault = j.last_event("fault")
-            adaptive = j.meta().get("adaptive") if s["grid"].startswith("adaptive") else None
+            adaptive = None
+            if s["grid"].startswith("adaptive"):
+                # Each round appends steps and poses to the journal: its counts, not the first read's.
+                meta = j.meta()
+                adaptive = meta.get("adaptive")
+                s.update(steps=j.step_count(), poses=meta["poses"])
         finally:
             j.close()
         return {"id": rec.id, "state": state, "seq": rec.seq, "submitted_unix": rec.submitted_unix,

@@ -194,6 +194,10 @@ def parse_grid(grid: str) -> GridSpec:
     raw: dict[str, str] = {}
     for item in filter(None, rest.split(",")):
         key, eq, value = item.partition("=")
+        if key == "anisotropic" and grid_kind(kind).campaign == "adaptive":
+            raise ValueError(f"grid '{kind}': option 'anisotropic' is not supported: adaptive acquisition "
+                             "places poses over the isotropic (θi, θo, Δφ) domain only; measure an "
+                             "anisotropic sample with 'full:step=N'")
         if key not in allowed:
             raise ValueError(f"grid '{kind}': unknown option '{key}'; allowed: {', '.join(allowed)}")
         if not eq or not value:

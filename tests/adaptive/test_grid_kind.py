@@ -42,6 +42,8 @@ def test_the_grid_string_spells_its_budget():
     ("adaptive:poses=50,budget_s=60", ("exactly one of 'poses'", "'budget_s'")),
     ("adaptive:poses=50,step=5", ("unknown option 'step'", "allowed: poses, budget_s")),
     ("adaptive:poses=50,order=fly", ("order=fly", "no round of an adaptive grid can fly")),
+    ("adaptive:poses=200,anisotropic=true", ("option 'anisotropic' is not supported", "isotropic",
+                                             "'full:step=N'")),
 ])
 @pytest.mark.parametrize("command", ["plan", "simulate"])
 def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, grid, needles, command):
@@ -150,6 +152,31 @@ def test_a_journal_from_before_motion_and_checkpoints_as_needed_keeps_its_rounds
     monkeypatch.setattr(adaptive_plan, "MOTION_WEIGHT", 2.0)
     measured, steps, _ = _first_round_again(out, {k: v for k, v in a.items() if k != "motion_weight"})
     _same_steps(measured, steps)
+
+
+def test_a_journal_from_before_the_motion_pool_keeps_its_rounds(tmp_path, monkeypatch):
+    """A campaign journaled without ``motion_pool`` (placed with a pool of 3 candidates per pose) plans
+    its rounds again as then, whatever pool a new campaign journals now; the pool does change them."""
+    import shutil
+
+    import gonio.adaptive.plan as adaptive_plan
+
+    monkeypatch.setattr(adaptive_plan, "POOL", adaptive_plan.LEGACY_POOL)
+    out = tmp_path / "old"
+    assert _simulate(out, "adaptive:poses=45") == 0
+    c = open_campaign(out, readonly=True)
+    a = c.meta["adaptive"]
+    c.close()
+    assert a["motion_pool"] == 3 and a["motion_weight"] > 0
+    old = {k: v for k, v in a.items() if k != "motion_pool"}
+    monkeypatch.undo()
+    assert adaptive_plan.POOL != adaptive_plan.LEGACY_POOL
+    shutil.copytree(out, tmp_path / "copy")
+    measured, steps, meta = _first_round_again(out, old)
+    _same_steps(measured, steps)
+    assert "motion_pool" not in meta["adaptive"]
+    _, other, _ = _first_round_again(tmp_path / "copy", {**old, "motion_pool": adaptive_plan.POOL})
+    assert np.asarray(other["theta_o_deg"]).tobytes() != np.asarray(measured["theta_o_deg"]).tobytes()
 
 
 def test_a_round_is_a_pure_function_of_the_journal(campaign, tmp_path):

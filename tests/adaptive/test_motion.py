@@ -62,5 +62,5 @@ def test_a_weighted_round_tours_quicker_than_an_unweighted_one(gantry):
         n = ti.size
         poses = GridPoses(ti, np.zeros(n), to, d, np.arange(n)[:, None], {"grid": n})
         times[name] = build_plan("adaptive:poses=400", cfg, kin, poses=poses).timing["pose_motion_s"]
-    assert times["motion"] < 0.8 * times["error"], times   # measured: 35.7 s and 23.1 s
+    assert times["motion"] < 0.8 * times["error"], times   # measured: 35.7 s and 23.8 s (a pool of 3: 23.1 s)
     assert MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2).n_axes == motion.start_deg.size

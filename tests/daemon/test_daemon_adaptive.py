@@ -69,3 +69,43 @@ def test_an_adaptive_campaign_that_reaches_no_more_poses_ends_done_and_says_why(
     assert done["steps_done"] == 14
     assert main(["status", cid, "--url", d.url]) == 0
     assert f"ended short of its budget: {done['ended_short']}" in capsys.readouterr().out
+
+
+def _journal_counts(folder):
+    j = Journal.open(folder / JOURNAL_NAME, readonly=True)
+    try:
+        return j.step_count(), j.meta()["poses"]
+    finally:
+        j.close()
+
+
+def _status_counts(client, cid):
+    st = client.get(f"/campaigns/{cid}").json()
+    return st["steps"], st["poses"]
+
+
+def test_the_status_of_an_adaptive_campaign_counts_the_steps_its_rounds_append(serve, tmp_path):
+    """The status's ``steps`` and ``poses`` follow the journal as rounds are appended (they were read
+    once, at the first status request, and stayed the pilot's)."""
+    d = serve(pace=0.002)
+    r = d.client.post("/campaigns", json={"grid": GRID, "material": MATERIAL})
+    assert r.status_code == 201, r.text
+    cid = r.json()["id"]
+    folder = tmp_path / "data" / "campaigns" / cid
+    seen = []
+    for rounds in (1, 2):
+        wait_for(lambda n=rounds: (folder / JOURNAL_NAME).exists()
+                 and len(_meta(folder)["adaptive"]["rounds"]) >= n, f"round {rounds}")
+        assert d.client.post(f"/campaigns/{cid}/pause").status_code == 200
+        wait_state(d.client, cid, "paused")
+        steps, poses = _journal_counts(folder)
+        # The running campaign's status is re-read from its journal at most every STATUS_TTL_S.
+        wait_for(lambda counts=(steps, poses): _status_counts(d.client, cid) == counts,
+                 f"the status to count {steps} steps and {poses} poses")
+        seen.append(steps)
+        assert d.client.post(f"/campaigns/{cid}/resume").status_code == 200
+    assert seen[0] < seen[1]
+    done = wait_state(d.client, cid, {"done", "faulted"})
+    assert done["state"] == "done", done
+    assert (done["steps"], done["poses"]) == _journal_counts(folder) and done["poses"] == 45
+    assert done["progress"] == 1.0
