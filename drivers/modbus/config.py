@@ -51,6 +51,11 @@ class ModbusAxisConfig(AxisConfig):
     #: (the controller's return-to-origin operation). Unset: "none" here; the axis itself takes
     #: "origin" where the profile's drive loses its position at power-off.
     reference: Literal["none", "hard_stop", "index", "origin"] | None = None
+    #: How a pose's moves start where the profile has ``[sync_start]`` (held moves, one trigger):
+    #: "auto" (together with the other such axes, in the mode their links allow: one RTU line ->
+    #: "group", each unit behind its own TCP gateway -> "back_to_back"), a mode by name ("group",
+    #: "broadcast": every unit of the line executes it, "back_to_back"), or "off" (axis by axis).
+    sync_start: Literal["auto", "off", "group", "broadcast", "back_to_back"] = "auto"
 
     @model_validator(mode="after")
     def _names_its_unit(self):
@@ -71,4 +76,5 @@ class ModbusAxisConfig(AxisConfig):
             name, ctx.buses[self.bus], self.profile, device_id=self.device_id,
             limits_deg=(self.min_deg, self.max_deg), gear_ratio=self.gear_ratio, direction=self.direction,
             zero_steps=self.zero_steps, velocity_deg_s=self.max_velocity_deg_s,
-            accel_deg_s2=self.max_accel_deg_s2, clock=ctx.clock, reference_method=self.reference)
+            accel_deg_s2=self.max_accel_deg_s2, clock=ctx.clock, reference_method=self.reference,
+            sync_start=self.sync_start)

@@ -47,7 +47,10 @@ class SyncStartError(DeviceFault):
 
     def __init__(self, device: str, failed: Mapping[str, str]):
         self.failed = dict(failed)
-        why = "; ".join(f"{n}: {why}" for n, why in self.failed.items())
+        if list(self.failed) == [device]:  # one axis, the device named: not twice
+            why = self.failed[device]
+        else:
+            why = "; ".join(f"{n}: {why}" for n, why in self.failed.items())
         super().__init__(device, f"did not start: {why}",
                          transient=False)
 
@@ -182,6 +185,11 @@ class ModbusStartGroup:
             self.leave()
         self._check(goals)
         return {n: goals[n] for n in moves}
+
+    def move_to(self, targets: Mapping[str, float]) -> None:
+        """A gantry's move (:class:`~gonio.protocols.StartsTogether`): ``targets`` (axis name -> °) at
+        each axis's own speed and acceleration, started together (:meth:`start`)."""
+        self.start({n: (float(t), None, None) for n, t in targets.items()})
 
     def _trigger_words(self, axis) -> tuple[int, list[int]]:
         sync = axis.profile.sync_start

@@ -283,3 +283,34 @@ def test_the_shipped_emulated_sample_stage_starts_its_detector_axes_back_to_back
             assert t_start["detector_azimuth"] == t_start["detector_tilt"]  # one instant of the gantry clock
         finally:
             gantry.close()
+
+
+def test_the_start_line_sees_a_driver_that_waits_for_a_reply_before_the_next_trigger(clock):
+    """The emulators' :class:`StartLine` is what the campaign tests rely on: a trigger answered while
+    another preloaded unit has not received its own is counted late (here a driver triggering one
+    connection and reading its reply first); the group's back_to_back start is not."""
+    from gonio.sim.emulators.modbus import StartLine
+
+    line = StartLine(wait_s=0.05)
+    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(2)]
+    axes = []
+    try:
+        for i, u in enumerate(units, start=1):
+            u.assume_referenced()
+            u.start_line = line
+            host, port = u.start_tcp()
+            axes.append(_axis(f"ax{i}", make_client(f"tcp://{host}:{port}", timeout_s=0.5, retries=0), 1,
+                              clock))
+            axes[-1].connect()
+        for a in axes:
+            a.preload(10.0)
+        axes[0].write_words(0x0066, [0, 1], what="trigger, its reply awaited")  # the other still armed
+        axes[1].write_words(0x0066, [0, 1], what="trigger")
+        assert (line.late, line.starts) == (1, 2)
+        ModbusStartGroup.for_axes(axes).start({"ax1": (20.0, None, None), "ax2": (-20.0, None, None)})
+        assert (line.late, line.starts) == (1, 4)
+    finally:
+        for a in axes:
+            a.close()
+        for u in units:
+            u.stop()
