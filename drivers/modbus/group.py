@@ -24,7 +24,8 @@ of the group that are not given a move are preloaded to stay where they are. Nob
 children (or anyone, on a broadcast): every axis's start is then checked by reading its status (the
 moving bit, or the position at its target) until its ``start_timeout_s``; an axis that did not start (an
 alarm, a unit out of the group) is named in a :class:`SyncStartError`, after the axes that did start
-are stopped (a coordinated move with an axis missing would leave its path).
+are stopped (a coordinated move with an axis missing would leave its path). A start query that fails
+on the way (a trigger's reply lost behind one gateway) stops every axis of the start before it raises.
 """
 
 from __future__ import annotations
@@ -181,6 +182,9 @@ class ModbusStartGroup:
         self.join()  # after the preloads: a write to the parent while grouped is every child's too
         try:
             self._trigger([self.axes[n] for n in goals])
+        except BaseException:  # no trusted word on who started (a reply lost): every axis stopped
+            self._stop_all(goals)
+            raise
         finally:
             self.leave()
         self._check(goals)
@@ -233,6 +237,14 @@ class ModbusStartGroup:
             if head[7] != 16 or len(rest) < 3:
                 raise ModbusCommError(a.name, f"start trigger: the reply is not this query's "
                                       f"({(head + rest).hex()})")
+
+    def _stop_all(self, names) -> None:
+        """Stop each of ``names``, each even if another fails (the caller raises its own error)."""
+        for n in names:
+            try:
+                self.axes[n].stop()
+            except Exception:  # noqa: S112 - the start's own failure is what is raised
+                continue
 
     def _check(self, goals: Mapping[str, int]) -> None:
         """Every axis's start read back until its start time-out; the failures named, the others stopped."""

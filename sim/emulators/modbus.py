@@ -62,8 +62,7 @@ class StartLine:
     A unit that takes a preload (its move block with the hold trigger) is *armed*; one whose trigger
     starts the move is no longer. The reply to a trigger goes out only once no unit is armed (every
     trigger of the start received) or after ``wait_s`` of wall time: then :attr:`late` counts it (the
-    driver waited for a reply before the next trigger went out). :attr:`starts` counts the starts,
-    :attr:`together` those made while another unit was still armed or just fired in the same start.
+    driver waited for a reply before the next trigger went out). :attr:`starts` counts the starts.
 
     Parameters
     ----------

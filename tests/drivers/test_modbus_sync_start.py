@@ -314,3 +314,36 @@ def test_the_start_line_sees_a_driver_that_waits_for_a_reply_before_the_next_tri
             a.close()
         for u in units:
             u.stop()
+
+
+def test_a_trigger_reply_lost_behind_one_gateway_stops_every_axis_of_the_start(clock):
+    """back_to_back: the second unit goes silent after its preload; its trigger's reply never comes. Who
+    started cannot be trusted: every axis of the start is stopped, then the comm error names that axis."""
+    from gonio.drivers.modbus import ModbusCommError
+
+    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(3)]
+    axes = []
+    try:
+        for i, u in enumerate(units, start=1):
+            u.assume_referenced()
+            host, port = u.start_tcp()
+            axes.append(_axis(f"ax{i}", make_client(f"tcp://{host}:{port}", timeout_s=0.2, retries=0), 1,
+                              clock))
+            axes[-1].connect()
+        preload = axes[1].preload
+
+        def preload_then_hang(*a, **k):
+            steps = preload(*a, **k)
+            units[1].go_silent()
+            return steps
+
+        axes[1].preload = preload_then_hang
+        with pytest.raises(ModbusCommError, match="ax2: start trigger: no reply"):
+            ModbusStartGroup.for_axes(axes).start(MOVES)
+        assert all(len(u.starts) == 1 for u in units)  # every trigger reached its unit ...
+        assert not units[0].moving() and not units[2].moving()  # ... and those that answer were stopped
+    finally:
+        for a in axes:
+            a.close()
+        for u in units:
+            u.stop()
