@@ -7,6 +7,7 @@ data lost at power-off trips an alarm; every failed start found by reading the s
 
 from __future__ import annotations
 
+import contextlib
 import tomllib
 
 import pytest
@@ -213,16 +214,30 @@ def test_group_start_refused_where_the_manual_gives_none(clock):
             parse_profile({**data, "sync_start": {**data["sync_start"], key: bad}}, "az")
 
 
-def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
-    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(3)]
+@contextlib.contextmanager
+def _gateways(clock, n: int = 3, *, timeout_s: float = 0.5, line=None):
+    """``n`` AZ units (unit 1 each), each behind its own TCP gateway, and a connected axis on each
+    (ax1..axN): (units, axes); every unit watched on ``line`` (a StartLine) when given."""
+    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(n)]
     axes = []
     try:
         for i, u in enumerate(units, start=1):
             u.assume_referenced()
+            u.start_line = line
             host, port = u.start_tcp()
-            client = make_client(f"tcp://{host}:{port}", timeout_s=0.5, retries=0)
+            client = make_client(f"tcp://{host}:{port}", timeout_s=timeout_s, retries=0)
             axes.append(_axis(f"ax{i}", client, 1, clock))
             axes[-1].connect()
+        yield units, axes
+    finally:
+        for a in axes:
+            a.close()
+        for u in units:
+            u.stop()
+
+
+def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
+    with _gateways(clock) as (units, axes):
         with pytest.raises(ValueError, match="same bus"):
             ModbusStartGroup(axes, "group")
         group = ModbusStartGroup.for_axes(axes)
@@ -242,11 +257,6 @@ def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
         with pytest.raises(SyncStartError) as err:
             group.start({"ax1": (0.0, None, None), "ax2": (0.0, None, None)})
         assert set(err.value.failed) == {"ax2"} and not units[0].moving()
-    finally:
-        for a in axes:
-            a.close()
-        for u in units:
-            u.stop()
 
 
 def test_the_shipped_emulated_sample_stage_starts_its_detector_axes_back_to_back():
@@ -292,16 +302,7 @@ def test_the_start_line_sees_a_driver_that_waits_for_a_reply_before_the_next_tri
     from gonio.sim.emulators.modbus import StartLine
 
     line = StartLine(wait_s=0.05)
-    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(2)]
-    axes = []
-    try:
-        for i, u in enumerate(units, start=1):
-            u.assume_referenced()
-            u.start_line = line
-            host, port = u.start_tcp()
-            axes.append(_axis(f"ax{i}", make_client(f"tcp://{host}:{port}", timeout_s=0.5, retries=0), 1,
-                              clock))
-            axes[-1].connect()
+    with _gateways(clock, 2, line=line) as (_units, axes):
         for a in axes:
             a.preload(10.0)
         axes[0].write_words(0x0066, [0, 1], what="trigger, its reply awaited")  # the other still armed
@@ -309,11 +310,6 @@ def test_the_start_line_sees_a_driver_that_waits_for_a_reply_before_the_next_tri
         assert (line.late, line.starts) == (1, 2)
         ModbusStartGroup.for_axes(axes).start({"ax1": (20.0, None, None), "ax2": (-20.0, None, None)})
         assert (line.late, line.starts) == (1, 4)
-    finally:
-        for a in axes:
-            a.close()
-        for u in units:
-            u.stop()
 
 
 def test_a_trigger_reply_lost_behind_one_gateway_stops_every_axis_of_the_start(clock):
@@ -321,15 +317,7 @@ def test_a_trigger_reply_lost_behind_one_gateway_stops_every_axis_of_the_start(c
     started cannot be trusted: every axis of the start is stopped, then the comm error names that axis."""
     from gonio.drivers.modbus import ModbusCommError
 
-    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(3)]
-    axes = []
-    try:
-        for i, u in enumerate(units, start=1):
-            u.assume_referenced()
-            host, port = u.start_tcp()
-            axes.append(_axis(f"ax{i}", make_client(f"tcp://{host}:{port}", timeout_s=0.2, retries=0), 1,
-                              clock))
-            axes[-1].connect()
+    with _gateways(clock, timeout_s=0.2) as (units, axes):
         preload = axes[1].preload
 
         def preload_then_hang(*a, **k):
@@ -342,8 +330,3 @@ def test_a_trigger_reply_lost_behind_one_gateway_stops_every_axis_of_the_start(c
             ModbusStartGroup.for_axes(axes).start(MOVES)
         assert all(len(u.starts) == 1 for u in units)  # every trigger reached its unit ...
         assert not units[0].moving() and not units[2].moving()  # ... and those that answer were stopped
-    finally:
-        for a in axes:
-            a.close()
-        for u in units:
-            u.stop()
