@@ -56,7 +56,8 @@ from gonio.protocols import (
     Warns,
 )
 
-__all__ = ["AssembledGantry", "TargetChanger", "TARGETS", "Abilities", "abilities", "describe_devices"]
+__all__ = ["AssembledGantry", "TargetChanger", "TARGETS", "Abilities", "abilities", "describe_devices",
+           "start_groups"]
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,17 @@ class TargetChanger:
         if abs(at - want) > self.tolerance_deg:
             raise DeviceFault(self.axis.name, f"stopped at {at:.3f}°, not at the {target} position "
                               f"{want:g}° (tolerance {self.tolerance_deg:g}°): is the changer blocked?")
+
+
+def start_groups(axes) -> list:
+    """The start groups of the connected ``axes`` that declare :class:`~gonio.protocols.StartsTogether`:
+    one per key shared by two axes or more (an axis alone under its key moves by itself)."""
+    by_key: dict[object, list] = {}
+    for axis in axes:
+        key = axis.start_key() if isinstance(axis, StartsTogether) else None
+        if key is not None:
+            by_key.setdefault(key, []).append(axis)
+    return [group[0].make_start_group(group) for group in by_key.values() if len(group) > 1]
 
 
 class AssembledGantry:
@@ -282,12 +294,7 @@ class AssembledGantry:
             link = axes[i].client if isinstance(axes[i], SharesConnection) else axes[i]
             links.setdefault(id(link), []).append(i)
         self._links = list(links.values())
-        starts: dict[object, list] = {}
-        for i in self._singles:
-            key = axes[i].start_key() if isinstance(axes[i], StartsTogether) else None
-            if key is not None:
-                starts.setdefault(key, []).append(axes[i])
-        self._starters = [group[0].make_start_group(group) for group in starts.values() if len(group) > 1]
+        self._starters = start_groups([axes[i] for i in self._singles])
         dogs = [g.watchdog_s for g, _ in self._groups if g.watchdog_s]
         self.feed_s = min(dogs) / 2 if dogs else None
 

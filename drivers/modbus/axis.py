@@ -31,32 +31,13 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
 from gonio.clock import WallClock
+from gonio.drivers.modbus.errors import ModbusAlarmError, ModbusCommError, ModbusExceptionError
 from gonio.drivers.modbus.profile import FAMILIES, Command, MotorProfile, load_profile
 from gonio.drivers.readback import PlausibilityGuard
 from gonio.protocols import DeviceFault, NotReferencedFault
 
 __all__ = ["ModbusAxis", "ModbusCommError", "ModbusExceptionError", "ModbusAlarmError", "make_client",
            "axis_class"]
-
-
-class ModbusCommError(DeviceFault):
-    def __init__(self, device: str, message: str):
-        super().__init__(device, message, transient=True)
-
-
-class ModbusExceptionError(DeviceFault):
-    """The controller answered with exception ``code`` (1 illegal function, 2 illegal address, 3 illegal
-    value, 4 device failure, 5 acknowledge, 6 busy, ...)."""
-
-    def __init__(self, device: str, message: str, code: int):
-        super().__init__(device, message, transient=code in (5, 6))
-        self.code = code
-
-
-class ModbusAlarmError(DeviceFault):
-    def __init__(self, device: str, message: str, alarm_code: int):
-        super().__init__(device, message, transient=False)
-        self.alarm_code = alarm_code
 
 
 def make_client(url: str, *, timeout_s: float = 0.5, retries: int = 1):

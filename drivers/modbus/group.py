@@ -35,7 +35,7 @@ from collections.abc import Mapping, Sequence
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
-from gonio.drivers.modbus.axis import ModbusAlarmError, ModbusCommError, ModbusExceptionError
+from gonio.drivers.modbus.errors import ModbusAlarmError, ModbusCommError, ModbusExceptionError
 from gonio.protocols import DeviceFault
 
 __all__ = ["ModbusStartGroup", "SyncStartError", "START_MODES"]

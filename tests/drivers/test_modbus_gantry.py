@@ -179,3 +179,22 @@ def test_axes_on_one_connection_are_asked_in_turn_while_other_connections_go_at_
         assert bus.most == 1 and not meet.broken
     finally:
         gantry.close()
+
+
+def test_a_manual_move_starts_the_az_axes_together(stage):
+    """``gonio gantry move`` (:func:`gonio.manual.drive`) on the emulated sample stage: the axes a leg
+    moves start on trigger frames (held moves, back_to_back) at one instant of the gantry clock, and
+    arrive; the axis it does not move gets nothing."""
+    from gonio.manual import drive
+
+    emu, gantry = stage
+    counts = {n: len(emu.motors[n].starts) for n in WHERE}
+    names = gantry.kinematics.axis_names
+    target = np.array([WHERE[n] + (0.0 if n == "sample_tilt" else 5.0) for n in names])
+    got = drive(gantry, [target], cfg=emu.config(), clock=gantry.clock)
+    np.testing.assert_allclose(got, target, atol=0.01)
+    made = {n: emu.motors[n].starts[counts[n]:] for n in WHERE}
+    assert not made.pop("sample_tilt") and all(len(m) == 1 for m in made.values())
+    for n, ((t, i, _wall),) in made.items():
+        assert emu.motors[n].requests[i][7:10] == bytes([0x10, 0x00, 0x66]), n  # the trigger, alone
+        assert t == made["sample_rotation"][0][0]
