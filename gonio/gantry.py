@@ -169,13 +169,14 @@ class TargetChanger:
 
 def start_groups(axes) -> list:
     """The start groups of the connected ``axes`` that declare :class:`~gonio.protocols.StartsTogether`:
-    one per key shared by two axes or more (an axis alone under its key moves by itself)."""
+    one per key (an axis alone under its key, whose driver makes no group of it, moves by itself)."""
     by_key: dict[object, list] = {}
     for axis in axes:
         key = axis.start_key() if isinstance(axis, StartsTogether) else None
         if key is not None:
             by_key.setdefault(key, []).append(axis)
-    return [group[0].make_start_group(group) for group in by_key.values() if len(group) > 1]
+    groups = [group[0].make_start_group(group) for group in by_key.values()]
+    return [g for g in groups if g is not None]
 
 
 class AssembledGantry:
@@ -272,7 +273,11 @@ class AssembledGantry:
                 self.close()
                 raise
             self._connected.append(device)
-        self._batch()
+        try:
+            self._batch()  # a start mode the links do not allow: one line, every device closed
+        except BaseException:
+            self.close()
+            raise
 
     def _batch(self) -> None:
         """Group the axes that declare :class:`~gonio.protocols.JoinsGroup` by bus, and the others by

@@ -266,7 +266,8 @@ class StartsTogether(Protocol):
     def make_start_group(self, axes: list):
         """The start group of ``axes`` (this one among them, all of one key): an object with
         ``axes`` (by name) and ``move_to(targets)`` (every target checked before any is written;
-        every start read back, a failed one named and the others stopped)."""
+        every start read back, a failed one named and the others stopped); None where there is
+        nothing to start together (one axis)."""
 
 
 @runtime_checkable

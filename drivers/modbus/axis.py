@@ -610,9 +610,18 @@ class ModbusAxis:
 
     def make_start_group(self, axes: list):
         """The :class:`~gonio.drivers.modbus.group.ModbusStartGroup` of ``axes`` (one key), left (any
-        group a crashed process left standing on the units is undone, each write read back)."""
+        group a crashed process left standing on the units is undone, each write read back); None for
+        an axis alone in ``"auto"``; ValueError (naming the axes) for a mode their links or profiles
+        do not allow."""
         from gonio.drivers.modbus.group import ModbusStartGroup
 
+        if len(axes) == 1:
+            if self.sync_start == "auto":
+                return None
+            raise ValueError(f"axis '{self.name}': sync_start {self.sync_start!r} starts it with other "
+                             "axes, but no other axis naming that mode shares its "
+                             + ("TCP gateways" if self.sync_start == "back_to_back" else "line")
+                             + " (sync_start = \"auto\" or \"off\" moves it alone)")
         try:
             group = (ModbusStartGroup.for_axes(axes) if self.sync_start == "auto"
                      else ModbusStartGroup(axes, self.sync_start))

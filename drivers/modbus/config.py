@@ -63,6 +63,27 @@ class ModbusAxisConfig(AxisConfig):
             raise ValueError("device_id: a modbus axis names its unit id (1..247)")
         return self
 
+    @model_validator(mode="after")
+    def _mode_its_profile_has(self):
+        """A start mode by name needs the profile's ``[sync_start]`` (and its group send or broadcast)."""
+        if self.sync_start in ("auto", "off"):
+            return self
+        from gonio.drivers.modbus.profile import load_profile
+
+        try:
+            sync = load_profile(self.profile).sync_start
+        except (OSError, ValueError, KeyError):
+            return self  # the profile's own error comes where the axis is built, naming it
+        lacks = ("no [sync_start] (its manual gives no held move and trigger)" if sync is None
+                 else "no group send (sync_start.group_register)" if self.sync_start == "group"
+                 and sync.group_register is None
+                 else "no broadcast (sync_start.broadcast)" if self.sync_start == "broadcast"
+                 and not sync.broadcast else None)
+        if lacks:
+            raise ValueError(f"sync_start: {self.sync_start!r}, but profile '{self.profile}' has {lacks}; "
+                             "one of auto, off")
+        return self
+
     def bus_address(self) -> int | None:
         return self.device_id
 

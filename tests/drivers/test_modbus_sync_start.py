@@ -8,6 +8,7 @@ data lost at power-off trips an alarm; every failed start found by reading the s
 from __future__ import annotations
 
 import contextlib
+import re
 import tomllib
 
 import pytest
@@ -330,3 +331,36 @@ def test_a_trigger_reply_lost_behind_one_gateway_stops_every_axis_of_the_start(c
             ModbusStartGroup.for_axes(axes).start(MOVES)
         assert all(len(u.starts) == 1 for u in units)  # every trigger reached its unit ...
         assert not units[0].moving() and not units[2].moving()  # ... and those that answer were stopped
+
+
+@pytest.mark.parametrize(("axis", "mode", "why"), [
+    ("changer", "group", "profile 'generic' has no [sync_start]"),
+    ("sample_tilt", "sometimes", "Input should be 'auto', 'off', 'group', 'broadcast' or 'back_to_back'"),
+])
+def test_a_start_mode_the_profile_cannot_do_is_refused_naming_the_field(axis, mode, why):
+    from gonio.config import ConfigError, load_config, parse_config
+
+    data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+    data["axes"][axis]["sync_start"] = mode
+    with pytest.raises(ConfigError, match=f"axes.{axis}[:.] ?sync_start.*{re.escape(why)}"):
+        parse_config(data)
+
+
+def test_a_start_mode_the_links_do_not_allow_fails_the_connect_in_one_line_and_closes_the_devices():
+    """``sync_start = "group"`` on AZ units each behind its own gateway: no other axis shares a line, so
+    the connect refuses, naming the axis and what to write instead; every device is closed."""
+    from gonio.config import load_config, parse_config
+    from gonio.sim.emulators.gantry import EmulatedGantry
+    from gonio.sim.emulators.link import SyncedVirtualClock
+    from gonio.wiring import build_gantry
+
+    data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+    data["axes"]["sample_tilt"]["sync_start"] = "group"
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(parse_config(data), "lambert:albedo=0.5", clock=clock, any_port=True,
+                        referenced=True) as emu:
+        gantry = build_gantry(emu.config(), clock=clock)
+        with pytest.raises(ValueError, match="axis 'sample_tilt': sync_start 'group' starts it with other "
+                           "axes, but no other axis naming that mode shares its line"):
+            gantry.connect()
+        assert not any(a.client.is_socket_open() for a in gantry.axes.values())
