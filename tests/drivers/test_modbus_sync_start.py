@@ -364,3 +364,18 @@ def test_a_start_mode_the_links_do_not_allow_fails_the_connect_in_one_line_and_c
                            "axes, but no other axis naming that mode shares its line"):
             gantry.connect()
         assert not any(a.client.is_socket_open() for a in gantry.axes.values())
+
+
+def test_a_group_a_crashed_process_left_standing_is_left_when_the_gantry_makes_its_start_group(line):
+    """Units 2 and 3 still children of unit 1 (gonio died between a join and its leave): while that
+    stands, a move of unit 1 alone would move them too. Making the start group at connect (what the
+    gantry does) leaves it first: each unit individual again, read back."""
+    from gonio.gantry import start_groups
+
+    _bus, units, axes = line
+    ModbusStartGroup(axes, "group").join()
+    assert [u.group_id for u in units] == [-1, 1, 1]
+    (group,) = start_groups(axes)
+    assert group.mode == "group" and [u.group_id for u in units] == [-1, -1, -1]
+    axes[0].move_to(10.0)  # a stop-and-go move of the parent now moves the parent alone
+    assert units[0].moving() and not units[1].moving() and not units[2].moving()
