@@ -49,13 +49,15 @@ from gonio.protocols import (
     ReportsLink,
     ReportsWarnings,
     SharesConnection,
+    StartsTogether,
     Streams,
     SwitchesTarget,
     TimesRoundTrip,
     Warns,
 )
 
-__all__ = ["AssembledGantry", "TargetChanger", "TARGETS", "Abilities", "abilities", "describe_devices"]
+__all__ = ["AssembledGantry", "TargetChanger", "TARGETS", "Abilities", "abilities", "describe_devices",
+           "start_groups"]
 
 
 @dataclass(frozen=True)
@@ -165,6 +167,18 @@ class TargetChanger:
                               f"{want:g}° (tolerance {self.tolerance_deg:g}°): is the changer blocked?")
 
 
+def start_groups(axes) -> list:
+    """The start groups of the connected ``axes`` that declare :class:`~gonio.protocols.StartsTogether`:
+    one per key (an axis alone under its key, whose driver makes no group of it, moves by itself)."""
+    by_key: dict[object, list] = {}
+    for axis in axes:
+        key = axis.start_key() if isinstance(axis, StartsTogether) else None
+        if key is not None:
+            by_key.setdefault(key, []).append(axis)
+    groups = [group[0].make_start_group(group) for group in by_key.values()]
+    return [g for g in groups if g is not None]
+
+
 class AssembledGantry:
     """A gantry of any mix of devices, satisfying :class:`gonio.protocols.Gantry`.
 
@@ -211,6 +225,9 @@ class AssembledGantry:
         self._singles: list[int] = []
         # The singles by connection (a Modbus client; otherwise each axis alone), in kinematics order.
         self._links: list[list[int]] = []
+        # Singles whose moves start together (StartsTogether: Modbus held moves and one trigger), two
+        # or more a group; read and stopped as singles still.
+        self._starters: list = []
         self._pool: ThreadPoolExecutor | None = None
         #: Ask the Modbus connections of a look (and of a move) at once: True, False, or None for
         #: automatic (see :data:`CONCURRENT_ABOVE_S`).
@@ -256,11 +273,16 @@ class AssembledGantry:
                 self.close()
                 raise
             self._connected.append(device)
-        self._batch()
+        try:
+            self._batch()  # a start mode the links do not allow: one line, every device closed
+        except BaseException:
+            self.close()
+            raise
 
     def _batch(self) -> None:
         """Group the axes that declare :class:`~gonio.protocols.JoinsGroup` by bus, and the others by
-        the connection they share (:class:`~gonio.protocols.SharesConnection`)."""
+        the connection they share (:class:`~gonio.protocols.SharesConnection`); those of the others
+        that declare :class:`~gonio.protocols.StartsTogether` into start groups by their key."""
         names = list(self.axes)
         by_bus: dict[object, list[str]] = {}
         self._singles = []
@@ -277,6 +299,7 @@ class AssembledGantry:
             link = axes[i].client if isinstance(axes[i], SharesConnection) else axes[i]
             links.setdefault(id(link), []).append(i)
         self._links = list(links.values())
+        self._starters = start_groups([axes[i] for i in self._singles])
         dogs = [g.watchdog_s for g, _ in self._groups if g.watchdog_s]
         self.feed_s = min(dogs) / 2 if dogs else None
 
@@ -336,7 +359,9 @@ class AssembledGantry:
     def move_axes(self, targets: Mapping[str, float]) -> None:
         """Start moving the named kinematics axes to ``targets`` (°): every target is checked first
         (nothing moves if one is refused), then one Sync Write of goals per Dynamixel bus (after one
-        arming the watchdogs of servos that are not armed yet) and one move per other axis."""
+        arming the watchdogs of servos that are not armed yet), one start per start group (Modbus
+        controllers: every move held, then one trigger; a failed start named, the others stopped) and
+        one move per other axis."""
         unknown = [n for n in targets if n not in self.axes]
         if unknown:
             raise ValueError(f"axes: unknown {', '.join(unknown)}; known: {', '.join(self.axes)}")
@@ -347,9 +372,15 @@ class AssembledGantry:
             mine = {n: float(t) for n, t in targets.items() if n in group.axes}
             if mine:
                 group.move_to(mine)
+        started: set[str] = set()
+        for group in self._starters:
+            mine = {n: float(t) for n, t in targets.items() if n in group.axes}
+            if mine:
+                group.move_to(mine)
+                started |= set(mine)
         axes, names = list(self.axes.values()), self.kinematics.axis_names
         self._each_link(lambda i: axes[i].move_to(float(targets[names[i]])),
-                        [i for i in self._singles if names[i] in targets])
+                        [i for i in self._singles if names[i] in targets and names[i] not in started])
         self._last_read = self.clock.now()
 
     def _read_groups(self, pos: np.ndarray, moving: np.ndarray) -> None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from gonio.gantry import start_groups
 from gonio.kinematics.base import REASONS
 from gonio.motion.safe import check_targets, safe_path
 from gonio.motion.trapezoid import move_time
@@ -113,11 +114,17 @@ def drive(gantry, legs, *, cfg, clock, on_leg=None) -> np.ndarray:
     axes = [gantry.axes[n] for n in kin.axis_names]
     rc = cfg.runner
     start = np.array([a.position_deg() for a in axes])
+    groups = start_groups(axes)  # Modbus held moves: each leg's axes of a group start on one start
     for leg in np.atleast_2d(legs):
         try:
-            for axis, t, s in zip(axes, leg, start, strict=True):
-                if t != s:
-                    axis.move_to(float(t))
+            moves = {a.name: float(t) for a, t, s in zip(axes, leg, start, strict=True) if t != s}
+            for group in groups:
+                mine = {n: t for n, t in moves.items() if n in group.axes}
+                if mine:
+                    group.move_to(mine)
+            for axis in axes:
+                if axis.name in moves and not any(axis.name in g.axes for g in groups):
+                    axis.move_to(moves[axis.name])
             waited = 0.0
             times = move_time(leg - start, kin.velocity_deg_s, kin.accel_deg_s2)
             expected = float(np.max(times, initial=0.0))

@@ -257,6 +257,20 @@ class JoinsGroup(Protocol):
 
 
 @runtime_checkable
+class StartsTogether(Protocol):
+    """An axis whose moves start with the others of its start group's on one start (a Modbus
+    controller's held move and trigger), each axis still read and stopped on its own."""
+
+    def start_key(self) -> object | None:
+        """Axes with equal keys start together (one group); None: this axis moves alone."""
+    def make_start_group(self, axes: list):
+        """The start group of ``axes`` (this one among them, all of one key): an object with
+        ``axes`` (by name) and ``move_to(targets)`` (every target checked before any is written;
+        every start read back, a failed one named and the others stopped); None where there is
+        nothing to start together (one axis)."""
+
+
+@runtime_checkable
 class ReportsDeviceUnits(Protocol):
     """An axis with positions in device units (servo ticks, motor steps), for a manual report."""
 

@@ -22,6 +22,7 @@ from gonio.runner import State
 from gonio.sim.emulators.dxl_packet import Inst
 from gonio.sim.emulators.gantry import EmulatedGantry
 from gonio.sim.emulators.link import SyncedVirtualClock
+from gonio.sim.emulators.modbus import StartLine
 from gonio.store import JOURNAL_NAME, Journal
 from gonio.wiring import build_gantry
 
@@ -216,6 +217,98 @@ def test_a_modbus_rtu_cable_pulled_mid_campaign_faults_with_its_reason_and_resum
         assert reason.startswith("sample_tilt: ") and "connection lost" in reason
         assert "ttyMB" in reason and "gave up after 2 retries" in reason
         assert [e["kind"] for e in events].count("retry") >= 2
+
+
+# -- Modbus axes started together: held moves and one trigger per pose move -------------------------
+AZ_AXES = ("sample_rotation", "sample_tilt", "detector_azimuth", "detector_tilt")
+TRIGGER_PDU = bytes([0x10, 0x00, 0x66, 0x00, 0x02, 0x04, 0, 0, 0, 1])  # AZ trigger (0x0066) = 1, s32
+
+
+def _az(sync_start: str, line: bool = False) -> dict:
+    """The emulated sample stage with its AZ axes' ``sync_start``; ``line``: the four AZ units on one RTU
+    line (units 1..4) instead of each behind its own TCP gateway."""
+    data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+    for i, n in enumerate(AZ_AXES, start=1):
+        data["axes"][n]["sync_start"] = sync_start
+        if line:
+            del data["buses"][data["axes"][n]["bus"]]
+            data["axes"][n].update(bus="line", device_id=i)
+    if line:
+        data["buses"]["line"] = {"driver": "modbus", "url": "rtu:///dev/emulated-az?baudrate=115200"}
+    return data
+
+
+def _az_run(folder, data, on_step=None):
+    """A campaign on ``data`` whose AZ units share one :class:`StartLine`: (state, runner, emulator,
+    start line)."""
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+        line = StartLine()
+        for n in AZ_AXES:
+            emu.motors[n].start_line = line
+        (state, runner), _ = _emulated_run(folder, emu, clock, on_step=on_step)
+        return state, runner, emu, line
+
+
+def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_the_same_result(tmp_path):
+    """The shipped emulated sample stage (each AZ unit behind its own TCP gateway) starts each pose's
+    moving axes with held moves and trigger frames sent on every connection before any reply is read
+    (a unit answers its trigger only once every preloaded unit got its own: none waited); its brdf.h5
+    equals, bit for bit, the one of the same campaign moved axis by axis (sync_start = "off")."""
+    state, runner, _emu, line = _az_run(tmp_path / "alone", _az("off"))
+    assert state == State.DONE, runner.fault
+    assert line.starts == 0  # axis by axis: no trigger ever started a move
+    state, runner, emu, line = _az_run(tmp_path / "together", _az("auto"))
+    assert state == State.DONE, runner.fault
+    _assert_no_retry_or_fault(tmp_path / "together")
+    starts = {n: emu.motors[n].starts for n in AZ_AXES}
+    assert line.starts == sum(map(len, starts.values())) > 20 and line.late == 0
+    for n, made in starts.items():
+        requests = emu.motors[n].requests
+        for _t, i, _wall in made:  # each move: started by a bare trigger frame, right after its preload
+            assert requests[i][7:] == TRIGGER_PDU and requests[i - 1][7:10] == bytes([0x10, 0x00, 0x58]), n
+    by_instant: dict[float, set] = {}
+    for n, made in starts.items():
+        for t, _i, _wall in made:
+            by_instant.setdefault(t, set()).add(n)
+    assert max(map(len, by_instant.values())) >= 2  # poses that move several axes start them at one instant
+    alone, together = read_brdf(tmp_path / "alone" / "brdf.h5"), read_brdf(tmp_path / "together" / "brdf.h5")
+    np.testing.assert_array_equal(together.value, alone.value)
+    np.testing.assert_array_equal(together.theta_o, alone.theta_o)
+
+
+def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(tmp_path):
+    """The four AZ units on one RTU line: each pose move is ONE group-send trigger query to the parent
+    (sample_rotation, unit 1) that every unit executes (those not moving preloaded to stay); the result
+    equals the campaign's behind separate gateways (bit for bit)."""
+    state, runner, emu, line = _az_run(tmp_path / "line", _az("auto", line=True))
+    assert state == State.DONE, runner.fault
+    bus = emu.emulators["line"]
+    triggers = [i for i, f in enumerate(bus.requests) if f[:-2] == bytes([1]) + TRIGGER_PDU]
+    parent = [i for _t, i, _w in emu.motors["sample_rotation"].starts]
+    assert triggers == parent and len(parent) > 20
+    for n in AZ_AXES:  # every unit started by those very queries, and by nothing else
+        assert [i for _t, i, _w in emu.motors[n].starts] == parent, n
+    assert all(emu.motors[n].group_id == -1 for n in AZ_AXES)  # each group left after its start
+    state, runner, _emu, _line = _az_run(tmp_path / "tcp", _az("auto"))
+    np.testing.assert_array_equal(read_brdf(tmp_path / "line" / "brdf.h5").value,
+                                  read_brdf(tmp_path / "tcp" / "brdf.h5").value)
+
+
+def test_a_modbus_unit_power_cycled_between_its_preload_and_the_trigger_faults_named_and_resumes(tmp_path):
+    """The detector tilt's unit loses its power right after taking a preload: the trigger lands on data
+    it no longer holds and trips its operation data alarm; the start's status read names the axis, the
+    axes that started are stopped, the campaign is latched (the fault matrix's controller alarm); cleared
+    (the alarm reset), it finishes."""
+    data = _az("auto")
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+        tilt = emu.motors["detector_tilt"]
+        reason, events = _faulted_then_cleared(tmp_path, emu, clock,
+                                               lambda e: tilt.power_cycle_after_preload(), at_step=3)
+        assert tilt.power_cycles == 1
+        assert reason.startswith("detector_tilt: did not start: controller alarm 0x0070"), reason
+        assert all(not emu.motors[n].moving() for n in AZ_AXES)
 
 
 # -- gonio run as a process: killed mid-campaign, run again, it resumes --------------------------------

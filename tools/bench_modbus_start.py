@@ -11,7 +11,12 @@ less the earliest. Side by side:
   any reply is read (:class:`gonio.drivers.modbus.ModbusStartGroup`);
 - ``group`` and ``broadcast``: the units on one RTU line (a pty), one query that every unit executes.
 
-Usage: ``python tools/bench_modbus_start.py [--axes N] [--starts N]``
+``--campaign GRID``: instead, a campaign of GRID on the emulated sample stage (each AZ unit behind its
+own TCP gateway, on a :class:`SyncedVirtualClock`), its AZ axes' ``sync_start`` "off" (axis by axis)
+then "auto" (back_to_back): per pose move that starts two axes or more (the starts at one instant of the
+gantry clock), the wall-time skew of their starts.
+
+Usage: ``python tools/bench_modbus_start.py [--axes N] [--starts N] [--campaign GRID]``
 """
 
 from __future__ import annotations
@@ -103,16 +108,59 @@ def bench_rtu(n: int, starts: int) -> dict[str, list[float]]:
         bus.stop()
 
 
+def bench_campaign(grid: str) -> dict[str, list[float]]:
+    """Per pose move starting several AZ axes: the wall skew of their starts, axis by axis and together."""
+    import tempfile
+    from pathlib import Path
+
+    from gonio.campaign import create_campaign
+    from gonio.config import load_config, parse_config
+    from gonio.lifecycle import run_campaign
+    from gonio.sim.emulators.gantry import EmulatedGantry
+    from gonio.sim.emulators.link import SyncedVirtualClock
+    from gonio.wiring import build_gantry
+
+    out = {}
+    for mode, label in (("off", "campaign, axis by axis"), ("auto", "campaign, back_to_back")):
+        data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+        for axis in data["axes"].values():
+            if axis.get("profile") == AZ:
+                axis["sync_start"] = mode
+        clock = SyncedVirtualClock()
+        with tempfile.TemporaryDirectory(prefix="bench-modbus-start-") as tmp, \
+                EmulatedGantry(parse_config(data), "lambert:albedo=0.5", clock=clock, any_port=True,
+                               referenced=True) as emu:
+            cfg = emu.config()
+            c = create_campaign(Path(tmp) / "c", cfg, grid=grid, material=None, sample="bench")
+            try:
+                run_campaign(c, build_gantry(cfg, clock=clock))
+            finally:
+                c.close()
+            moves: dict[float, list[float]] = {}
+            for m in emu.motors.values():
+                for t, _i, wall in m.starts:
+                    moves.setdefault(t, []).append(wall)
+            out[label] = [max(w) - min(w) for w in moves.values() if len(w) > 1]
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--axes", type=int, default=4)
     ap.add_argument("--starts", type=int, default=20)
+    ap.add_argument("--campaign", metavar="GRID", help="a campaign's pose moves instead (e.g. iso:step=30)")
     args = ap.parse_args()
-    rows = {**bench_tcp(args.axes, args.starts), **bench_rtu(args.axes, args.starts)}
-    print(f"{args.axes} emulated AZ units, {args.starts} starts each: skew = latest start - earliest (ms)")
-    print(f"{'how':<20} {'median':>8} {'max':>8}")
+    if args.campaign:
+        rows = bench_campaign(args.campaign)
+        print(f"{args.campaign} on emulated-sample-stage-modbus, n pose moves starting 2+ AZ axes: "
+              "skew = latest start - earliest (ms, wall)")
+    else:
+        rows = {**bench_tcp(args.axes, args.starts), **bench_rtu(args.axes, args.starts)}
+        print(f"{args.axes} emulated AZ units, {args.starts} starts each: "
+              "skew = latest start - earliest (ms)")
+    print(f"{'how':<24} {'n':>4} {'median':>8} {'max':>8}")
     for name, skews in rows.items():
-        print(f"{name:<20} {1e3 * statistics.median(skews):8.3f} {1e3 * max(skews):8.3f}")
+        print(f"{name:<24} {len(skews):4d} {1e3 * statistics.median(skews):8.3f} {1e3 * max(skews):8.3f}")
 
 
 if __name__ == "__main__":

@@ -7,8 +7,8 @@ from gonio.registry import lazy_attributes
 #: Each public name -> the submodule it lives in (imported when the name is first used: the driver's
 #: config model, gonio.config reads at every config load, must not import the driver's library).
 _EXPORTS = {
-    "ModbusAlarmError": "axis", "ModbusAxis": "axis", "ModbusCommError": "axis",
-    "ModbusExceptionError": "axis", "make_client": "axis", "PROFILES": "profile", "MotorProfile": "profile",
+    "ModbusAlarmError": "errors", "ModbusAxis": "axis", "ModbusCommError": "errors",
+    "ModbusExceptionError": "errors", "make_client": "axis", "PROFILES": "profile", "MotorProfile": "profile",
     "Register": "profile", "load_profile": "profile", "parse_profile": "profile",
     "ModbusStartGroup": "group", "SyncStartError": "group",
 }

@@ -31,32 +31,13 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
 from gonio.clock import WallClock
+from gonio.drivers.modbus.errors import ModbusAlarmError, ModbusCommError, ModbusExceptionError
 from gonio.drivers.modbus.profile import FAMILIES, Command, MotorProfile, load_profile
 from gonio.drivers.readback import PlausibilityGuard
 from gonio.protocols import DeviceFault, NotReferencedFault
 
 __all__ = ["ModbusAxis", "ModbusCommError", "ModbusExceptionError", "ModbusAlarmError", "make_client",
            "axis_class"]
-
-
-class ModbusCommError(DeviceFault):
-    def __init__(self, device: str, message: str):
-        super().__init__(device, message, transient=True)
-
-
-class ModbusExceptionError(DeviceFault):
-    """The controller answered with exception ``code`` (1 illegal function, 2 illegal address, 3 illegal
-    value, 4 device failure, 5 acknowledge, 6 busy, ...)."""
-
-    def __init__(self, device: str, message: str, code: int):
-        super().__init__(device, message, transient=code in (5, 6))
-        self.code = code
-
-
-class ModbusAlarmError(DeviceFault):
-    def __init__(self, device: str, message: str, alarm_code: int):
-        super().__init__(device, message, transient=False)
-        self.alarm_code = alarm_code
 
 
 def make_client(url: str, *, timeout_s: float = 0.5, retries: int = 1):
@@ -102,12 +83,19 @@ class ModbusAxis:
     reference_method : str, optional
         ``"origin"`` (the profile's return-to-origin operation before the axis moves) or ``"none"``;
         default: ``"origin"`` where the profile's drive is not absolute.
+    sync_start : str
+        How a gantry starts this axis's moves with the others' (:meth:`start_key`): ``"auto"`` (with
+        every other axis whose profile has ``[sync_start]``, in the mode their links allow:
+        :meth:`ModbusStartGroup.for_axes`), one of the modes of
+        :data:`~gonio.drivers.modbus.group.START_MODES` (with the others that name it), or ``"off"``
+        (alone, one write that also triggers).
     """
 
     def __init__(self, name: str, client, profile: MotorProfile | str, *, device_id: int = 1,
                  limits_deg: tuple[float, float], gear_ratio: float = 1.0, direction: int = 1,
                  zero_steps: int = 0, velocity_deg_s: float = 20.0, accel_deg_s2: float = 40.0,
-                 start_timeout_s: float = 0.5, clock=None, reference_method: str | None = None):
+                 start_timeout_s: float = 0.5, clock=None, reference_method: str | None = None,
+                 sync_start: str = "auto"):
         self.name = name
         self.client = client
         self.profile = profile if isinstance(profile, MotorProfile) else load_profile(profile)
@@ -149,6 +137,13 @@ class ModbusAxis:
             raise ValueError(f"axis '{name}': reference_method 'origin', but profile '{p.name}' has no "
                              "[origin] operation")
         self.reference_method = reference_method
+        if sync_start not in ("auto", "off", "group", "broadcast", "back_to_back"):
+            raise ValueError(f"axis '{name}': sync_start {sync_start!r} is not one of auto, off, group, "
+                             "broadcast, back_to_back")
+        if sync_start not in ("auto", "off") and p.sync_start is None:
+            raise ValueError(f"axis '{name}': sync_start {sync_start!r}, but profile '{p.name}' has no "
+                             "[sync_start] (its manual gives no held move and trigger)")
+        self.sync_start = sync_start
         self.needs_reference = reference_method != "none"
         self._status: int | None = None
         #: Replies thrown away: not this request's (another function code or register count), or
@@ -595,6 +590,46 @@ class ModbusAxis:
 
     def stop(self) -> None:
         self._command(self.profile.stop)
+
+    # -- declared abilities (gonio.protocols) ----------------------------------------------------------------
+    def start_key(self) -> tuple | None:
+        """Which axes start together with this one (:class:`~gonio.protocols.StartsTogether`): None
+        (alone) where the profile has no ``[sync_start]`` or ``sync_start`` is ``"off"``; else the
+        axes of one RTU line or TCP connection, or every axis on a TCP connection of its own
+        (``back_to_back``), by the mode asked. ``"auto"`` on a shared line takes the group send only
+        (a broadcast is executed by every unit of the line, the gantry's or not: asked by name)."""
+        sync = self.profile.sync_start
+        if sync is None or self.sync_start == "off":
+            return None
+        if self.sync_start == "back_to_back" or (self.sync_start == "auto"
+                                                  and isinstance(self.client, ModbusTcpClient)):
+            return ("modbus-tcp", self.sync_start)
+        if self.sync_start == "auto" and sync.group_register is None:
+            return None  # a broadcast reaches every unit of the line, ours or not: only when asked
+        return ("modbus-line", id(self.client), self.sync_start)
+
+    def make_start_group(self, axes: list):
+        """The :class:`~gonio.drivers.modbus.group.ModbusStartGroup` of ``axes`` (one key), left (any
+        group a crashed process left standing on the units is undone, each write read back); None for
+        an axis alone in ``"auto"``; ValueError (naming the axes) for a mode their links or profiles
+        do not allow."""
+        from gonio.drivers.modbus.group import ModbusStartGroup
+
+        if len(axes) == 1:
+            if self.sync_start == "auto":
+                return None
+            raise ValueError(f"axis '{self.name}': sync_start {self.sync_start!r} starts it with other "
+                             "axes, but no other axis naming that mode shares its "
+                             + ("TCP gateways" if self.sync_start == "back_to_back" else "line")
+                             + " (sync_start = \"auto\" or \"off\" moves it alone)")
+        try:
+            group = (ModbusStartGroup.for_axes(axes) if self.sync_start == "auto"
+                     else ModbusStartGroup(axes, self.sync_start))
+        except ValueError as err:
+            raise ValueError(f"{err} (axes {', '.join(a.name for a in axes)}; sync_start = \"off\" "
+                             "moves an axis alone)") from None
+        group.leave()
+        return group
 
 
 def axis_class(name_or_path: str | Path):

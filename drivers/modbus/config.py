@@ -51,11 +51,37 @@ class ModbusAxisConfig(AxisConfig):
     #: (the controller's return-to-origin operation). Unset: "none" here; the axis itself takes
     #: "origin" where the profile's drive loses its position at power-off.
     reference: Literal["none", "hard_stop", "index", "origin"] | None = None
+    #: How a pose's moves start where the profile has ``[sync_start]`` (held moves, one trigger):
+    #: "auto" (together with the other such axes, in the mode their links allow: one RTU line ->
+    #: "group", each unit behind its own TCP gateway -> "back_to_back"), a mode by name ("group",
+    #: "broadcast": every unit of the line executes it, "back_to_back"), or "off" (axis by axis).
+    sync_start: Literal["auto", "off", "group", "broadcast", "back_to_back"] = "auto"
 
     @model_validator(mode="after")
     def _names_its_unit(self):
         if self.device_id is None:
             raise ValueError("device_id: a modbus axis names its unit id (1..247)")
+        return self
+
+    @model_validator(mode="after")
+    def _mode_its_profile_has(self):
+        """A start mode by name needs the profile's ``[sync_start]`` (and its group send or broadcast)."""
+        if self.sync_start in ("auto", "off"):
+            return self
+        from gonio.drivers.modbus.profile import load_profile
+
+        try:
+            sync = load_profile(self.profile).sync_start
+        except (OSError, ValueError, KeyError):
+            return self  # the profile's own error comes where the axis is built, naming it
+        lacks = ("no [sync_start] (its manual gives no held move and trigger)" if sync is None
+                 else "no group send (sync_start.group_register)" if self.sync_start == "group"
+                 and sync.group_register is None
+                 else "no broadcast (sync_start.broadcast)" if self.sync_start == "broadcast"
+                 and not sync.broadcast else None)
+        if lacks:
+            raise ValueError(f"sync_start: {self.sync_start!r}, but profile '{self.profile}' has {lacks}; "
+                             "one of auto, off")
         return self
 
     def bus_address(self) -> int | None:
@@ -71,4 +97,5 @@ class ModbusAxisConfig(AxisConfig):
             name, ctx.buses[self.bus], self.profile, device_id=self.device_id,
             limits_deg=(self.min_deg, self.max_deg), gear_ratio=self.gear_ratio, direction=self.direction,
             zero_steps=self.zero_steps, velocity_deg_s=self.max_velocity_deg_s,
-            accel_deg_s2=self.max_accel_deg_s2, clock=ctx.clock, reference_method=self.reference)
+            accel_deg_s2=self.max_accel_deg_s2, clock=ctx.clock, reference_method=self.reference,
+            sync_start=self.sync_start)

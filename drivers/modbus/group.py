@@ -24,7 +24,8 @@ of the group that are not given a move are preloaded to stay where they are. Nob
 children (or anyone, on a broadcast): every axis's start is then checked by reading its status (the
 moving bit, or the position at its target) until its ``start_timeout_s``; an axis that did not start (an
 alarm, a unit out of the group) is named in a :class:`SyncStartError`, after the axes that did start
-are stopped (a coordinated move with an axis missing would leave its path).
+are stopped (a coordinated move with an axis missing would leave its path). A start query that fails
+on the way (a trigger's reply lost behind one gateway) stops every axis of the start before it raises.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from collections.abc import Mapping, Sequence
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
-from gonio.drivers.modbus.axis import ModbusAlarmError, ModbusCommError, ModbusExceptionError
+from gonio.drivers.modbus.errors import ModbusAlarmError, ModbusCommError, ModbusExceptionError
 from gonio.protocols import DeviceFault
 
 __all__ = ["ModbusStartGroup", "SyncStartError", "START_MODES"]
@@ -47,7 +48,10 @@ class SyncStartError(DeviceFault):
 
     def __init__(self, device: str, failed: Mapping[str, str]):
         self.failed = dict(failed)
-        why = "; ".join(f"{n}: {why}" for n, why in self.failed.items())
+        if list(self.failed) == [device]:  # one axis, the device named: not twice
+            why = self.failed[device]
+        else:
+            why = "; ".join(f"{n}: {why}" for n, why in self.failed.items())
         super().__init__(device, f"did not start: {why}",
                          transient=False)
 
@@ -178,10 +182,18 @@ class ModbusStartGroup:
         self.join()  # after the preloads: a write to the parent while grouped is every child's too
         try:
             self._trigger([self.axes[n] for n in goals])
+        except BaseException:  # no trusted word on who started (a reply lost): every axis stopped
+            self._stop_all(goals)
+            raise
         finally:
             self.leave()
         self._check(goals)
         return {n: goals[n] for n in moves}
+
+    def move_to(self, targets: Mapping[str, float]) -> None:
+        """A gantry's move (:class:`~gonio.protocols.StartsTogether`): ``targets`` (axis name -> °) at
+        each axis's own speed and acceleration, started together (:meth:`start`)."""
+        self.start({n: (float(t), None, None) for n, t in targets.items()})
 
     def _trigger_words(self, axis) -> tuple[int, list[int]]:
         sync = axis.profile.sync_start
@@ -225,6 +237,14 @@ class ModbusStartGroup:
             if head[7] != 16 or len(rest) < 3:
                 raise ModbusCommError(a.name, f"start trigger: the reply is not this query's "
                                       f"({(head + rest).hex()})")
+
+    def _stop_all(self, names) -> None:
+        """Stop each of ``names``, each even if another fails (the caller raises its own error)."""
+        for n in names:
+            try:
+                self.axes[n].stop()
+            except Exception:  # noqa: S112 - the start's own failure is what is raised
+                continue
 
     def _check(self, goals: Mapping[str, int]) -> None:
         """Every axis's start read back until its start time-out; the failures named, the others stopped."""

@@ -7,8 +7,9 @@ material at the positions the emulated axes stand.
   from the axis's ``family``), each powered up at the axis's home position, an extended-mode axis with
   mechanical stops at its limits (the ends of its travel: a hard-stop reference finds them) and, as a
   real one, reporting its position within one turn: it must be referenced before it moves;
-- ``modbus``: a :class:`ModbusMotorEmulator` following the axis's profile (one controller per bus: TCP
-  on the url's loopback port, or RTU over a pty);
+- ``modbus``: a :class:`ModbusMotorEmulator` following the axis's profile (one controller per TCP bus,
+  on the url's loopback port; on an RTU line, over a pty, one or several units: a
+  :class:`ModbusBusEmulator` where several share it);
 - ``serial``: the lamp's or the detector's emulator, chosen by the device's instrument profile
   (:data:`LAMP_EMULATORS`, :data:`METER_EMULATORS`: ``acknowledging``, ``scpi-current-source``,
   ``thorlabs-pm100``), over a pty, or over loopback TCP where the bus's port is a socket
@@ -49,7 +50,7 @@ from gonio.sim.emulators.instruments import (
     SpectrometerEmulator,
     StreamingPhotodiodeEmulator,
 )
-from gonio.sim.emulators.modbus import ModbusMotorEmulator
+from gonio.sim.emulators.modbus import ModbusBusEmulator, ModbusMotorEmulator
 from gonio.sim.emulators.scpi import CurrentSourceEmulator, Pm100Emulator
 from gonio.sim.emulators.tcp_link import TcpLink
 
@@ -178,17 +179,21 @@ class EmulatedGantry:
                     servos.append(servo)
                 self.emulators[bus_name] = DynamixelBusEmulator(servos)
             elif bus.driver == "modbus":
-                if len(axes) != 1:
+                if not axes or (len(axes) > 1 and not bus.url.startswith("rtu:")):
                     raise ValueError(f"emulate: buses.{bus_name}: the Modbus emulator serves one controller "
-                                     f"per bus; {len(axes)} axes are on it ({', '.join(axes) or 'none'})")
-                a = cfg.axes[axes[0]]
-                emu = ModbusMotorEmulator(a.profile, clock=self.clock, device_id=a.device_id)
-                steps_per_deg = emu.profile.steps_per_rev * a.gear_ratio / 360.0
-                emu.set_position(a.zero_steps + round(a.direction * a.home_deg * steps_per_deg))
-                if self.referenced:
-                    emu.assume_referenced()
-                self.motors[axes[0]] = emu
-                self.emulators[bus_name] = emu
+                                     f"per TCP bus, several on an RTU line; {len(axes)} axes are on it "
+                                     f"({', '.join(axes) or 'none'})")
+                units = []
+                for n in axes:
+                    a = cfg.axes[n]
+                    emu = ModbusMotorEmulator(a.profile, clock=self.clock, device_id=a.device_id)
+                    steps_per_deg = emu.profile.steps_per_rev * a.gear_ratio / 360.0
+                    emu.set_position(a.zero_steps + round(a.direction * a.home_deg * steps_per_deg))
+                    if self.referenced:
+                        emu.assume_referenced()
+                    self.motors[n] = emu
+                    units.append(emu)
+                self.emulators[bus_name] = units[0] if len(units) == 1 else ModbusBusEmulator(units)
             elif cfg.light.driver == "serial" and cfg.light.bus == bus_name:
                 make = self._emulator_for("light", cfg.light.profile, LAMP_EMULATORS)
                 self.lamp = make(clock=self.clock, link=self._link(bus_name))
@@ -325,7 +330,10 @@ class EmulatedGantry:
         """Start every emulator (stopping those started if one fails)."""
         try:
             for name, emu in self.emulators.items():
-                if isinstance(emu, ModbusMotorEmulator):
+                if isinstance(emu, ModbusBusEmulator):
+                    baud = self.cfg.buses[name].url.partition("baudrate=")[2] or "115200"
+                    self._locations[name] = f"rtu://{emu.start_rtu(int(baud))}?baudrate={baud}"
+                elif isinstance(emu, ModbusMotorEmulator):
                     url = self.cfg.buses[name].url
                     u = urlparse(url)
                     if u.scheme == "tcp":

@@ -22,8 +22,12 @@ move with the data held. Those data are volatile: a power cycle clears them, and
 Motor's "Group" command; -1: individual) makes a unit a child of the parent unit it names: a Write
 Multiple Registers (0x10) query to the parent's address is executed by every child of it on the same
 bus, silently (only the parent answers; :class:`ModbusBusEmulator` puts several units on one RTU line).
-The group is volatile too: -1 again after a power cycle. A query to unit 0 (broadcast) is executed by
-every unit on the line and answered by none.
+The group is volatile too: -1 again after a power cycle (:meth:`ModbusMotorEmulator.power_cycle_after_preload`
+cuts the power right after the unit took its next preload, so the trigger lands on a unit that lost it).
+A query to unit 0 (broadcast) is executed by every unit on the line and answered by none. Units sharing
+a :class:`StartLine` record how a start reached them: the reply to a trigger is held back until every
+unit of the line that holds a preloaded move has received its own trigger (a driver that waits for one
+reply before sending the next trigger is seen: :attr:`StartLine.late`).
 """
 
 from __future__ import annotations
@@ -45,11 +49,49 @@ from gonio.drivers.modbus.profile import MotorProfile, load_profile
 from gonio.motion.trapezoid import move_time, position_at
 from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, mangle
 
-__all__ = ["ModbusMotorEmulator", "ModbusBusEmulator", "DATA_ALARM"]
+__all__ = ["ModbusMotorEmulator", "ModbusBusEmulator", "StartLine", "DATA_ALARM"]
 
 #: The alarm a trigger on data the unit never received trips (the AZ's "operation data error", code
 #: from memory of its manual: secondary).
 DATA_ALARM = 0x70
+
+
+class StartLine:
+    """Units whose start triggers are watched together (set each unit's :attr:`start_line`).
+
+    A unit that takes a preload (its move block with the hold trigger) is *armed*; one whose trigger
+    starts the move is no longer. The reply to a trigger goes out only once no unit is armed (every
+    trigger of the start received) or after ``wait_s`` of wall time: then :attr:`late` counts it (the
+    driver waited for a reply before the next trigger went out). :attr:`starts` counts the starts.
+
+    Parameters
+    ----------
+    wait_s : float
+        Wall time (s) a trigger's reply waits for the other armed units' triggers.
+    """
+
+    def __init__(self, wait_s: float = 0.5):
+        self.wait_s = float(wait_s)
+        self._cv = threading.Condition()
+        self.armed: set[int] = set()
+        self.late = 0
+        self.starts = 0
+
+    def arm(self, unit) -> None:
+        with self._cv:
+            self.armed.add(id(unit))
+
+    def fire(self, unit) -> None:
+        with self._cv:
+            self.armed.discard(id(unit))
+            self.starts += 1
+            self._cv.notify_all()
+
+    def wait(self) -> None:
+        """Before a trigger's reply: until no unit is armed (bounded by ``wait_s``)."""
+        with self._cv:
+            if not self._cv.wait_for(lambda: not self.armed, timeout=self.wait_s):
+                self.late += 1
 
 
 class ModbusMotorEmulator:
@@ -109,6 +151,10 @@ class ModbusMotorEmulator:
         #: (clock time, index of the request that started it in :attr:`requests` of this unit or its
         #: bus, wall time perf_counter) of every move a trigger started.
         self.starts: list[tuple[float, int, float]] = []
+        #: The :class:`StartLine` this unit's triggers are watched on, or None.
+        self.start_line: StartLine | None = None
+        self._answer_trigger = False
+        self._cycle_after_preload = False
 
     @property
     def plan(self) -> tuple[float, float, float, float, float]:
@@ -142,18 +188,26 @@ class ModbusMotorEmulator:
         """Power off and on: alarms and the move end; an incremental drive (the profile not
         ``absolute``) loses its position and origin: it counts from 0 where the shaft stands."""
         with self._lock:
-            self.power_cycles += 1
-            self._hold()
-            self.alarm_code = 0
-            self._homing = False
-            if self.profile.sync_start is not None:  # the direct data and the group are volatile
-                for name in self.profile.move_block:
-                    self._set(name, 0)
-                if self._group_reg is not None:
-                    self._set(self._group_reg, -1)
-            if not self.profile.absolute:
-                self._count = -self._shaft()
-                self.referenced = False
+            self._power_cycle()
+
+    def power_cycle_after_preload(self) -> None:
+        """Cut and restore the power right after the unit takes its next preload (the move block with
+        the hold trigger): its held data and group are lost before the trigger comes."""
+        self._cycle_after_preload = True
+
+    def _power_cycle(self) -> None:
+        self.power_cycles += 1
+        self._hold()
+        self.alarm_code = 0
+        self._homing = False
+        if self.profile.sync_start is not None:  # the direct data and the group are volatile
+            for name in self.profile.move_block:
+                self._set(name, 0)
+            if self._group_reg is not None:
+                self._set(self._group_reg, -1)
+        if not self.profile.absolute:
+            self._count = -self._shaft()
+            self.referenced = False
 
     def halt(self) -> None:
         """Stop the motor where it is, as its stop input or another client would."""
@@ -232,8 +286,20 @@ class ModbusMotorEmulator:
         a = p.accel_rev_s2(self._get("acceleration")) * p.steps_per_rev
         v = v if v > 0 else p.steps_per_rev  # the origin operation before any move: a turn a second
         a = a if a > 0 else 4.0 * p.steps_per_rev
+        sync = p.sync_start
+        if sync is not None and sync.trigger in touched and self._get(sync.trigger) == sync.hold \
+                and len(touched) > 1:  # a preload: the block with the hold trigger
+            if self.start_line is not None:
+                self.start_line.arm(self)
+            if self._cycle_after_preload:
+                self._cycle_after_preload = False
+                self._power_cycle()
+                return
         if last in touched and self._get(last) == p.move_constants.get(last) and not self.alarm_code:
-            if self._get("velocity") <= 0 and p.sync_start is not None:
+            if sync is not None and len(touched) == 1 and self.start_line is not None:
+                self.start_line.fire(self)
+                self._answer_trigger = True
+            if self._get("velocity") <= 0 and sync is not None:
                 self._hold()  # a trigger on data it never received (lost at power-off)
                 self.alarm_code = DATA_ALARM
             else:
@@ -283,6 +349,7 @@ class ModbusMotorEmulator:
                 return  # the unit would answer exception 2, but it answers nothing here
             self._regs[off:off + len(values)] = [int(v) for v in values]
             self._written(address, len(values))
+            self._answer_trigger = False  # no reply to hold back
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
         if not sending:
@@ -292,6 +359,9 @@ class ModbusMotorEmulator:
             return data
         if self._silent:
             return b""
+        if self._answer_trigger:
+            self._answer_trigger = False
+            self.start_line.wait()
         fc = data[7] if self.address is not None else data[1]
         fault = self.faults.take(fc & 0x7F)
         if fault is not None and fault.kind == "disconnect":

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from gonio.clock import VirtualClock
-from gonio.config import load_config
+from gonio.config import load_config, parse_config
 from gonio.drivers.modbus import ModbusAlarmError, ModbusExceptionError
 from gonio.gantry import CONCURRENT_ABOVE_S, AssembledGantry
 from gonio.sim.emulators.gantry import EmulatedGantry
@@ -24,12 +24,15 @@ WHERE = {"sample_rotation": -123.45, "sample_tilt": 67.5, "detector_azimuth": 12
 
 
 @pytest.fixture
-def stage():
+def stage(request):
     """(emulators, connected gantry) of the emulated sample stage (4 AZ controllers on 4 TCP gateways),
-    each controller standing at its ``WHERE`` position; all stopped at the end."""
+    each controller standing at its ``WHERE`` position; all stopped at the end. Indirectly
+    parametrized: the AZ axes' ``sync_start`` (default "auto": their moves start together)."""
+    data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+    for name in WHERE:
+        data["axes"][name]["sync_start"] = getattr(request, "param", "auto")
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config("emulated-sample-stage-modbus"), MATERIAL, clock=clock,
-                        any_port=True, referenced=True) as emu:
+    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         gantry = build_gantry(emu.config(), clock=clock)
         gantry.connect()
         try:
@@ -55,6 +58,7 @@ def _all_at_once(gantry, method: str):
     return barrier
 
 
+@pytest.mark.parametrize("stage", ["off"], indirect=True)  # moved axis by axis: each move concurrent
 def test_a_concurrent_look_returns_each_axiss_own_values(stage):
     emu, gantry = stage
     want = np.array([WHERE[n] for n in gantry.kinematics.axis_names])
@@ -175,3 +179,22 @@ def test_axes_on_one_connection_are_asked_in_turn_while_other_connections_go_at_
         assert bus.most == 1 and not meet.broken
     finally:
         gantry.close()
+
+
+def test_a_manual_move_starts_the_az_axes_together(stage):
+    """``gonio gantry move`` (:func:`gonio.manual.drive`) on the emulated sample stage: the axes a leg
+    moves start on trigger frames (held moves, back_to_back) at one instant of the gantry clock, and
+    arrive; the axis it does not move gets nothing."""
+    from gonio.manual import drive
+
+    emu, gantry = stage
+    counts = {n: len(emu.motors[n].starts) for n in WHERE}
+    names = gantry.kinematics.axis_names
+    target = np.array([WHERE[n] + (0.0 if n == "sample_tilt" else 5.0) for n in names])
+    got = drive(gantry, [target], cfg=emu.config(), clock=gantry.clock)
+    np.testing.assert_allclose(got, target, atol=0.01)
+    made = {n: emu.motors[n].starts[counts[n]:] for n in WHERE}
+    assert not made.pop("sample_tilt") and all(len(m) == 1 for m in made.values())
+    for n, ((t, i, _wall),) in made.items():
+        assert emu.motors[n].requests[i][7:10] == bytes([0x10, 0x00, 0x66]), n  # the trigger, alone
+        assert t == made["sample_rotation"][0][0]

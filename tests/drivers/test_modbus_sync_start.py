@@ -7,6 +7,8 @@ data lost at power-off trips an alarm; every failed start found by reading the s
 
 from __future__ import annotations
 
+import contextlib
+import re
 import tomllib
 
 import pytest
@@ -213,16 +215,30 @@ def test_group_start_refused_where_the_manual_gives_none(clock):
             parse_profile({**data, "sync_start": {**data["sync_start"], key: bad}}, "az")
 
 
-def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
-    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(3)]
+@contextlib.contextmanager
+def _gateways(clock, n: int = 3, *, timeout_s: float = 0.5, line=None):
+    """``n`` AZ units (unit 1 each), each behind its own TCP gateway, and a connected axis on each
+    (ax1..axN): (units, axes); every unit watched on ``line`` (a StartLine) when given."""
+    units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(n)]
     axes = []
     try:
         for i, u in enumerate(units, start=1):
             u.assume_referenced()
+            u.start_line = line
             host, port = u.start_tcp()
-            client = make_client(f"tcp://{host}:{port}", timeout_s=0.5, retries=0)
+            client = make_client(f"tcp://{host}:{port}", timeout_s=timeout_s, retries=0)
             axes.append(_axis(f"ax{i}", client, 1, clock))
             axes[-1].connect()
+        yield units, axes
+    finally:
+        for a in axes:
+            a.close()
+        for u in units:
+            u.stop()
+
+
+def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
+    with _gateways(clock) as (units, axes):
         with pytest.raises(ValueError, match="same bus"):
             ModbusStartGroup(axes, "group")
         group = ModbusStartGroup.for_axes(axes)
@@ -242,11 +258,6 @@ def test_separate_tcp_gateways_get_the_trigger_back_to_back(clock):
         with pytest.raises(SyncStartError) as err:
             group.start({"ax1": (0.0, None, None), "ax2": (0.0, None, None)})
         assert set(err.value.failed) == {"ax2"} and not units[0].moving()
-    finally:
-        for a in axes:
-            a.close()
-        for u in units:
-            u.stop()
 
 
 def test_the_shipped_emulated_sample_stage_starts_its_detector_axes_back_to_back():
@@ -283,3 +294,88 @@ def test_the_shipped_emulated_sample_stage_starts_its_detector_axes_back_to_back
             assert t_start["detector_azimuth"] == t_start["detector_tilt"]  # one instant of the gantry clock
         finally:
             gantry.close()
+
+
+def test_the_start_line_sees_a_driver_that_waits_for_a_reply_before_the_next_trigger(clock):
+    """The emulators' :class:`StartLine` is what the campaign tests rely on: a trigger answered while
+    another preloaded unit has not received its own is counted late (here a driver triggering one
+    connection and reading its reply first); the group's back_to_back start is not."""
+    from gonio.sim.emulators.modbus import StartLine
+
+    line = StartLine(wait_s=0.05)
+    with _gateways(clock, 2, line=line) as (_units, axes):
+        for a in axes:
+            a.preload(10.0)
+        axes[0].write_words(0x0066, [0, 1], what="trigger, its reply awaited")  # the other still armed
+        axes[1].write_words(0x0066, [0, 1], what="trigger")
+        assert (line.late, line.starts) == (1, 2)
+        ModbusStartGroup.for_axes(axes).start({"ax1": (20.0, None, None), "ax2": (-20.0, None, None)})
+        assert (line.late, line.starts) == (1, 4)
+
+
+def test_a_trigger_reply_lost_behind_one_gateway_stops_every_axis_of_the_start(clock):
+    """back_to_back: the second unit goes silent after its preload; its trigger's reply never comes. Who
+    started cannot be trusted: every axis of the start is stopped, then the comm error names that axis."""
+    from gonio.drivers.modbus import ModbusCommError
+
+    with _gateways(clock, timeout_s=0.2) as (units, axes):
+        preload = axes[1].preload
+
+        def preload_then_hang(*a, **k):
+            steps = preload(*a, **k)
+            units[1].go_silent()
+            return steps
+
+        axes[1].preload = preload_then_hang
+        with pytest.raises(ModbusCommError, match="ax2: start trigger: no reply"):
+            ModbusStartGroup.for_axes(axes).start(MOVES)
+        assert all(len(u.starts) == 1 for u in units)  # every trigger reached its unit ...
+        assert not units[0].moving() and not units[2].moving()  # ... and those that answer were stopped
+
+
+@pytest.mark.parametrize(("axis", "mode", "why"), [
+    ("changer", "group", "profile 'generic' has no [sync_start]"),
+    ("sample_tilt", "sometimes", "Input should be 'auto', 'off', 'group', 'broadcast' or 'back_to_back'"),
+])
+def test_a_start_mode_the_profile_cannot_do_is_refused_naming_the_field(axis, mode, why):
+    from gonio.config import ConfigError, load_config, parse_config
+
+    data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+    data["axes"][axis]["sync_start"] = mode
+    with pytest.raises(ConfigError, match=f"axes.{axis}[:.] ?sync_start.*{re.escape(why)}"):
+        parse_config(data)
+
+
+def test_a_start_mode_the_links_do_not_allow_fails_the_connect_in_one_line_and_closes_the_devices():
+    """``sync_start = "group"`` on AZ units each behind its own gateway: no other axis shares a line, so
+    the connect refuses, naming the axis and what to write instead; every device is closed."""
+    from gonio.config import load_config, parse_config
+    from gonio.sim.emulators.gantry import EmulatedGantry
+    from gonio.sim.emulators.link import SyncedVirtualClock
+    from gonio.wiring import build_gantry
+
+    data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
+    data["axes"]["sample_tilt"]["sync_start"] = "group"
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(parse_config(data), "lambert:albedo=0.5", clock=clock, any_port=True,
+                        referenced=True) as emu:
+        gantry = build_gantry(emu.config(), clock=clock)
+        with pytest.raises(ValueError, match="axis 'sample_tilt': sync_start 'group' starts it with other "
+                           "axes, but no other axis naming that mode shares its line"):
+            gantry.connect()
+        assert not any(a.client.is_socket_open() for a in gantry.axes.values())
+
+
+def test_a_group_a_crashed_process_left_standing_is_left_when_the_gantry_makes_its_start_group(line):
+    """Units 2 and 3 still children of unit 1 (gonio died between a join and its leave): while that
+    stands, a move of unit 1 alone would move them too. Making the start group at connect (what the
+    gantry does) leaves it first: each unit individual again, read back."""
+    from gonio.gantry import start_groups
+
+    _bus, units, axes = line
+    ModbusStartGroup(axes, "group").join()
+    assert [u.group_id for u in units] == [-1, 1, 1]
+    (group,) = start_groups(axes)
+    assert group.mode == "group" and [u.group_id for u in units] == [-1, -1, -1]
+    axes[0].move_to(10.0)  # a stop-and-go move of the parent now moves the parent alone
+    assert units[0].moving() and not units[1].moving() and not units[2].moving()
