@@ -8,6 +8,8 @@ query. Defaults, each measured by ``tools/bench_adaptive.py --engines`` on unifo
   (the ``half`` domain left 1.2-17x more error at 1,156 poses, uniform or adaptive);
 - the fitted quantity is log(f_r cos θi cos θo + ε) (ε: 1e-3 of the samples' median): a microfacet lobe's
   log is close to a quadratic bowl, and the cosines take out the 1/(cos θi cos θo) rise at grazing;
+- anisotropic samples (φi measured) are fitted in the 4D ``pair`` domain, the same moving least
+  squares with :data:`PAIR_NEIGHBOURS`;
 - degree 2 (a local quadric, :data:`QUADRATIC_NEIGHBOURS` neighbours): a plane flattens the peak by
   h² f''/2; the quadric follows it. Where samples are sparse around a sharp peak a quadric can swing
   far past them (ggx α = 0.05 at 148 poses: 6.6 error without a bound), so its value is kept between
@@ -32,12 +34,15 @@ from gonio.adaptive.domain import embed_pairs, embed_poses
 from gonio.adaptive.samples import Samples
 
 __all__ = ["LocalFit", "LocalEngine", "reconstruct", "loo_residual", "NEIGHBOURS", "QUADRATIC_NEIGHBOURS",
-           "TRANSFORMS"]
+           "TRANSFORMS", "PAIR_NEIGHBOURS"]
 
 #: Neighbours of a local plane (2.5 per fitted parameter in 3D, as gonio.brdf's scattered engine).
 NEIGHBOURS = 10
 #: Neighbours of a local quadric (10 parameters in 3D).
 QUADRATIC_NEIGHBOURS = 24
+#: Neighbours of a plane and of a quadric in the 4D ``pair`` domain (5 and 15 parameters, the same
+#: 2.4-2.5 per parameter).
+PAIR_NEIGHBOURS = (12, 36)
 TRANSFORMS = ("linear", "log")
 #: How far a quadric's value may leave its neighbours' range (:func:`_fit`).
 SWING = 2.0
@@ -59,7 +64,8 @@ class LocalFit:
         self.floor = _FLOOR * max(float(np.median(samples.value * cc)), 1e-12)
         self.values = self._forward(samples.value * cc)[owner]
         self.tree = cKDTree(self.points)
-        self.k = min(NEIGHBOURS if degree == 1 else QUADRATIC_NEIGHBOURS, len(self.points))
+        counts = PAIR_NEIGHBOURS if domain == "pair" else (NEIGHBOURS, QUADRATIC_NEIGHBOURS)
+        self.k = min(counts[degree - 1], len(self.points))
 
     def eval(self, wi, wo) -> np.ndarray:
         wi, wo = np.asarray(wi, dtype=np.float64), np.asarray(wo, dtype=np.float64)
@@ -165,7 +171,8 @@ def _fit(q, dist, idx, points, values, drop, degree, log=False, hat=False):
     x = (points[idx] - q[:, None, :]) / h[:, :, None]
     cols = [np.ones(x.shape[:2] + (1,)), x]
     if degree == 2:
-        cols.append(np.stack([x[:, :, i] * x[:, :, j] for i in range(3) for j in range(i, 3)], axis=2))
+        dim = x.shape[2]
+        cols.append(np.stack([x[:, :, i] * x[:, :, j] for i in range(dim) for j in range(i, dim)], axis=2))
     design = np.concatenate(cols, axis=2)
     normal = np.einsum("nk,nki,nkj->nij", w, design, design)
     normal += 1e-6 * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(design.shape[2])
