@@ -38,7 +38,8 @@ campaign's poses, gantry time and error are printed. ``--campaigns`` takes ``--v
 ``full:step=S`` grids (``--steps``, default 30,20; reciprocity only, a twin standing in for an
 unreachable pose) against ``acquire(..., anisotropic=True)`` at their pose counts, the uniform grid through
 ``gonio.brdf`` (its default engine for a ``full`` grid) and both through the 4D reconstruction
-(:class:`gonio.adaptive.LocalFit` in the ``pair`` domain).
+(:class:`gonio.adaptive.LocalFit` in the ``pair`` domain). ``--aniso --campaigns`` runs whole campaigns as
+``--campaigns`` does, ``full:step=S`` and the adaptive ones with ``anisotropic=true``.
 
 ``--export`` (ggx materials with a conductor Fresnel) runs whole campaigns, ``iso:step=5`` and
 ``adaptive:poses=N`` for each of ``--budgets``, exports each as a ``bsdf`` tensor file and scores the file
@@ -54,6 +55,7 @@ reconstruction's f̂(ω, ω)) and what the file's error would be with each.
     .venv/bin/python tools/bench_adaptive.py --export --budgets 600,1156,2299   # bsdf files in Mitsuba
     .venv/bin/python tools/bench_adaptive.py --reach-time --variants before,motion,checkpoints,both
     .venv/bin/python tools/bench_adaptive.py --aniso               # anisotropic Ward, full:step=30,20
+    .venv/bin/python tools/bench_adaptive.py --aniso --campaigns   # the same as whole campaigns
 """
 
 from __future__ import annotations
@@ -157,6 +159,9 @@ def main() -> None:
         print(f"\n{spec}")
         if args.engines:
             _engines(measure, kin, theta_max, truth, wi, wo)
+            continue
+        if args.aniso and args.campaigns:
+            _campaigns(spec, steps, truth, wi, wo, anisotropic=True)
             continue
         if args.aniso:
             _aniso(measure, kin, theta_max, steps, truth, wi, wo)
@@ -291,21 +296,23 @@ def _simulated(folder, grid: str, spec: str):
     return open_brdf(folder), gantry_s, time.perf_counter() - t0
 
 
-def _campaigns(spec, steps, truth, wi, wo):
+def _campaigns(spec, steps, truth, wi, wo, anisotropic=False):
     import tempfile
 
+    uniform_kind, option = ("full", ",anisotropic=true") if anisotropic else ("iso", "")
     print(f"  {'grid':>26} {'poses':>6} {'gantry':>8} | {'error':>7} {'(answered)':>10} {'method':>9} | "
           f"{'uniform/this':>12} | {'wall s':>6}")
     with tempfile.TemporaryDirectory() as tmp:
         for step in steps:
             uniform = None
-            runs = [f"iso:step={step:g}"]
+            runs = [f"{uniform_kind}:step={step:g}"]
             for k, grid in enumerate(runs):
                 b, gantry_s, wall = _simulated(f"{tmp}/{step:g}-{k}", grid, spec)
                 err, answered = weighted_l1(b.eval(wi, wo).value, truth, wi, wo)
                 if uniform is None:
                     uniform = err
-                    runs += [f"adaptive:poses={b.n_samples}", f"adaptive:budget_s={gantry_s:.0f}"]
+                    runs += [f"adaptive:poses={b.n_samples}{option}",
+                             f"adaptive:budget_s={gantry_s:.0f}{option}"]
                 print(f"  {grid:>26} {b.n_samples:>6} {gantry_s:>7.0f}s | {err:>7.4f} ({answered:>8.1%}) "
                       f"{b.method:>9} | {uniform / err:>11.1f}x | {wall:>6.1f}", flush=True)
 

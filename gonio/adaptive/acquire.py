@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gonio.adaptive.pilot import pilot_pairs, pilot_poses
-from gonio.adaptive.refine import CELLS, LOO, plan_round
+from gonio.adaptive.refine import CELLS, LOO, PAIR_CELLS, PAIR_LOO, plan_round
 from gonio.adaptive.samples import Samples
 
 __all__ = ["acquire", "round_sizes", "Acquisition", "PILOT_FRACTION", "GROWTH"]
@@ -76,7 +76,7 @@ def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: floa
         raise ValueError(f"pilot_fraction: must be in (0, 1], got {pilot_fraction}")
     share = max(1, int(pilot_fraction * budget))
     if anisotropic:
-        domain, loo = "pair", ("pair", *loo[1:])
+        domain, loo = PAIR_CELLS, PAIR_LOO
         ti, pi_, to, po = pilot_pairs(kin, theta_max, share)[1]
         d = po - pi_
         samples = Samples(ti, to, d, measure(ti, to, d, phi_i=pi_), pi_)

@@ -25,7 +25,7 @@ from gonio.adaptive.reach import reachable_iso, reachable_pair
 __all__ = ["pilot_poses", "pilot_nodes", "lattice", "pilot_pairs", "pair_lattice", "PAIR_STEPS"]
 
 #: Steps (degrees) of the anisotropic pilot's ``full`` grid, coarsest first (each divides 180°).
-PAIR_STEPS = (90.0, 60.0, 45.0, 36.0, 30.0, 22.5, 20.0, 18.0, 15.0, 12.0, 10.0)
+PAIR_STEPS = (60.0, 45.0, 36.0, 30.0, 22.5, 20.0, 18.0, 15.0, 12.0, 10.0)
 
 
 def lattice(m: int, theta_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -68,11 +68,11 @@ def pair_lattice(step: float, theta_max: float) -> tuple[np.ndarray, ...]:
 
 def pilot_pairs(kin, theta_max: float, budget: int) -> tuple[float, tuple[np.ndarray, ...]]:
     """(step, the reachable poses (θi, φi, θo, φo) as measured) of the densest :func:`pair_lattice` of at
-    most ``budget`` reachable poses (the coarsest of :data:`PAIR_STEPS` at least)."""
+    most ``budget`` reachable poses (the coarsest of :data:`PAIR_STEPS` with 2 or more at least)."""
     best = None
     for step in PAIR_STEPS:
         ok, angles = reachable_pair(kin, *pair_lattice(step, theta_max), theta_max)
-        if best is not None and ok.sum() > budget:
+        if best is not None and best[1][0].size >= 2 and ok.sum() > budget:
             break
         best = step, tuple(a[ok] for a in angles)
     return best

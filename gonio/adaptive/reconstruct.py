@@ -90,7 +90,8 @@ class LocalEngine:
     """The default :class:`LocalFit` of isotropic, reciprocal samples as an engine of :mod:`gonio.brdf`
     (:class:`gonio.interpolate.Scattered`'s interface).
 
-    ``coords`` (N, 3): (θi, θo, Δφ) radians; ``value``, ``stddev`` (N, C) f_r; ``tol``: a query within it
+    ``coords`` (N, 3): (θi, θo, Δφ) radians, or (N, 4): (θi, φi, θo, φo) of anisotropic samples (fitted
+    in the ``pair`` domain); ``value``, ``stddev`` (N, C) f_r; ``tol``: a query within it
     of a sample (in the embedding) returns that sample exactly. ``eval(coords)`` -> (value, stddev,
     reason, exact). The standard deviation is the fit's linear response to independent sample noise:
     the intercept in log space is Σ a_k y_k, so σ_y² = Σ a_k² σ_yk² with σ_yk = c_k σ_k / (f_k c_k + ε)
@@ -101,8 +102,9 @@ class LocalEngine:
 
     def __init__(self, coords, value, stddev, tol: float):
         coords = np.asarray(coords, dtype=np.float64)
-        samples = Samples(coords[:, 0], coords[:, 1], coords[:, 2], value)
-        self.fit = LocalFit(samples)
+        ti, to, d, pi_ = _poses(coords)
+        samples = Samples(ti, to, d, value, pi_)
+        self.fit = LocalFit(samples, "pair" if coords.shape[1] == 4 else "iso")
         _, self.owner = samples.points(self.fit.domain)
         cc = _cosines(samples.theta_i, samples.theta_o)
         sd = np.asarray(stddev, dtype=np.float64).reshape(samples.value.shape)
@@ -116,8 +118,9 @@ class LocalEngine:
     def eval(self, coords, workers: int = -1):
         from gonio.interpolate import Reason
 
-        c = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
-        q = embed_poses(self.fit.domain, c[:, 0], c[:, 1], c[:, 2])
+        c = np.asarray(coords, dtype=np.float64).reshape(-1, 4 if self.fit.domain == "pair" else 3)
+        ti, to, d, pi_ = _poses(c)
+        q = embed_poses(self.fit.domain, ti, to, d, pi_)
         m, channels = len(q), self.value.shape[1]
         if m == 0:
             return np.zeros((0, channels)), np.zeros((0, channels)), np.zeros(0, np.uint8), np.zeros(0, bool)
@@ -125,7 +128,7 @@ class LocalEngine:
         dist, idx = dist.reshape(m, -1), idx.reshape(m, -1)
         y, hat = _fit(q, dist, idx, self.fit.points, self.fit.values, None, self.fit.degree, True, hat=True)
         sigma_y = np.sqrt(np.einsum("mk,mkc->mc", hat ** 2, self.sigma_log[idx] ** 2))
-        cc = _cosines(c[:, 0], c[:, 1])
+        cc = _cosines(ti, to)
         value = self.fit._inverse(y) / cc
         stddev = np.exp(y) * sigma_y / cc
         exact = dist[:, 0] <= self.snap
@@ -153,6 +156,13 @@ def loo_residual(samples: Samples, domain: str = "iso", transform: str = "log",
     pred = fit._inverse(_fit(fit.points[:n], dist, idx, fit.points, fit.values, own, degree,
                              transform == "log"))
     return samples.value - pred / _cosines(samples.theta_i, samples.theta_o)
+
+
+def _poses(coords):
+    """(θi, θo, Δφ, φi) of rows (θi, θo, Δφ) or (θi, φi, θo, φo)."""
+    if coords.shape[1] == 4:
+        return coords[:, 0], coords[:, 2], coords[:, 3] - coords[:, 1], coords[:, 1]
+    return coords[:, 0], coords[:, 1], coords[:, 2], np.zeros(len(coords))
 
 
 def _cosines(theta_i, theta_o):

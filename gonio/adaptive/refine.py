@@ -48,7 +48,8 @@ from gonio.adaptive.reach import reachable_iso, reachable_pair
 from gonio.adaptive.reconstruct import loo_residual
 from gonio.adaptive.samples import Samples
 
-__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO"]
+__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO",
+           "PAIR_CELLS", "PAIR_LOO"]
 
 #: Seeded trial points per refined cell.
 TRIALS = 32
@@ -65,6 +66,8 @@ CELLS = "iso"
 #: half/difference cells) it left 30 % less error than planes fitted to f_r in the half/difference
 #: domain on cook-torrance and lambert+ggx, 20 % less on ggx α = 0.2 and 35 % more on ggx α = 0.05.
 LOO = ("iso", "log", 2)
+#: The cells and the fit of anisotropic rounds: the same, in the 4D ``pair`` domain.
+PAIR_CELLS, PAIR_LOO = "pair", ("pair", *LOO[1:])
 
 
 def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: int = 0,
