@@ -26,5 +26,5 @@ from gonio.adaptive.reconstruct import LocalFit, reconstruct
 from gonio.adaptive.refine import plan_round
 from gonio.adaptive.samples import Samples
 
-__all__ = ["Samples", "reachable_iso", "reachable_pair", "pilot_poses", "LocalFit", "reconstruct", "plan_round", "acquire",
-           "material_measure", "round_sizes", "random_pairs", "weighted_l1"]
+__all__ = ["Samples", "reachable_iso", "reachable_pair", "pilot_poses", "LocalFit", "reconstruct",
+           "plan_round", "acquire", "material_measure", "round_sizes", "random_pairs", "weighted_l1"]
