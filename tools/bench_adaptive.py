@@ -38,8 +38,9 @@ campaign's poses, gantry time and error are printed. ``--campaigns`` takes ``--v
 ``full:step=S`` grids (``--steps``, default 30,20; reciprocity only, a twin standing in for an
 unreachable pose) against ``acquire(..., anisotropic=True)`` at their pose counts, the uniform grid through
 ``gonio.brdf`` (its default engine for a ``full`` grid) and both through the 4D reconstruction
-(:class:`gonio.adaptive.LocalFit` in the ``pair`` domain). ``--aniso --campaigns`` runs whole campaigns as
-``--campaigns`` does, ``full:step=S`` and the adaptive ones with ``anisotropic=true``.
+(:class:`gonio.adaptive.LocalFit` in the ``pair`` domain). ``--aniso --pilots`` compares the pilot (the
+``full:step=S`` grid against the specular plane swept over φi). ``--aniso --campaigns`` runs whole
+campaigns as ``--campaigns`` does, ``full:step=S`` and the adaptive ones with ``anisotropic=true``.
 
 ``--export`` (ggx materials with a conductor Fresnel) runs whole campaigns, ``iso:step=5`` and
 ``adaptive:poses=N`` for each of ``--budgets``, exports each as a ``bsdf`` tensor file and scores the file
@@ -163,6 +164,9 @@ def main() -> None:
         if args.aniso and args.campaigns:
             _campaigns(spec, steps, truth, wi, wo, anisotropic=True)
             continue
+        if args.aniso and args.pilots:
+            _aniso_pilots(measure, kin, theta_max, steps, truth, wi, wo)
+            continue
         if args.aniso:
             _aniso(measure, kin, theta_max, steps, truth, wi, wo)
             continue
@@ -247,6 +251,35 @@ def _aniso(measure, kin, theta_max, steps, truth, wi, wo):
         label = f"{lat:.4f} ({brdf.method}, {cover:.1%} ans.)"
         print(f"  {grid:>12} {len(uni):>6} | {label:>30} | {same:>13.4f} | {ada:>8.4f} | "
               f"{lat / ada:>12.1f}x {same / ada:>12.1f}x | {took:>10.1f}", flush=True)
+
+
+def _plane_pilot(kin, theta_max, share):
+    """The specular plane swept over φi: θi, θo on ``m`` nodes from 0 to theta_max, φo = φi + 180°
+    (forward scattering) or φi (backward), φi on ``k`` azimuths; the densest such set of at most ``share``
+    reachable poses (m, k growing together)."""
+    best = None
+    for m in range(2, 40):
+        k = max(2, 2 * (m - 1))
+        t = np.linspace(0.0, theta_max, m)
+        a, b, c, f = (x.ravel() for x in np.meshgrid(t, t, np.arange(k) * np.pi / k, [0.0, np.pi],
+                                                     indexing="ij"))
+        ok, angles = reachable_pair(kin, a, c, b, np.mod(c + f, 2 * np.pi), theta_max)
+        if best is not None and ok.sum() > share:
+            break
+        best = tuple(x[ok] for x in angles)
+    return best
+
+
+def _aniso_pilots(measure, kin, theta_max, steps, truth, wi, wo):
+    """The anisotropic pilot: the full:step=S grid (the default) against the specular plane swept over φi,
+    at the adaptive budgets of ``steps``' pose counts."""
+    print(f"  {'poses':>6} | {'pilot':>22} {'pilot poses':>11} | {'error':>7}")
+    for step in steps:
+        budget = int(reachable_pair(kin, *pair_lattice(step, theta_max), theta_max)[0].sum())
+        for name, pilot in (("full grid (default)", None), ("specular plane x φi", _plane_pilot)):
+            acq = acquire(measure, kin, theta_max, budget, anisotropic=True, pilot=pilot)
+            err = weighted_l1(LocalFit(acq.samples, domain="pair").eval(wi, wo), truth, wi, wo)[0]
+            print(f"  {budget:>6} | {name:>22} {acq.phases[0]:>11} | {err:>7.4f}", flush=True)
 
 
 def _engines(measure, kin, theta_max, truth, wi, wo):

@@ -63,9 +63,11 @@ def round_sizes(pilot: int, budget: int, growth: float = GROWTH, least: int = 1)
 
 def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: float = PILOT_FRACTION,
             domain: str = CELLS, seed: int = 0, growth: float = GROWTH, loo: tuple = LOO,
-            motion=None, anisotropic: bool = False) -> Acquisition:
+            motion=None, anisotropic: bool = False, pilot=None) -> Acquisition:
     """Measure ``budget`` poses adaptively (module docstring); ``motion``: a
-    :class:`gonio.adaptive.motion.Motion` to weigh each round's poses by their gantry time.
+    :class:`gonio.adaptive.motion.Motion` to weigh each round's poses by their gantry time; ``pilot``
+    (anisotropic only): ``pilot(kin, theta_max, share) -> (θi, φi, θo, φo)`` in place of
+    :func:`~gonio.adaptive.pilot.pilot_pairs` (``tools/bench_adaptive.py --aniso --pilots`` compares).
 
     Raises
     ------
@@ -77,7 +79,7 @@ def acquire(measure, kin, theta_max: float, budget: int, *, pilot_fraction: floa
     share = max(1, int(pilot_fraction * budget))
     if anisotropic:
         domain, loo = PAIR_CELLS, PAIR_LOO
-        ti, pi_, to, po = pilot_pairs(kin, theta_max, share)[1]
+        ti, pi_, to, po = (pilot or (lambda *a: pilot_pairs(*a)[1]))(kin, theta_max, share)
         d = po - pi_
         samples = Samples(ti, to, d, measure(ti, to, d, phi_i=pi_), pi_)
     else:
