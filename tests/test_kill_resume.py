@@ -349,5 +349,7 @@ def _rounds(out: Path) -> int:
 
 
 @pytest.mark.slow
-def test_a_sigkilled_adaptive_campaign_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch):
-    _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, "ggx:alpha=0.15,metal=gold", ADAPTIVE_GRID, 10)
+@pytest.mark.parametrize("material, grid, poses", ADAPTIVE_CASES, ids=["iso", "anisotropic"])
+def test_a_sigkilled_adaptive_campaign_resumes_to_the_uninterrupted_result(
+        tmp_path, monkeypatch, material, grid, poses):
+    _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, material, grid, 10)
