@@ -263,16 +263,18 @@ class MeasuredBRDF:
             self._engine = Scattered(self.domain, coords, value, stddev, self.symmetries, self._snap)
 
     def _local(self, angles, value, stddev) -> None:
-        """The ``local`` engine (:class:`gonio.adaptive.reconstruct.LocalEngine`): isotropic, reciprocal
-        samples only (what the fit assumes)."""
+        """The ``local`` engine (:class:`gonio.adaptive.reconstruct.LocalEngine`): reciprocal samples without
+        mirror symmetry (what the fit assumes), isotropic ones in (θi, θo, Δφ), anisotropic ones in 4D
+        (θi, φi, θo, φo)."""
         from gonio.adaptive.reconstruct import LocalEngine
 
-        want = {"reciprocity": True, "isotropy": True, "mirror": False}
-        if self.symmetries != want:
-            raise ValueError(f"method 'local': fits isotropic, reciprocal samples without mirror symmetry "
-                             f"({want}); this dataset declares {self.symmetries}: use 'scattered' or 'grid'")
-        self.domain, self.method = "iso", "local"
-        self._engine = LocalEngine(domain_coords("iso", angles, self.symmetries), value, stddev, self._snap)
+        if not self.symmetries["reciprocity"] or self.symmetries["mirror"]:
+            raise ValueError(f"method 'local': fits reciprocal samples without mirror symmetry; this dataset "
+                             f"declares {self.symmetries}: use 'scattered' or 'grid'")
+        self.domain = "iso" if self.symmetries["isotropy"] else "full"
+        self.method = "local"
+        self._engine = LocalEngine(domain_coords(self.domain, angles, self.symmetries), value, stddev,
+                                   self._snap)
 
     def __repr__(self) -> str:
         return (f"MeasuredBRDF({self.n_samples} samples, domain={self.domain!r}, method={self.method!r}, "

@@ -117,9 +117,9 @@ GRID_KINDS.add("merl", "gonio.plan.grids:MERL",
                size="stride", options=("stride", "theta_max", "reciprocity", "isotropy", "order"))
 GRID_KINDS.add("adaptive", "gonio.plan.grids:ADAPTIVE",
                "a pilot lattice, then rounds of poses placed where the samples so far are least trustworthy "
-               "(peak, Fresnel rise, grazing), until the budget is spent (an isotropic sample; "
-               "gonio.adaptive)",
-               size="budget", options=("poses", "budget_s", "theta_max", "isotropy", "order"))
+               "(peak, Fresnel rise, grazing), until the budget is spent (an isotropic sample, or with "
+               "anisotropic=true an anisotropic one; gonio.adaptive)",
+               size="budget", options=("poses", "budget_s", "theta_max", "anisotropic", "isotropy", "order"))
 
 GRID_OPTIONS = Registry("grid option")
 GRID_OPTIONS.add("step", None, "S degrees, > 0, <= 90 and dividing 360 (so that −Δφ and φ + 180° stay on the "
@@ -134,6 +134,8 @@ GRID_OPTIONS.add("reciprocity", None, "true|false, default true: measure one pos
                  "(ωi, ωo) ~ (ωo, ωi)")
 GRID_OPTIONS.add("mirror", None, "true|false, default false: also identify Δφ with −Δφ (a sample symmetric "
                  "about its plane of incidence)")
+GRID_OPTIONS.add("anisotropic", None, "true|false, default false: place the poses over the 4D domain "
+                 "(θi, φi, θo, φo) with reciprocity only, the pilot a full:step=S grid (adaptive)")
 GRID_OPTIONS.add("isotropy", None, "the isotropy the kind assumes (true for iso and merl, false for full): "
                  "accepted for clarity, it changes nothing; the other value is refused")
 GRID_OPTIONS.add("order", None, "the order the poses are measured in, default auto (the orders below)")

@@ -34,6 +34,14 @@ campaigns of the first adaptive release), ``motion`` (a pose's gantry time in it
 the target is interpolated between the last two campaigns (log error against log gantry time), and each
 campaign's poses, gantry time and error are printed. ``--campaigns`` takes ``--variants`` too.
 
+``--aniso`` is the panel's anisotropic row (default material: anisotropic Ward, α 0.1 by 0.3): uniform
+``full:step=S`` grids (``--steps``, default 30,20; reciprocity only, a twin standing in for an
+unreachable pose) against ``acquire(..., anisotropic=True)`` at their pose counts, the uniform grid through
+``gonio.brdf`` (its default engine for a ``full`` grid) and both through the 4D reconstruction
+(:class:`gonio.adaptive.LocalFit` in the ``pair`` domain). ``--aniso --pilots`` compares the pilot (the
+``full:step=S`` grid against the specular plane swept over φi). ``--aniso --campaigns`` runs whole
+campaigns as ``--campaigns`` does, ``full:step=S`` and the adaptive ones with ``anisotropic=true``.
+
 ``--export`` (ggx materials with a conductor Fresnel) runs whole campaigns, ``iso:step=5`` and
 ``adaptive:poses=N`` for each of ``--budgets``, exports each as a ``bsdf`` tensor file and scores the file
 as Mitsuba 3 reads it (the ``measured`` plugin, ``llvm_ad_rgb``) against Mitsuba's own ``roughconductor``
@@ -47,6 +55,8 @@ reconstruction's f̂(ω, ω)) and what the file's error would be with each.
     .venv/bin/python tools/bench_adaptive.py --campaigns --steps 20,10   # whole simulated campaigns
     .venv/bin/python tools/bench_adaptive.py --export --budgets 600,1156,2299   # bsdf files in Mitsuba
     .venv/bin/python tools/bench_adaptive.py --reach-time --variants before,motion,checkpoints,both
+    .venv/bin/python tools/bench_adaptive.py --aniso               # anisotropic Ward, full:step=30,20
+    .venv/bin/python tools/bench_adaptive.py --aniso --campaigns   # the same as whole campaigns
 """
 
 from __future__ import annotations
@@ -60,6 +70,8 @@ import time
 import numpy as np
 
 from gonio.adaptive import Samples, acquire, material_measure, random_pairs, reachable_iso, weighted_l1
+from gonio.adaptive.pilot import pair_lattice
+from gonio.adaptive.reach import reachable_pair
 from gonio.adaptive.reconstruct import LocalFit
 from gonio.config import load_config
 from gonio.geometry import to_isotropic
@@ -69,6 +81,7 @@ from gonio.sim.materials import load
 
 #: Rec. 709 luminance of R, G, B.
 LUMA = (0.2126, 0.7152, 0.0722)
+ANISO = "ward:rho_d=0.1,rho_s=0.05,alpha_x=0.1,alpha_y=0.3"
 PANEL = ("ggx:alpha=0.05,metal=gold", "ggx:alpha=0.2,metal=gold",
          "cook-torrance:d=beckmann,m=0.3,metal=gold", "ggx:alpha=0.2,metal=gold,rho_d=0.2,rho_s=0.8")
 
@@ -120,12 +133,16 @@ def main() -> None:
     parser.add_argument("--reach-from-s", type=float, default=200.0)
     parser.add_argument("--variants", default=None, help="comma-separated of before, motion, checkpoints, "
                         "both: how --campaigns and --reach-time place poses and checkpoints (default: both)")
+    parser.add_argument("--aniso", action="store_true", help="the anisotropic row: full:step=S against "
+                        "adaptive anisotropic=true (default: anisotropic Ward, steps 30,20)")
     parser.add_argument("--pairs", type=int, default=20_000)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
 
-    specs = args.materials.split(";") if args.materials else (list(PANEL) if args.full else [PANEL[1]])
-    steps = [float(s) for s in (args.steps or ("20,10,8,5" if args.full else "20,10")).split(",")]
+    specs = args.materials.split(";") if args.materials else (
+        [ANISO] if args.aniso else list(PANEL) if args.full else [PANEL[1]])
+    steps = [float(s) for s in (args.steps or ("30,20" if args.aniso else "20,10,8,5" if args.full
+                                                else "20,10")).split(",")]
     reach = args.reach or args.full
     cfg = load_config()
     kin = make_kinematics(cfg)
@@ -143,6 +160,15 @@ def main() -> None:
         print(f"\n{spec}")
         if args.engines:
             _engines(measure, kin, theta_max, truth, wi, wo)
+            continue
+        if args.aniso and args.campaigns:
+            _campaigns(spec, steps, truth, wi, wo, anisotropic=True)
+            continue
+        if args.aniso and args.pilots:
+            _aniso_pilots(measure, kin, theta_max, steps, truth, wi, wo)
+            continue
+        if args.aniso:
+            _aniso(measure, kin, theta_max, steps, truth, wi, wo)
             continue
         if args.pilots:
             _pilots(measure, kin, theta_max, truth, wi, wo)
@@ -199,6 +225,63 @@ def _reach(measure, kin, theta_max, truth, wi, wo, n5, lat5, same5, start):
             print(f"  to reach iso:step=5 through {name} ({target:.4f}): not within {n5} poses", flush=True)
 
 
+def _aniso(measure, kin, theta_max, steps, truth, wi, wo):
+    """The anisotropic row (module docstring)."""
+    from gonio.brdf import MeasuredBRDF
+    from gonio.dataset import SampledBRDF
+
+    print(f"  {'grid':>12} {'poses':>6} | {'uniform, gonio.brdf':>30} | {'uniform, same':>13} | "
+          f"{'adaptive':>8} | {'brdf/adaptive':>13} {'same/adaptive':>13} | {'adaptive s':>10}")
+    for step in steps:
+        ok, (ti, pi_, to, po) = reachable_pair(kin, *pair_lattice(step, theta_max), theta_max)
+        ti, pi_, to, po = ti[ok], pi_[ok], to[ok], po[ok]
+        uni = Samples(ti, to, po - pi_, measure(ti, to, po - pi_, phi_i=pi_), pi_)
+        deg = [np.degrees(a) for a in (ti, pi_, to, po)]
+        data = SampledBRDF(*deg, value=uni.value, stddev=np.zeros_like(uni.value),
+                           attrs={"symmetries": {"reciprocity": True, "isotropy": False, "mirror": False},
+                                  "grid": f"full:step={step:g}"})
+        brdf = MeasuredBRDF(data)
+        lat, cover = weighted_l1(brdf.eval(wi, wo).value, truth, wi, wo)
+        same = weighted_l1(LocalFit(uni, domain="pair").eval(wi, wo), truth, wi, wo)[0]
+        t0 = time.perf_counter()
+        acq = acquire(measure, kin, theta_max, len(uni), anisotropic=True)
+        ada = weighted_l1(LocalFit(acq.samples, domain="pair").eval(wi, wo), truth, wi, wo)[0]
+        took = time.perf_counter() - t0
+        grid = f"full:step={step:g}"
+        label = f"{lat:.4f} ({brdf.method}, {cover:.1%} ans.)"
+        print(f"  {grid:>12} {len(uni):>6} | {label:>30} | {same:>13.4f} | {ada:>8.4f} | "
+              f"{lat / ada:>12.1f}x {same / ada:>12.1f}x | {took:>10.1f}", flush=True)
+
+
+def _plane_pilot(kin, theta_max, share):
+    """The specular plane swept over φi: θi, θo on ``m`` nodes from 0 to theta_max, φo = φi + 180°
+    (forward scattering) or φi (backward), φi on ``k`` azimuths; the densest such set of at most ``share``
+    reachable poses (m, k growing together)."""
+    best = None
+    for m in range(2, 40):
+        k = max(2, 2 * (m - 1))
+        t = np.linspace(0.0, theta_max, m)
+        a, b, c, f = (x.ravel() for x in np.meshgrid(t, t, np.arange(k) * np.pi / k, [0.0, np.pi],
+                                                     indexing="ij"))
+        ok, angles = reachable_pair(kin, a, c, b, np.mod(c + f, 2 * np.pi), theta_max)
+        if best is not None and ok.sum() > share:
+            break
+        best = tuple(x[ok] for x in angles)
+    return best
+
+
+def _aniso_pilots(measure, kin, theta_max, steps, truth, wi, wo):
+    """The anisotropic pilot: the full:step=S grid (the default) against the specular plane swept over φi,
+    at the adaptive budgets of ``steps``' pose counts."""
+    print(f"  {'poses':>6} | {'pilot':>22} {'pilot poses':>11} | {'error':>7}")
+    for step in steps:
+        budget = int(reachable_pair(kin, *pair_lattice(step, theta_max), theta_max)[0].sum())
+        for name, pilot in (("full grid (default)", None), ("specular plane x φi", _plane_pilot)):
+            acq = acquire(measure, kin, theta_max, budget, anisotropic=True, pilot=pilot)
+            err = weighted_l1(LocalFit(acq.samples, domain="pair").eval(wi, wo), truth, wi, wo)[0]
+            print(f"  {budget:>6} | {name:>22} {acq.phases[0]:>11} | {err:>7.4f}", flush=True)
+
+
 def _engines(measure, kin, theta_max, truth, wi, wo):
     uni = uniform_samples(10.0, kin, theta_max, measure)
     _, acq = adaptive_error(measure, kin, theta_max, len(uni), truth, wi, wo)
@@ -246,21 +329,23 @@ def _simulated(folder, grid: str, spec: str):
     return open_brdf(folder), gantry_s, time.perf_counter() - t0
 
 
-def _campaigns(spec, steps, truth, wi, wo):
+def _campaigns(spec, steps, truth, wi, wo, anisotropic=False):
     import tempfile
 
+    uniform_kind, option = ("full", ",anisotropic=true") if anisotropic else ("iso", "")
     print(f"  {'grid':>26} {'poses':>6} {'gantry':>8} | {'error':>7} {'(answered)':>10} {'method':>9} | "
           f"{'uniform/this':>12} | {'wall s':>6}")
     with tempfile.TemporaryDirectory() as tmp:
         for step in steps:
             uniform = None
-            runs = [f"iso:step={step:g}"]
+            runs = [f"{uniform_kind}:step={step:g}"]
             for k, grid in enumerate(runs):
                 b, gantry_s, wall = _simulated(f"{tmp}/{step:g}-{k}", grid, spec)
                 err, answered = weighted_l1(b.eval(wi, wo).value, truth, wi, wo)
                 if uniform is None:
                     uniform = err
-                    runs += [f"adaptive:poses={b.n_samples}", f"adaptive:budget_s={gantry_s:.0f}"]
+                    runs += [f"adaptive:poses={b.n_samples}{option}",
+                             f"adaptive:budget_s={gantry_s:.0f}{option}"]
                 print(f"  {grid:>26} {b.n_samples:>6} {gantry_s:>7.0f}s | {err:>7.4f} ({answered:>8.1%}) "
                       f"{b.method:>9} | {uniform / err:>11.1f}x | {wall:>6.1f}", flush=True)
 

@@ -67,16 +67,17 @@ def round_motion(cfg, kin, weight: float = 1.0, pool: int = POOL) -> Motion:
     return Motion(np.asarray(start, dtype=np.float64), fixed, float(weight), int(pool))
 
 
-def cheapest_first(kin, motion: Motion, theta_i, theta_o, dphi, worth, n: int) -> np.ndarray:
-    """Indices of ``n`` of the candidate poses (θi, θo, Δφ as measured, φi = 0; radians), in the order
-    chosen (module docstring); ``worth`` (P,) their E_j. Candidates without a valid branch cost as if
-    at the reference."""
+def cheapest_first(kin, motion: Motion, theta_i, theta_o, dphi, worth, n: int, phi_i=None) -> np.ndarray:
+    """Indices of ``n`` of the candidate poses (θi, θo, Δφ as measured, φi = 0 unless ``phi_i`` gives it,
+    φo = φi + Δφ; radians), in the order chosen (module docstring); ``worth`` (P,) their E_j. Candidates
+    without a valid branch cost as if at the reference."""
     worth = np.asarray(worth, dtype=np.float64)
     p = worth.size
     n = min(int(n), p)
     ti = np.asarray(theta_i, dtype=np.float64)
-    axes = kin.inverse(ti, np.zeros_like(ti), np.asarray(theta_o, dtype=np.float64),
-                       np.asarray(dphi, dtype=np.float64), current_deg=motion.start_deg)
+    pi_ = np.zeros_like(ti) if phi_i is None else np.asarray(phi_i, dtype=np.float64)
+    axes = kin.inverse(ti, pi_, np.asarray(theta_o, dtype=np.float64),
+                       pi_ + np.asarray(dphi, dtype=np.float64), current_deg=motion.start_deg)
     axes = np.where(np.isfinite(axes), axes, motion.start_deg[None, :])
     metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
     reach = metric.time(motion.start_deg[None, :], axes)

@@ -7,15 +7,25 @@ pole rules (:mod:`gonio.plan.grids`). Every such lattice holds the exact specula
 Δφ = π (K is even), so the pilot sees every isotropic material's specular lobe at its peak whatever its
 width; it also sees the diffuse floor, the Fresnel rise and the grazing poses that a specular-plane
 scan alone misses (``tools/bench_adaptive.py --pilots`` compares the fractions of the budget).
+
+The anisotropic pilot (:func:`pilot_pairs`) is the coarsest uniform 4D grid, ``full:step=S``
+(:mod:`gonio.plan.grids`, reciprocity only), of the densest step in :data:`PAIR_STEPS` with at most
+``budget`` reachable poses. Where the lobe lies in φ is what an anisotropic material does not tell
+in advance; a full lattice holds the specular pose of every (θi, φi) node it has (φo = φi + π is on
+it: the steps divide 180°), so it sees the lobe at each sampled azimuth, and its floor, rise and
+grazing poses as the isotropic pilot does.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from gonio.adaptive.reach import reachable_iso
+from gonio.adaptive.reach import reachable_iso, reachable_pair
 
-__all__ = ["pilot_poses", "pilot_nodes", "lattice"]
+__all__ = ["pilot_poses", "pilot_nodes", "lattice", "pilot_pairs", "pair_lattice", "PAIR_STEPS"]
+
+#: Steps (degrees) of the anisotropic pilot's ``full`` grid, coarsest first (each divides 180°).
+PAIR_STEPS = (60.0, 45.0, 36.0, 30.0, 22.5, 20.0, 18.0, 15.0, 12.0, 10.0)
 
 
 def lattice(m: int, theta_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -44,3 +54,25 @@ def pilot_poses(kin, theta_max: float, budget: int) -> tuple[np.ndarray, np.ndar
     ok, (ti, _, to, po) = reachable_iso(kin, *lattice(pilot_nodes(kin, theta_max, budget), theta_max),
                                         theta_max)
     return ti[ok], to[ok], po[ok]
+
+
+def pair_lattice(step: float, theta_max: float) -> tuple[np.ndarray, ...]:
+    """(θi, φi, θo, φo) of ``full:step=S`` up to theta_max (radians; one pose per reciprocal pair)."""
+    from gonio.plan.grids import enumerate_grid, parse_grid
+
+    grid = enumerate_grid(parse_grid(f"full:step={step:g}"), float(np.degrees(theta_max)))
+    keep = (grid.theta_i <= theta_max + 1e-12) & (grid.theta_o <= theta_max + 1e-12)
+    angles = (grid.theta_i, grid.phi_i, grid.theta_o, grid.phi_o)
+    return tuple(np.asarray(a, np.float64)[keep] for a in angles)
+
+
+def pilot_pairs(kin, theta_max: float, budget: int) -> tuple[float, tuple[np.ndarray, ...]]:
+    """(step, the reachable poses (θi, φi, θo, φo) as measured) of the densest :func:`pair_lattice` of at
+    most ``budget`` reachable poses (the coarsest of :data:`PAIR_STEPS` with 2 or more at least)."""
+    best = None
+    for step in PAIR_STEPS:
+        ok, angles = reachable_pair(kin, *pair_lattice(step, theta_max), theta_max)
+        if best is not None and best[1][0].size >= 2 and ok.sum() > budget:
+            break
+        best = step, tuple(a[ok] for a in angles)
+    return best

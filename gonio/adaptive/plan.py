@@ -27,6 +27,11 @@ Gantry time: a round's poses are chosen with their motion cost (:data:`MOTION_WE
 (:data:`CHECKPOINTS_AS_NEEDED`, :func:`_checkpoints`). Both are journaled in the ``adaptive`` meta of a
 new campaign (``motion_weight``, ``motion_pool``, ``since_reference_s``), so a journal written before
 them replays its rounds as it planned them.
+
+``anisotropic=true``: the pilot is :func:`gonio.adaptive.pilot.pilot_pairs`' ``full:step=S`` grid (the
+densest of :data:`~gonio.adaptive.pilot.PAIR_STEPS` within the same share of the budget; the meta keeps
+``pilot_step``, and ``pilot_nodes`` is None), the samples keep their φi, and each round is the same
+:func:`~gonio.adaptive.refine.plan_round` in the 4D ``pair`` domain; everything else is as above.
 """
 
 from __future__ import annotations
@@ -35,8 +40,8 @@ import numpy as np
 
 from gonio.adaptive.acquire import GROWTH, PILOT_FRACTION, round_sizes
 from gonio.adaptive.motion import POOL, round_motion
-from gonio.adaptive.pilot import lattice, pilot_nodes
-from gonio.adaptive.refine import plan_round
+from gonio.adaptive.pilot import PAIR_STEPS, lattice, pair_lattice, pilot_nodes, pilot_pairs
+from gonio.adaptive.refine import LOO, PAIR_CELLS, PAIR_LOO, plan_round
 from gonio.adaptive.samples import Samples
 from gonio.calibrate import calibrate, reference_rho
 from gonio.plan.build import Plan, build_plan
@@ -44,7 +49,8 @@ from gonio.plan.grids import ADAPTIVE_MAX_BUDGET_S, ADAPTIVE_MAX_POSES, GridPose
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, step_table
 
 __all__ = ["pilot_plan", "round_size", "journal_samples", "next_round", "expected_steps", "budget_text",
-           "ended_text", "MIN_ROUND", "SEED", "MOTION_WEIGHT", "LEGACY_POOL", "CHECKPOINTS_AS_NEEDED"]
+           "ended_text", "pilot_text", "MIN_ROUND", "SEED", "MOTION_WEIGHT", "LEGACY_POOL",
+           "CHECKPOINTS_AS_NEEDED"]
 
 #: Least poses of a round (the last one excepted).
 MIN_ROUND = 10
@@ -90,19 +96,31 @@ def pilot_plan(grid: str, cfg, kin=None) -> tuple[Plan, dict]:
         ti, to, d = lattice(m, tmax)
         return build_plan(grid, cfg, kin, poses=_given(ti, np.zeros_like(ti), to, d))
 
-    if spec.poses is not None:
+    def plan_pairs(step):
+        return build_plan(grid, cfg, kin, poses=_given(*pair_lattice(step, tmax)))
+
+    step = None
+    if spec.anisotropic and spec.poses is not None:
+        m, step = None, pilot_pairs(kin, tmax, max(1, int(PILOT_FRACTION * spec.poses)))[0]
+        pilot = plan_pairs(step)
+        _check_budget(spec, pilot)
+    elif spec.anisotropic:
+        m, step = None, PAIR_STEPS[0]
+        pilot = plan_pairs(step)
+        _check_budget(spec, pilot)
+        top = pilot_pairs(kin, tmax, int(PILOT_FRACTION * ADAPTIVE_MAX_POSES))[0]
+        for finer in PAIR_STEPS[1:PAIR_STEPS.index(top) + 1]:   # as the isotropic lattices below
+            bigger = plan_pairs(finer)
+            if bigger.estimated_s > PILOT_FRACTION * spec.budget_s:
+                break
+            step, pilot = finer, bigger
+    elif spec.poses is not None:
         m = pilot_nodes(kin, tmax, max(1, int(PILOT_FRACTION * spec.poses)))
         pilot = plan(m)
-        if pilot.theta_i.size > spec.poses:
-            raise ValueError(f"grid '{spec.kind}': option 'poses' must be at least the pilot's "
-                             f"{pilot.theta_i.size} poses (and at most {ADAPTIVE_MAX_POSES:,}), got "
-                             f"{spec.poses}")
+        _check_budget(spec, pilot)
     else:
         m, pilot = 2, plan(2)
-        if pilot.estimated_s > spec.budget_s:
-            raise ValueError(f"grid '{spec.kind}': option 'budget_s' must be at least the pilot's "
-                             f"{pilot.estimated_s:,.0f} s of gantry time (up to "
-                             f"{ADAPTIVE_MAX_BUDGET_S:,.0f}), got {spec.budget_s:g}")
+        _check_budget(spec, pilot)
         # The densest lattice within the pilot's share of the time (estimates grow with m; the smaller
         # ones cost least to plan, so they are tried first), and within the pilot's share of the largest
         # pose budget.
@@ -113,14 +131,28 @@ def pilot_plan(grid: str, cfg, kin=None) -> tuple[Plan, dict]:
                 break
             m, pilot = m + 1, bigger
     n = int(pilot.theta_i.size)
-    meta = {"budget_poses": spec.poses, "budget_s": spec.budget_s, "pilot_nodes": int(m), "pilot_poses": n,
+    meta = {"budget_poses": spec.poses, "budget_s": spec.budget_s,
+            "pilot_nodes": None if m is None else int(m), "pilot_poses": n,
             "pilot_s": float(pilot.estimated_s), "pilot_lower_bound_s": float(pilot.lower_bound_s),
             "min_round": MIN_ROUND, "growth": GROWTH, "seed": SEED, "motion_weight": MOTION_WEIGHT,
             "motion_pool": POOL,
             "rounds": []}
+    if step is not None:
+        meta["pilot_step"] = float(step)
     if CHECKPOINTS_AS_NEEDED:
         meta["since_reference_s"] = 0.0
     return pilot, meta
+
+
+def _check_budget(spec, pilot: Plan) -> None:
+    """ValueError when the budget is below the pilot's poses or its estimated gantry time."""
+    if spec.poses is not None and pilot.theta_i.size > spec.poses:
+        raise ValueError(f"grid '{spec.kind}': option 'poses' must be at least the pilot's "
+                         f"{pilot.theta_i.size} poses (and at most {ADAPTIVE_MAX_POSES:,}), got {spec.poses}")
+    if spec.budget_s is not None and pilot.estimated_s > spec.budget_s:
+        raise ValueError(f"grid '{spec.kind}': option 'budget_s' must be at least the pilot's "
+                         f"{pilot.estimated_s:,.0f} s of gantry time (up to {ADAPTIVE_MAX_BUDGET_S:,.0f}), "
+                         f"got {spec.budget_s:g}")
 
 
 def round_size(adaptive: dict) -> int:
@@ -146,14 +178,14 @@ def _sizes(adaptive: dict) -> list[int]:
 
 def journal_samples(journal, cfg) -> Samples:
     """The samples of every committed pose reading, calibrated (:func:`gonio.calibrate.calibrate`) at
-    their planned poses (θi, θo, Δφ = φo − φi)."""
+    their planned poses (θi, θo, Δφ = φo − φi, and φi)."""
     rho, _ = reference_rho(cfg.reference, journal.detector())
     cal = calibrate(journal.measurements(), rho)
     steps = journal.steps()
     ti, pi_, to, po = (np.radians(steps[f"{a}_deg"][cal.steps])
                        for a in ("theta_i", "phi_i", "theta_o", "phi_o"))
     d = np.where(to > 0, np.mod(po - pi_, 2.0 * np.pi), 0.0)
-    return Samples(ti, to, d, cal.value)
+    return Samples(ti, to, d, cal.value, pi_)
 
 
 def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
@@ -174,7 +206,11 @@ def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
     weight = adaptive.get("motion_weight", 0.0)
     # A journal from before the pool was journaled replays its rounds with the pool they were placed with.
     motion = round_motion(cfg, kin, weight, adaptive.get("motion_pool", LEGACY_POOL)) if weight else None
-    ti, to, d = plan_round(samples, n, kin, tmax, seed=adaptive["seed"], motion=motion)
+    if spec.anisotropic:
+        ti, pi_, to, po = plan_round(samples, n, kin, tmax, PAIR_CELLS, adaptive["seed"], PAIR_LOO, motion)
+    else:
+        ti, to, po = plan_round(samples, n, kin, tmax, seed=adaptive["seed"], loo=LOO, motion=motion)
+        pi_ = np.zeros_like(ti)
     if ti.size == 0:
         k = len(adaptive["rounds"]) + 1
         reason = (f"round {k} found no reachable new pose (the gantry's reach, its occlusion cone and "
@@ -190,7 +226,7 @@ def next_round(journal, cfg, kin=None) -> tuple[dict, dict, str] | None:
         if "since_reference_s" in adaptive:
             after["since_reference_s"] = 0.0
         return steps, {"adaptive": after}, reason
-    plan = build_plan(meta["grid"], cfg, kin, poses=_given(ti, np.zeros_like(ti), to, d))
+    plan = build_plan(meta["grid"], cfg, kin, poses=_given(ti, pi_, to, po))
     steps = step_table(plan, cfg)
     if not (steps["kind"][0] == STEP_DARK and steps["kind"][1] == STEP_REFERENCE):  # pragma: no cover
         raise AssertionError("a plan's steps begin with a checkpoint")
@@ -267,6 +303,13 @@ def expected_steps(meta: dict, steps: int) -> int:
         return steps + max(0, adaptive["budget_poses"] - poses) + 2 * checkpoints
     spent = adaptive["pilot_s"] + sum(r["estimated_s"] for r in adaptive["rounds"])
     return max(steps, int(steps * adaptive["budget_s"] / spent))
+
+
+def pilot_text(adaptive: dict) -> str:
+    """What the pilot is, in words: ``a 5-node lattice`` or, anisotropic, ``the full:step=45 grid``."""
+    if adaptive.get("pilot_step") is not None:
+        return f"the full:step={adaptive['pilot_step']:g} grid"
+    return f"a {adaptive['pilot_nodes']}-node lattice"
 
 
 def ended_text(adaptive: dict) -> str | None:

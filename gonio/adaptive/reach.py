@@ -4,14 +4,15 @@ A pose (θi, θo, Δφ) is measured with φi = 0, φo = Δφ, as the uniform ``i
 (:mod:`gonio.plan.grids`). When that is out of reach, occluded (ωi and ωo closer than the clearance, near
 retro-reflection) or colliding, its Helmholtz twin (θo, θi, −Δφ) stands in when that one can be
 reached; a pose counts as unreachable only when neither can (the rule :func:`gonio.plan.build.build_plan`
-applies to a grid's classes).
+applies to a grid's classes). An anisotropic pose (θi, φi, θo, φo) is measured as it is, its twin
+(θo, φo, θi, φi) standing in the same way (:func:`reachable_pair`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["reachable_iso"]
+__all__ = ["reachable_iso", "reachable_pair"]
 
 
 def reachable_iso(kin, theta_i, theta_o, dphi, theta_max: float):
@@ -35,13 +36,29 @@ def reachable_iso(kin, theta_i, theta_o, dphi, theta_max: float):
     """
     ti, to, d = (np.asarray(a, dtype=np.float64).ravel() for a in (theta_i, theta_o, dphi))
     zero = np.zeros_like(ti)
-    inside = (ti <= theta_max + 1e-12) & (to <= theta_max + 1e-12)
-    direct = inside & (np.asarray(kin.feasibility(ti, zero, to, d)) == 0)
     twin_d = np.where(ti > 0, np.mod(-d, 2.0 * np.pi), 0.0)
-    twin = inside & ~direct
-    if twin.any():
-        idx = np.flatnonzero(twin)
-        twin[idx] = np.asarray(kin.feasibility(to[idx], zero[idx], ti[idx], twin_d[idx])) == 0
+    direct, twin = _reach(kin, (ti, zero, to, d), (to, zero, ti, twin_d), theta_max)
     dphi_kept = np.where(to > 0, d, 0.0)
     angles = (np.where(twin, to, ti), zero, np.where(twin, ti, to), np.where(twin, twin_d, dphi_kept))
     return direct | twin, angles
+
+
+def reachable_pair(kin, theta_i, phi_i, theta_o, phi_o, theta_max: float):
+    """:func:`reachable_iso` of anisotropic poses (θi, φi, θo, φo), radians: the pose itself or its twin
+    (θo, φo, θi, φi); returns (ok, (θi, φi, θo, φo) to drive to)."""
+    ti, pi_, to, po = (np.asarray(a, dtype=np.float64).ravel() for a in (theta_i, phi_i, theta_o, phi_o))
+    direct, twin = _reach(kin, (ti, pi_, to, po), (to, po, ti, pi_), theta_max)
+    return direct | twin, (np.where(twin, to, ti), np.where(twin, po, pi_), np.where(twin, ti, to),
+                           np.where(twin, pi_, po))
+
+
+def _reach(kin, direct_angles, twin_angles, theta_max):
+    """(direct, twin): where the gantry reaches each pose itself, and where only its twin."""
+    ti, to = direct_angles[0], direct_angles[2]
+    inside = (ti <= theta_max + 1e-12) & (to <= theta_max + 1e-12)
+    direct = inside & (np.asarray(kin.feasibility(*direct_angles)) == 0)
+    twin = inside & ~direct
+    if twin.any():
+        idx = np.flatnonzero(twin)
+        twin[idx] = np.asarray(kin.feasibility(*(a[idx] for a in twin_angles))) == 0
+    return direct, twin

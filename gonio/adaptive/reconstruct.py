@@ -8,6 +8,8 @@ query. Defaults, each measured by ``tools/bench_adaptive.py --engines`` on unifo
   (the ``half`` domain left 1.2-17x more error at 1,156 poses, uniform or adaptive);
 - the fitted quantity is log(f_r cos θi cos θo + ε) (ε: 1e-3 of the samples' median): a microfacet lobe's
   log is close to a quadratic bowl, and the cosines take out the 1/(cos θi cos θo) rise at grazing;
+- anisotropic samples (φi measured) are fitted in the 4D ``pair`` domain, the same moving least
+  squares with :data:`PAIR_NEIGHBOURS`;
 - degree 2 (a local quadric, :data:`QUADRATIC_NEIGHBOURS` neighbours): a plane flattens the peak by
   h² f''/2; the quadric follows it. Where samples are sparse around a sharp peak a quadric can swing
   far past them (ggx α = 0.05 at 148 poses: 6.6 error without a bound), so its value is kept between
@@ -32,12 +34,15 @@ from gonio.adaptive.domain import embed_pairs, embed_poses
 from gonio.adaptive.samples import Samples
 
 __all__ = ["LocalFit", "LocalEngine", "reconstruct", "loo_residual", "NEIGHBOURS", "QUADRATIC_NEIGHBOURS",
-           "TRANSFORMS"]
+           "TRANSFORMS", "PAIR_NEIGHBOURS"]
 
 #: Neighbours of a local plane (2.5 per fitted parameter in 3D, as gonio.brdf's scattered engine).
 NEIGHBOURS = 10
 #: Neighbours of a local quadric (10 parameters in 3D).
 QUADRATIC_NEIGHBOURS = 24
+#: Neighbours of a plane and of a quadric in the 4D ``pair`` domain (5 and 15 parameters, the same
+#: 2.4-2.5 per parameter).
+PAIR_NEIGHBOURS = (12, 36)
 TRANSFORMS = ("linear", "log")
 #: How far a quadric's value may leave its neighbours' range (:func:`_fit`).
 SWING = 2.0
@@ -59,7 +64,8 @@ class LocalFit:
         self.floor = _FLOOR * max(float(np.median(samples.value * cc)), 1e-12)
         self.values = self._forward(samples.value * cc)[owner]
         self.tree = cKDTree(self.points)
-        self.k = min(NEIGHBOURS if degree == 1 else QUADRATIC_NEIGHBOURS, len(self.points))
+        counts = PAIR_NEIGHBOURS if domain == "pair" else (NEIGHBOURS, QUADRATIC_NEIGHBOURS)
+        self.k = min(counts[degree - 1], len(self.points))
 
     def eval(self, wi, wo) -> np.ndarray:
         wi, wo = np.asarray(wi, dtype=np.float64), np.asarray(wo, dtype=np.float64)
@@ -84,7 +90,8 @@ class LocalEngine:
     """The default :class:`LocalFit` of isotropic, reciprocal samples as an engine of :mod:`gonio.brdf`
     (:class:`gonio.interpolate.Scattered`'s interface).
 
-    ``coords`` (N, 3): (θi, θo, Δφ) radians; ``value``, ``stddev`` (N, C) f_r; ``tol``: a query within it
+    ``coords`` (N, 3): (θi, θo, Δφ) radians, or (N, 4): (θi, φi, θo, φo) of anisotropic samples (fitted
+    in the ``pair`` domain); ``value``, ``stddev`` (N, C) f_r; ``tol``: a query within it
     of a sample (in the embedding) returns that sample exactly. ``eval(coords)`` -> (value, stddev,
     reason, exact). The standard deviation is the fit's linear response to independent sample noise:
     the intercept in log space is Σ a_k y_k, so σ_y² = Σ a_k² σ_yk² with σ_yk = c_k σ_k / (f_k c_k + ε)
@@ -95,8 +102,9 @@ class LocalEngine:
 
     def __init__(self, coords, value, stddev, tol: float):
         coords = np.asarray(coords, dtype=np.float64)
-        samples = Samples(coords[:, 0], coords[:, 1], coords[:, 2], value)
-        self.fit = LocalFit(samples)
+        ti, to, d, pi_ = _poses(coords)
+        samples = Samples(ti, to, d, value, pi_)
+        self.fit = LocalFit(samples, "pair" if coords.shape[1] == 4 else "iso")
         _, self.owner = samples.points(self.fit.domain)
         cc = _cosines(samples.theta_i, samples.theta_o)
         sd = np.asarray(stddev, dtype=np.float64).reshape(samples.value.shape)
@@ -110,8 +118,9 @@ class LocalEngine:
     def eval(self, coords, workers: int = -1):
         from gonio.interpolate import Reason
 
-        c = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
-        q = embed_poses(self.fit.domain, c[:, 0], c[:, 1], c[:, 2])
+        c = np.asarray(coords, dtype=np.float64).reshape(-1, 4 if self.fit.domain == "pair" else 3)
+        ti, to, d, pi_ = _poses(c)
+        q = embed_poses(self.fit.domain, ti, to, d, pi_)
         m, channels = len(q), self.value.shape[1]
         if m == 0:
             return np.zeros((0, channels)), np.zeros((0, channels)), np.zeros(0, np.uint8), np.zeros(0, bool)
@@ -119,7 +128,7 @@ class LocalEngine:
         dist, idx = dist.reshape(m, -1), idx.reshape(m, -1)
         y, hat = _fit(q, dist, idx, self.fit.points, self.fit.values, None, self.fit.degree, True, hat=True)
         sigma_y = np.sqrt(np.einsum("mk,mkc->mc", hat ** 2, self.sigma_log[idx] ** 2))
-        cc = _cosines(c[:, 0], c[:, 1])
+        cc = _cosines(ti, to)
         value = self.fit._inverse(y) / cc
         stddev = np.exp(y) * sigma_y / cc
         exact = dist[:, 0] <= self.snap
@@ -149,6 +158,13 @@ def loo_residual(samples: Samples, domain: str = "iso", transform: str = "log",
     return samples.value - pred / _cosines(samples.theta_i, samples.theta_o)
 
 
+def _poses(coords):
+    """(θi, θo, Δφ, φi) of rows (θi, θo, Δφ) or (θi, φi, θo, φo)."""
+    if coords.shape[1] == 4:
+        return coords[:, 0], coords[:, 2], coords[:, 3] - coords[:, 1], coords[:, 1]
+    return coords[:, 0], coords[:, 1], coords[:, 2], np.zeros(len(coords))
+
+
 def _cosines(theta_i, theta_o):
     return (np.cos(theta_i) * np.cos(theta_o))[:, None]
 
@@ -165,7 +181,8 @@ def _fit(q, dist, idx, points, values, drop, degree, log=False, hat=False):
     x = (points[idx] - q[:, None, :]) / h[:, :, None]
     cols = [np.ones(x.shape[:2] + (1,)), x]
     if degree == 2:
-        cols.append(np.stack([x[:, :, i] * x[:, :, j] for i in range(3) for j in range(i, 3)], axis=2))
+        dim = x.shape[2]
+        cols.append(np.stack([x[:, :, i] * x[:, :, j] for i in range(dim) for j in range(i, dim)], axis=2))
     design = np.concatenate(cols, axis=2)
     normal = np.einsum("nk,nki,nkj->nij", w, design, design)
     normal += 1e-6 * (np.trace(normal, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(design.shape[2])

@@ -26,6 +26,10 @@ With a motion cost (:class:`gonio.adaptive.motion.Motion`), the ``motion.pool`` 
 are placed so, and n of those poses are taken by E_j per second of gantry time
 (:func:`gonio.adaptive.motion.cheapest_first`).
 
+The same round places anisotropic poses in the ``pair`` domain (:mod:`gonio.adaptive.domain`, 4D:
+balls, volumes and trial points in its dimension; reach by :func:`gonio.adaptive.reach.reachable_pair`);
+it then returns (θi, φi, θo, φo).
+
 Purity: the only inputs are the samples, ``n``, the gantry (its reach), theta_max, the domain and a
 seed; random numbers come from ``numpy.random.default_rng([seed, len(samples)])``; nothing reads a clock
 or a global state. The same inputs give the same poses, bit for bit, which is what lets a resume replay a
@@ -40,11 +44,12 @@ from scipy.spatial import cKDTree
 from gonio.adaptive.domain import embed_pairs, poses_of
 from gonio.adaptive.error import random_pairs
 from gonio.adaptive.motion import Motion, cheapest_first
-from gonio.adaptive.reach import reachable_iso
+from gonio.adaptive.reach import reachable_iso, reachable_pair
 from gonio.adaptive.reconstruct import loo_residual
 from gonio.adaptive.samples import Samples
 
-__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO"]
+__all__ = ["plan_round", "cell_errors", "spacing", "TRIALS", "CLOUD", "DENSITY_NEIGHBOURS", "CELLS", "LOO",
+           "PAIR_CELLS", "PAIR_LOO"]
 
 #: Seeded trial points per refined cell.
 TRIALS = 32
@@ -61,6 +66,8 @@ CELLS = "iso"
 #: half/difference cells) it left 30 % less error than planes fitted to f_r in the half/difference
 #: domain on cook-torrance and lambert+ggx, 20 % less on ggx α = 0.2 and 35 % more on ggx α = 0.05.
 LOO = ("iso", "log", 2)
+#: The cells and the fit of anisotropic rounds: the same, in the 4D ``pair`` domain.
+PAIR_CELLS, PAIR_LOO = "pair", ("pair", *LOO[1:])
 
 
 def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: int = 0,
@@ -72,15 +79,17 @@ def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: i
     cloud = embed_pairs(domain, wi, wo)
     near = spacing(cKDTree(points), points, owner, n)
     radius = cKDTree(cloud).query(points[:n], k=DENSITY_NEIGHBOURS)[0][:, -1]
-    density = DENSITY_NEIGHBOURS / (CLOUD * radius ** 3)  # per unit volume, up to a constant
+    dim = points.shape[1]
+    density = DENSITY_NEIGHBOURS / (CLOUD * radius ** dim)  # per unit volume, up to a constant
     weight = np.cos(samples.theta_i) * np.cos(samples.theta_o)
-    mass = density * (0.5 * near) ** 3 * weight
+    mass = density * (0.5 * near) ** dim * weight
     return np.abs(loo_residual(samples, *loo)).sum(axis=1) * mass
 
 
 def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CELLS, seed: int = 0,
                loo: tuple = LOO, motion: Motion | None = None) -> tuple[np.ndarray, ...]:
-    """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians), in the order chosen; fewer when
+    """The next ``n`` poses (θi, θo, Δφ as measured, φi = 0; radians; in the ``pair`` domain
+    (θi, φi, θo, φo)), in the order chosen; fewer when
     the reachable domain holds no more new poses (module docstring). With ``motion``, a pool of
     ``motion.pool`` · n poses is placed so and ``n`` of them are taken by their error per second of gantry
     time (:func:`gonio.adaptive.motion.cheapest_first`).
@@ -92,9 +101,9 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
     """
     if n < 0:
         raise ValueError(f"n: must be >= 0, got {n}")
-    empty = np.zeros(0)
+    columns = 4 if domain == "pair" else 3
     if n == 0:
-        return empty, empty, empty
+        return tuple(np.zeros(0) for _ in range(columns))
     rng = np.random.default_rng([seed, len(samples)])
     points, owner = samples.points(domain)
     tree = cKDTree(points)
@@ -105,15 +114,16 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
     order = np.lexsort((np.arange(len(samples)), -score))
     cells = order[np.arange(m) % len(order)]
     # Trial points uniform in the ball of radius ρ_j around each chosen cell's sample.
-    direction = rng.normal(size=(m, TRIALS, 3))
+    dim = points.shape[1]
+    direction = rng.normal(size=(m, TRIALS, dim))
     direction /= np.linalg.norm(direction, axis=2, keepdims=True)
-    radius = near[cells][:, None] * rng.uniform(0.0, 1.0, (m, TRIALS)) ** (1.0 / 3.0)
+    radius = near[cells][:, None] * rng.uniform(0.0, 1.0, (m, TRIALS)) ** (1.0 / dim)
     trial = points[cells][:, None, :] + direction * radius[:, :, None]
-    poses = _measurable(kin, trial.reshape(-1, 3), theta_max, domain)
+    poses = _measurable(kin, trial.reshape(-1, dim), theta_max, domain)
     ok = poses[0].reshape(m, TRIALS)
-    gap = tree.query(trial.reshape(-1, 3))[0].reshape(m, TRIALS)
+    gap = tree.query(trial.reshape(-1, dim))[0].reshape(m, TRIALS)
     chosen: list[np.ndarray] = []
-    chosen_poses: list[tuple[float, float, float]] = []
+    chosen_poses: list[tuple[float, ...]] = []
     worth: list[float] = []
     for c in range(m):
         d = np.where(ok[c], gap[c], -1.0)
@@ -128,14 +138,18 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
         worth.append(float(score[cells[c]]))
     if motion is not None and len(chosen_poses) > n:
         pool = np.asarray(chosen_poses, dtype=np.float64)
-        keep = cheapest_first(kin, motion, pool[:, 0], pool[:, 1], pool[:, 2], np.asarray(worth), n)
+        if domain == "pair":
+            keep = cheapest_first(kin, motion, pool[:, 0], pool[:, 2], pool[:, 3] - pool[:, 1],
+                                  np.asarray(worth), n, phi_i=pool[:, 1])
+        else:
+            keep = cheapest_first(kin, motion, pool[:, 0], pool[:, 1], pool[:, 2], np.asarray(worth), n)
         chosen = [chosen[k] for k in keep]
         chosen_poses = [chosen_poses[k] for k in keep]
     if len(chosen) < n:
-        chosen_poses += _fallback(samples, np.asarray(chosen).reshape(-1, 3), n - len(chosen), kin, theta_max,
-                                  domain, seed, tree)
-    out = np.asarray(chosen_poses, dtype=np.float64).reshape(-1, 3)
-    return out[:, 0].copy(), out[:, 1].copy(), out[:, 2].copy()
+        chosen_poses += _fallback(samples, np.asarray(chosen).reshape(-1, dim), n - len(chosen), kin,
+                                  theta_max, domain, seed, tree)
+    out = np.asarray(chosen_poses, dtype=np.float64).reshape(-1, columns)
+    return tuple(out[:, c].copy() for c in range(columns))
 
 
 def spacing(tree, points, owner, n: int) -> np.ndarray:
@@ -149,7 +163,13 @@ def spacing(tree, points, owner, n: int) -> np.ndarray:
 
 
 def _measurable(kin, points, theta_max, domain):
-    """(ok, θi, θo, Δφ as measured) of embedded points."""
+    """(ok, θi, θo, Δφ as measured) of embedded points; (ok, θi, φi, θo, φo) in ``pair``."""
+    if domain == "pair":
+        ti, pi_, to, po = poses_of(domain, points)
+        inside = (ti <= theta_max) & (to <= theta_max)
+        ok, angles = reachable_pair(kin, np.where(inside, ti, 0.0), pi_, np.where(inside, to, 0.0), po,
+                                    theta_max)
+        return (ok & inside, *angles)
     ti, to, d = poses_of(domain, points)
     inside = (ti >= 0.0) & (to >= 0.0) & (ti <= theta_max) & (to <= theta_max)
     ok, (mti, _, mto, mpo) = reachable_iso(kin, np.where(inside, ti, 0.0), np.where(inside, to, 0.0), d,
@@ -162,7 +182,7 @@ def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
     first (fewer when the cloud holds no more reachable poses apart from every sample)."""
     wi, wo = random_pairs(CLOUD, theta_max, seed + 1)
     cloud = embed_pairs(domain, wi, wo)
-    ok, ti, to, d = _measurable(kin, cloud, theta_max, domain)
+    ok, *angles = _measurable(kin, cloud, theta_max, domain)
     idx = np.flatnonzero(ok)
     if idx.size == 0:
         return []
@@ -174,6 +194,6 @@ def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
         best = int(np.argmax(gap))
         if gap[best] <= 0.0:
             break
-        out.append((ti[idx[best]], to[idx[best]], d[idx[best]]))
+        out.append(tuple(a[idx[best]] for a in angles))
         gap = np.minimum(gap, np.linalg.norm(cloud[idx] - cloud[idx[best]], axis=1))
     return out

@@ -64,7 +64,7 @@ def cmd_plan(args) -> int:
 def _plan_adaptive(args, cfg, show: bool) -> int:
     """``gonio plan`` of an adaptive grid: its pilot's plan (the rounds are placed as it measures) and
     the budget the rounds spend."""
-    from gonio.adaptive.plan import budget_text
+    from gonio.adaptive.plan import budget_text, pilot_text
     from gonio.campaign import plan_campaign
     from gonio.plan import format_plan, plan_summary
 
@@ -75,7 +75,7 @@ def _plan_adaptive(args, cfg, show: bool) -> int:
         print(json.dumps({"adaptive": a, "pilot": plan_summary(planned.plan)}, indent=2))
         return 0
     print(format_plan(planned.plan))
-    print(f"\nadaptive     pilot: {a['pilot_poses']:,} poses (a {a['pilot_nodes']}-node lattice), estimated "
+    print(f"\nadaptive     pilot: {a['pilot_poses']:,} poses ({pilot_text(a)}), estimated "
           f"{_hms(a['pilot_s'])} ({a['pilot_s']:.1f} s) of gantry time\n"
           f"             budget: {budget_text(a)}, pilot included; then rounds of poses placed where the "
           f"samples so far are least trustworthy, each {a['growth']:.0%} of the samples so far (at least "

@@ -67,11 +67,13 @@ class GridSpec:
     order: str = "auto"
     poses: int | None = None
     budget_s: float | None = None
+    anisotropic: bool = False
 
     @property
     def isotropy(self) -> bool:
-        """True for iso and merl grids (measured assuming an isotropic sample)."""
-        return grid_kind(self.kind).isotropic
+        """True for iso and merl grids and adaptive ones without ``anisotropic=true`` (measured assuming
+        an isotropic sample)."""
+        return grid_kind(self.kind).isotropic and not self.anisotropic
 
     @property
     def normalized(self) -> str:
@@ -92,6 +94,8 @@ class GridSpec:
             parts.append(f"reciprocity={str(self.reciprocity).lower()}")
         if "mirror" in _options(self.kind):
             parts.append(f"mirror={str(self.mirror).lower()}")
+        if self.anisotropic:
+            parts.append("anisotropic=true")
         parts.append(f"order={order or self.order}")
         return f"{self.kind}:" + ",".join(parts)
 
@@ -194,10 +198,6 @@ def parse_grid(grid: str) -> GridSpec:
     raw: dict[str, str] = {}
     for item in filter(None, rest.split(",")):
         key, eq, value = item.partition("=")
-        if key == "anisotropic" and grid_kind(kind).campaign == "adaptive":
-            raise ValueError(f"grid '{kind}': option 'anisotropic' is not supported: adaptive acquisition "
-                             "places poses over the isotropic (θi, θo, Δφ) domain only; measure an "
-                             "anisotropic sample with 'full:step=N'")
         if key not in allowed:
             raise ValueError(f"grid '{kind}': unknown option '{key}'; allowed: {', '.join(allowed)}")
         if not eq or not value:
@@ -234,12 +234,14 @@ def parse_grid(grid: str) -> GridSpec:
             raise ValueError(f"grid '{kind}': option 'theta_max' must be > 0 and <= 90 degrees, got "
                              f"{raw['theta_max']}")
         fields["theta_max_deg"] = tmax
-    for key in ("reciprocity", "mirror"):
+    for key in ("reciprocity", "mirror", "anisotropic"):
         if key in raw:
             fields[key] = _parse_bool(kind, key, raw[key])
     if "isotropy" in raw:
         iso = _parse_bool(kind, "isotropy", raw["isotropy"])
-        isotropic = grid_kind(kind).isotropic
+        isotropic = grid_kind(kind).isotropic and not fields.get("anisotropic", False)
+        if iso != isotropic and fields.get("anisotropic"):
+            raise ValueError(f"grid '{kind}': option 'isotropy' must be false with anisotropic=true")
         if iso != isotropic:
             raise ValueError(
                 f"grid '{kind}': option 'isotropy' must be false (use 'iso' for isotropic samples)"
@@ -437,6 +439,12 @@ def _iso_rows(spec: GridSpec, loops: np.ndarray) -> tuple[np.ndarray, int]:
     return loops, round(360.0 / spec.step_deg)
 
 
+def _adaptive_members(spec: GridSpec, ti, pi_, to, po) -> list[tuple[np.ndarray, ...]]:
+    """An adaptive grid's pose stands for its Helmholtz twin: rotated to φi = 0 (isotropic), or as it is
+    with ``anisotropic=true``."""
+    return [(to, po, ti, pi_)] if spec.anisotropic else _iso_members(spec, ti, pi_, to, po)
+
+
 def _full_rows(spec: GridSpec, loops: np.ndarray) -> tuple[np.ndarray, int]:
     """Full grids loop over θi, θo, Δφ and, innermost, φi (with φo = φi + Δφ): rows turn the whole
     configuration about the normal (φi and φo together, Δφ fixed): one rotation stage on a
@@ -461,7 +469,7 @@ ISO = GridKind(enumerate=_iso, bound=_iso_bound, isotropic=True, members=_iso_me
 #: Adaptive acquisition (:mod:`gonio.adaptive`): a pilot lattice, then rounds placed from the samples.
 #: Its plans are made of given poses (:func:`gonio.plan.build.build_plan` ``poses=``); reciprocity is
 #: always on (a round's pose stands for its Helmholtz twin, which is measured where only it is reachable).
-ADAPTIVE = GridKind(enumerate=_adaptive, bound=_adaptive_bound, isotropic=True, members=_iso_members,
+ADAPTIVE = GridKind(enumerate=_adaptive, bound=_adaptive_bound, isotropic=True, members=_adaptive_members,
                     auto="tour", campaign="adaptive")
 FULL = GridKind(enumerate=_full, bound=_full_bound, isotropic=False, rows=_full_rows)
 MERL = GridKind(enumerate=_merl, bound=_merl_bound, isotropic=True, auto="tour")

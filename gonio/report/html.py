@@ -120,6 +120,8 @@ def _section_campaign(rep) -> str:
 
 def _section_adaptive(rep) -> str:
     """An adaptive campaign: the pilot, the rounds and where their poses went."""
+    from gonio.adaptive.plan import pilot_text
+
     a = rep.facts["adaptive"]
     rounds = a["rounds"]
     budget = (f"{a['budget_poses']:,} poses" if a["budget_poses"] is not None
@@ -127,7 +129,7 @@ def _section_adaptive(rep) -> str:
     spent = a["pilot_s"] + sum(r["estimated_s"] for r in rounds)
     rows = [
         ["budget", budget],
-        ["pilot", f"{a['pilot_poses']:,} poses (a {a['pilot_nodes']}-node lattice from 0 to theta_max), "
+        ["pilot", f"{a['pilot_poses']:,} poses ({pilot_text(a)} from 0 to theta_max), "
                   f"estimated {_hms(a['pilot_s'])}"],
         ["rounds", f"{len(rounds)}: " + ", ".join(f"{r['poses']:,}" for r in rounds) + " poses"
                    if rounds else "none (the pilot spent the budget)"],

@@ -86,5 +86,5 @@ def test_the_standard_deviation_is_the_fits_response_to_sample_noise(adaptive):
 
 def test_local_refuses_data_it_does_not_fit(adaptive):
     samples, _ = adaptive
-    with pytest.raises(ValueError, match="method 'local': fits isotropic, reciprocal samples"):
+    with pytest.raises(ValueError, match="method 'local': fits reciprocal samples without mirror"):
         MeasuredBRDF(_dataset(samples, sym={**SYM, "mirror": True}), method="local")
