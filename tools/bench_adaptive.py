@@ -42,6 +42,11 @@ unreachable pose) against ``acquire(..., anisotropic=True)`` at their pose count
 ``full:step=S`` grid against the specular plane swept over φi). ``--aniso --campaigns`` runs whole
 campaigns as ``--campaigns`` does, ``full:step=S`` and the adaptive ones with ``anisotropic=true``.
 
+``--measured`` is the panel's measured row: a ``bsdf:`` material made as a user makes one (a whole
+simulated ``--measured-grid`` campaign, default ``iso:step=5``, of the ``--measured`` material, default
+ggx α = 0.1 gold, exported by ``gonio.export`` as a ``bsdf`` tensor file in a temporary folder), then the
+default rows (or ``--campaigns``) for ``bsdf:THAT_FILE``, scored against that file's own evaluation.
+
 ``--export`` (ggx materials with a conductor Fresnel) runs whole campaigns, ``iso:step=5`` and
 ``adaptive:poses=N`` for each of ``--budgets``, exports each as a ``bsdf`` tensor file and scores the file
 as Mitsuba 3 reads it (the ``measured`` plugin, ``llvm_ad_rgb``) against Mitsuba's own ``roughconductor``
@@ -55,6 +60,8 @@ reconstruction's f̂(ω, ω)) and what the file's error would be with each.
     .venv/bin/python tools/bench_adaptive.py --campaigns --steps 20,10   # whole simulated campaigns
     .venv/bin/python tools/bench_adaptive.py --export --budgets 600,1156,2299   # bsdf files in Mitsuba
     .venv/bin/python tools/bench_adaptive.py --reach-time --variants before,motion,checkpoints,both
+    .venv/bin/python tools/bench_adaptive.py --measured            # bsdf: of a ggx α = 0.1 campaign
+    .venv/bin/python tools/bench_adaptive.py --measured --campaigns   # the same as whole campaigns
     .venv/bin/python tools/bench_adaptive.py --aniso               # anisotropic Ward, full:step=30,20
     .venv/bin/python tools/bench_adaptive.py --aniso --campaigns   # the same as whole campaigns
 """
@@ -135,6 +142,10 @@ def main() -> None:
                         "both: how --campaigns and --reach-time place poses and checkpoints (default: both)")
     parser.add_argument("--aniso", action="store_true", help="the anisotropic row: full:step=S against "
                         "adaptive anisotropic=true (default: anisotropic Ward, steps 30,20)")
+    parser.add_argument("--measured", nargs="?", const="ggx:alpha=0.1,metal=gold", default=None,
+                        metavar="MATERIAL", help="the measured row: bsdf: of the bsdf export of a simulated "
+                        "campaign of MATERIAL (default ggx α = 0.1 gold)")
+    parser.add_argument("--measured-grid", default="iso:step=5", help="the campaign --measured exports")
     parser.add_argument("--pairs", type=int, default=20_000)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
@@ -143,6 +154,8 @@ def main() -> None:
         [ANISO] if args.aniso else list(PANEL) if args.full else [PANEL[1]])
     steps = [float(s) for s in (args.steps or ("30,20" if args.aniso else "20,10,8,5" if args.full
                                                 else "20,10")).split(",")]
+    if args.measured:
+        specs = [_measured_file(args.measured, args.measured_grid)]
     reach = args.reach or args.full
     cfg = load_config()
     kin = make_kinematics(cfg)
@@ -308,6 +321,24 @@ def _pilots(measure, kin, theta_max, truth, wi, wo):
             print(f"  pilot {fraction:>4} ({acq.phases[0]:>4} poses), growth {growth}, "
                   f"{len(acq.phases) - 1:>3} rounds: {err:.4f}", flush=True)
 
+
+
+def _measured_file(spec: str, grid: str) -> str:
+    """``bsdf:FILE``: the bsdf export of a whole simulated ``grid`` campaign of ``spec``, in a temporary
+    folder removed when the benchmark exits."""
+    import atexit
+    import shutil
+    import tempfile
+
+    from gonio.export import export
+
+    tmp = tempfile.mkdtemp(prefix="bench-adaptive-measured-")
+    atexit.register(shutil.rmtree, tmp, True)
+    b, gantry_s, wall = _simulated(f"{tmp}/source", grid, spec)
+    export(f"{tmp}/source", "bsdf", f"{tmp}/m.bsdf")
+    print(f"measured material: {spec}, {grid} campaign ({b.n_samples} poses, gantry {gantry_s:.0f} s, "
+          f"{wall:.0f} s wall), exported as bsdf ({os.path.getsize(f'{tmp}/m.bsdf'):,} bytes)", flush=True)
+    return f"bsdf:{tmp}/m.bsdf"
 
 
 def _simulated(folder, grid: str, spec: str):
