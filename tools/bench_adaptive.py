@@ -45,7 +45,9 @@ campaigns as ``--campaigns`` does, ``full:step=S`` and the adaptive ones with ``
 ``--measured`` is the panel's measured row: a ``bsdf:`` material made as a user makes one (a whole
 simulated ``--measured-grid`` campaign, default ``iso:step=5``, of the ``--measured`` material, default
 ggx α = 0.1 gold, exported by ``gonio.export`` as a ``bsdf`` tensor file in a temporary folder), then the
-default rows (or ``--campaigns``) for ``bsdf:THAT_FILE``, scored against that file's own evaluation.
+default rows (or ``--campaigns``) for ``bsdf:THAT_FILE``, scored against that file's own evaluation. The
+file is not exactly reciprocal, and every reconstruction here is (a sample stands for its twin too): the
+error of (f(ωi, ωo) + f(ωo, ωi)) / 2, the floor of any reciprocal reconstruction, is printed.
 
 ``--export`` (ggx materials with a conductor Fresnel) runs whole campaigns, ``iso:step=5`` and
 ``adaptive:poses=N`` for each of ``--budgets``, exports each as a ``bsdf`` tensor file and scores the file
@@ -171,6 +173,12 @@ def main() -> None:
         measure = material_measure(material)
         truth = material.eval(wi, wo)
         print(f"\n{spec}")
+        if args.measured:
+            swapped = material.eval(wo, wi)
+            gap = weighted_l1(swapped, truth, wi, wo)[0]
+            floor = weighted_l1((truth + swapped) / 2, truth, wi, wo)[0]
+            print(f"  not reciprocal: f(ωo, ωi) against f(ωi, ωo) {gap:.4f}; floor of a reciprocal "
+                  f"reconstruction, (f + swapped) / 2: {floor:.4f}", flush=True)
         if args.engines:
             _engines(measure, kin, theta_max, truth, wi, wo)
             continue
