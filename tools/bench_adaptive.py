@@ -157,7 +157,10 @@ def main() -> None:
     steps = [float(s) for s in (args.steps or ("30,20" if args.aniso else "20,10,8,5" if args.full
                                                 else "20,10")).split(",")]
     if args.measured:
-        specs = [_measured_file(args.measured, args.measured_grid)]
+        try:
+            specs = [_measured_file(args.measured, args.measured_grid)]
+        except ValueError as exc:
+            parser.error(f"--measured/--measured-grid: {exc}")
     reach = args.reach or args.full
     cfg = load_config()
     kin = make_kinematics(cfg)
