@@ -51,7 +51,9 @@ latest stamped read puts them); each reading starts when the lead axis of the se
 will pass it, on that servo's profile from the latest read; the positions of a reading are interpolated
 from the stamped reads of every axis as for a one-axis line. A coordinated line starts with its own
 safe move and settle (nil where a swept turnaround brought the axes to its start) and ends at rest on
-its last pose.
+its last pose: its last reading starts once a stamped read puts every moving axis there (the axes brake
+in together only as well as their quantised profiles and the host's timing allow; a late one would put
+that reading off its pose, on a ring often at its steepest: the specular peak).
 
 A serial photodiode answers one request at a time, so the reads are taken between its sub-reads and
 between readings rather than beside them: the dead time of one Sync Read (~1 ms at 1 Mbit/s) per
@@ -123,13 +125,20 @@ class _AxisTiming:
 
 class _PathTiming:
     """A coordinated line's motion (:mod:`gonio.fly.segments`): ``write(k)`` starts segment k (returns
-    when, and each commanded axis's (velocity, acceleration) as quantised); reading j's mid-time is
-    when the lead axis of the segment ending at pose j passes it, on its servo's profile (from rest for
-    the first segment, from the last segment's speed after), from the latest stamped read."""
+    when, each commanded axis's (velocity, acceleration) as quantised, and how far along its chord the
+    lead axis was when written); reading j's mid-time is when the lead axis of the segment ending at
+    pose j passes it, on its servo's profile (from rest for the first segment, from the last segment's
+    speed after, its ramp from where the segment was written), from the latest stamped read. The last
+    reading (the line ends at rest on its pose) starts once a stamped read puts every moving axis on
+    that pose (within ``tol``): the axes brake in together only as well as their quantised profiles and
+    the host's timing allow, and an axis arriving late would put a reading at a steep peak off its
+    pose; an axis still short ``wait_s`` past the lead axis's arrival is left to the arrival check."""
 
-    def __init__(self, segs, write):
+    def __init__(self, segs, write, end_deg: np.ndarray, tol: float, wait_s: float = 1.0):
         self.segs, self.write = segs, write
-        self.sent: list[tuple[float, dict[int, tuple[float, float]]]] = []
+        self.end_deg, self.tol, self.wait_s = np.asarray(end_deg, dtype=np.float64), tol, wait_s
+        self.sent: list[tuple[float, dict[int, tuple[float, float]], float]] = []
+        self._due: float | None = None   # the lead axis's arrival on the last pose, first predicted
 
     @property
     def started(self) -> bool:
@@ -145,12 +154,22 @@ class _PathTiming:
     def mid_time(self, j: int, t: np.ndarray, x: np.ndarray) -> float:
         seg = self.segs[j - 1]
         ax = seg.lead_axis
-        v, a = self.sent[j - 1][1][ax]
+        _t_w, given, ramp_at = self.sent[j - 1]
+        v, a = given[ax]
         v0 = self.sent[j - 2][1].get(ax, (0.0, 0.0))[0] if j >= 2 else 0.0
         sign = np.sign(seg.goal_deg[ax] - seg.start_deg[ax])
         at = sign * (x[ax] - seg.start_deg[ax])
         to = abs(seg.end_deg[ax] - seg.start_deg[ax])
-        return float(t[ax] + seg.time_to(to, v0, v, a) - seg.time_to(at, v0, v, a))
+        lead = float(t[ax] + seg.time_to(to, v0, v, a, ramp_at) - seg.time_to(at, v0, v, a, ramp_at))
+        if j < len(self.segs):
+            return lead
+        if self._due is None:
+            self._due = lead
+        moving = list(seg.axes)
+        there = np.all(np.abs(x[moving] - self.end_deg[moving]) <= self.tol)
+        if there or float(np.max(t)) > self._due + self.wait_s:
+            return float(np.max(t[moving]))     # there (or given up on): the reading starts now
+        return math.inf                         # not there yet: read the axes again
 
 #: Seconds between timestamped axis reads while waiting for a reading's start.
 READ_S = 0.005
@@ -281,13 +300,18 @@ class FlySweeper:
                 t, x = reads[-1]
                 was = np.array([np.sign(prev.goal_deg[i] - prev.start_deg[i]) * given[i][0] if i in given
                                 else 0.0 for i in range(x.size)])
-                speed, accel = corner(kin, seg, x + was * (clock.now() - t), was)
+                now = x + was * (clock.now() - t)
+                speed, accel = corner(kin, seg, now, was)
+                i = seg.lead_axis    # how far along its chord the lead axis is as it is written
+                ramp_at = float(np.sign(seg.goal_deg[i] - seg.start_deg[i]) * (now[i] - seg.start_deg[i]))
+            else:
+                ramp_at = 0.0
             sweeps = {kin.axis_names[i]: (float(seg.goal_deg[i]), float(speed[i]), float(accel[i]))
                       for i in seg.axes}
             got = ex.command(lambda: flies.sweep_axes(sweeps))
-            return clock.now(), {kin.axis_names.index(n): va for n, va in got.items()}
+            return clock.now(), {kin.axis_names.index(n): va for n, va in got.items()}, ramp_at
 
-        timing = _PathTiming(segs, write)
+        timing = _PathTiming(segs, write, end, ex.rc.position_tolerance_deg)
         if self.streams is not None:
             self.streams.start_stream()
         try:
