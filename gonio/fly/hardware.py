@@ -118,6 +118,9 @@ class _AxisTiming:
         if self.runs is None:
             self.kickoff()
 
+    def writes(self, j: int) -> bool:
+        return False
+
     def mid_time(self, j: int, t: np.ndarray, x: np.ndarray) -> float:
         ax = self.line.axis
         return float(t[ax] + self.due[j] - self.runs.time_at(x[ax]))
@@ -150,6 +153,10 @@ class _PathTiming:
     def at_mid(self, j: int) -> None:
         if j == len(self.sent) and j < len(self.segs):
             self.sent.append(self.write(j))
+
+    def writes(self, j: int) -> bool:
+        """Whether reading j (a later one; the first is not placed) writes a segment halfway through."""
+        return j < len(self.segs)
 
     def mid_time(self, j: int, t: np.ndarray, x: np.ndarray) -> float:
         seg = self.segs[j - 1]
@@ -209,6 +216,7 @@ class FlySweeper:
         self.read_s = float(read_s)
         self.subreads = subreads
         self._gaps: list[float] = []   # the latest dead times between sub-reads, over sweeps
+        self._writes: list[float] = []   # the latest durations of writes within a reading, over sweeps
         self._turned: FlyLine | None = None   # the line a swept turnaround just brought the axes to
 
     def sweep(self, line: FlyLine, step: int, attempt: int, then: FlyLine | None = None) -> list[Measurement]:
@@ -302,14 +310,16 @@ class FlySweeper:
                                 else 0.0 for i in range(x.size)])
                 now = x + was * (clock.now() - t)
                 speed, accel = corner(kin, seg, now, was)
-                i = seg.lead_axis    # how far along its chord the lead axis is as it is written
-                ramp_at = float(np.sign(seg.goal_deg[i] - seg.start_deg[i]) * (now[i] - seg.start_deg[i]))
-            else:
-                ramp_at = 0.0
             sweeps = {kin.axis_names[i]: (float(seg.goal_deg[i]), float(speed[i]), float(accel[i]))
                       for i in seg.axes}
             got = ex.command(lambda: flies.sweep_axes(sweeps))
-            return clock.now(), {kin.axis_names.index(n): va for n, va in got.items()}, ramp_at
+            sent = clock.now()
+            ramp_at = 0.0
+            if k:   # how far along its chord the lead axis was when the write went out (however late)
+                i = seg.lead_axis
+                ramp_at = float(np.sign(seg.goal_deg[i] - seg.start_deg[i])
+                                * (x[i] + was[i] * (sent - t[i]) - seg.start_deg[i]))
+            return sent, {kin.axis_names.index(n): va for n, va in got.items()}, ramp_at
 
         timing = _PathTiming(segs, write, end, ex.rc.position_tolerance_deg)
         if self.streams is not None:
@@ -361,6 +371,7 @@ class FlySweeper:
         self._look(reads)
         spans, signals, variances, ends, windows = [], [], [], [], []
         gaps = self._gaps   # dead time between sub-reads seen so far (their reads and replies)
+        writes = self._writes   # how long the writes halfway through readings took
         # A line whose first reading is at its start (no run-up: the plan rests half an exposure before
         # the motion) starts that reading at rest and sets the axes going halfway through it (at its
         # mid-time); one with a run-up sets them going now. A coordinated line's next segment is
@@ -374,8 +385,11 @@ class FlySweeper:
             # time between them, as seen so far; none when they come from a stream).
             dead = float(np.median(gaps)) if gaps and self.streams is None else 0.0
             span = e + (m - 1) * dead
+            # A write halfway through (a coordinated line's next segment) holds up the sub-reads after
+            # it by as long as the writes seen so far took: the reading starts earlier by their share.
+            held = float(np.median(writes)) * (m - m // 2) / m if writes and motion.writes(j) else 0.0
             while j or not at_start:
-                start = motion.mid_time(j, *reads[-1]) - 0.5 * span
+                start = motion.mid_time(j, *reads[-1]) - 0.5 * span - held
                 wait = start - clock.now()
                 if wait <= self.read_s:
                     if wait > 0:
@@ -399,7 +413,11 @@ class FlySweeper:
             subs, var, mids = [], [], []
             for k in range(m):
                 if k == m // 2:
+                    before = clock.now()
                     motion.at_mid(j)
+                    if j and motion.writes(j):
+                        writes.append(clock.now() - before)
+                        del writes[:-64]
                 t0 = clock.now()
                 if k:
                     gaps.append(t0 - mids[-1] - 0.5 * e / m)
