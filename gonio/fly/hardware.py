@@ -51,7 +51,9 @@ latest stamped read puts them); each reading starts when the lead axis of the se
 will pass it, on that servo's profile from the latest read; the positions of a reading are interpolated
 from the stamped reads of every axis as for a one-axis line. A coordinated line starts with its own
 safe move and settle (nil where a swept turnaround brought the axes to its start) and ends at rest on
-its last pose.
+its last pose: its last reading starts once a stamped read puts every moving axis there (the axes brake
+in together only as well as their quantised profiles and the host's timing allow; a late one would put
+that reading off its pose, on a ring often at its steepest: the specular peak).
 
 A serial photodiode answers one request at a time, so the reads are taken between its sub-reads and
 between readings rather than beside them: the dead time of one Sync Read (~1 ms at 1 Mbit/s) per
@@ -116,6 +118,9 @@ class _AxisTiming:
         if self.runs is None:
             self.kickoff()
 
+    def writes(self, j: int) -> bool:
+        return False
+
     def mid_time(self, j: int, t: np.ndarray, x: np.ndarray) -> float:
         ax = self.line.axis
         return float(t[ax] + self.due[j] - self.runs.time_at(x[ax]))
@@ -123,13 +128,20 @@ class _AxisTiming:
 
 class _PathTiming:
     """A coordinated line's motion (:mod:`gonio.fly.segments`): ``write(k)`` starts segment k (returns
-    when, and each commanded axis's (velocity, acceleration) as quantised); reading j's mid-time is
-    when the lead axis of the segment ending at pose j passes it, on its servo's profile (from rest for
-    the first segment, from the last segment's speed after), from the latest stamped read."""
+    when, each commanded axis's (velocity, acceleration) as quantised, and how far along its chord the
+    lead axis was when written); reading j's mid-time is when the lead axis of the segment ending at
+    pose j passes it, on its servo's profile (from rest for the first segment, from the last segment's
+    speed after, its ramp from where the segment was written), from the latest stamped read. The last
+    reading (the line ends at rest on its pose) starts once a stamped read puts every moving axis on
+    that pose (within ``tol``): the axes brake in together only as well as their quantised profiles and
+    the host's timing allow, and an axis arriving late would put a reading at a steep peak off its
+    pose; an axis still short ``wait_s`` past the lead axis's arrival is left to the arrival check."""
 
-    def __init__(self, segs, write):
+    def __init__(self, segs, write, end_deg: np.ndarray, tol: float, wait_s: float = 1.0):
         self.segs, self.write = segs, write
-        self.sent: list[tuple[float, dict[int, tuple[float, float]]]] = []
+        self.end_deg, self.tol, self.wait_s = np.asarray(end_deg, dtype=np.float64), tol, wait_s
+        self.sent: list[tuple[float, dict[int, tuple[float, float]], float]] = []
+        self._due: float | None = None   # the lead axis's arrival on the last pose, first predicted
 
     @property
     def started(self) -> bool:
@@ -142,15 +154,29 @@ class _PathTiming:
         if j == len(self.sent) and j < len(self.segs):
             self.sent.append(self.write(j))
 
+    def writes(self, j: int) -> bool:
+        """Whether reading j (a later one; the first is not placed) writes a segment halfway through."""
+        return j < len(self.segs)
+
     def mid_time(self, j: int, t: np.ndarray, x: np.ndarray) -> float:
         seg = self.segs[j - 1]
         ax = seg.lead_axis
-        v, a = self.sent[j - 1][1][ax]
+        _t_w, given, ramp_at = self.sent[j - 1]
+        v, a = given[ax]
         v0 = self.sent[j - 2][1].get(ax, (0.0, 0.0))[0] if j >= 2 else 0.0
         sign = np.sign(seg.goal_deg[ax] - seg.start_deg[ax])
         at = sign * (x[ax] - seg.start_deg[ax])
         to = abs(seg.end_deg[ax] - seg.start_deg[ax])
-        return float(t[ax] + seg.time_to(to, v0, v, a) - seg.time_to(at, v0, v, a))
+        lead = float(t[ax] + seg.time_to(to, v0, v, a, ramp_at) - seg.time_to(at, v0, v, a, ramp_at))
+        if j < len(self.segs):
+            return lead
+        if self._due is None:
+            self._due = lead
+        moving = list(seg.axes)
+        there = np.all(np.abs(x[moving] - self.end_deg[moving]) <= self.tol)
+        if there or float(np.max(t)) > self._due + self.wait_s:
+            return float(np.max(t[moving]))     # there (or given up on): the reading starts now
+        return math.inf                         # not there yet: read the axes again
 
 #: Seconds between timestamped axis reads while waiting for a reading's start.
 READ_S = 0.005
@@ -190,6 +216,7 @@ class FlySweeper:
         self.read_s = float(read_s)
         self.subreads = subreads
         self._gaps: list[float] = []   # the latest dead times between sub-reads, over sweeps
+        self._writes: list[float] = []   # the latest durations of writes within a reading, over sweeps
         self._turned: FlyLine | None = None   # the line a swept turnaround just brought the axes to
 
     def sweep(self, line: FlyLine, step: int, attempt: int, then: FlyLine | None = None) -> list[Measurement]:
@@ -281,13 +308,20 @@ class FlySweeper:
                 t, x = reads[-1]
                 was = np.array([np.sign(prev.goal_deg[i] - prev.start_deg[i]) * given[i][0] if i in given
                                 else 0.0 for i in range(x.size)])
-                speed, accel = corner(kin, seg, x + was * (clock.now() - t), was)
+                now = x + was * (clock.now() - t)
+                speed, accel = corner(kin, seg, now, was)
             sweeps = {kin.axis_names[i]: (float(seg.goal_deg[i]), float(speed[i]), float(accel[i]))
                       for i in seg.axes}
             got = ex.command(lambda: flies.sweep_axes(sweeps))
-            return clock.now(), {kin.axis_names.index(n): va for n, va in got.items()}
+            sent = clock.now()
+            ramp_at = 0.0
+            if k:   # how far along its chord the lead axis was when the write went out (however late)
+                i = seg.lead_axis
+                ramp_at = float(np.sign(seg.goal_deg[i] - seg.start_deg[i])
+                                * (x[i] + was[i] * (sent - t[i]) - seg.start_deg[i]))
+            return sent, {kin.axis_names.index(n): va for n, va in got.items()}, ramp_at
 
-        timing = _PathTiming(segs, write)
+        timing = _PathTiming(segs, write, end, ex.rc.position_tolerance_deg)
         if self.streams is not None:
             self.streams.start_stream()
         try:
@@ -337,6 +371,7 @@ class FlySweeper:
         self._look(reads)
         spans, signals, variances, ends, windows = [], [], [], [], []
         gaps = self._gaps   # dead time between sub-reads seen so far (their reads and replies)
+        writes = self._writes   # how long the writes halfway through readings took
         # A line whose first reading is at its start (no run-up: the plan rests half an exposure before
         # the motion) starts that reading at rest and sets the axes going halfway through it (at its
         # mid-time); one with a run-up sets them going now. A coordinated line's next segment is
@@ -350,8 +385,11 @@ class FlySweeper:
             # time between them, as seen so far; none when they come from a stream).
             dead = float(np.median(gaps)) if gaps and self.streams is None else 0.0
             span = e + (m - 1) * dead
+            # A write halfway through (a coordinated line's next segment) holds up the sub-reads after
+            # it by as long as the writes seen so far took: the reading starts earlier by their share.
+            held = float(np.median(writes)) * (m - m // 2) / m if writes and motion.writes(j) else 0.0
             while j or not at_start:
-                start = motion.mid_time(j, *reads[-1]) - 0.5 * span
+                start = motion.mid_time(j, *reads[-1]) - 0.5 * span - held
                 wait = start - clock.now()
                 if wait <= self.read_s:
                     if wait > 0:
@@ -375,7 +413,11 @@ class FlySweeper:
             subs, var, mids = [], [], []
             for k in range(m):
                 if k == m // 2:
+                    before = clock.now()
                     motion.at_mid(j)
+                    if j and motion.writes(j):
+                        writes.append(clock.now() - before)
+                        del writes[:-64]
                 t0 = clock.now()
                 if k:
                     gaps.append(t0 - mids[-1] - 0.5 * e / m)

@@ -91,13 +91,14 @@ class Segment:
         d = np.abs(self.end_deg - self.start_deg)[list(self.axes)]
         return self.axes[int(np.argmax(d))]
 
-    def time_to(self, along: float, v0: float, v: float, a: float) -> float:
-        """Seconds for the lead axis to travel ``along`` (≥ 0, degrees from where it was commanded) from
-        speed ``v0`` to top speed ``v`` at ``a``, toward a goal ``|goal − start|`` away (braking at the
-        end), as its servo plans it."""
+    def time_to(self, along: float, v0: float, v: float, a: float, ramp_at: float = 0.0) -> float:
+        """Seconds for the lead axis to travel ``along`` (degrees from the segment's start; clamped to
+        ``ramp_at``..its goal) from ``ramp_at``, where the segment was written (a host writes it late:
+        the servo carries on at ``v0`` until then), ramping from speed ``v0`` to top speed ``v`` at ``a``
+        toward a goal ``|goal − start|`` away (braking at the end), as its servo plans it."""
         ax = self.lead_axis
-        total = abs(self.goal_deg[ax] - self.start_deg[ax])
-        along = min(max(along, 0.0), total)
+        total = abs(self.goal_deg[ax] - self.start_deg[ax]) - ramp_at
+        along = min(max(along - ramp_at, 0.0), max(total, 0.0))
         t_ramp = abs(v - v0) / a
         d_ramp = (v + v0) * t_ramp / 2.0
         brake_at = total - v * v / (2.0 * a)
