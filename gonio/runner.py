@@ -131,6 +131,11 @@ class Runner:
         self._state = State.IDLE
         self._lock = threading.Lock()
         self._commands: deque[Command] = deque()   # requests waiting for the engine's thread
+        # Halts not journaled yet: the requester journals its halt once the axes are told to stop, but
+        # the engine can end the run halted (and its owner close the journal) before that thread gets
+        # there, so whichever comes first journals it, once (_journal_halts).
+        self._halts: list[str] = []
+        self._halt_lock = threading.Lock()
         self.fault: str | None = None
         self.stop_reason: str = ""
         self._offset_s = 0.0  # campaign clock − gantry clock
@@ -161,6 +166,8 @@ class Runner:
             if new not in TRANSITIONS[old]:
                 raise TransitionError(f"runner: cannot go from '{old}' to '{new}'")
             self._state = new
+        if new == State.HALTED:
+            self._journal_halts()
         self.journal.log_event("state", state=str(new), message=message or f"{old} -> {new}",
                                campaign_s=self.campaign_s())
         log.info("campaign %s -> %s %s", old, new, message)
@@ -240,12 +247,22 @@ class Runner:
             started = self._state != State.IDLE
             if self._state in _QUEUED_IN:
                 self._commands.append(Command.HALT)   # not started yet: it starts halted, nothing moves
+        with self._halt_lock:
+            self._halts.append(reason)
         if started:
             err = self.executor.halt()
             if err is not None:  # the halt stands; a failing stop is recorded beside it
                 self._record("fault", f"stop failed during halt: {err}")
-        self.journal.log_event("halt", message=reason, campaign_s=self.campaign_s())
+        self._journal_halts()
         return True
+
+    def _journal_halts(self) -> None:
+        """Journal the halts requested and not journaled yet (from the requester's thread or the
+        engine's, whichever comes first)."""
+        with self._halt_lock:
+            reasons, self._halts = self._halts, []
+            for reason in reasons:
+                self.journal.log_event("halt", message=reason, campaign_s=self.campaign_s())
 
     def requests_waiting(self) -> bool:
         """Whether a request waits for the next unit boundary (a unit of several steps ends early at

@@ -11,6 +11,7 @@ from gonio.config import load_config, parse_config
 from gonio.plan import STEP_POSE
 from gonio.protocols import DeviceFault
 from gonio.runner import TRANSITIONS, Runner, State, TransitionError
+from gonio.store import Journal
 from gonio.wiring import build_gantry
 
 GRID = "iso:step=45,order=serpentine"  # 3 θ values x 8 Δφ: a handful of poses, every step kind
@@ -278,6 +279,53 @@ def _halt_setup(tmp_path, cfg):
     g = build_gantry(cfg, "lambert:albedo=0.5", seed=1, clock=clock)
     g.connect()
     return c, g, clock, Runner(g, c.journal, cfg)
+
+
+def test_a_halt_is_journaled_once_even_if_the_run_ends_and_closes_its_journal_before_the_requester_can(
+        tmp_path, cfg):
+    """The requester tells the axes to stop, then journals the halt; meanwhile the engine can see the halt,
+    end the run halted and its owner close the journal (the daemon's halt under load: "Cannot operate on
+    a closed database", no halt event). Whichever thread comes first journals it, once, before the
+    halted state."""
+    c, g, clock, r = _halt_setup(tmp_path, cfg)
+    closed, errors = threading.Event(), []
+    stop_axes = r.executor.halt
+
+    def halt_then_fall_behind():
+        err = stop_axes()
+        assert closed.wait(timeout=10)      # the run ends and the journal closes before we go on
+        return err
+
+    def request():
+        try:
+            r.request_halt("emergency stop button")
+        except Exception as err:            # noqa: BLE001 - reported by the assertion below
+            errors.append(err)
+
+    requester = threading.Thread(target=request)
+    r.executor.halt = halt_then_fall_behind
+
+    def hook(now):
+        if now > 5.0 and requester.ident is None:
+            requester.start()
+
+    clock.hook = hook
+    assert r.run() == State.HALTED
+    clock.hook = None
+    path = c.journal.path
+    c.close()
+    closed.set()
+    requester.join(timeout=10)
+    assert not requester.is_alive() and errors == []
+    j = Journal.open(path, readonly=True)
+    try:
+        events = j.events()
+    finally:
+        j.close()
+    halts = [e for e in events if e["kind"] == "halt"]
+    assert [e["message"] for e in halts] == ["emergency stop button"]
+    last_state = [e for e in events if e["kind"] == "state"][-1]
+    assert last_state["state"] == "halted" and halts[0]["id"] < last_state["id"]
 
 
 def test_halt_from_another_thread_stops_every_axis_mid_move(tmp_path, cfg):
