@@ -169,7 +169,7 @@ class MotionExecutor:
         try:
             check_targets(kin, target)
             start = self._start_positions()
-            path = safe_path(kin, start, target)
+            path = safe_path(kin, start, target, self.rc.position_tolerance_deg)
         except ValueError as err:
             raise MotionFault("gantry", str(err)) from None
         for leg in path:

@@ -88,11 +88,12 @@ def pose_targets(kin, current_deg, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_de
     return kin.inverse(*angles, current_deg=current_deg)[0]
 
 
-def plan_move(kin, current_deg, target_deg) -> np.ndarray:
+def plan_move(kin, current_deg, target_deg, tolerance_deg: float = 0.0) -> np.ndarray:
     """The legs (K, n_axes) of a collision-free path to ``target_deg``, or a one-line ValueError (a limit,
-    a collision) before anything moves."""
+    a collision) before anything moves. ``current_deg`` is read back: it may be ``tolerance_deg`` (the
+    runner's position tolerance) inside a clearance it was sent to (:func:`gonio.motion.safe.safe_path`)."""
     target = check_targets(kin, target_deg)
-    return safe_path(kin, np.asarray(current_deg, float), target)
+    return safe_path(kin, np.asarray(current_deg, float), target, tolerance_deg)
 
 
 def arrived(axes, targets_deg, tolerance_deg: float) -> np.ndarray:

@@ -409,8 +409,8 @@ def test_pause_parks_along_a_collision_free_path_home(tmp_path, cfg):
 
     import gonio.executor as executor_module
 
-    def spy(kin, start, target):
-        path = real(kin, start, target)
+    def spy(kin, start, target, start_tol_deg=0.0):
+        path = real(kin, start, target, start_tol_deg)
         legs.append((np.array(start), np.array(target), path))
         return path
 

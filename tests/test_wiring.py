@@ -102,6 +102,22 @@ def test_gantry_move_and_status(emulated, capsys):
     assert abs(tilt["position_deg"] - 30.0) < 0.1
 
 
+def test_gantry_home_from_a_pose_read_back_a_tick_inside_the_carriages_clearance(emulated, capsys):
+    """Carriages sent exactly arm_collision_deg = 10° apart stop on the nearest encoder ticks: the light
+    rounds up and the detector down (0.0686° closer than 10°, each axis within its 0.05° tolerance).
+    From that read-back no path was clear, not even home; it may be left, not approached."""
+    emu, path = emulated
+    light = 1877.6 * 360 / 4096                                  # 0.6 of a tick: rounds up
+    assert main(["gantry", "move", "--config", path, "--axes", f"{light},0,{light + 10},0"]) == 0
+    at = emu.axes_deg()
+    assert 9.9 < at["detector_azimuth"] - at["light_azimuth"] < 10.0
+    capsys.readouterr()
+    assert main(["gantry", "move", "--config", path, "--axes", f"{light + 1},0,{light + 10},0"]) == 2
+    assert "no collision-free path" in capsys.readouterr().err     # closer still: refused
+    assert main(["gantry", "home", "--config", path]) == 0
+    assert abs(emu.axes_deg()["light_azimuth"]) < 0.1 and abs(emu.axes_deg()["detector_azimuth"] - 180) < 0.1
+
+
 def test_gantry_stop_stops_every_axis_on_every_bus(emulated, capsys):
     emu, path = emulated
     g = build_gantry(load_config(path))

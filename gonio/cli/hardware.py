@@ -154,7 +154,8 @@ def cmd_gantry(args) -> int:
             target = np.asarray(axes_arg)
         else:
             target = manual.pose_targets(kin, current, *angles)
-        legs = manual.plan_move(kin, current, target)  # refused here, before anything moves
+        # refused here, before anything moves
+        legs = manual.plan_move(kin, current, target, cfg.runner.position_tolerance_deg)
         final = manual.drive(gantry, legs, cfg=cfg, clock=gantry.clock)
         print("  ".join(f"{n}={v:.3f}°" for n, v in zip(kin.axis_names, final, strict=True))
               + (f"  ({len(legs)} legs)" if len(legs) > 1 else ""))

@@ -165,7 +165,7 @@ class GantryOwner:
             try:
                 target = (np.asarray(kin.home_deg, float) if angles is None
                           else pose_targets(kin, current, *(float(angles[k]) for k in ANGLES)))
-                legs = plan_move(kin, current, target)
+                legs = plan_move(kin, current, target, self.cfg.runner.position_tolerance_deg)
             except ValueError as err:
                 raise FieldError("move", str(err)) from None
             self._halt.clear()

@@ -15,6 +15,14 @@ is used whenever it is clear. Otherwise these candidates are tried and the quick
 
 The result depends only on the inputs (no randomness, no state): the planner and the runner compute
 the same paths.
+
+A start read back from the axes may itself be a hair inside the forbidden zone: a pose planned exactly at
+a clearance (a free azimuth stepped aside to ``arm_collision_deg``) is reached within the axes' position
+tolerance, a few encoder ticks either side. Given that tolerance (``start_tol_deg``, per axis), a start
+inside by at most ``start_tol_deg`` times the number of axes (each axis moves a design's margin by at most
+its own travel: the rules are angles between parts these rotations carry) may be left by legs that come
+no closer than it is (within the certification's ``MARGIN_TOL_DEG``); every later leg must be clear as
+usual. Without it, a gantry halted there could not be moved at all, not even home.
 """
 
 from __future__ import annotations
@@ -24,6 +32,8 @@ from itertools import combinations, permutations
 
 import numpy as np
 
+from gonio.kinematics.base import DEG_TOL
+from gonio.kinematics.sweep import MARGIN_TOL_DEG
 from gonio.motion.metric import MoveMetric
 
 __all__ = ["UnsafeMoveError", "safe_path", "park_path", "check_targets", "path_time", "SPLITS"]
@@ -62,7 +72,7 @@ def path_time(kin, start_deg, waypoints_deg) -> float:
     return float(np.sum(metric.time(pts[:-1], pts[1:])))
 
 
-def safe_path(kin, start_deg, target_deg) -> np.ndarray:
+def safe_path(kin, start_deg, target_deg, start_tol_deg: float = 0.0) -> np.ndarray:
     """Waypoints (K, n_axes) in degrees from ``start_deg`` to ``target_deg``, every leg clear.
 
     Parameters
@@ -73,6 +83,10 @@ def safe_path(kin, start_deg, target_deg) -> np.ndarray:
         Where the axes stand, degrees (at rest).
     target_deg : array_like, shape (n_axes,)
         Where they must go, degrees; within the limits (:func:`check_targets`).
+    start_tol_deg : float
+        How far each axis of the start may be from where it was sent (the position tolerance, where the
+        start is a read-back): a start that much inside the forbidden zone may be left, not approached.
+        0: the start must be clear.
 
     Returns
     -------
@@ -92,28 +106,44 @@ def safe_path(kin, start_deg, target_deg) -> np.ndarray:
     target = check_targets(kin, target_deg).reshape(-1)
     if len(start) != target.size:
         raise ValueError(f"start_deg: expected {target.size} axes, got {len(start)}")
-    if kin.sweep_clear_one(start, target.tolist())[0]:
+    floor = _start_floor(kin, start, start_tol_deg)
+    clear, margin = kin.sweep_clear_one(start, target.tolist())
+    if clear or (floor is not None and margin >= floor and kin.within_limits(np.array([start]))[0]):
         return target.reshape(1, -1).copy()
-    return _detour(kin, np.array(start), target)
+    return _detour(kin, np.array(start), target, floor)
 
 
-def park_path(kin, current_deg) -> np.ndarray:
+def park_path(kin, current_deg, start_tol_deg: float = 0.0) -> np.ndarray:
     """:func:`safe_path` from ``current_deg`` to home (``kin.home_deg``)."""
-    return safe_path(kin, current_deg, kin.home_deg)
+    return safe_path(kin, current_deg, kin.home_deg, start_tol_deg)
 
 
-def _detour(kin, start: np.ndarray, target: np.ndarray) -> np.ndarray:
+def _start_floor(kin, start: list[float], tol_deg: float) -> float | None:
+    """The least margin a leg from ``start`` may keep when ``start`` is itself inside the forbidden zone
+    by no more than ``tol_deg`` on each axis could make it: its own margin less the certification's slack
+    (it may be left, not approached); None when the start is clear or further inside."""
+    if not tol_deg > 0.0:
+        return None
+    here = kin.sweep_clear_one(start, start)[1]
+    return here - MARGIN_TOL_DEG if -tol_deg * len(start) <= here < -DEG_TOL else None
+
+
+def _detour(kin, start: np.ndarray, target: np.ndarray, floor: float | None = None) -> np.ndarray:
     paths = _candidates(kin, start, target)
     n_axes = start.size
     # Every leg of every candidate in one certified check.
-    legs_from, legs_to, owner = [], [], []
+    legs_from, legs_to, owner, first = [], [], [], []
     for c, path in enumerate(paths):
         pts = np.vstack([start[None, :], path])
         legs_from.append(pts[:-1])
         legs_to.append(pts[1:])
         owner.append(np.full(path.shape[0], c))
+        first.append(np.arange(path.shape[0]) == 0)
     a, b, owner = np.vstack(legs_from), np.vstack(legs_to), np.concatenate(owner)
-    clear, _ = kin.sweep_clearance(a, b)
+    clear, margin = kin.sweep_clearance(a, b)
+    if floor is not None:  # a start a hair inside the zone: its first legs may leave it, not approach
+        first = np.concatenate(first)
+        clear = clear | (first & (margin >= floor) & kin.within_limits(a) & kin.within_limits(b))
     ok = np.ones(len(paths), dtype=bool)
     np.logical_and.at(ok, owner, clear)
     metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)

@@ -140,3 +140,29 @@ def test_same_inputs_same_path(design):
         except UnsafeMoveError:
             continue
         np.testing.assert_array_equal(first, safe_path(kin, a.copy(), b.copy()))
+
+
+def test_a_start_read_back_a_hair_inside_a_clearance_may_be_left_but_not_approached():
+    """A pose planned at exactly arm_collision_deg (light at -10°, detector at 0°) is read back a few
+    ticks inside it (as a fly test under load left it: -9.99756°); from there nothing was clear, not even
+    home. Within the position tolerance the axes may leave it, never come closer."""
+    start, away = [-9.99756, 0.0, 0.0, 34.2773], [-10.0, 0.0, 0.0, 30.0]
+    with pytest.raises(UnsafeMoveError, match="no collision-free path"):
+        safe_path(TWO_ARM, start, away)
+    np.testing.assert_array_equal(safe_path(TWO_ARM, start, away, start_tol_deg=0.05), [away])
+    park = park_path(TWO_ARM, start, start_tol_deg=0.05)
+    np.testing.assert_array_equal(park[-1], TWO_ARM.home_deg)
+    a, b = legs(start, park)
+    assert TWO_ARM.sweep_clearance(a[1:], b[1:])[0].all()          # every leg after the first clear
+    assert TWO_ARM.sweep_clearance(a[:1], b[:1])[1][0] >= -0.00244 - 1e-3   # the first no closer
+    # The direct move would close in (a light carriage faster than the detector's, both going up the
+    # ring): a detour leaves first, then every leg is clear.
+    slow, ahead = slow_detector(), [30.0, 0.0, 60.0, 30.0]
+    assert slow.sweep_clearance(start, ahead)[1][0] < -0.00244 - 1e-3
+    path = safe_path(slow, start, ahead, start_tol_deg=0.05)
+    a, b = legs(start, path)
+    assert path.shape[0] > 1 and slow.sweep_clearance(a[:1], b[:1])[1][0] >= -0.00244 - 1e-3
+    assert slow.sweep_clearance(a[1:], b[1:])[0].all()
+    # Further inside than the tolerance can explain (4 axes x 0.05°): refused as before.
+    with pytest.raises(UnsafeMoveError):
+        safe_path(TWO_ARM, [-9.7, 0.0, 0.0, 34.0], away, start_tol_deg=0.05)
