@@ -221,19 +221,26 @@ def test_an_aborted_queued_campaign_never_runs_and_a_paused_one_can_be_aborted(s
 @pytest.mark.slow
 def test_an_abort_that_comes_as_the_paused_runner_leaves_is_not_lost(serve, monkeypatch):
     """The window between the runner stopping (paused) and the campaign leaving the worker: the
-    runner is gone, so nobody but the worker can record the abort."""
+    runner is gone, so nobody but the worker can record the abort. The abort request comes while the
+    worker closes the campaign's journal, and the worker goes on once the queue holds it (the request
+    then waits for the campaign to leave the worker, so its reply tells the outcome)."""
     import gonio.daemon.queue as queue_module
 
-    real_open, fired = queue_module.open_campaign, []
+    real_open, fired, requests = queue_module.open_campaign, [], []
     r = None
+
+    def abort():
+        fired.append(r.client.post("/campaigns/c00001/abort").json()["state"])
 
     def open_with_late_abort(folder, **kw):
         c = real_open(folder, **kw)
         real_close = c.close
 
         def close():
-            if not fired:   # the worker's own journal, closed after the runner has stopped
-                fired.append(r.client.post("/campaigns/c00001/abort").json()["state"])
+            if not requests:   # the worker's own journal, closed after the runner has stopped
+                requests.append(threading.Thread(target=abort))
+                requests[0].start()
+                wait_for(lambda: r.daemon.queue.get("c00001").abort_pending, "the abort to reach the queue")
             real_close()
         c.close = close
         return c
@@ -244,7 +251,8 @@ def test_an_abort_that_comes_as_the_paused_runner_leaves_is_not_lost(serve, monk
     wait_state(r.client, "c00001", "running")
     r.client.post("/campaigns/c00001/pause").raise_for_status()
     wait_state(r.client, "c00001", "aborted")
-    assert fired and r.client.get("/campaigns/c00001").json()["state"] == "aborted"
+    requests[0].join(WAIT_S)
+    assert fired == ["aborted"] and r.client.get("/campaigns/c00001").json()["state"] == "aborted"
     assert r.client.post("/campaigns/c00001/resume").status_code == 409
 
 
