@@ -6,7 +6,7 @@ import threading
 
 import httpx
 import pytest
-from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
+from daemon_helpers import TOKEN, WAIT_S, submit, unpace, wait_for, wait_state
 
 from gonio.daemon.auth import FAILURES_ALLOWED, check_bind, check_token, is_loopback, token_ok
 from gonio.store import JOURNAL_NAME, Journal
@@ -149,6 +149,7 @@ def test_a_second_campaign_waits_in_the_queue_while_the_first_runs(serve):
     assert second["state"] == "queued"
     q = r.client.get("/campaigns").json()
     assert q["running"] == "c00001" and [c["state"] for c in q["campaigns"]] == ["running", "queued"]
+    unpace(r.daemon)
     wait_state(r.client, "c00002", "done")
     first = Journal.open(r.daemon.queue.root / "c00001" / JOURNAL_NAME, readonly=True)
     later = Journal.open(r.daemon.queue.root / "c00002" / JOURNAL_NAME, readonly=True)
@@ -175,6 +176,7 @@ def test_pause_resume_abort_through_the_api(serve):
     log = r.client.get("/campaigns/c00001/log").json()
     assert any(e["kind"] == "park" for e in log)
     assert r.client.post("/campaigns/c00001/resume").status_code == 200
+    unpace(r.daemon, only="c00001")   # its rest at once; the second keeps the pace, to be aborted running
     wait_state(r.client, "c00001", "done")
     wait_state(r.client, "c00002", ("running", "done", "finishing"))
     assert r.client.post("/campaigns/c00002/abort").status_code == 200
