@@ -397,11 +397,14 @@ def _killed_mid_sweep(tmp_path, twin, profile):
         try:
             # Wait until a sweep of several readings is under way: the journal holds every unit before
             # it, that unit's line is next, and the photodiode has answered several sub-reads since the
-            # journal last grew (a transit reads nothing).
-            fp, units, last, answered = None, [], None, 0
+            # journal last grew (a transit reads nothing). The journal is looked at again only once the
+            # photodiode has answered again (nothing to decide before).
+            fp, units, last, answered, looked = None, [], None, 0, None
             deadline = time.monotonic() + 90.0
             while in_flight is None and time.monotonic() < deadline and proc.poll() is None:
-                if (out / JOURNAL_NAME).exists():
+                progress = _progress(emu.meter)
+                if progress != looked and (out / JOURNAL_NAME).exists():
+                    looked = progress
                     j = Journal.open(out / JOURNAL_NAME, readonly=True)
                     try:
                         done = set(j.done_steps().tolist())
