@@ -34,6 +34,31 @@ GONIO = [sys.executable, "-m", "gonio.cli"]
 RUN_LIMIT_S = 120.0
 
 
+#: Plans made in this module, by (grid, config): see :func:`_each_plan_made_once`.
+_PLANS: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _each_plan_made_once(monkeypatch):
+    """The campaigns here plan each grid on the same gantry again and again (the uninterrupted run, the
+    crashed one's creation, in this process): the planner (deterministic: a function of the grid and the
+    gantry) runs once per (grid, config) and each campaign gets a copy of its plan. What these tests check
+    comes after the plan: the crashes, the resumes, the results bit for bit."""
+    import copy
+
+    import gonio.lifecycle as lifecycle
+
+    plan = lifecycle.plan_campaign
+
+    def plan_once(grid, cfg):
+        key = (grid, cfg.model_dump_json())
+        if key not in _PLANS:
+            _PLANS[key] = plan(grid, cfg)
+        return copy.deepcopy(_PLANS[key])
+
+    monkeypatch.setattr(lifecycle, "plan_campaign", plan_once)
+
+
 def _toml(data: dict, prefix: str = "") -> str:
     """A config dict as TOML (tables of scalars and lists of scalars: all a gonio config holds)."""
     def value(v):
