@@ -197,6 +197,7 @@ def test_halt_stops_the_running_campaign_and_resume_finishes_it(serve):
     log = r.client.get("/campaigns/c00001/log").json()
     assert any(e["kind"] == "halt" for e in log) and not any(e["kind"] == "park" for e in log)
     r.client.post("/campaigns/c00001/resume").raise_for_status()
+    unpace(r.daemon, only="c00001")   # the rest at once
     wait_state(r.client, "c00001", "done")
     j = Journal.open(r.daemon.queue.root / "c00001" / JOURNAL_NAME, readonly=True)
     try:
