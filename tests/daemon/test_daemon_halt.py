@@ -80,8 +80,13 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
             sock.sendall(head.encode() + body)
             while not give_up.wait(0.01):   # an answer, or the client leaves
                 if select.select([sock], [], [], 0)[0]:
-                    answer = sock.recv(4096)
-                    submits.append(int(answer.split()[1]) if answer else 0)
+                    answer = b""
+                    while b"\r\n" not in answer:   # the status line, whole
+                        chunk = sock.recv(4096)
+                        if not chunk:
+                            break
+                        answer += chunk
+                    submits.append(int(answer.split()[1]) if b"\r\n" in answer else 0)
                     return
             submits.append(0)
 
