@@ -34,6 +34,31 @@ GONIO = [sys.executable, "-m", "gonio.cli"]
 RUN_LIMIT_S = 120.0
 
 
+#: Plans made in this module, by (grid, config): see :func:`_each_plan_made_once`.
+_PLANS: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _each_plan_made_once(monkeypatch):
+    """The campaigns here plan each grid on the same gantry again and again (the uninterrupted run, the
+    crashed one's creation, in this process): the planner (deterministic: a function of the grid and the
+    gantry) runs once per (grid, config) and each campaign gets a copy of its plan. What these tests check
+    comes after the plan: the crashes, the resumes, the results bit for bit."""
+    import copy
+
+    import gonio.lifecycle as lifecycle
+
+    plan = lifecycle.plan_campaign
+
+    def plan_once(grid, cfg):
+        key = (grid, cfg.model_dump_json())
+        if key not in _PLANS:
+            _PLANS[key] = plan(grid, cfg)
+        return copy.deepcopy(_PLANS[key])
+
+    monkeypatch.setattr(lifecycle, "plan_campaign", plan_once)
+
+
 def _toml(data: dict, prefix: str = "") -> str:
     """A config dict as TOML (tables of scalars and lists of scalars: all a gonio config holds)."""
     def value(v):
@@ -151,11 +176,14 @@ def _crash_and_resume(monkeypatch, argv, out: Path, kills: int, seed: int, write
 
 
 def _crashed_equals_uninterrupted(tmp_path, monkeypatch, material, grid, config, kills, seed,
-                                  creation=2) -> dict:
+                                  creation=2, reference=None) -> dict:
     """Run the campaign once to the end and once crashed ``creation`` + ``kills`` times (at least a third
-    of the kills mid-campaign) and resumed, in this process; see :func:`_equal_to`."""
-    ref, out = tmp_path / "ref", tmp_path / "crashed"
-    writes = _uninterrupted(monkeypatch, _argv(material, grid, ref, config))
+    of the kills mid-campaign) and resumed, in this process; see :func:`_equal_to`. ``reference``: the
+    (folder, :class:`Writes`) of the uninterrupted run of these arguments when one is at hand."""
+    out = tmp_path / "crashed"
+    ref, writes = reference or (tmp_path / "ref", None)
+    if writes is None:
+        writes = _uninterrupted(monkeypatch, _argv(material, grid, ref, config))
     stats = _crash_and_resume(monkeypatch, _argv(material, grid, out, config), out, kills=kills, seed=seed,
                               writes=writes, creation=creation)
     assert stats["running"] >= kills // 3 and len(set(stats["progress"])) >= kills // 3, stats
@@ -247,13 +275,16 @@ def _kill_after_steps(argv, out: Path, steps: int) -> None:
     assert start + steps <= _done(out) < Journal.open(out / JOURNAL_NAME, readonly=True).step_count()
 
 
-def _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, material, grid, steps) -> None:
+def _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, material, grid, steps, shared=None) -> None:
     """``gonio simulate`` as a process, SIGKILLed during the journal's creation (or just after it), then
     after ``steps`` committed steps, then run to the end: bit for bit the uninterrupted run (made in this
-    process)."""
-    config = _config(tmp_path)
-    ref, out = tmp_path / "ref", tmp_path / "killed"
-    _uninterrupted(monkeypatch, _argv(material, grid, ref, config))
+    process). ``shared``: a :func:`shared_reference` to take the config and that run from."""
+    out = tmp_path / "killed"
+    if shared is not None:
+        config, (ref, _) = shared(material, grid)
+    else:
+        config, ref = _config(tmp_path), tmp_path / "ref"
+        _uninterrupted(monkeypatch, _argv(material, grid, ref, config))
     argv = [*GONIO, *_argv(material, grid, out, config)]
     _kill_during_creation(argv, out)
     _kill_after_steps(argv, out, steps)
@@ -285,26 +316,44 @@ ADAPTIVE_CASES = [("ggx:alpha=0.15,metal=gold", ADAPTIVE_GRID, 45),
                    75)]
 
 
+@pytest.fixture(scope="module")
+def shared_reference(tmp_path_factory):
+    """``shared_reference(material, grid)``: the default config and the uninterrupted run of
+    ``gonio simulate material --grid grid`` (seed 3) on it, made once for this module: (config, (folder,
+    :class:`Writes`)). Only read by the tests that compare with it (an adaptive campaign's costs seconds)."""
+    root = tmp_path_factory.mktemp("reference")
+    config = _config(root)
+    made = {}
+
+    def reference(material, grid):
+        if (material, grid) not in made:
+            ref = root / f"ref{len(made)}"
+            with pytest.MonkeyPatch.context() as m:
+                made[material, grid] = (ref, _uninterrupted(m, _argv(material, grid, ref, config)))
+        return config, made[material, grid]
+    return reference
+
+
 @pytest.mark.parametrize("material, grid, poses", ADAPTIVE_CASES, ids=["iso", "anisotropic"])
 def test_an_adaptive_campaign_crashed_at_random_journal_writes_resumes_to_the_uninterrupted_result(
-        tmp_path, monkeypatch, material, grid, poses):
+        tmp_path, monkeypatch, shared_reference, material, grid, poses):
     """Kills at random journal writes, the round appends among them (a kill inside one leaves no part of
     the round): the resumed campaign plans the same rounds and ends bit for bit the uninterrupted one."""
-    b = _crashed_equals_uninterrupted(tmp_path, monkeypatch, material, grid, _config(tmp_path), kills=8,
-                                      seed=5, creation=1)
+    config, reference = shared_reference(material, grid)
+    b = _crashed_equals_uninterrupted(tmp_path, monkeypatch, material, grid, config, kills=8, seed=5,
+                                      creation=1, reference=reference)
     assert len(b["value"]) == poses
 
 
 @pytest.mark.parametrize("material, grid, poses", ADAPTIVE_CASES, ids=["iso", "anisotropic"])
 def test_an_adaptive_campaign_killed_while_it_plans_a_round_resumes_to_the_uninterrupted_result(
-        tmp_path, monkeypatch, material, grid, poses):
+        tmp_path, monkeypatch, shared_reference, material, grid, poses):
     """A death in the middle of planning each round (nothing of it journaled), then the same command
     again: the round is planned again from the journal, and the result is the uninterrupted run's."""
     import gonio.adaptive.plan as adaptive_plan
 
-    config = _config(tmp_path)
-    ref, out = tmp_path / "ref", tmp_path / "crashed"
-    _uninterrupted(monkeypatch, _argv(material, grid, ref, config))
+    config, (ref, _) = shared_reference(material, grid)
+    out = tmp_path / "crashed"
     argv = _argv(material, grid, out, config)
     plan_round = adaptive_plan.plan_round
     rounds, dying, appends = [], [], []
@@ -349,7 +398,9 @@ def _rounds(out: Path) -> int:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("material, grid, poses", ADAPTIVE_CASES, ids=["iso", "anisotropic"])
-def test_a_sigkilled_adaptive_campaign_resumes_to_the_uninterrupted_result(
-        tmp_path, monkeypatch, material, grid, poses):
-    _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, material, grid, 10)
+def test_a_sigkilled_adaptive_campaign_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch,
+                                                                         shared_reference):
+    """The adaptive path's real SIGKILL (the isotropic case; the anisotropic one's crashes are the
+    in-process ones above, at random writes and while planning each round)."""
+    material, grid, _ = ADAPTIVE_CASES[0]
+    _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, material, grid, 10, shared=shared_reference)

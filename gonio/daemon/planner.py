@@ -98,10 +98,12 @@ def _context():
     return ctx
 
 
-def _worker_main(conn, cfg, materials_root) -> None:
-    """The worker: one request at a time from ``conn``, each answered with one tuple."""
+def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:
+    """The worker: one request at a time from ``conn``, each answered with one tuple; at idle priority
+    unless ``idle`` is False."""
     try:   # the runner and the event loop first: planning takes only the CPU time they leave idle
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        if idle:
+            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
         os.nice(19)
     materials = MaterialsFolder(materials_root)
@@ -136,11 +138,16 @@ class Planner:
         Seconds one request may plan.
     max_waiting : int
         Requests that may wait at once.
+    idle : bool
+        Plan at idle priority (the default: the runner and the event loop first). False plans at the
+        daemon's own priority, for a machine whose other work is no more urgent than the planning (a
+        test suite's other workers: at idle priority a submission waited for a core to fall idle).
     """
 
     def __init__(self, cfg, materials: MaterialsFolder, *, timeout_s: float = PLAN_TIMEOUT_S,
-                 max_waiting: int = MAX_WAITING):
+                 max_waiting: int = MAX_WAITING, idle: bool = True):
         self.cfg = cfg
+        self.idle = idle
         self.materials = materials
         self.timeout_s = timeout_s
         self.max_waiting = max_waiting
@@ -175,8 +182,8 @@ class Planner:
         self._kill()
         ctx = _context()
         parent, child = ctx.Pipe()
-        proc = ctx.Process(target=_worker_main, args=(child, self.cfg, self.materials.root), daemon=True,
-                           name="gonio-planner-worker")
+        proc = ctx.Process(target=_worker_main, args=(child, self.cfg, self.materials.root, self.idle),
+                           daemon=True, name="gonio-planner-worker")
         proc.start()
         child.close()
         self._proc, self._conn = proc, parent

@@ -52,7 +52,7 @@ def _done(store: Path) -> int:
 
 
 def _rows(store: Path) -> dict:
-    ds = open_store(store)
+    ds = open_store(store).load(scheduler="synchronous")   # read in this thread
     return {k: ds[k].values for k in ds.variables} | {"attrs": json.dumps(ds.attrs, sort_keys=True)}
 
 

@@ -42,7 +42,7 @@ def _simulated(tmp_path: Path, material: str, grid: str = GRID):
 
 
 def _rows(path: Path) -> dict:
-    ds = open_store(path)
+    ds = open_store(path).load(scheduler="synchronous")   # read in this thread, not on the cluster
     rows = {k: ds[k].values for k in (*VARIABLES, "status", "error", "seed")}
     return rows | {"material": list(ds.material.values)}
 

@@ -20,6 +20,9 @@ def serve(tmp_path):
 
     def start(token=None, pace=0.0, hold=False, data=None, cfg=None, max_streams=16, clock=None,
               head_timeout_s=10.0, **kw):
+        # The planner at the test's own priority (`gonio serve` keeps it idle; tests/daemon/test_daemon_serve
+        # and test_daemon_disk run that): at idle priority a submission waited for a core to fall idle.
+        kw.setdefault("plan_idle", False)
         d = build_daemon(cfg or load_config(), data or tmp_path / "data", token=token, pace=pace, hold=hold,
                          max_streams=max_streams, clock=clock, **kw)
         r = start_in_thread(d, head_timeout_s=head_timeout_s)

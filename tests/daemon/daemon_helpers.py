@@ -44,6 +44,22 @@ def wait_state(client: httpx.Client, cid: str, states, timeout_s: float = WAIT_S
     return wait_for(check, f"campaign {cid} to be {sorted(states)}", timeout_s)
 
 
+def unpace(daemon, only: str | None = None) -> None:
+    """From now on the in-process ``daemon``'s simulated gantry spends no real time: the running
+    campaign's clock and those of the campaigns it runs next (pacing spends wall time only: a campaign
+    measures the same unpaced). For a test done with what needed a campaign to last. ``only``: that
+    campaign's clock alone, once it runs (those after it keep the daemon's pace)."""
+    queue = daemon.queue
+    if only is None:
+        queue.pace = 0.0
+    else:
+        wait_for(lambda: queue.gantry is not None and queue.current is not None and queue.current.id == only,
+                 f"campaign {only} to run")
+    gantry = queue.gantry
+    if gantry is not None:
+        gantry.clock.pace = 0.0
+
+
 def submit(client: httpx.Client, grid: str = "iso:step=30", material: str = "lambert:albedo=0.5",
            **extra) -> dict:
     r = client.post("/campaigns", json={"material": material, "grid": grid, **extra})

@@ -5,7 +5,7 @@ steps (a round appended or not), and the finished campaign holds the pose budget
 from __future__ import annotations
 
 import numpy as np
-from daemon_helpers import wait_for, wait_state
+from daemon_helpers import unpace, wait_for, wait_state
 
 from gonio.dataset import read_brdf
 from gonio.store import JOURNAL_NAME, Journal
@@ -35,6 +35,7 @@ def test_the_daemon_runs_an_adaptive_campaign_with_a_pause_to_its_budget(serve, 
     paused = wait_state(d.client, cid, "paused")
     assert 0 < paused["steps_done"] < 57
     assert d.client.post(f"/campaigns/{cid}/resume").status_code == 200
+    unpace(d.daemon, only=cid)   # the rest at once
     done = wait_state(d.client, cid, {"done", "faulted"})
     assert done["state"] == "done", done
     meta = _meta(folder)

@@ -6,7 +6,7 @@ import threading
 
 import httpx
 import pytest
-from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
+from daemon_helpers import TOKEN, WAIT_S, submit, unpace, wait_for, wait_state
 
 from gonio.daemon.auth import FAILURES_ALLOWED, check_bind, check_token, is_loopback, token_ok
 from gonio.store import JOURNAL_NAME, Journal
@@ -149,6 +149,7 @@ def test_a_second_campaign_waits_in_the_queue_while_the_first_runs(serve):
     assert second["state"] == "queued"
     q = r.client.get("/campaigns").json()
     assert q["running"] == "c00001" and [c["state"] for c in q["campaigns"]] == ["running", "queued"]
+    unpace(r.daemon)
     wait_state(r.client, "c00002", "done")
     first = Journal.open(r.daemon.queue.root / "c00001" / JOURNAL_NAME, readonly=True)
     later = Journal.open(r.daemon.queue.root / "c00002" / JOURNAL_NAME, readonly=True)
@@ -175,6 +176,7 @@ def test_pause_resume_abort_through_the_api(serve):
     log = r.client.get("/campaigns/c00001/log").json()
     assert any(e["kind"] == "park" for e in log)
     assert r.client.post("/campaigns/c00001/resume").status_code == 200
+    unpace(r.daemon, only="c00001")   # its rest at once; the second keeps the pace, to be aborted running
     wait_state(r.client, "c00001", "done")
     wait_state(r.client, "c00002", ("running", "done", "finishing"))
     assert r.client.post("/campaigns/c00002/abort").status_code == 200
@@ -195,6 +197,7 @@ def test_halt_stops_the_running_campaign_and_resume_finishes_it(serve):
     log = r.client.get("/campaigns/c00001/log").json()
     assert any(e["kind"] == "halt" for e in log) and not any(e["kind"] == "park" for e in log)
     r.client.post("/campaigns/c00001/resume").raise_for_status()
+    unpace(r.daemon, only="c00001")   # the rest at once
     wait_state(r.client, "c00001", "done")
     j = Journal.open(r.daemon.queue.root / "c00001" / JOURNAL_NAME, readonly=True)
     try:
@@ -221,19 +224,26 @@ def test_an_aborted_queued_campaign_never_runs_and_a_paused_one_can_be_aborted(s
 @pytest.mark.slow
 def test_an_abort_that_comes_as_the_paused_runner_leaves_is_not_lost(serve, monkeypatch):
     """The window between the runner stopping (paused) and the campaign leaving the worker: the
-    runner is gone, so nobody but the worker can record the abort."""
+    runner is gone, so nobody but the worker can record the abort. The abort request comes while the
+    worker closes the campaign's journal, and the worker goes on once the queue holds it (the request
+    then waits for the campaign to leave the worker, so its reply tells the outcome)."""
     import gonio.daemon.queue as queue_module
 
-    real_open, fired = queue_module.open_campaign, []
+    real_open, fired, requests = queue_module.open_campaign, [], []
     r = None
+
+    def abort():
+        fired.append(r.client.post("/campaigns/c00001/abort").json()["state"])
 
     def open_with_late_abort(folder, **kw):
         c = real_open(folder, **kw)
         real_close = c.close
 
         def close():
-            if not fired:   # the worker's own journal, closed after the runner has stopped
-                fired.append(r.client.post("/campaigns/c00001/abort").json()["state"])
+            if not requests:   # the worker's own journal, closed after the runner has stopped
+                requests.append(threading.Thread(target=abort))
+                requests[0].start()
+                wait_for(lambda: r.daemon.queue.get("c00001").abort_pending, "the abort to reach the queue")
             real_close()
         c.close = close
         return c
@@ -244,7 +254,8 @@ def test_an_abort_that_comes_as_the_paused_runner_leaves_is_not_lost(serve, monk
     wait_state(r.client, "c00001", "running")
     r.client.post("/campaigns/c00001/pause").raise_for_status()
     wait_state(r.client, "c00001", "aborted")
-    assert fired and r.client.get("/campaigns/c00001").json()["state"] == "aborted"
+    requests[0].join(WAIT_S)
+    assert fired == ["aborted"] and r.client.get("/campaigns/c00001").json()["state"] == "aborted"
     assert r.client.post("/campaigns/c00001/resume").status_code == 409
 
 

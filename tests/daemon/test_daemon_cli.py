@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import h5py
 import pytest
-from daemon_helpers import TOKEN, submit, wait_for, wait_state
+from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
 
 from gonio.cli import main
 
@@ -89,24 +89,43 @@ def test_one_clear_line_when_there_is_no_daemon_or_it_refuses(serve, env, capsys
 @pytest.fixture
 def slow_admission(monkeypatch):
     """The daemon plans a submission, then admits it only once ``release`` is set (a daemon under load:
-    the answer comes after the client gave up waiting, which it does after 5 s, looking in the queue
-    every 10 ms). A client that leaves while the campaign is still being planned cancels it; one that
-    leaves while it is being admitted does not: that is the case where a campaign was accepted and its
-    client never heard."""
+    the answer comes after the client gave up waiting; the client then looks in the queue every 10 ms).
+    A client that leaves while the campaign is still being planned cancels it; one that leaves while it
+    is being admitted does not: that is the case where a campaign was accepted and its client never heard.
+
+    The client's wait for the answer (SUBMIT_TIMEOUT_S) runs out as the admission begins, with no time
+    spent waiting for it: the submission goes out on a socket of its own, which is closed (the client
+    leaves) once the daemon is admitting the campaign, and the client's HTTP layer then raises the
+    time-out it would have raised (httpx's ReadTimeout)."""
+    import socket
     import threading
+
+    import httpx
 
     import gonio.daemon.client as client
     from gonio.daemon.queue import CampaignQueue
 
-    release = threading.Event()
-    real = CampaignQueue.admit
+    release, admitting = threading.Event(), threading.Event()
+    real, real_send = CampaignQueue.admit, httpx.Client.send
 
     def admit(self, *args, **kw):
+        admitting.set()
         assert release.wait(30.0), "the test never released the admission"
         return real(self, *args, **kw)
 
+    def send(self, request, **kw):
+        if request.method != "POST" or request.url.path != "/campaigns":
+            return real_send(self, request, **kw)
+        assert request.extensions["timeout"]["read"] == client.SUBMIT_TIMEOUT_S   # the wait that runs out
+        head = f"POST {request.url.raw_path.decode()} HTTP/1.1\r\n"
+        head += "".join(f"{k}: {v}\r\n" for k, v in request.headers.items()) + "\r\n"
+        with socket.create_connection((request.url.host, request.url.port), timeout=WAIT_S) as sock:
+            sock.sendall(head.encode() + request.read())
+            assert admitting.wait(WAIT_S), "the daemon never began to admit the campaign"
+        raise httpx.ReadTimeout("timed out", request=request)
+
     monkeypatch.setattr(CampaignQueue, "admit", admit)
-    monkeypatch.setattr(client, "SUBMIT_TIMEOUT_S", 5.0)
+    monkeypatch.setattr(httpx.Client, "send", send)
     monkeypatch.setattr(client, "FIND_POLL_S", 0.01)
     yield release
     release.set()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import httpx
-from daemon_helpers import WAIT_S, submit, wait_for, wait_state
+from daemon_helpers import WAIT_S, submit, unpace, wait_for, wait_state
 
 from gonio.daemon.client import iter_sse
 from gonio.store import JOURNAL_NAME, Journal
@@ -66,6 +66,7 @@ def test_a_paused_campaign_streams_its_pause_and_later_its_resume(serve):
     r.client.post("/campaigns/c00001/pause").raise_for_status()
     wait_state(r.client, "c00001", "paused")
     r.client.post("/campaigns/c00001/resume").raise_for_status()
+    unpace(r.daemon, only="c00001")   # the rest at once
     rest, _ = _read(r.url, "c00001", eid)
     allm = first + rest
     steps = [d["step"] for e, d in allm if e == "measurement"]

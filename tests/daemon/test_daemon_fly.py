@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from daemon_helpers import wait_for, wait_state
+from daemon_helpers import unpace, wait_for, wait_state
 
 from gonio.campaign import open_campaign
 from gonio.config import load_config, parse_config
@@ -92,6 +92,7 @@ def test_the_daemon_runs_a_simulated_fly_campaign_with_pause_halt_and_abort(serv
     for first, n in units:   # whole sweeps only, the halted one dropped
         assert len({s for s in range(first, first + n) if s in done}) in (0, n)
     assert d.client.post(f"/campaigns/{cid}/resume").status_code == 200
+    unpace(d.daemon, only=cid)   # its rest at once; the second keeps the pace, to be aborted mid-way
     assert wait_state(d.client, cid, {"done", "faulted"})["state"] == "done"
     second = d.client.post("/campaigns", json={"grid": grid, "material": material}).json()["id"]
     wait_for(lambda: d.client.get(f"/campaigns/{second}").json()["steps_done"] >= 1, "a committed sweep")

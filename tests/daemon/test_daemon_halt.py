@@ -4,6 +4,9 @@ from the rig (loopback, no token) is still answered and the running campaign hal
 
 from __future__ import annotations
 
+import json
+import select
+import socket
 import threading
 
 import httpx
@@ -41,22 +44,56 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
         return real_records()
 
     monkeypatch.setattr(r.daemon.queue, "records", slow_records)
-    results: list[int] = []
+    admits, lock = {"in": 0, "done": 0}, threading.Lock()      # admissions under way, and done
+    real_admit = r.daemon.queue.admit
 
-    def call(method, path, read_s=WAIT_S, **kw):
-        headers = {"Authorization": f"Bearer {TOKEN}"}
+    def counted_admit(*args, **kw):
+        with lock:
+            admits["in"] += 1
         try:
-            timeout = httpx.Timeout(WAIT_S, read=read_s)
-            with httpx.Client(base_url=r.url, timeout=timeout, headers=headers) as c:
-                results.append(c.request(method, path, **kw).status_code)
-        except httpx.ReadTimeout:
-            results.append(0)    # a submit that gave up waiting (its planning is cancelled)
+            rec = real_admit(*args, **kw)
+            with lock:
+                admits["done"] += 1
+            return rec
+        finally:
+            with lock:
+                admits["in"] -= 1
 
-    # Seconds of planning each on a slow machine; their clients give up after 10 s, which cancels them.
-    slow_grid = {"material": "lambert:albedo=0.5", "grid": "iso:step=2"}
-    threads = [threading.Thread(target=call, args=("GET", "/campaigns")) for _ in range(60)]
-    threads += [threading.Thread(target=call, args=("POST", "/campaigns", 10.0), kwargs={"json": slow_grid})
-                for _ in range(10)]
+    monkeypatch.setattr(r.daemon.queue, "admit", counted_admit)
+    reads: list[int] = []
+    submits: list[int] = []
+    give_up = threading.Event()
+
+    def read():
+        headers = {"Authorization": f"Bearer {TOKEN}"}
+        with httpx.Client(base_url=r.url, timeout=WAIT_S, headers=headers) as c:
+            reads.append(c.get("/campaigns").status_code)
+
+    def slow_submit():
+        """A submit whose client waits for its answer until ``give_up`` (then leaves: its planning is
+        cancelled): the answer's status, or 0 for none."""
+        body = json.dumps({"material": "lambert:albedo=0.5", "grid": "iso:step=2"}).encode()
+        url = httpx.URL(r.url)
+        head = (f"POST /campaigns HTTP/1.1\r\nHost: {url.host}:{url.port}\r\nAuthorization: Bearer {TOKEN}"
+                f"\r\nContent-Type: application/json\r\nContent-Length: {len(body)}\r\n\r\n")
+        with socket.create_connection((url.host, url.port), timeout=WAIT_S) as sock:
+            sock.sendall(head.encode() + body)
+            while not give_up.wait(0.01):   # an answer, or the client leaves
+                if select.select([sock], [], [], 0)[0]:
+                    answer = b""
+                    while b"\r\n" not in answer:   # the status line, whole
+                        chunk = sock.recv(4096)
+                        if not chunk:
+                            break
+                        answer += chunk
+                    submits.append(int(answer.split()[1]) if b"\r\n" in answer else 0)
+                    return
+            submits.append(0)
+
+    # Seconds of planning each on a slow machine; their clients leave once the halts are answered and
+    # every admission that the slow reads held up has answered, which cancels the rest.
+    threads = [threading.Thread(target=read) for _ in range(60)]
+    threads += [threading.Thread(target=slow_submit) for _ in range(10)]
     try:
         for t in threads:
             t.start()
@@ -73,16 +110,22 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
         with httpx.Client(base_url=r.url, timeout=HALT_WAIT_S) as rig:
             again = rig.post("/gantry/halt")
         assert again.status_code == 200 and again.json()["message"] == "halt: every axis stopped", again.text
-        assert not results                                    # every other request is still held up
+        assert not reads and not submits                      # every other request is still held up
+        release.set()
+        # The reads answer; a submit whose planning ended while the queue's lock was held up is admitted
+        # now, and answered (201) before its client leaves.
+        wait_for(lambda: len(reads) == 60 and not admits["in"] and submits.count(201) == admits["done"],
+                 "the held-up requests to be answered")
     finally:
         release.set()
+        give_up.set()
         for t in threads:
             t.join(WAIT_S)
     st = wait_state(r.client, "c00001", "halted")
     assert st["steps_done"] < st["steps"]
     # The reads answered in the end and none failed; a submit whose planning ended before its client gave
     # up (a fast machine) is admitted once its admission is released (201).
-    assert set(results) <= {0, 200, 201}
+    assert set(reads) == {200} and set(submits) <= {0, 201} and len(submits) == 10
     wait_for(lambda: not r.daemon.planner.busy, "the abandoned submits to be cancelled")
-    admitted = [f"c{k:05d}" for k in range(2, 2 + results.count(201))]   # queued behind the halted one
+    admitted = [f"c{k:05d}" for k in range(2, 2 + submits.count(201))]   # queued behind the halted one
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001", *admitted]

@@ -51,26 +51,50 @@ def test_serve_refuses_a_non_loopback_address_without_a_token(tmp_path):
     (("--materials", "/nonexistent/m"), "", "--materials: /nonexistent/m is not a folder"),
     (("--allow-host", "http://x"), "", "--allow-host: expected NAME or NAME:PORT"),
 ])
-def test_serve_refuses_weak_tokens_and_bad_options_before_writing_anything(tmp_path, args, token, message):
-    r = subprocess.run([*GONIO, "serve", "--data", str(tmp_path / "d"), *args], capture_output=True,
-                       text=True, timeout=WAIT_S, env={**os.environ, "GONIO_TOKEN": token})
-    assert r.returncode == 2, r.stderr
-    assert r.stderr.strip().startswith(f"gonio serve: {message}"), r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "d").exists()
+def test_serve_refuses_weak_tokens_and_bad_options_before_writing_anything(tmp_path, monkeypatch, capsys,
+                                                                         args, token, message):
+    # In this process (the refusal above is the one made by a process of its own): a serve that did not
+    # refuse would fail at once rather than serve.
+    code, err = _serve_here(monkeypatch, capsys, ["--data", str(tmp_path / "d"), *args], token)
+    assert code == 2, err
+    assert err.strip().startswith(f"gonio serve: {message}"), err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "d").exists()
+
+
+def _serve_here(monkeypatch, capsys, args: list[str], token: str) -> tuple[int, str]:
+    """``gonio serve ARGS`` in this process with GONIO_TOKEN=``token``, for what it refuses before it
+    listens: (exit status, stderr). One that gets as far as serving fails the test instead (its logging
+    set-up, which would replace the test's, is kept to this call)."""
+    import logging
+
+    import uvicorn
+
+    from gonio.cli import main
+
+    def refused_too_late(*a, **kw):
+        raise AssertionError("gonio serve went on to serve")
+
+    root = logging.getLogger()
+    monkeypatch.setattr(root, "handlers", list(root.handlers))
+    monkeypatch.setattr(root, "level", root.level)
+    monkeypatch.setattr(uvicorn.Server, "run", refused_too_late)
+    monkeypatch.setenv("GONIO_TOKEN", token)
+    capsys.readouterr()
+    code = main(["serve", *args])
+    return code, capsys.readouterr().err
 
 
 @pytest.mark.slow
-def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path):
+def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path, monkeypatch, capsys):
     data = tmp_path / "data"
     s = Serve(data, "--pace", "0.005")
     body = {"material": "lambert:albedo=0.5", "grid": "iso:step=10"}
     s.client.post("/campaigns", json=body).raise_for_status()
     folder = data / "campaigns" / "c00001"
     wait_for(lambda: _done(folder) >= 2, "two committed steps")
-    # A second daemon on the same data folder is refused.
-    r = subprocess.run([*GONIO, "serve", "--data", str(data), "--port", "0"], capture_output=True, text=True,
-                       timeout=WAIT_S)
-    assert r.returncode == 2 and "served by another gonio daemon" in r.stderr
+    # A second daemon on the same data folder is refused (this process's: the lock is the other's).
+    code, err = _serve_here(monkeypatch, capsys, ["--data", str(data), "--port", "0"], "")
+    assert code == 2 and "served by another gonio daemon" in err, err
     assert s.stop(signal.SIGTERM) == 0
     j = Journal.open(folder / JOURNAL_NAME, readonly=True)
     try:
@@ -170,7 +194,8 @@ def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_resul
         kills += 1
         progress.append(_done(folder))
         assert progress[-1] < total, "the campaign finished before its kill"
-        s = Serve(data, "--pace", PACE)
+        # The last start runs the rest unpaced (pacing spends wall time only: the same result).
+        s = Serve(data, "--pace", PACE if kills < 2 else "0")
     wait_for(lambda: s.client.get("/campaigns/c00001").json()["state"] == "done", "the campaign to finish")
     assert s.stop() == 0
     assert kills == 2 and 0 < progress[0] <= progress[1], progress

@@ -118,3 +118,27 @@ def test_without_a_materials_folder_measured_materials_are_refused(serve):
     resp = r.client.post("/campaigns", json={"material": "bsdf:paint.bsdf", "grid": "iso:step=30"})
     assert resp.status_code == 422 and "serves none (start it with --materials DIR)" in resp.text
     assert r.daemon.planner.planned == 0
+
+
+def test_the_planner_plans_at_idle_priority_unless_told_otherwise(serve, tmp_path):
+    """`gonio serve` plans at idle priority (the runner and the event loop first); ``plan_idle=False``
+    (these tests' daemons) plans at the daemon's own. Seen from the kernel: the scheduling policy of this
+    process's descendants (the planner's worker among them)."""
+    import psutil
+
+    def idle_descendants() -> list[int]:
+        out = []
+        for p in psutil.Process().children(recursive=True):
+            try:
+                if os.sched_getscheduler(p.pid) == os.SCHED_IDLE:
+                    out.append(p.pid)
+            except OSError:   # gone meanwhile
+                pass
+        return out
+
+    r = serve(data=tmp_path / "own")          # plan_idle=False: the fixture's default
+    assert submit(r.client)["id"] == "c00001"   # planned: its worker runs
+    assert idle_descendants() == []
+    r = serve(data=tmp_path / "idle", plan_idle=True)
+    assert submit(r.client)["id"] == "c00001"
+    assert len(idle_descendants()) == 1

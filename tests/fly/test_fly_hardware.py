@@ -320,14 +320,48 @@ def _progress(meter) -> int:
     return meter.sent // 4 if hasattr(meter, "sent") else meter.answered
 
 
+#: The kill-mid-sweep scenarios (gantry, photodiode profile): the two-arm gantry with a photodiode read on
+#: request and one that streams, and the sample stage (its sweeps are coordinated lines).
+KILLED_MID_SWEEP = [(TWIN, "acknowledging"), (TWIN, "streaming-photodiode"),
+                    ("emulated-sample-stage-dynamixel", "acknowledging")]
+#: Upper bound on one scenario (its kill within 90 s, its resumed run within 120 s), for the join below.
+SCENARIO_LIMIT_S = 300.0
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize(("twin", "profile"), [(TWIN, "acknowledging"), (TWIN, "streaming-photodiode"),
-                                               ("emulated-sample-stage-dynamixel", "acknowledging")])
-def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp_path, twin, profile):
+def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp_path):
     """kill -9 of ``gonio run ... order=fly`` on the wall clock while a sweep is under way: the journal
     holds every sweep whole or not at all (one transaction per sweep), and the same command run again
     resumes and completes the campaign with exactly one reading per step. On the sample stage the sweep
-    killed is a coordinated line (several servos along a path, segment by segment)."""
+    killed is a coordinated line (several servos along a path, segment by segment).
+
+    The emulated servos run in real time (the command is a process on the wall clock), so the scenarios
+    (:data:`KILLED_MID_SWEEP`), independent of one another (each its own emulators, ports and folder),
+    run at once, each in a thread of its own: their waits overlap."""
+    import threading
+
+    errors: dict[str, BaseException] = {}
+
+    def scenario(twin, profile):
+        try:
+            _killed_mid_sweep(tmp_path / f"{twin}-{profile}", twin, profile)
+        except BaseException as err:   # reported below, named after its scenario
+            errors[f"{twin}/{profile}"] = err
+
+    threads = [threading.Thread(target=scenario, args=args, name=f"killed-mid-sweep-{'-'.join(args)}")
+               for args in KILLED_MID_SWEEP]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(SCENARIO_LIMIT_S)
+    assert not [t.name for t in threads if t.is_alive()], "a scenario outlasted its bound"
+    if errors:
+        raise AssertionError("; ".join(f"{name}: {type(err).__name__}: {err}" for name, err in errors.items())
+                             ) from next(iter(errors.values()))
+
+
+def _killed_mid_sweep(tmp_path, twin, profile):
+    """One scenario of the test above, in the folder ``tmp_path``."""
     import signal
     import subprocess
     import sys
@@ -337,6 +371,7 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
     from gonio.config import parse_config
     from gonio.plan.flypath import COORDINATED
 
+    tmp_path.mkdir()
     data = load_config(twin).model_dump(mode="json")
     stage = twin != TWIN
     for name, axis in data["axes"].items():   # near each servo's velocity limit, quick ramps
@@ -362,11 +397,14 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
         try:
             # Wait until a sweep of several readings is under way: the journal holds every unit before
             # it, that unit's line is next, and the photodiode has answered several sub-reads since the
-            # journal last grew (a transit reads nothing).
-            fp, units, last, answered = None, [], None, 0
+            # journal last grew (a transit reads nothing). The journal is looked at again only once the
+            # photodiode has answered again (nothing to decide before).
+            fp, units, last, answered, looked = None, [], None, 0, None
             deadline = time.monotonic() + 90.0
             while in_flight is None and time.monotonic() < deadline and proc.poll() is None:
-                if (out / JOURNAL_NAME).exists():
+                progress = _progress(emu.meter)
+                if progress != looked and (out / JOURNAL_NAME).exists():
+                    looked = progress
                     j = Journal.open(out / JOURNAL_NAME, readonly=True)
                     try:
                         done = set(j.done_steps().tolist())
@@ -407,6 +445,8 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
         j.close()
     b = read_brdf(out / "brdf.h5")
     assert np.all(np.isfinite(b.value)) and np.all(b.value > 0)
+
+
 
 
 def test_a_swept_turnaround_sends_the_change_while_the_sweeping_servo_runs_out(tmp_path, monkeypatch):
