@@ -104,9 +104,11 @@ def _fit_many(args, source: Path) -> int:
 
 # -- gonio export ---------------------------------------------------------------------------------
 def export_formats(text: str | None) -> list[str]:
+    if text is None:  # no --export: the exporters are not imported
+        return []
     from gonio.export import parse_formats
 
-    return parse_formats(text) if text is not None else []
+    return parse_formats(text)
 
 
 def write_exports(folder: Path, formats: list[str], out: _Out) -> None:
