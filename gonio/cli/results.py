@@ -113,6 +113,8 @@ def export_formats(text: str | None) -> list[str]:
 
 def write_exports(folder: Path, formats: list[str], out: _Out) -> None:
     """``gonio simulate --export``: each format under its unambiguous name in the campaign folder."""
+    if not formats:  # no --export: the exporters are not imported
+        return
     from gonio.export import export
     from gonio.registries import EXPORT_FORMATS
 
