@@ -1,5 +1,6 @@
 """Fast start: ``gonio --version`` and ``gonio <command> --help`` import none of the heavy libraries a
-command uses (a behavioural check: which modules are loaded, not how long it takes; the figures are
+command uses, and a command that works imports what its work needs, not what the others' does (a
+behavioural check: which modules are loaded, not how long it takes; the figures are
 tools/bench_startup.py's, in BENCHMARKS.md)."""
 
 from __future__ import annotations
