@@ -73,7 +73,8 @@ def finished(tmp_path_factory):
     from gonio.cli import main
 
     folder = tmp_path_factory.mktemp("startup") / "c"
-    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet", "--out", str(folder)]) == 0
+    argv = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet", "--out", str(folder)]
+    assert main(argv) == 0
     return folder
 
 
