@@ -21,21 +21,23 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gonio import software_version
-from gonio.calibrate import calibrate, reference_rho
-from gonio.config import GonioConfig, parse_config
-from gonio.dataset import BRDF_NAME, campaign_dataset, write_brdf
-from gonio.gantry import describe_devices
-from gonio.plan import Plan, build_plan, parse_grid
-from gonio.plan.fly import FlyPlan
-from gonio.plan.grids import grid_kind
+from gonio.plan.grids import grid_kind, parse_grid
 from gonio.plan.schedule import step_table
-from gonio.protocols import Gantry
 from gonio.store import JOURNAL_NAME, Journal, JournalError
 from gonio.units import ADAPTIVE, FLY, KINDS, STOP_AND_GO
+
+# The planner, the config's models, the calibration and HDF5 are imported by the functions that use
+# them: reading a campaign's state (gonio status) needs none of them (tools/bench_startup.py).
+if TYPE_CHECKING:
+    from gonio.config import GonioConfig
+    from gonio.plan import Plan
+    from gonio.plan.fly import FlyPlan
+    from gonio.protocols import Gantry
 
 __all__ = ["Campaign", "CampaignLock", "Planned", "plan_campaign", "create_campaign", "open_campaign",
            "finish_campaign", "software_version", "config_hash", "config_snapshot", "compare_campaign",
@@ -174,6 +176,8 @@ def plan_campaign(grid: str, cfg: GonioConfig) -> Planned:
     """Plan ``grid`` on the gantry ``cfg``; the kind follows the grid (``order=fly``: a fly campaign; an
     ``adaptive`` grid: an adaptive campaign, planned up to its pilot, :mod:`gonio.adaptive.plan`).
     ValueError (naming the field) for a grid the planner refuses."""
+    from gonio.plan import build_plan
+
     spec = parse_grid(grid)
     if grid_kind(spec.kind).campaign == ADAPTIVE:
         from gonio.adaptive.plan import pilot_plan
@@ -246,6 +250,8 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
 def open_campaign(folder: str | Path, *, write_hook=None, readonly: bool = False) -> Campaign:
     """Reopen a campaign (to resume it, or ``readonly`` to look at it while it runs): the config is the
     snapshot it was planned with. For writing, the folder's lock is taken first."""
+    from gonio.config import parse_config
+
     folder = Path(folder)
     lock = None if readonly else CampaignLock(folder).acquire()
     try:
@@ -281,6 +287,8 @@ def compare_campaign(meta: dict, *, material: str | None, grid: str, seed: int, 
     ``material`` is the normalized spec (compared with the journal's after normalizing it too, so that
     ``albedo=0.50`` and ``albedo=0.5`` are one campaign).
     """
+    from gonio.config import parse_config
+
     if material is not None:
         from gonio.sim.materials import load
 
@@ -304,6 +312,9 @@ def compare_campaign(meta: dict, *, material: str | None, grid: str, seed: int, 
 def finish_campaign(c: Campaign) -> Path:
     """Calibrate every measured pose and write ``brdf.h5`` (format version 2: measured and planned
     angles, grid indices, steps, exposures, campaign times; see :mod:`gonio.dataset`)."""
+    from gonio.calibrate import calibrate, reference_rho
+    from gonio.dataset import BRDF_NAME, campaign_dataset, write_brdf
+
     meta = c.meta
     # The values come from the journal's rows; a frame file lost or altered since is recorded, not hidden.
     for step, problem in c.journal.check_frames():
@@ -329,6 +340,8 @@ def journal_devices(journal, gantry: Gantry) -> None:
     ``devices`` event each run's (a servo or a meter swapped between two runs shows there). The
     instruments that speak through a profile (the light and the detector: its name, SHA-256 and the
     identity read at connect) are also under ``instruments``, with an ``instruments`` event."""
+    from gonio.gantry import describe_devices
+
     described = describe_devices(gantry)
     if not described:
         return

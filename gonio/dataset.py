@@ -54,7 +54,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from gonio.geometry import HALF_PI, MERL_SHAPE, sph_to_vec, to_half_diff, to_isotropic
@@ -266,6 +265,8 @@ def write_brdf(path: str | Path, data: SampledBRDF) -> Path:
     -------
     Path
     """
+    import h5py  # here, not at the top: reading a campaign's state (gonio status) needs no HDF5
+
     from gonio.formats import atomic_path
 
     path = Path(path)
@@ -345,6 +346,8 @@ def read_brdf(path: str | Path) -> SampledBRDF:
     ValueError
         The file is not a gonio BRDF dataset, or of a newer format version.
     """
+    import h5py
+
     path = Path(path)
     try:
         f = h5py.File(path, "r")

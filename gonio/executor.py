@@ -33,14 +33,17 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gonio.config import RunnerConfig
 from gonio.gantry import abilities
 from gonio.motion.safe import check_targets, safe_path
 from gonio.motion.trapezoid import move_time
 from gonio.protocols import DeviceFault, Gantry
+
+if TYPE_CHECKING:  # type hints only: the caller holds the config
+    from gonio.config import RunnerConfig
 
 __all__ = ["MotionExecutor", "Halted", "MotionFault"]
 

@@ -31,8 +31,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
-from skimage import filters, measure, morphology
 
 __all__ = ["Frame", "FrameError", "check_frame", "saturation_mask", "subtract_dark", "find_sample_region",
            "merge_brackets", "auto_exposure", "region_mean", "content_hash", "write_exr", "read_exr"]
@@ -117,6 +115,9 @@ def find_sample_region(pixels, *, erode_px: int = 2, name: str = "frame") -> np.
     FrameError
         If the frame has no contrast, or nothing is left after the erosion.
     """
+    from scipy import ndimage
+    from skimage import filters, measure, morphology
+
     px = check_frame(pixels, name=name)
     lum = px.mean(axis=2)
     if float(lum.max() - lum.min()) <= 0.0:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import enum
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from gonio.geometry import TWO_PI, sph_to_vec, to_half_diff, to_isotropic
 
@@ -258,6 +257,8 @@ class Scattered:
     """
 
     def __init__(self, kind, coords, value, stddev, sym, tol):
+        from scipy.spatial import cKDTree
+
         pts, owner = _orbit(kind, coords, sym)
         self.kind = kind
         points = self._embed(pts)

@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gonio.campaign import (
     Campaign,
@@ -39,12 +40,14 @@ from gonio.campaign import (
     open_campaign,
     plan_campaign,
 )
-from gonio.config import GonioConfig, relocate
 from gonio.dataset import BRDF_NAME
 from gonio.protocols import Gantry, NotReferencedFault
 from gonio.runner import Runner, State
 from gonio.store import JOURNAL_NAME, Journal
 from gonio.units import ADAPTIVE, FLY, unit_source
+
+if TYPE_CHECKING:  # type hints only: the caller holds the config
+    from gonio.config import GonioConfig
 
 __all__ = ["Request", "RequestError", "CampaignMismatch", "check_request", "plan_request", "open_or_create",
            "campaign_gantry", "is_complete", "run_campaign", "status"]
@@ -152,6 +155,8 @@ def open_or_create(folder: str | Path, cfg: GonioConfig, request: Request, *, sp
     CampaignMismatch
         The folder holds another campaign (nothing is changed in it).
     """
+    from gonio.config import relocate
+
     folder = Path(folder)
     if (folder / JOURNAL_NAME).exists():
         c = open_campaign(folder, write_hook=write_hook)
@@ -173,6 +178,7 @@ def campaign_gantry(c: Campaign, material=None, *, buses_from: GonioConfig | Non
     ``buses_from`` says they are now (default: where they were); simulated devices render ``material``
     with the campaign's seed, from where the journal last saw the axes and at its campaign time
     (:func:`gonio.campaign.gantry_state`). ``clock``: as :func:`gonio.wiring.build_gantry`'s."""
+    from gonio.config import relocate
     from gonio.wiring import build_gantry
 
     cfg = relocate(c.cfg, buses_from) if buses_from is not None else c.cfg

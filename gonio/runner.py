@@ -51,12 +51,15 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
-from gonio.config import GonioConfig
 from gonio.executor import Halted, MotionExecutor, MotionFault
 from gonio.protocols import DeviceFault, Gantry
 from gonio.store import Journal
 from gonio.units import Cut, StepReader, Unit, stop_and_go_units
+
+if TYPE_CHECKING:  # type hints only: the caller holds the config
+    from gonio.config import GonioConfig
 
 __all__ = ["Runner", "State", "TRANSITIONS", "TransitionError", "Command"]
 

@@ -1,5 +1,6 @@
 """Fast start: ``gonio --version`` and ``gonio <command> --help`` import none of the heavy libraries a
-command uses (a behavioural check: which modules are loaded, not how long it takes; the figures are
+command uses, and a command that works imports what its work needs, not what the others' does (a
+behavioural check: which modules are loaded, not how long it takes; the figures are
 tools/bench_startup.py's, in BENCHMARKS.md)."""
 
 from __future__ import annotations
@@ -51,3 +52,40 @@ def test_the_probe_sees_what_a_command_imports():
     """The check can fail: a command that runs (gonio config list) imports pydantic through the config."""
     code, modules = _loaded("config", "list")
     assert code == 0 and "pydantic" in modules and "gonio.config" in modules
+
+
+# -- commands that do their work import what their work needs, not every other command's libraries ---
+#: What each command must not import (checked on a finished campaign); the libraries a command does need
+#: (pydantic for a config, h5py for brdf.h5, drjit to simulate) are left out of its row.
+NOT_NEEDED = {
+    "status": ("scipy", "drjit", "matplotlib", "h5py", "pydantic", "gonio.config", "gonio.plan.build",
+               "fastapi", "httpx", "skimage"),
+    "export": ("scipy", "drjit", "matplotlib", "pydantic", "gonio.config", "gonio.plan.build", "fastapi",
+               "skimage"),
+    "plan": ("drjit", "matplotlib", "h5py", "fastapi", "skimage", "gonio.sim.materials"),
+    "simulate": ("matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage", "scipy.optimize",
+                 "gonio.export", "gonio.fit", "gonio.daemon.app"),
+}
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    from gonio.cli import main
+
+    folder = tmp_path_factory.mktemp("startup") / "c"
+    argv = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet", "--out", str(folder)]
+    assert main(argv) == 0
+    return folder
+
+
+@pytest.mark.parametrize("command", sorted(NOT_NEEDED))
+def test_a_command_imports_only_what_its_work_needs(command, finished, tmp_path):
+    argv = {"status": ["status", str(finished)],
+            "export": ["export", str(finished), "--format", "csv", "--out", str(tmp_path / "c.csv")],
+            "plan": ["plan", "--grid", "iso:step=45"],
+            "simulate": ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet", "--out",
+                         str(tmp_path / "s")]}[command]
+    code, modules = _loaded(*argv)
+    assert code == 0
+    loaded = sorted(m for m in NOT_NEEDED[command] if m in modules)
+    assert loaded == [], f"gonio {command} imported {loaded}"

@@ -28,7 +28,6 @@ through the fit, a reason per query and exact hits.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from gonio.adaptive.domain import embed_pairs, embed_poses
 from gonio.adaptive.samples import Samples
@@ -55,6 +54,8 @@ class LocalFit:
     """Moving least squares of ``samples`` (module docstring); ``eval(wi, wo)`` -> f_r (N, C)."""
 
     def __init__(self, samples: Samples, domain: str = "iso", transform: str = "log", degree: int = 2):
+        from scipy.spatial import cKDTree
+
         if transform not in TRANSFORMS or degree not in (1, 2):
             raise ValueError(f"transform must be one of {TRANSFORMS} and degree 1 or 2, got {transform!r}, "
                              f"{degree!r}")

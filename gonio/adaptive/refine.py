@@ -39,7 +39,6 @@ round from the journal.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from gonio.adaptive.domain import embed_pairs, poses_of
 from gonio.adaptive.error import random_pairs
@@ -73,6 +72,8 @@ PAIR_CELLS, PAIR_LOO = "pair", ("pair", *LOO[1:])
 def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: int = 0,
                 loo: tuple = LOO) -> np.ndarray:
     """E_j of every sample (module docstring), shape (N,)."""
+    from scipy.spatial import cKDTree
+
     points, owner = samples.points(domain)
     n = len(samples)
     wi, wo = random_pairs(CLOUD, theta_max, seed)
@@ -99,6 +100,8 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
     ValueError
         When ``n`` is negative.
     """
+    from scipy.spatial import cKDTree
+
     if n < 0:
         raise ValueError(f"n: must be >= 0, got {n}")
     columns = 4 if domain == "pair" else 3
@@ -180,6 +183,8 @@ def _measurable(kin, points, theta_max, domain):
 def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
     """Up to ``count`` reachable poses of the uniform cloud, farthest from the samples and each other
     first (fewer when the cloud holds no more reachable poses apart from every sample)."""
+    from scipy.spatial import cKDTree
+
     wi, wo = random_pairs(CLOUD, theta_max, seed + 1)
     cloud = embed_pairs(domain, wi, wo)
     ok, *angles = _measurable(kin, cloud, theta_max, domain)

@@ -29,7 +29,6 @@ from gonio.cli.common import install_startup_handlers as _install_startup_handle
 from gonio.cli.common import not_empty as _not_empty
 from gonio.cli.results import export_formats as _export_formats
 from gonio.cli.results import write_exports as _write_exports
-from gonio.config import load_config
 
 #: Seconds between progress lines when stderr is not a terminal (logs, CI, a daemon's journal).
 PLAIN_PROGRESS_EVERY_S = 5.0
@@ -37,6 +36,7 @@ PLAIN_PROGRESS_EVERY_S = 5.0
 
 # -- gonio plan -----------------------------------------------------------------------------------
 def cmd_plan(args) -> int:
+    from gonio.config import load_config
     from gonio.plan import build_plan, format_plan, parse_grid, plan_summary
     from gonio.plan.grids import grid_kind
 
@@ -105,7 +105,7 @@ def cmd_materials(args) -> int:
 
 # -- gonio config ---------------------------------------------------------------------------------
 def cmd_config(args) -> int:
-    from gonio.config import packaged_configs, resolve_config
+    from gonio.config import load_config, packaged_configs, resolve_config
 
     if args.action == "list":
         shipped = packaged_configs()
@@ -209,6 +209,7 @@ def cmd_simulate(args) -> int:
 
 
 def _simulate(args) -> int:
+    from gonio.config import load_config
     from gonio.lifecycle import Request, RequestError, check_request
     from gonio.plan import parse_grid
 
@@ -456,6 +457,7 @@ class GantryUnreachable(RuntimeError):
 
 
 def cmd_run(args) -> int:
+    from gonio.config import load_config
     from gonio.lifecycle import Request, RequestError, check_request, plan_request
     from gonio.plan import parse_grid
     from gonio.store import JOURNAL_NAME

@@ -104,13 +104,17 @@ def _fit_many(args, source: Path) -> int:
 
 # -- gonio export ---------------------------------------------------------------------------------
 def export_formats(text: str | None) -> list[str]:
+    if text is None:  # no --export: the exporters are not imported
+        return []
     from gonio.export import parse_formats
 
-    return parse_formats(text) if text is not None else []
+    return parse_formats(text)
 
 
 def write_exports(folder: Path, formats: list[str], out: _Out) -> None:
     """``gonio simulate --export``: each format under its unambiguous name in the campaign folder."""
+    if not formats:  # no --export: the exporters are not imported
+        return
     from gonio.export import export
     from gonio.registries import EXPORT_FORMATS
 

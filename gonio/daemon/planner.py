@@ -50,7 +50,10 @@ _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 #: A request's planning is stopped after this many times its time limit of wall time, however little CPU
 #: time the machine's other work left it (it runs at idle priority).
 WALL_FACTOR = 5
-_PRELOAD = ("gonio.daemon.records", "gonio.plan", "gonio.campaign", "gonio.lifecycle", "gonio.fly.plans")
+#: What the fork server imports for its workers: the planner's modules (gonio.plan and gonio.campaign import
+#: them only when they plan, gonio.config when a config is read) and the k-d trees they plan with.
+_PRELOAD = ("gonio.daemon.records", "gonio.config", "gonio.plan.build", "scipy.spatial", "gonio.campaign",
+            "gonio.lifecycle", "gonio.fly.plans")
 
 
 class PlannerBusy(RuntimeError):

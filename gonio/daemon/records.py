@@ -16,8 +16,10 @@ import os
 import sqlite3
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from gonio.config import GonioConfig, parse_config
+if TYPE_CHECKING:  # type hints only: the caller holds the config
+    from gonio.config import GonioConfig
 
 __all__ = ["Record", "FieldError", "Conflict", "NotFound", "DiskFull", "validate_request", "precheck_request",
            "prepare_campaign", "is_disk_full", "ID_PATTERN", "RECORD_NAME", "MAX_STEPS"]
@@ -109,6 +111,8 @@ class Record:
 
 def _with_detector(cfg: GonioConfig, detector: dict | None) -> GonioConfig:
     """``cfg`` with the request's detector options (exposure_s, frames) applied and validated."""
+    from gonio.config import parse_config
+
     if not detector:
         return cfg
     data = cfg.model_dump(mode="json")

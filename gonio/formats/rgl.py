@@ -59,7 +59,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from gonio.geometry import to_half_diff
 
@@ -319,6 +318,8 @@ def retro_from_samples(wi, wo, value, theta_d_max_deg: float = NEAR_RETRO_DEG,
         f_r (sr⁻¹); R, G, B weigh by luminance, other channel counts are averaged. Samples with a value
         that is not finite or not above 0 are left out.
     """
+    from scipy.spatial import cKDTree
+
     wi, wo = np.asarray(wi, dtype=np.float64), np.asarray(wo, dtype=np.float64)
     v = np.asarray(value, dtype=np.float64)
     lum = v @ _LUMA if v.shape[1] == 3 else v.mean(axis=1)

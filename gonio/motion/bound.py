@@ -23,7 +23,6 @@ is for those positions, the same ones the estimate uses, so the two compare like
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from gonio.motion.metric import MoveMetric
 
@@ -107,6 +106,8 @@ def neighbour_times(points_deg, metric: MoveMetric, k: int | None = None) -> tup
         Lower bounds on the shortest and second-shortest move from each pose to another pose, in s
         (exact when ``metric.uniform``).
     """
+    from scipy.spatial import cKDTree
+
     pts = _points(points_deg, metric.n_axes)
     n = pts.shape[0]
     if n < 3:

@@ -12,7 +12,6 @@ import math
 from collections import deque
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from gonio.motion.metric import MoveMetric
 
@@ -91,6 +90,8 @@ def neighbour_lists(points_deg, metric: MoveMetric, k: int = 8) -> tuple[np.ndar
     times : ndarray, shape (N, k')
         Their move times in s.
     """
+    from scipy.spatial import cKDTree
+
     pts = np.asarray(points_deg, dtype=np.float64)
     n = pts.shape[0]
     k = min(k, n - 1)

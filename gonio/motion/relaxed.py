@@ -36,7 +36,6 @@ inner part fits in ``R * every_s``. The result is the least over the allowed R.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from gonio.motion.metric import MoveMetric
 
@@ -291,6 +290,8 @@ def branch_neighbour_times(branches, metric: MoveMetric, k: int | None = None):
     nn1, nn2 : ndarray, shape (N,)
         Bounds on the least and second-least pair time from each pose to another pose, in s.
     """
+    from scipy.spatial import cKDTree
+
     pts = np.asarray(branches, dtype=np.float64)
     n, w, n_axes = pts.shape
     if n < 3:
@@ -476,6 +477,8 @@ def relaxed_campaign_bound(branches, free, reference_options, home_deg, metric: 
 def _to_nearest(branches, options, metric: MoveMetric) -> np.ndarray:
     """Least move time (N,) from any branch of each pose (N, W, n) to any of ``options`` (K, n): a
     k-d tree search when the metric's key is a scaled Chebyshev distance, else every pair."""
+    from scipy.spatial import cKDTree
+
     if not metric.uniform:
         return pair_times(branches, options[None], metric)[:, 0]
     n, w, n_axes = branches.shape

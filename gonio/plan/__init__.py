@@ -7,20 +7,15 @@ unreachable poses by reason, and the campaign's estimated duration with a lower 
 ``plan_summary`` and ``format_plan`` report it (``gonio plan``).
 """
 
-from gonio.plan.build import Plan, build_plan
-from gonio.plan.grids import GridSpec, parse_grid
-from gonio.plan.report import format_plan, plan_summary
-from gonio.plan.schedule import STEP_DARK, STEP_NAMES, STEP_POSE, STEP_REFERENCE
+from gonio.registry import lazy_attributes
 
-__all__ = [
-    "Plan",
-    "GridSpec",
-    "build_plan",
-    "parse_grid",
-    "plan_summary",
-    "format_plan",
-    "STEP_POSE",
-    "STEP_DARK",
-    "STEP_REFERENCE",
-    "STEP_NAMES",
-]
+#: Each public name -> the submodule it lives in (imported when the name is first used: a module that
+#: needs a light part of the package, the step kinds of .schedule or the GRID parser of .grids, does not
+#: load the planner and the libraries it plans with; tools/bench_startup.py).
+_EXPORTS = {
+    "Plan": "build", "build_plan": "build", "GridSpec": "grids", "parse_grid": "grids",
+    "plan_summary": "report", "format_plan": "report", "STEP_POSE": "schedule", "STEP_DARK": "schedule",
+    "STEP_REFERENCE": "schedule", "STEP_NAMES": "schedule",
+}
+__all__ = list(_EXPORTS)
+__getattr__ = lazy_attributes(__name__, _EXPORTS)

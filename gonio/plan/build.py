@@ -37,10 +37,10 @@ Choices worth knowing:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gonio.config import GonioConfig
 from gonio.motion.branches import COLLISION_PENALTY_S, best_branches
 from gonio.motion.chain import free_azimuth, nearest_branch
 from gonio.motion.cut import serpentine_loops
@@ -69,6 +69,9 @@ from gonio.plan.grids import (
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE, run_starts, schedule_runs
 from gonio.plan.transit import colliding_runs, secure_branches, step_targets, via_points
 from gonio.registries import ORDERS
+
+if TYPE_CHECKING:  # type hints only: the caller holds the config
+    from gonio.config import GonioConfig
 
 __all__ = ["Plan", "build_plan", "OrderInputs", "order_raster", "order_serpentine", "order_tour",
            "TOUR_MAX_POSES", "AUTO_TOUR_MAX_POSES", "REASON_CAUSES"]
