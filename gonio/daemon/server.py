@@ -140,6 +140,15 @@ class _Server(uvicorn.Server):
     def __init__(self, config, daemon: Daemon):
         super().__init__(config)
         self.daemon = daemon
+        #: Signals that came before uvicorn's own handlers were in place (see :func:`serve`).
+        self.early_signals: list[int] = []
+
+    async def startup(self, sockets=None):
+        await super().startup(sockets)
+        # uvicorn's handlers are in place by now (its capture_signals wraps the whole serve): a stop asked
+        # for while it was starting is acted on here, not lost.
+        for sig in self.early_signals:
+            self.handle_exit(sig, None)
 
     def handle_exit(self, sig, frame):
         if not self.daemon.queue.stopping:
@@ -189,22 +198,25 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
     sys.setswitchinterval(0.0005)
     bound = sock.getsockname()[1]
     d.hosts.listen(host, bound)
-    d.queue.start()
-    d.planner.start()
     server = _Server(_config(d, access_log), d)
-    url = f"http://{'[' + host + ']' if ':' in host else host}:{bound}"
-    announce(f"gonio serve: listening on {url} (data {data}, gantry '{cfg.name}', "
-             f"{'token required for writes' if d.token else 'no token: loopback only'}, "
-             f"{'materials from ' + str(materials) if materials else 'no measured materials'})")
-    if host in ("0.0.0.0", "::") and not allow_hosts:
-        log.warning("listening on every interface, but only loopback names are answered: give the names "
-                    "clients use (--allow-host gantry-pc.lab) or any other Host is refused")
     if threading.current_thread() is threading.main_thread():
-        # uvicorn re-raises the signal that stopped it once it has shut down: by then the daemon has
+        # From here until uvicorn has its own handlers (once it serves), SIGINT/SIGTERM are recorded and
+        # acted on as soon as it does: one sent right after "listening on" was lost, and the daemon ran
+        # on. After uvicorn has shut down, it re-raises the signal that stopped it: by then the daemon has
         # stopped cleanly, so the signal is only acknowledged (exit status 0).
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda signum, frame: None)
+            signal.signal(sig, lambda signum, frame: None if server.started
+                          else server.early_signals.append(signum))
     try:
+        d.queue.start()
+        d.planner.start()
+        url = f"http://{'[' + host + ']' if ':' in host else host}:{bound}"
+        announce(f"gonio serve: listening on {url} (data {data}, gantry '{cfg.name}', "
+                 f"{'token required for writes' if d.token else 'no token: loopback only'}, "
+                 f"{'materials from ' + str(materials) if materials else 'no measured materials'})")
+        if host in ("0.0.0.0", "::") and not allow_hosts:
+            log.warning("listening on every interface, but only loopback names are answered: give the "
+                        "names clients use (--allow-host gantry-pc.lab) or any other Host is refused")
         server.run(sockets=[sock])
     finally:
         d.queue.stop("daemon stopping")

@@ -215,3 +215,21 @@ def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_resul
     assert a.keys() == b.keys()
     for key in a:
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_the_moment_it_says_listening_stops_the_daemon(tmp_path, sig):
+    """A Ctrl-C (or SIGTERM) that comes right after "listening on", before uvicorn has its own handlers,
+    stops the daemon as one that comes later does; it was lost, and the daemon ran on."""
+    code = ("import os, signal, sys\n"
+            "from pathlib import Path\n"
+            "from gonio.config import load_config\n"
+            "from gonio.daemon.server import serve\n"
+            "def announce(line):\n"
+            "    print(line, flush=True)\n"
+            f"    os.kill(os.getpid(), {int(sig)})\n"
+            f"sys.exit(serve(load_config(None), data=Path(sys.argv[1]), port=0, announce=announce))\n")
+    r = subprocess.run([GONIO[0], "-c", code, str(tmp_path / "data")], capture_output=True, text=True,
+                       timeout=WAIT_S)
+    assert r.returncode == 0, r.stderr
+    assert "listening on" in r.stdout and "Traceback" not in r.stderr
