@@ -2,9 +2,10 @@
 
 import h5py
 import numpy as np
+import planned
 import pytest
 
-from gonio.campaign import create_campaign, open_campaign
+from gonio.campaign import open_campaign
 from gonio.config import load_config
 from gonio.geometry import sph_to_vec
 from gonio.lifecycle import run_campaign
@@ -18,7 +19,7 @@ class Crash(BaseException):
 
 
 def _run(folder, cfg, material, grid, seed=1, write_hook=None):
-    c = create_campaign(folder, cfg, grid=grid, material=material, seed=seed)
+    c = planned.create(folder, cfg, grid=grid, material=material, seed=seed)
     if write_hook is not None:
         c.close()
         c = open_campaign(folder, write_hook=write_hook)

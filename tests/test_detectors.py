@@ -4,9 +4,10 @@ the config ([detector.sim] kind) or by `gonio simulate --detector`; bad frames b
 from __future__ import annotations
 
 import numpy as np
+import planned
 import pytest
 
-from gonio.campaign import create_campaign, gantry_state, open_campaign
+from gonio.campaign import gantry_state, open_campaign
 from gonio.cli import main
 from gonio.config import ConfigError, load_config, parse_config, with_sim_detector
 from gonio.dataset import read_brdf
@@ -38,7 +39,7 @@ def _truth(b, material):
 
 
 def _campaign(tmp_path, cfg, material, grid, seed=1):
-    c = create_campaign(tmp_path, cfg, grid=grid, material=material, seed=seed)
+    c = planned.create(tmp_path, cfg, grid=grid, material=material, seed=seed)
     state, runner = run_campaign(c, build_gantry(cfg, material, seed=seed))
     return c, state, runner
 
@@ -190,7 +191,7 @@ class Crash(BaseException):
 
 def _crash_and_resume(tmp_path, cfg, material, grid, crash_at):
     """Run a campaign that dies at its ``crash_at``-th journal write, then resume it in a fresh gantry."""
-    c = create_campaign(tmp_path, cfg, grid=grid, material=material, seed=2)
+    c = planned.create(tmp_path, cfg, grid=grid, material=material, seed=2)
     c.close()
 
     def hook(n):

@@ -5,6 +5,7 @@ import json
 
 import drjit as dr
 import numpy as np
+import planned
 import pytest
 
 from gonio.campaign import create_campaign
@@ -39,7 +40,7 @@ def _plan_dirs(grid):
 
 def _campaign(folder, material, grid, cfg=None, seed=1):
     cfg = cfg or load_config()
-    c = create_campaign(folder, cfg, grid=grid, material=material, seed=seed)
+    c = planned.create(folder, cfg, grid=grid, material=material, seed=seed)
     try:
         run_campaign(c, build_gantry(c.cfg, material, seed=seed))
     finally:
