@@ -90,12 +90,13 @@ def _dxl(**kw):
                           referenced=True, **kw), clock
 
 
-def _modbus(rtu: bool = False):
-    """The Modbus twin; its tilt bus (where the faults go) on an RTU line where ``rtu``. Its reply
-    time-out is 0.1 s on either transport: each fault that waits one out (a reply dropped, late, or a
-    controller that stopped answering) costs 0.1 s of wall time, not the shipped 0.5 s."""
+def _modbus(rtu: bool = False, waits_out: bool = False):
+    """The Modbus twin; its tilt bus (where the faults go) on an RTU line where ``rtu``, its reply
+    time-out 0.1 s on RTU, and on TCP where the fault ``waits_out`` one (a reply dropped, late, cut short,
+    or a controller that stopped answering: 0.1 s of wall time each, not the shipped 0.5 s)."""
     data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
-    data["buses"]["tilt"]["timeout_s"] = 0.1
+    if rtu or waits_out:
+        data["buses"]["tilt"]["timeout_s"] = 0.1
     if rtu:
         data["buses"]["tilt"]["url"] = "rtu:///dev/emulated-tilt?baudrate=115200"
     clock = HookClock()
@@ -236,7 +237,7 @@ def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp
     dropped or cut short they make that read fail (the step retried, journaled); duplicated or stale
     (an earlier answer to the same read, at most a time-out old) they are skipped by transaction id (TCP),
     or discarded when they are not the request's (RTU), or read as what they are: the axis at rest."""
-    emu, clock = _modbus(rtu=transport == "rtu")
+    emu, clock = _modbus(rtu=transport == "rtu", waits_out=kind in ("late", "reorder", "drop", "truncate"))
     with emu:
         motor = emu.motors["sample_tilt"]
         first, _, events, _ = _campaign(tmp_path, emu, clock,
@@ -293,7 +294,7 @@ def test_modbus_an_axis_stopped_short_faults_and_the_campaign_resumes_when_clear
 
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_modbus_a_controller_that_stops_answering_faults_after_the_retries_and_resumes(tmp_path, transport):
-    emu, clock = _modbus(rtu=transport == "rtu")
+    emu, clock = _modbus(rtu=transport == "rtu", waits_out=True)
     with emu:
         motor = emu.motors["sample_tilt"]
         first, reason, events, _ = _campaign(tmp_path, emu, clock, inject=lambda e: motor.go_silent(),
