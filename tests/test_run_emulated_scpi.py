@@ -105,7 +105,8 @@ def _inject(emu, at_step, action):
 @pytest.mark.parametrize("kind", ["delay", "drop", "corrupt", "truncate"])
 def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path, emulated, kind):
     emu, clock = emulated
-    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=2.5))
+    # delay: 0.9 s after the reading's 1.1 s deadline, 1.2 s before its re-synchronisation gives up
+    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=2.0))
     (state, runner), _ = _emulated_run(tmp_path / "r", emu, clock, on_step=on_step)
     assert state == State.DONE, runner.fault
     assert emu.meter.faults.applied == [(kind, "FETC?")]
