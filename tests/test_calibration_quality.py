@@ -5,10 +5,10 @@ spectral gold turned into colour."""
 from __future__ import annotations
 
 import numpy as np
+import planned
 import pytest
 
 from gonio.calibrate import calibrate
-from gonio.campaign import create_campaign
 from gonio.colour import bands_to_rgb, material_rgb
 from gonio.config import ConfigError, load_config, parse_config
 from gonio.dataset import read_brdf
@@ -40,7 +40,7 @@ def _cfg(kind="photodiode", camera=None, light=None, reference=None, runner=None
 
 
 def _run(tmp_path, cfg, material=LAMBERT, grid=GRID):
-    c = create_campaign(tmp_path, cfg, grid=grid, material=material, seed=4)
+    c = planned.create(tmp_path, cfg, grid=grid, material=material, seed=4)
     state, _ = run_campaign(c, build_gantry(cfg, material, seed=4))
     assert state == State.DONE
     return c, read_brdf(tmp_path / "brdf.h5")

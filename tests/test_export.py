@@ -5,6 +5,7 @@ import shutil
 
 import h5py
 import numpy as np
+import planned
 import pytest
 from brdf_samples import sampled
 
@@ -92,13 +93,12 @@ def test_errors_name_the_field(data, tmp_path):
 
 @pytest.mark.slow
 def test_a_real_simulated_campaign_exports(tmp_path):
-    from gonio.campaign import create_campaign
     from gonio.config import load_config
     from gonio.lifecycle import run_campaign
     from gonio.wiring import build_gantry
 
     spec = "ggx:alpha=0.4,metal=gold"
-    c = create_campaign(tmp_path / "c", load_config(), grid="iso:step=15", material=spec, seed=1)
+    c = planned.create(tmp_path / "c", load_config(), grid="iso:step=15", material=spec, seed=1)
     try:
         run_campaign(c, build_gantry(c.cfg, spec, seed=1))
     except TypeError as exc:  # another layer mid-change in this tree

@@ -90,11 +90,15 @@ def _dxl(**kw):
                           referenced=True, **kw), clock
 
 
-def _modbus(rtu: str | None = None):
+def _modbus(rtu: bool = False, waits_out: bool = False):
+    """The Modbus twin; its tilt bus (where the faults go) on an RTU line where ``rtu``, its reply
+    time-out 0.1 s on RTU, and on TCP where the fault ``waits_out`` one (a reply dropped, late, cut short,
+    or a controller that stopped answering: 0.1 s of wall time each, not the shipped 0.5 s)."""
     data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
-    if rtu is not None:
-        data["buses"][rtu]["url"] = f"rtu:///dev/emulated-{rtu}?baudrate=115200"
-        data["buses"][rtu]["timeout_s"] = 0.1
+    if rtu or waits_out:
+        data["buses"]["tilt"]["timeout_s"] = 0.1
+    if rtu:
+        data["buses"]["tilt"]["url"] = "rtu:///dev/emulated-tilt?baudrate=115200"
     clock = HookClock()
     return EmulatedGantry(parse_config(data), clock=clock, any_port=True, referenced=True), clock
 
@@ -233,7 +237,7 @@ def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp
     dropped or cut short they make that read fail (the step retried, journaled); duplicated or stale
     (an earlier answer to the same read, at most a time-out old) they are skipped by transaction id (TCP),
     or discarded when they are not the request's (RTU), or read as what they are: the axis at rest."""
-    emu, clock = _modbus(rtu="tilt" if transport == "rtu" else None)
+    emu, clock = _modbus(rtu=transport == "rtu", waits_out=kind in ("late", "reorder", "drop", "truncate"))
     with emu:
         motor = emu.motors["sample_tilt"]
         first, _, events, _ = _campaign(tmp_path, emu, clock,
@@ -249,7 +253,7 @@ def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp
 
 
 def test_modbus_a_corrupt_rtu_reply_is_retried(tmp_path):
-    emu, clock = _modbus(rtu="tilt")
+    emu, clock = _modbus(rtu=True)
     with emu:
         motor = emu.motors["sample_tilt"]
         first, _, events, _ = _campaign(tmp_path, emu, clock,
@@ -260,12 +264,12 @@ def test_modbus_a_corrupt_rtu_reply_is_retried(tmp_path):
 
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_modbus_an_exception_response_busy_is_retried_and_device_failure_faults(tmp_path, transport):
-    emu, clock = _modbus(rtu="tilt" if transport == "rtu" else None)
+    emu, clock = _modbus(rtu=transport == "rtu")
     with emu:
         motor = emu.motors["sample_tilt"]
         first, _, events, _ = _campaign(tmp_path / "busy", emu, clock, inject=lambda e: motor.fail_next(6))
         assert first == State.DONE and "exception response, code 6" in _kinds(events, "retry")[0]
-    emu, clock = _modbus(rtu="tilt" if transport == "rtu" else None)
+    emu, clock = _modbus(rtu=transport == "rtu")
     with emu:
         motor = emu.motors["sample_tilt"]
         first, reason, _, _ = _campaign(tmp_path / "fail", emu, clock, inject=lambda e: motor.fail_next(4))
@@ -290,7 +294,7 @@ def test_modbus_an_axis_stopped_short_faults_and_the_campaign_resumes_when_clear
 
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_modbus_a_controller_that_stops_answering_faults_after_the_retries_and_resumes(tmp_path, transport):
-    emu, clock = _modbus(rtu="tilt" if transport == "rtu" else None)
+    emu, clock = _modbus(rtu=transport == "rtu", waits_out=True)
     with emu:
         motor = emu.motors["sample_tilt"]
         first, reason, events, _ = _campaign(tmp_path, emu, clock, inject=lambda e: motor.go_silent(),
@@ -304,7 +308,7 @@ def test_modbus_a_controller_that_stops_answering_faults_after_the_retries_and_r
 def test_modbus_a_cable_pulled_mid_move_faults_or_reconnects_and_the_campaign_resumes(tmp_path, transport):
     """RTU: the pty closes under the driver (every retry finds it gone: a fault; replugged, it resumes).
     TCP: the gateway drops the connection (pymodbus reconnects: the campaign goes on)."""
-    emu, clock = _modbus(rtu="tilt" if transport == "rtu" else None)
+    emu, clock = _modbus(rtu=transport == "rtu")
     with emu:
         motor = emu.motors["sample_tilt"]
         first, reason, events, _ = _campaign(tmp_path, emu, clock,

@@ -3,6 +3,7 @@ data, so `gonio plan` and a small `gonio simulate` run from any folder."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -86,16 +87,42 @@ def test_wheel_installs_gonio_with_its_configs_outside_the_source_tree(installed
     module, default = r.stdout.split()
     assert Path(module).is_relative_to(venv) and Path(default).is_relative_to(venv)
     assert not Path(module).is_relative_to(ROOT)
-    gonio = str(venv / "bin" / "gonio")
-    assert "gonio 0." in _run([gonio, "--version"], cwd=cwd, env=env).stdout
-    assert "sample-stage" in _run([gonio, "config", "list"], cwd=cwd, env=env).stdout
-    assert "lower bound" in _run([gonio, "plan", "--grid", "iso:step=30"], cwd=cwd, env=env).stdout
-    _run([gonio, "plan", "--grid", "full:step=60", "--config", "sample-stage"], cwd=cwd, env=env)
-    # a config naming the SCPI instrument profiles: they ship as package data too
-    _run([gonio, "plan", "--grid", "iso:step=60", "--config", "emulated-two-arm-scpi"], cwd=cwd, env=env)
-    r = _run([gonio, "simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", "run", "--quiet"],
-             cwd=cwd, env=env)
-    assert (cwd / "run" / "brdf.h5").is_file() and "median relative error" in r.stderr
+    # The console script, then the commands through gonio.cli.main in one process of the new environment
+    # (each `gonio` process would pay the start-up again; what is tested is what the wheel installed).
+    assert "gonio 0." in _run([str(venv / "bin" / "gonio"), "--version"], cwd=cwd, env=env).stdout
+    (config, plan, *_, simulate) = _commands(venv, cwd, env, [
+        ["config", "list"],
+        ["plan", "--grid", "iso:step=30"],
+        ["plan", "--grid", "full:step=60", "--config", "sample-stage"],
+        # a config naming the SCPI instrument profiles: they ship as package data too
+        ["plan", "--grid", "iso:step=60", "--config", "emulated-two-arm-scpi"],
+        ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", "run", "--quiet"]])
+    assert "sample-stage" in config[0] and "lower bound" in plan[0]
+    assert (cwd / "run" / "brdf.h5").is_file() and "median relative error" in simulate[1]
+
+
+#: Runs each argv (JSON on the command line) through gonio.cli.main, printing a JSON list of
+#: [exit code, stdout, stderr], one per command.
+_COMMANDS = """
+import contextlib, io, json, sys
+from gonio.cli import main
+done = []
+for argv in json.loads(sys.argv[1]):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    done.append([rc, out.getvalue(), err.getvalue()])
+print(json.dumps(done))
+"""
+
+
+def _commands(venv, cwd, env, argvs):
+    """(stdout, stderr) of each ``gonio`` command, run in one process of ``venv``; each must exit 0."""
+    r = _run([str(venv / "bin" / "python"), "-c", _COMMANDS, json.dumps(argvs)], cwd=cwd, env=env)
+    done = json.loads(r.stdout)
+    for argv, (rc, out, err) in zip(argvs, done, strict=True):
+        assert rc == 0, f"gonio {' '.join(argv)}: {out}\n{err}"
+    return [(out, err) for _, out, err in done]
 
 
 def test_every_module_of_the_source_tree_is_in_the_wheel_and_imports(installed):

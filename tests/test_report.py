@@ -11,6 +11,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import planned
 import pytest
 
 from gonio.campaign import create_campaign, finish_campaign, open_campaign
@@ -32,7 +33,7 @@ CHROMIUM = Path("/usr/bin/chromium")
 
 def _run(folder, material, grid, cfg=None, seed=1, before=None):
     cfg = cfg or load_config()
-    c = create_campaign(folder, cfg, grid=grid, material=material, seed=seed)
+    c = planned.create(folder, cfg, grid=grid, material=material, seed=seed)
     try:
         g = build_gantry(c.cfg, material, seed=seed)
         if before is not None:

@@ -410,15 +410,21 @@ def test_gonio_run_killed_mid_move_leaves_the_servos_stopped_by_their_bus_watchd
         assert abs(at - goal) > 50  # ticks: stopped short, it did not simply arrive
 
 
+WATCHDOG_GRID = "iso:step=60,theta_max=60"
+
+
 @pytest.mark.slow
 def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp_path):
-    """The shipped Dynamixel twin (bus watchdog 0.5 s) on the wall clock, with moves slowed so that many
-    last several watchdog periods: only the feeding reads keep the servos going. The campaign finishes
-    with no watchdog fired, no retry, every servo disarmed at rest, and the simulation's values."""
+    """The shipped Dynamixel twin (bus watchdog 0.5 s) on the wall clock, with the arms' moves slowed so
+    that many last several watchdog periods: only the feeding reads keep the servos going. The campaign
+    finishes with no watchdog fired, no retry, every servo disarmed at rest, and the simulation's values.
+    A small grid (6 poses, θ to 60°) whose moves are long; the changer at its quickest (it would add
+    four 1.7 s moves of waiting to the arms' seven that last over 1 s)."""
     data = _fast("emulated-two-arm-dynamixel")
-    for axis in data["axes"].values():
-        axis["max_velocity_deg_s"] = 60.0  # within the slowest servo's velocity limit, gear included
-        axis["max_accel_deg_s2"] = 240.0
+    for name, axis in data["axes"].items():
+        fast = name == "changer"  # 300 °/s: within the XL430's velocity limit
+        axis["max_velocity_deg_s"] = 300.0 if fast else 60.0  # within each servo's limit, gear included
+        axis["max_accel_deg_s2"] = 3000.0 if fast else 240.0
     cfg = parse_config(data)
     watchdog_s = data["axes"]["light_tilt"]["watchdog_s"]
     assert watchdog_s == 0.5
@@ -430,12 +436,12 @@ def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp
                 start(goal)
                 lasted.append(s.trajectory.duration)
             s._start_move = start
-        (state, runner), _ = _emulated_run(tmp_path / "emu", emu, clock, grid="iso:step=45")
+        (state, runner), _ = _emulated_run(tmp_path / "emu", emu, clock, grid=WATCHDOG_GRID)
         assert state == State.DONE, runner.fault
         assert sum(t > 2 * watchdog_s for t in lasted) >= 5, sorted(lasted)[-5:]
         assert all(s.watchdog_fired_at is None and s.value(98) == 0 for s in emu.servos.values())
         _assert_no_retry_or_fault(tmp_path / "emu")
-    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path, "sim", "iso:step=45"),
+    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path, "sim", WATCHDOG_GRID),
              channel_mean=True)
 
 

@@ -105,7 +105,8 @@ def _inject(emu, at_step, action):
 @pytest.mark.parametrize("kind", ["delay", "drop", "corrupt", "truncate"])
 def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path, emulated, kind):
     emu, clock = emulated
-    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=2.5))
+    # delay: 0.9 s after the reading's 1.1 s deadline, 1.2 s before its re-synchronisation gives up
+    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=2.0))
     (state, runner), _ = _emulated_run(tmp_path / "r", emu, clock, on_step=on_step)
     assert state == State.DONE, runner.fault
     assert emu.meter.faults.applied == [(kind, "FETC?")]
@@ -186,11 +187,12 @@ def test_a_power_meter_power_cycled_mid_campaign_is_configured_again(tmp_path, e
 @pytest.mark.slow
 def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path):
     data = _fast(TWIN)
-    for name, axis in data["axes"].items():  # within each servo's velocity limit, its gear included
-        axis["max_velocity_deg_s"] = {"light_azimuth": 66.0, "detector_azimuth": 66.0}.get(name, 180.0)
-        axis["max_accel_deg_s2"] = 2000.0
-        if axis.get("reference") == "hard_stop":
-            axis["reference_velocity_deg_s"] = 60.0
+    for axis in data["axes"].values():  # within each servo's velocity limit, its gear included
+        axis["max_velocity_deg_s"], axis["max_accel_deg_s2"] = 180.0, 2000.0
+        if axis.get("reference") == "hard_stop":  # the ring carriages: 2:1 pinions (as test_reference's
+            # quick twin), so 120 °/s on the ring, and the approach to the stop at that speed
+            axis.update(gear_ratio=2.0, max_velocity_deg_s=120.0, max_accel_deg_s2=2400.0,
+                        reference_velocity_deg_s=120.0)
     data["light"]["settle_s"] = 0.0
     src = tmp_path / "scpi.toml"
     from gonio.sim.emulators.gantry import to_toml

@@ -186,7 +186,9 @@ def test_a_bad_reply_is_transient_and_the_next_reading_is_its_own(pm100, kind):
     """Dropped, corrupt, truncated or late (after the time-out) FETC? replies: a transient fault; the
     next reading is the meter's new one, never the late one (the driver re-synchronises on *IDN?)."""
     emu, dev = pm100
-    emu.faults.add(kind, match="FETC?", delay_s=3 * TIMEOUT_S)  # well after the time-out and exposure
+    # Late by 0.7 s after the FETC? deadline (time-out + 0.1 s exposure), and 1 s before the end of the
+    # re-synchronisation that follows (its two time-outs after the first), so neither edge is close.
+    emu.faults.add(kind, match="FETC?", delay_s=2 * TIMEOUT_S)
     with pytest.raises(InstrumentCommError) as err:
         dev.measure(0.1)
     assert err.value.transient and emu.faults.applied == [(kind, "FETC?")]
