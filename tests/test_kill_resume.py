@@ -21,6 +21,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+import planned
 import pytest
 from journal_crash import Crash, crash_at_write
 
@@ -34,29 +35,16 @@ GONIO = [sys.executable, "-m", "gonio.cli"]
 RUN_LIMIT_S = 120.0
 
 
-#: Plans made in this module, by (grid, config): see :func:`_each_plan_made_once`.
-_PLANS: dict = {}
-
-
 @pytest.fixture(autouse=True)
 def _each_plan_made_once(monkeypatch):
     """The campaigns here plan each grid on the same gantry again and again (the uninterrupted run, the
     crashed one's creation, in this process): the planner (deterministic: a function of the grid and the
-    gantry) runs once per (grid, config) and each campaign gets a copy of its plan. What these tests check
-    comes after the plan: the crashes, the resumes, the results bit for bit."""
-    import copy
-
+    gantry) runs once per (grid, config) and each campaign gets a copy of its plan
+    (:func:`planned.planned`). What these tests check comes after the plan: the crashes, the resumes, the
+    results bit for bit."""
     import gonio.lifecycle as lifecycle
 
-    plan = lifecycle.plan_campaign
-
-    def plan_once(grid, cfg):
-        key = (grid, cfg.model_dump_json())
-        if key not in _PLANS:
-            _PLANS[key] = plan(grid, cfg)
-        return copy.deepcopy(_PLANS[key])
-
-    monkeypatch.setattr(lifecycle, "plan_campaign", plan_once)
+    monkeypatch.setattr(lifecycle, "plan_campaign", planned.planned)
 
 
 def _toml(data: dict, prefix: str = "") -> str:
