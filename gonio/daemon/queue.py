@@ -498,24 +498,29 @@ class CampaignQueue:
             self._stop_runner(runner, reason)
         if rec is not None:
             rec.intent, rec.halt_pending = "hold", True
-
-        def record() -> None:
-            with self._cond:
-                if self.runner is not None and self.runner is not runner:   # one that started meanwhile
-                    self._stop_runner(self.runner, reason)
-                if rec is not None:
-                    self._save(rec)
-
         if self._cond.acquire(timeout=0.2):
             try:
-                record()
+                self._record_halt(runner, rec, reason)
             finally:
                 self._cond.release()
         else:
-            threading.Thread(target=record, name="gonio-halt-record", daemon=True).start()
+            threading.Thread(target=self._record_halt, args=(runner, rec, reason), name="gonio-halt-record",
+                             daemon=True).start()
         if rec is not None:
             log.warning("campaign %s: halt", rec.id)
         return rec.id if rec is not None else None
+
+    def _record_halt(self, runner: Runner | None, rec: Record | None, reason: str) -> None:
+        """The rest of :meth:`halt`, under the queue's lock (at once, or from a thread of its own when the
+        lock is held up): a runner that started meanwhile is stopped too, unless the campaign was resumed
+        since (a resume takes the lock and withdraws the halt: a late record halted the resumed campaign
+        again), and the campaign's record is saved."""
+        with self._cond:
+            stands = rec is None or rec.halt_pending
+            if stands and self.runner is not None and self.runner is not runner:
+                self._stop_runner(self.runner, reason)
+            if rec is not None:
+                self._save(rec)
 
     @staticmethod
     def _stop_runner(runner: Runner, reason: str) -> None:

@@ -129,3 +129,27 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
     wait_for(lambda: not r.daemon.planner.busy, "the abandoned submits to be cancelled")
     admitted = [f"c{k:05d}" for k in range(2, 2 + submits.count(201))]   # queued behind the halted one
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001", *admitted]
+
+
+def test_a_halt_recorded_late_leaves_the_campaign_resumed_since_running(serve):
+    """When the queue's lock is held up, the halt's record (daemon.json, and a runner that started
+    meanwhile) waits for it in a thread of its own. A resume can take the lock first and start the
+    campaign again: the late record then halted it once more, and it never finished (a whole-suite run
+    at load 5, test_daemon_api's halt-and-resume test). Here the late record comes, as that thread
+    would run it, while the resumed campaign runs."""
+    from daemon_helpers import unpace
+
+    r = serve(pace=0.01)
+    submit(r.client, grid="iso:step=15")
+    queue = r.daemon.queue
+    wait_for(lambda: queue.runner is not None and r.client.get("/campaigns/c00001").json()["steps_done"],
+             "a committed step")
+    halted_runner, rec = queue.runner, queue.current
+    assert r.client.post("/gantry/halt").status_code == 200
+    wait_state(r.client, "c00001", "halted")
+    r.client.post("/campaigns/c00001/resume").raise_for_status()
+    wait_for(lambda: queue.runner not in (None, halted_runner), "the resumed campaign's runner")
+    queue._record_halt(halted_runner, rec, "halt requested through the API")   # the late record
+    assert r.client.get("/campaigns/c00001").json()["state"] in ("running", "finishing", "done")
+    unpace(r.daemon)
+    wait_state(r.client, "c00001", "done", timeout_s=15.0)
