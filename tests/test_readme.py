@@ -6,7 +6,7 @@ A block is a fenced block whose info string starts with ``bash`` (or ``sh``) or 
 
 - ``second-terminal ready="TEXT"``: a command that keeps running (the emulators, the daemon); the test
   starts it in the background, as the page says to in a second terminal, and goes on once it has
-  printed TEXT; it is stopped with Ctrl-C (SIGINT) at the end of the page.
+  printed TEXT; it is stopped with Ctrl-C (SIGINT) at the end of the page, the last started first.
 - ``runs-the-tests``: ``make test``, which runs this file: not run here.
 
 The copy gets its own ``.venv`` that points at this environment (``bin`` is a link to this environment's,
@@ -70,8 +70,10 @@ def _fresh_copy(dest: Path) -> Path:
 def script(page: str, activated: bool) -> str:
     """A bash script running the page's blocks in order (see the module docstring)."""
     lines = ["set -euo pipefail", "background=()",
-             "stop() { for p in \"${background[@]}\"; do kill -INT \"$p\" 2>/dev/null || true; done;"
-             " for p in \"${background[@]}\"; do wait \"$p\" 2>/dev/null || true; done; }",
+             # Ctrl-C in each second terminal, the last opened first, each stopped before the next: a
+             # Dask worker whose scheduler stopped first logs a traceback of the lost connection.
+             "stop() { for ((i=${#background[@]}-1; i>=0; i--)); do p=${background[i]};"
+             " kill -INT \"$p\" 2>/dev/null || true; wait \"$p\" 2>/dev/null || true; done; }",
              "trap stop EXIT"]
     if activated:
         lines.append("source .venv/bin/activate")
