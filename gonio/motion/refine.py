@@ -49,10 +49,11 @@ def walk_costs(branches, orders, start_deg, end_deg, metric: MoveMetric) -> np.n
 
 
 def _tables(branches, start_deg, end_deg, metric):
-    """Move times between every pair of branches (N, W, N, W), from the start (N, W) and to the end,
-    over each pose's distinct branches only (:func:`_distinct`)."""
+    """Move times between every pair of branches (N, N, W, W: pose i to pose j, branch of i, branch of
+    j, each pose pair's block contiguous), from the start (N, W) and to the end, over each pose's
+    distinct branches only (:func:`_distinct`)."""
     b = _distinct(np.asarray(branches, dtype=np.float64))
-    pair = metric.time(b[:, :, None, None, :], b[None, None, :, :, :])
+    pair = metric.time(b[:, None, :, None, :], b[None, :, None, :, :])
     first = metric.time(np.asarray(start_deg, float), b)
     last = metric.time(b, np.asarray(end_deg, float))
     return pair, first, last
@@ -81,7 +82,7 @@ def _priced(tables, orders) -> np.ndarray:
     orders = np.asarray(orders, dtype=np.int64)
     cost = first[orders[:, 0]]  # (B, W)
     for step in range(1, orders.shape[1]):
-        t = pair[orders[:, step - 1], :, orders[:, step], :]  # (B, W, W)
+        t = pair[orders[:, step - 1], orders[:, step]]  # (B, W, W)
         cost = np.min(cost[:, :, None] + t, axis=1)
     return np.min(cost + last[orders[:, -1]], axis=1)
 
@@ -172,19 +173,19 @@ def _neighbour_costs(tables, order) -> np.ndarray:
     cands = order[moves]
     # The order's forward costs F[s] (cost of standing on each branch of its pose s) and backward ones
     # G[s] (least time from each branch of pose s to the end).
-    fwd = np.empty((n, pair.shape[1]))
+    fwd = np.empty((n, pair.shape[2]))
     fwd[0] = first[order[0]]
     for s in range(1, n):
-        fwd[s] = np.min(fwd[s - 1][:, None] + pair[order[s - 1], :, order[s], :], axis=0)
+        fwd[s] = np.min(fwd[s - 1][:, None] + pair[order[s - 1], order[s]], axis=0)
     back = np.empty_like(fwd)
     back[-1] = last[order[-1]]
     for s in range(n - 2, -1, -1):
-        back[s] = np.min(pair[order[s], :, order[s + 1], :] + back[s + 1][None, :], axis=1)
+        back[s] = np.min(pair[order[s], order[s + 1]] + back[s + 1][None, :], axis=1)
     cost = np.where((lo == 0)[:, None], first[cands[:, 0]], fwd[np.maximum(lo - 1, 0)])
     for s in range(1, n):
         rows = active[s]
         if rows.size:
-            t = pair[cands[rows, s - 1], :, cands[rows, s], :]
+            t = pair[cands[rows, s - 1], cands[rows, s]]
             cost[rows] = np.min(cost[rows][:, :, None] + t, axis=1)
     # Moves ending at the last pose, or at the one before it, are priced forwards to the end already.
     ends = np.where((until == n - 1)[:, None], last[cands[:, -1]], back[until])
