@@ -14,7 +14,7 @@ from collections import deque
 import numpy as np
 from scipy.spatial import cKDTree
 
-from gonio.motion.metric import MoveMetric
+from gonio.motion.metric import MoveMetric, kd_workers
 
 __all__ = ["raster_order", "serpentine_order", "nearest_neighbour_tour", "improve_tour", "perturb_tour",
            "tour_time", "neighbour_lists", "PERTURB_SPAN"]
@@ -98,7 +98,7 @@ def neighbour_lists(points_deg, metric: MoveMetric, k: int = 8) -> tuple[np.ndar
         return np.empty((n, 0), dtype=np.int64), np.empty((n, 0))
     extra = 0 if metric.uniform else k  # oversample when the tree's norm only approximates the metric
     q = min(k + 1 + extra, n)
-    _, idx = cKDTree(pts * metric.scale).query(pts * metric.scale, k=q, p=np.inf, workers=-1)
+    _, idx = cKDTree(pts * metric.scale).query(pts * metric.scale, k=q, p=np.inf, workers=kd_workers(n))
     times = metric.time(pts[:, None, :], pts[idx])
     times[idx == np.arange(n)[:, None]] = np.inf
     pick = np.argsort(times, axis=1, kind="stable")[:, :k]
