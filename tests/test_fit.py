@@ -1,5 +1,6 @@
 """Model fitting: recovered parameters, honest uncertainties, wrong models detected, the CLI."""
 
+import functools
 import json
 
 import drjit as dr
@@ -25,9 +26,15 @@ pytestmark = pytest.mark.usefixtures("backend")
 ISO_GRID = "iso:step=15,theta_max=75"
 
 
+@functools.cache
 def _plan_dirs(grid):
+    """The (wi, wo) of ``grid``'s poses on the default gantry, planned once per grid in a test process
+    (planning is deterministic; a dozen tests fit data at the same poses). Read-only: shared."""
     plan = build_plan(grid, load_config())
-    return sph_to_vec(plan.theta_i, plan.phi_i), sph_to_vec(plan.theta_o, plan.phi_o)
+    dirs = sph_to_vec(plan.theta_i, plan.phi_i), sph_to_vec(plan.theta_o, plan.phi_o)
+    for d in dirs:
+        d.flags.writeable = False
+    return dirs
 
 
 def _campaign(folder, material, grid, cfg=None, seed=1):
