@@ -124,19 +124,21 @@ def _prim(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return _prim_lists(weights)
     best = weights[0].copy()
     parent = np.zeros(n, dtype=np.int64)
-    done = np.zeros(n, dtype=bool)
-    done[0] = True
+    left = np.ones(n, dtype=bool)   # not in the tree yet
+    left[0] = False
     best[0] = np.inf
     child = np.empty(n - 1, dtype=np.int64)
+    closer = np.empty(n, dtype=bool)
     for step in range(n - 1):
         j = int(np.argmin(best))
         child[step] = j
-        done[j] = True
+        left[j] = False
         best[j] = np.inf
         row = weights[j]
-        closer = (row < best) & ~done
-        best[closer] = row[closer]
-        parent[closer] = j
+        np.less(row, best, out=closer)
+        closer &= left
+        np.copyto(best, row, where=closer)
+        np.copyto(parent, j, where=closer)
     return child, parent[child]
 
 
