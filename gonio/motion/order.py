@@ -328,7 +328,7 @@ class _TourSearch:
         p, q, r = t[a - 1], t[b - 1], t[c - 1]
         x, y, z = t[a], t[b], t[c % m]
         gain = dist(p, x) + dist(q, y) + dist(r, z) - dist(p, y) - dist(r, x) - dist(q, z)
-        self.tour = t[:a] + t[b:c] + t[a:b] + t[c:]
+        t[a:c] = t[b:c] + t[a:b]
         self._placed(a, c)
         return gain
 
@@ -408,18 +408,25 @@ class _TourSearch:
         """Take the run out and put it between the adjacent nodes c and d, in the better direction."""
         dist, m, tour, pos = self.dist, self.m, self.tour, self.pos
         a, e = run[0], run[-1]
-        first = pos[a]
-        keep = [x for x in tour if x not in run]
+        first, size = pos[a], len(run)
+        if first + size <= m:   # the run does not wrap round the end of the list: moved in place
+            # Places in the tour without the run.
+            ic, id_ = (pos[x] if pos[x] < first else pos[x] - size for x in (c, d))
+            count = m - size
+        else:
+            keep = [x for x in tour if x not in run]
+            ic, id_ = keep.index(c), keep.index(d)
+            count = len(keep)
         # c and d are still adjacent in the tour without the run.
-        ic, id_ = keep.index(c), keep.index(d)
-        left, right = (c, d) if (id_ - ic) % len(keep) == 1 else (d, c)
+        left, right = (c, d) if (id_ - ic) % count == 1 else (d, c)
         seq = run if dist(left, a) + dist(e, right) <= dist(left, e) + dist(a, right) else run[::-1]
         cut = (ic if left == c else id_) + 1
-        self.tour = keep[:cut] + seq + keep[cut:]
-        if first + len(run) <= m:   # the run did not wrap round the end of the list
-            lo = min(first, cut)
-            self._placed(lo, max(first, cut) + len(run))
+        if first + size <= m:
+            del tour[first:first + size]
+            tour[cut:cut] = seq
+            self._placed(min(first, cut), max(first, cut) + size)
         else:
+            self.tour = keep[:cut] + seq + keep[cut:]
             self._placed(0, m)
 
 
