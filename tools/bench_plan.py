@@ -10,6 +10,7 @@ printed, never asserted: they depend on the machine and its load.
     .venv/bin/python tools/bench_plan.py --exact    # gaps to Held-Karp on 200 subsets per gantry
     .venv/bin/python tools/bench_plan.py --subsets  # worst gap of tours on 8-12 (13-14) pose subsets, windows
     .venv/bin/python tools/bench_plan.py --orders   # serpentine vs tours (kicks, seeds) vs auto; bounds
+    .venv/bin/python tools/bench_plan.py --cpu      # CPU s of the parts small plans and the tests lean on
 
 Figures:
 
@@ -433,6 +434,47 @@ def order_rows() -> None:
                   flush=True)
 
 
+def cpu_rows(seed: int) -> None:
+    """CPU seconds (``time.process_time``, this process's threads) of what plans of a few poses (adaptive
+    rounds, the tests' option matrix) and medium grids spend: whole plans, the branch-priced refinement
+    of their 13-24-pose tours, and the valid bound of 8-29-pose sets. Run it against an older tree with
+    ``PYTHONPATH=<that tree>`` to compare."""
+    from gonio.motion.chain import free_azimuth
+    from gonio.motion.refine import refine_order
+    from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
+    from gonio.plan.grids import enumerate_grid, parse_grid
+
+    print("| gantry | what | CPU s |\n|---|---|---:|")
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        metric = MoveMetric(kin.velocity_deg_s, kin.accel_deg_s2)
+        for grid in ("iso:step=30,mirror=true", "merl:stride=15", "iso:step=15", "iso:step=10", "iso:step=5"):
+            t0 = time.process_time()
+            build_plan(grid, cfg, kin)
+            print(f"| {name} | build_plan {grid} | {time.process_time() - t0:.2f} |", flush=True)
+        poses = enumerate_grid(parse_grid("iso:step=10"), cfg.kinematics.theta_max_deg)
+        angles = np.stack([poses.theta_i, poses.phi_i, poses.theta_o, poses.phi_o])
+        angles = angles[:, kin.feasibility(*angles) == 0]
+        home = np.asarray(kin.home_deg, float)
+        rng = np.random.default_rng(seed)
+        sets = [rng.choice(angles.shape[1], int(rng.integers(8, 30)), replace=False) for _ in range(50)]
+        t_bound = t_refine = 0.0
+        for idx in sets:
+            sols = np.asarray(kin.solutions(*angles[:, idx], current_deg=home))
+            t0 = time.process_time()
+            relaxed_campaign_bound(sols, free_azimuth(*angles[:, idx]), home[None], home, metric, 0.1, 0.2,
+                                   every=100, run_lengths=[idx.size])
+            t1 = time.process_time()
+            if idx.size >= 13 and not free_azimuth(*angles[:, idx]).any():
+                refine_order(pose_branches(sols), np.arange(idx.size), home, home, metric, kicks=16,
+                             window=11)
+            t_bound, t_refine = t_bound + t1 - t0, t_refine + time.process_time() - t1
+        print(f"| {name} | relaxed_campaign_bound, 50 sets of 8-29 poses | {t_bound:.2f} |")
+        print(f"| {name} | refine_order (16 kicks, windows of 11) of those of 13-29 poses | {t_refine:.2f} |",
+              flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip iso:step=1 and use 5,000 scattered poses")
@@ -450,6 +492,8 @@ def main() -> None:
                          "without the Lagrangian")
     ap.add_argument("--transit", action="store_true",
                     help="only the swept-path figures: iso:step=1 build and the single-move check cost")
+    ap.add_argument("--cpu", action="store_true",
+                    help="CPU s of small and medium plans, tours' refinement and bounds of small sets")
     args = ap.parse_args()
     print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, python {platform.python_version()}, "
           f"numpy {np.__version__}; load average at start {os.getloadavg()[0]:.2f}\n")
@@ -469,6 +513,10 @@ def main() -> None:
         return
     if args.orders:
         order_rows()
+        print(f"\nload average at end {os.getloadavg()[0]:.2f}")
+        return
+    if args.cpu:
+        cpu_rows(args.seed)
         print(f"\nload average at end {os.getloadavg()[0]:.2f}")
         return
     if args.transit:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.motion.metric import MoveMetric
+from gonio.motion.metric import MoveMetric, kd_workers
 
 __all__ = ["mst_edge_times", "neighbour_times", "motion_lower_bound", "MST_MAX_POSES"]
 
@@ -127,7 +127,7 @@ def _neighbours(tree, pts, which, metric, k):
     """Nearest and second-nearest candidate times of poses ``which`` among their k tree neighbours,
     and the bound on every pose outside that ball."""
     # k + 1 because each pose finds itself.
-    dist, idx = tree.query(pts[which] * metric.scale, k=k + 1, p=np.inf, workers=-1)
+    dist, idx = tree.query(pts[which] * metric.scale, k=k + 1, p=np.inf, workers=kd_workers(which.size))
     own = idx == which[:, None]
     # A pose sharing its position with another may not be returned first; drop itself wherever it is,
     # and when it is missing (k + 1 ties at distance 0) drop the last column instead.

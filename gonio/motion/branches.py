@@ -27,6 +27,8 @@ __all__ = ["best_branches", "COLLISION_PENALTY_S"]
 #: campaign's motion, so fewer colliding moves always win; the time decides among equals.
 COLLISION_PENALTY_S = 1e7
 
+# Moves swept-path checked in one call when check_moves is on (bounds the checker's temporaries).
+_CHECK_MOVES_AT_ONCE = 50_000
 # Poses whose branches and back-pointers are held at once (a few hundred MB at most).
 _GROUP_POSES = 1 << 16
 
@@ -94,6 +96,8 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out, check_mov
     sols = np.take_along_axis(sols, by_valid[:, :width, None], axis=1)
     lengths = r_ends - r_starts
     n_runs, n_axes = r_starts.size, ref.size
+    if check_moves:
+        clear_in, clear_home = _clear_moves(kin, sols, free[lo:hi], r_starts - lo, r_ends - lo, ref)
     back = np.zeros((hi - lo, width), dtype=np.int16)
     chosen = np.empty((hi - lo, width, n_axes))  # the candidates actually used at each pose
     cost = np.zeros((n_runs, width))
@@ -109,7 +113,13 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out, check_mov
         if step == 0:
             times = times[:, :1, :]  # every run starts from the one reference position
         if check_moves:
-            fixed = np.flatnonzero(~is_free)
+            # Moves from a pose of fixed branches (or the reference) were checked all at once before;
+            # those from a free pose start where the chain put it, so they are checked here.
+            after_free = free[lo + rows - 1] if step else np.zeros(rows.size, dtype=bool)
+            known = np.flatnonzero(~is_free & ~after_free)
+            blocked = np.isfinite(times[known]) & ~clear_in[rows[known], :times.shape[1]]
+            times[known] += np.where(blocked, COLLISION_PENALTY_S, 0.0)
+            fixed = np.flatnonzero(~is_free & after_free)
             priced = times[fixed]
             _price_collisions(kin, priced, prev[active[fixed]][:, :times.shape[1]], cand[fixed])
             times[fixed] = priced
@@ -136,9 +146,17 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out, check_mov
             d = active[done]
             home = metric.time(prev[d], ref)
             if check_moves:
-                finite = np.flatnonzero(~np.isnan(home.reshape(-1)))
-                clear, _ = kin.sweep_clearance(prev[d].reshape(-1, n_axes)[finite], ref)
-                home.reshape(-1)[finite[~clear]] += COLLISION_PENALTY_S
+                last_rows = r_ends[d] - 1 - lo
+                known = ~free[lo + last_rows]
+                home[known] += np.where(~np.isnan(home[known]) & ~clear_home[last_rows[known]],
+                                        COLLISION_PENALTY_S, 0.0)
+                at_free = np.flatnonzero(~known)
+            if check_moves and at_free.size:
+                finite = np.flatnonzero(~np.isnan(home[at_free].reshape(-1)))
+                clear, _ = kin.sweep_clearance(prev[d[at_free]].reshape(-1, n_axes)[finite], ref)
+                sub = home[at_free]
+                sub.reshape(-1)[finite[~clear]] += COLLISION_PENALTY_S
+                home[at_free] = sub
             final[d] = np.argmin(np.where(np.isnan(home), np.inf, cost[d] + home), axis=1)
     if not np.all(np.isfinite(cost[np.arange(n_runs), final])):
         bad = int(np.flatnonzero(~np.isfinite(cost[np.arange(n_runs), final]))[0])
@@ -151,6 +169,52 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out, check_mov
         rows = r_starts[active] + step - lo
         out[lo + rows] = chosen[rows, state[active]]
         state[active] = back[rows, state[active]]
+
+
+def _clear_moves(kin, sols, free, starts, ends, ref):
+    """Swept-path checks of every move the Viterbi may price whose start does not depend on its choices,
+    in a few large :meth:`Kinematics.sweep_clearance` calls instead of one per step (each call costs
+    about a millisecond of numpy overhead before any work).
+
+    Returns ``clear_in`` (P, W, W): whether the move from branch i of the pose before (the reference's
+    one position, i = 0, at a run's first pose) to branch j of the pose is clear; and ``clear_home``
+    (P, W): from branch j of the pose to the reference. True where either end is invalid or free
+    (those are checked as the chain reaches them). The checks are per move, so each result is the
+    one a call with that move alone gives."""
+    p, w, n_axes = sols.shape
+    is_start = np.zeros(p, dtype=bool)
+    is_start[starts] = True
+    is_last = np.zeros(p, dtype=bool)
+    is_last[ends - 1] = True
+    valid = ~np.isnan(sols[..., 0])
+    prev_free = np.zeros(p, dtype=bool)
+    prev_free[1:] = free[:-1]
+    # Whose moves in are checked here: poses of fixed branches after a pose of fixed branches (or the
+    # reference); and whose moves home: fixed last poses of runs.
+    checked_in = ~free & (is_start | ~prev_free)
+    checked_home = ~free & is_last
+    clear_in = np.ones((p, w, w), dtype=bool)
+    clear_home = np.ones((p, w), dtype=bool)
+    rows_at_once = max(1, _CHECK_MOVES_AT_ONCE // (w * w + w))
+    for lo in range(0, p, rows_at_once):
+        hi = min(lo + rows_at_once, p)
+        before = sols[max(lo - 1, 0):hi - 1] if lo else \
+            np.concatenate([np.full((1, w, n_axes), np.nan), sols[:hi - 1]])
+        before = before.copy()
+        here_start = is_start[lo:hi]
+        before[here_start] = np.nan
+        before[here_start, 0] = ref
+        wanted = valid[lo:hi, None, :] & ~np.isnan(before[..., 0])[:, :, None] & checked_in[lo:hi, None, None]
+        r, i, j = np.nonzero(wanted)
+        home_r, home_j = np.nonzero(valid[lo:hi] & checked_home[lo:hi, None])
+        a = np.concatenate([before[r, i], sols[lo + home_r, home_j]])
+        b = np.concatenate([sols[lo + r, j], np.broadcast_to(ref, (home_r.size, n_axes))])
+        if a.shape[0] == 0:
+            continue
+        clear = kin.sweep_clearance(a, b)[0]
+        clear_in[lo + r, i, j] = clear[:r.size]
+        clear_home[lo + home_r, home_j] = clear[r.size:]
+    return clear_in, clear_home
 
 
 def _free_candidates(kin, metric, poses, prev, before, width, home_part, ref, check_moves):

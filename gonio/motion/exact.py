@@ -64,7 +64,6 @@ def exact_order(branches, start_deg, end_deg, metric: MoveMetric) -> tuple[np.nd
     full = 1 << n
     bit_of = (1 << pose_of).astype(np.int64)
     cost = np.full((full, k), np.inf)
-    parent = np.full((full, k), -1, dtype=np.int32)    # the state before
     cost[bit_of, np.arange(k)] = first
     masks = np.arange(full)
     popcount = np.zeros(full, dtype=np.int64)
@@ -75,23 +74,23 @@ def exact_order(branches, start_deg, end_deg, metric: MoveMetric) -> tuple[np.nd
         layer = masks[popcount == size]
         for lo in range(0, layer.size, block):
             m = layer[lo:lo + block]
-            through = cost[m][:, :, None] + pair[None]                  # (B, K, K)
-            via = np.argmin(through, axis=1)                            # (B, K)
-            best = np.take_along_axis(through, via[:, None, :], axis=1)[:, 0]
+            best = np.min(cost[m][:, :, None] + pair[None], axis=1)    # (B, K)
             # Each (grown set, state) comes from exactly one smaller set: the set without its pose.
             out = (m[:, None] & bit_of[None, :]) == 0
             rows, states = np.nonzero(out)
             grown = m[rows] | bit_of[states]
             cost[grown, states] = best[rows, states]
-            parent[grown, states] = via[rows, states]
     total = cost[full - 1] + last
     state = int(np.argmin(total))
     best_cost = float(total[state])
     order = np.empty(n, dtype=np.int64)
     mask = full - 1
-    for pos in range(n - 1, -1, -1):
+    # Back from the last state: the state before is the first one whose cost plus the move equals this
+    # state's cost (the same sum the forward pass took its least of, so equal to the last digit).
+    for pos in range(n - 1, 0, -1):
         order[pos] = pose_of[state]
-        prev = int(parent[mask, state])
+        here = cost[mask, state]
         mask ^= int(bit_of[state])
-        state = prev
+        state = int(np.flatnonzero(cost[mask] + pair[:, state] == here)[0])
+    order[0] = pose_of[state]
     return order, best_cost

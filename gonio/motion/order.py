@@ -13,7 +13,7 @@ from collections import deque
 
 import numpy as np
 
-from gonio.motion.metric import MoveMetric
+from gonio.motion.metric import MoveMetric, kd_workers
 
 __all__ = ["raster_order", "serpentine_order", "nearest_neighbour_tour", "improve_tour", "perturb_tour",
            "tour_time", "neighbour_lists", "PERTURB_SPAN"]
@@ -99,7 +99,7 @@ def neighbour_lists(points_deg, metric: MoveMetric, k: int = 8) -> tuple[np.ndar
         return np.empty((n, 0), dtype=np.int64), np.empty((n, 0))
     extra = 0 if metric.uniform else k  # oversample when the tree's norm only approximates the metric
     q = min(k + 1 + extra, n)
-    _, idx = cKDTree(pts * metric.scale).query(pts * metric.scale, k=q, p=np.inf, workers=-1)
+    _, idx = cKDTree(pts * metric.scale).query(pts * metric.scale, k=q, p=np.inf, workers=kd_workers(n))
     times = metric.time(pts[:, None, :], pts[idx])
     times[idx == np.arange(n)[:, None]] = np.inf
     pick = np.argsort(times, axis=1, kind="stable")[:, :k]
@@ -237,10 +237,11 @@ def perturb_tour(points_deg, order, metric: MoveMetric, depot_deg, neighbours=No
         lo = int(rng.integers(0, m - span))
         a, b, c = np.sort(rng.choice(np.arange(lo + 1, lo + span + 1), size=3, replace=False)).tolist()
         saved = search.tour.copy()
+        search.mark()
         gain = search.double_bridge(a, b, c)
-        gain += search.descend(saved[[a - 1, a, b - 1, b, c - 1, c % m]], 50 * span)
+        gain += search.descend([saved[k] for k in (a - 1, a, b - 1, b, c - 1, c % m)], 50 * span)
         if gain <= _GAIN_EPS:
-            search.restore(saved)
+            search.revert(saved)
     return search.order()
 
 
@@ -248,6 +249,9 @@ class _TourSearch:
     """A closed tour over poses 0..N-1 and the depot (node N) with its 2-opt and Or-opt moves.
 
     Every move returns what it saved (s), so a caller can add up the gain of a kick and its repair.
+    The tour and each node's place in it are plain lists (the search reads them a few million times
+    per plan, one element at a time); :meth:`mark` and :meth:`revert` undo a kick by rewriting only
+    the places the moves since the mark changed.
     """
 
     def __init__(self, points_deg, order, metric: MoveMetric, depot_deg, neighbours=None):
@@ -262,30 +266,47 @@ class _TourSearch:
         # pass through it like any other node.
         self.neigh = neighbours.tolist() + [[]]
         self.m = n + 1
-        self.tour = np.concatenate([[self.depot], np.asarray(order, dtype=np.int64)]).astype(np.int64)
-        self.pos = np.empty(self.m, dtype=np.int64)
-        self.pos[self.tour] = np.arange(self.m)
+        self.tour = [self.depot] + [int(x) for x in order]
+        self.pos = [0] * self.m
+        for i, x in enumerate(self.tour):
+            self.pos[x] = i
+        self.changed = [0, self.m]  # the places changed since the last mark: [lo, hi)
 
     def order(self) -> np.ndarray:
-        start = int(self.pos[self.depot])
-        return np.concatenate([self.tour[start + 1:], self.tour[:start]]).astype(np.int64)
+        start = self.pos[self.depot]
+        return np.array(self.tour[start + 1:] + self.tour[:start], dtype=np.int64)
 
-    def restore(self, tour: np.ndarray) -> None:
+    def mark(self) -> None:
+        self.changed = [self.m, 0]
+
+    def revert(self, tour: list) -> None:
+        """Back to ``tour``, a copy of the tour taken at the last :meth:`mark`."""
+        lo, hi = self.changed
         self.tour = tour
-        self.pos[tour] = np.arange(self.m)
+        pos = self.pos
+        for k in range(lo, hi):
+            pos[tour[k]] = k
+
+    def _placed(self, lo: int, hi: int) -> None:
+        """The tour changed at places [lo, hi) only: their positions set again, the range noted."""
+        tour, pos = self.tour, self.pos
+        for k in range(lo, hi):
+            pos[tour[k]] = k
+        self.changed = [min(self.changed[0], lo), max(self.changed[1], hi)]
 
     def succ(self, x: int) -> int:
-        return int(self.tour[(self.pos[x] + 1) % self.m])
+        return self.tour[(self.pos[x] + 1) % self.m]
 
     def pred(self, x: int) -> int:
-        return int(self.tour[self.pos[x] - 1])
+        return self.tour[self.pos[x] - 1]
 
     def descend(self, look_at, budget: int) -> float:
         """Take improving moves, searching from the poses ``look_at`` and every pose a taken move
         touches, until none improves or ``budget`` moves were taken; what they saved in all."""
         queue = deque(int(x) for x in look_at if x != self.depot)
-        queued = np.zeros(self.m, dtype=bool)
-        queued[list(queue)] = True
+        queued = [False] * self.m
+        for x in queue:
+            queued[x] = True
         moves, saved = 0, 0.0
         while queue and moves < budget:
             a = queue.popleft()
@@ -305,34 +326,42 @@ class _TourSearch:
     def double_bridge(self, a: int, b: int, c: int) -> float:
         """Swap the stretches [a, b) and [b, c) of the tour array (0 < a < b < c <= N); the gain."""
         t, dist, m = self.tour, self.dist, self.m
-        p, q, r = int(t[a - 1]), int(t[b - 1]), int(t[c - 1])
-        x, y, z = int(t[a]), int(t[b]), int(t[c % m])
+        p, q, r = t[a - 1], t[b - 1], t[c - 1]
+        x, y, z = t[a], t[b], t[c % m]
         gain = dist(p, x) + dist(q, y) + dist(r, z) - dist(p, y) - dist(r, x) - dist(q, z)
-        self.restore(np.concatenate([t[:a], t[b:c], t[a:b], t[c:]]))
+        t[a:c] = t[b:c] + t[a:b]
+        self._placed(a, c)
         return gain
 
     def _reverse(self, x: int, y: int) -> None:
         """Reverse the stretch of the cycle from node x forward to node y (both included)."""
         m, tour, pos = self.m, self.tour, self.pos
-        i, j = int(pos[x]), int(pos[y])
+        i, j = pos[x], pos[y]
         length = (j - i) % m + 1
         if 2 * length > m:  # reversing the complement gives the same cycle with less copying
             i, j = (j + 1) % m, (i - 1) % m
             length = m - length
-        idx = (i + np.arange(length)) % m
-        tour[idx] = tour[idx[::-1]]
-        pos[tour[idx]] = idx
+        if i + length <= m:
+            tour[i:i + length] = tour[i:i + length][::-1]
+            self._placed(i, i + length)
+            return
+        idx = [(i + k) % m for k in range(length)]
+        values = [tour[k] for k in reversed(idx)]
+        for k, v in zip(idx, values, strict=True):
+            tour[k] = v
+            pos[v] = k
+        self.changed = [0, m]
 
     def two_opt(self, a: int):
-        dist, neigh = self.dist, self.neigh
+        dist, neigh, tour, pos, m = self.dist, self.neigh, self.tour, self.pos, self.m
         for forward in (True, False):
-            b = self.succ(a) if forward else self.pred(a)
+            b = tour[(pos[a] + 1) % m] if forward else tour[pos[a] - 1]
             d_ab = dist(a, b)
             for c in neigh[a]:
                 g1 = d_ab - dist(a, c)
                 if g1 <= _GAIN_EPS:
                     break  # neighbours are sorted: no later c can do better
-                d = self.succ(c) if forward else self.pred(c)
+                d = tour[(pos[c] + 1) % m] if forward else tour[pos[c] - 1]
                 if c == b or d == a:
                     continue
                 gain = g1 + dist(c, d) - dist(b, d)
@@ -345,16 +374,16 @@ class _TourSearch:
         return None
 
     def or_opt(self, a: int):
-        dist, neigh, depot = self.dist, self.neigh, self.depot
+        dist, neigh, depot, tour, pos, m = self.dist, self.neigh, self.depot, self.tour, self.pos, self.m
         for seg in (1, 2, 3):
             # The run a .. e of `seg` poses going forward; the depot never moves.
             run = [a]
             for _ in range(seg - 1):
-                run.append(self.succ(run[-1]))
+                run.append(tour[(pos[run[-1]] + 1) % m])
             if depot in run:
                 return None
             e = run[-1]
-            p, q = self.pred(a), self.succ(e)
+            p, q = tour[pos[a] - 1], tour[(pos[e] + 1) % m]
             if q == a or p == e:
                 return None
             removed = dist(p, a) + dist(e, q) - dist(p, q)
@@ -366,7 +395,7 @@ class _TourSearch:
                         continue
                     if dist(end, c) >= removed:
                         break
-                    for d in (self.succ(c), self.pred(c)):
+                    for d in (tour[(pos[c] + 1) % m], tour[pos[c] - 1]):
                         if d in run:
                             continue
                         # Either way round the run fits between c and d; _move_run takes the better.
@@ -378,18 +407,28 @@ class _TourSearch:
 
     def _move_run(self, run, c, d):
         """Take the run out and put it between the adjacent nodes c and d, in the better direction."""
-        dist, m = self.dist, self.m
+        dist, m, tour, pos = self.dist, self.m, self.tour, self.pos
         a, e = run[0], run[-1]
-        keep = self.tour[np.isin(self.tour, run, invert=True)]
+        first, size = pos[a], len(run)
+        if first + size <= m:   # the run does not wrap round the end of the list: moved in place
+            # Places in the tour without the run.
+            ic, id_ = (pos[x] if pos[x] < first else pos[x] - size for x in (c, d))
+            count = m - size
+        else:
+            keep = [x for x in tour if x not in run]
+            ic, id_ = keep.index(c), keep.index(d)
+            count = len(keep)
         # c and d are still adjacent in the tour without the run.
-        kpos = np.empty(m, dtype=np.int64)
-        kpos[keep] = np.arange(keep.size)
-        ic, id_ = int(kpos[c]), int(kpos[d])
-        left, right = (c, d) if (id_ - ic) % keep.size == 1 else (d, c)
-        seq = np.array(run if dist(left, a) + dist(e, right) <= dist(left, e) + dist(a, right)
-                       else run[::-1], dtype=np.int64)
-        cut = int(kpos[left]) + 1
-        self.restore(np.concatenate([keep[:cut], seq, keep[cut:]]))
+        left, right = (c, d) if (id_ - ic) % count == 1 else (d, c)
+        seq = run if dist(left, a) + dist(e, right) <= dist(left, e) + dist(a, right) else run[::-1]
+        cut = (ic if left == c else id_) + 1
+        if first + size <= m:
+            del tour[first:first + size]
+            tour[cut:cut] = seq
+            self._placed(min(first, cut), max(first, cut) + size)
+        else:
+            self.tour = keep[:cut] + seq + keep[cut:]
+            self._placed(0, m)
 
 
 def _memoised(dist, m: int):

@@ -49,12 +49,32 @@ def walk_costs(branches, orders, start_deg, end_deg, metric: MoveMetric) -> np.n
 
 
 def _tables(branches, start_deg, end_deg, metric):
-    """Move times between every pair of branches (N, W, N, W), from the start (N, W) and to the end."""
-    b = np.asarray(branches, dtype=np.float64)
-    pair = metric.time(b[:, :, None, None, :], b[None, None, :, :, :])
+    """Move times between every pair of branches (N, N, W, W: pose i to pose j, branch of i, branch of
+    j, each pose pair's block contiguous), from the start (N, W) and to the end, over each pose's
+    distinct branches only (:func:`_distinct`)."""
+    b = _distinct(np.asarray(branches, dtype=np.float64))
+    pair = metric.time(b[:, None, :, None, :], b[None, :, None, :, :])
     first = metric.time(np.asarray(start_deg, float), b)
     last = metric.time(b, np.asarray(end_deg, float))
     return pair, first, last
+
+
+def _distinct(b: np.ndarray) -> np.ndarray:
+    """Branches (N, W', n_axes) with each pose's repeated branches dropped (first kept, order kept), W'
+    the most distinct branches of any pose, the gaps filled with the pose's first branch.
+
+    A repeat changes no minimum, so every walk costs the same to the last digit; the pricing's work
+    goes as W'²: the two-arm gantry's poses carry 12 branches of which 3 differ, the sample stage's 9."""
+    if b.shape[1] < 2:
+        return b
+    same = (b[:, :, None, :] == b[:, None, :, :]).all(axis=-1)   # (N, W, W)
+    keep = ~np.triu(same, 1).any(axis=1)                           # no earlier branch equal to it
+    width = int(keep.sum(axis=1).max())
+    if width == b.shape[1]:
+        return b
+    first = np.argsort(~keep, axis=1, kind="stable")[:, :width]
+    out = np.take_along_axis(b, first[:, :, None], axis=1)
+    return np.where(np.take_along_axis(keep, first, axis=1)[..., None], out, b[:, :1, :])
 
 
 def _priced(tables, orders) -> np.ndarray:
@@ -62,7 +82,7 @@ def _priced(tables, orders) -> np.ndarray:
     orders = np.asarray(orders, dtype=np.int64)
     cost = first[orders[:, 0]]  # (B, W)
     for step in range(1, orders.shape[1]):
-        t = pair[orders[:, step - 1], :, orders[:, step], :]  # (B, W, W)
+        t = pair[orders[:, step - 1], orders[:, step]]  # (B, W, W)
         cost = np.min(cost[:, :, None] + t, axis=1)
     return np.min(cost + last[orders[:, -1]], axis=1)
 
@@ -119,12 +139,70 @@ def _moves(n: int) -> np.ndarray:
     return moves
 
 
+@functools.lru_cache(maxsize=64)
+def _move_spans(n: int):
+    """The distinct moves of :func:`_moves` (first of each kept, in order), the first and last position
+    each changes, and for each step s the moves whose pricing needs the move into position s (those
+    from their first changed position to the one after their last)."""
+    moves = _moves(n)
+    _, first_seen = np.unique(moves, axis=0, return_index=True)
+    moves = moves[np.sort(first_seen)]
+    changed = moves != np.arange(n)
+    lo = np.argmax(changed, axis=1)
+    hi = n - 1 - np.argmax(changed[:, ::-1], axis=1)
+    until = np.minimum(hi + 1, n - 1)
+    active = [np.flatnonzero((np.maximum(lo, 1) <= s) & (s <= until)) for s in range(n)]
+    for a in (moves, lo, until, *active):
+        a.flags.writeable = False
+    return moves, lo, until, active
+
+
+def _neighbour_costs(tables, order) -> np.ndarray:
+    """What :func:`_priced` gives for every distinct 2-opt/Or-opt neighbour of ``order`` (C,), the
+    neighbours (C, L), in the order of :func:`candidate_orders` with repeats dropped.
+
+    A neighbour differs from ``order`` only on a stretch: before it, its forward costs are the order's
+    own (the same sums, so the same digits); after it, the order's backward costs (least time from each
+    branch to the end) finish it. Those are summed the other way round, so their last digits may differ:
+    every neighbour within a rounding margin of the least is priced again forwards (:func:`_priced`),
+    which is the figure returned for those, so the least and which neighbour has it are exactly
+    :func:`_priced`'s over all neighbours."""
+    pair, first, last = tables
+    n = order.size
+    moves, lo, until, active = _move_spans(n)
+    cands = order[moves]
+    # The order's forward costs F[s] (cost of standing on each branch of its pose s) and backward ones
+    # G[s] (least time from each branch of pose s to the end).
+    fwd = np.empty((n, pair.shape[2]))
+    fwd[0] = first[order[0]]
+    for s in range(1, n):
+        fwd[s] = np.min(fwd[s - 1][:, None] + pair[order[s - 1], order[s]], axis=0)
+    back = np.empty_like(fwd)
+    back[-1] = last[order[-1]]
+    for s in range(n - 2, -1, -1):
+        back[s] = np.min(pair[order[s], order[s + 1]] + back[s + 1][None, :], axis=1)
+    cost = np.where((lo == 0)[:, None], first[cands[:, 0]], fwd[np.maximum(lo - 1, 0)])
+    for s in range(1, n):
+        rows = active[s]
+        if rows.size:
+            t = pair[cands[rows, s - 1], cands[rows, s]]
+            cost[rows] = np.min(cost[rows][:, :, None] + t, axis=1)
+    # Moves ending at the last pose, or at the one before it, are priced forwards to the end already.
+    ends = np.where((until == n - 1)[:, None], last[cands[:, -1]], back[until])
+    costs = np.min(cost + ends, axis=1)
+    least = float(costs.min())
+    near = np.flatnonzero(costs <= least + max(_GAIN_EPS, 1e-12 * abs(least)))
+    costs[near] = _priced(tables, cands[near])
+    return costs, cands
+
+
 def _descend(tables, order, cost):
     while True:
-        cands = candidate_orders(order)
+        if order.size < 2:
+            return order, cost
+        costs, cands = _neighbour_costs(tables, order)
         if cands.shape[0] == 0:
             return order, cost
-        costs = _priced(tables, cands)
         k = int(np.argmin(costs))
         if costs[k] >= cost - _GAIN_EPS:
             return order, cost

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.motion.metric import MoveMetric
+from gonio.motion.metric import MoveMetric, kd_workers
 
 __all__ = ["pose_branches", "pair_times", "pair_time_matrix", "branch_mst_edge_times",
            "branch_neighbour_times", "lagrangian_penalties", "lagrangian_motion", "relaxed_campaign_bound",
@@ -53,6 +53,8 @@ LAGRANGE_MAX_POSES = 2_000
 LAGRANGE_STEPS = 100
 #: The ascent stops after this many steps without a rise.
 LAGRANGE_PATIENCE = 25
+# Largest N for which Prim runs on Python lists (numpy's per-call cost loses below about 40).
+_PRIM_LISTS_MAX = 32
 # Pair-time entries (N × chunk × W² × axes) computed at once when building the table.
 _CHUNK_ENTRIES = 2e5
 
@@ -117,22 +119,52 @@ def _prim(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A minimum spanning tree of the complete graph with these (N, N) weights (diagonal ignored):
     (child, parent) index arrays of its N - 1 edges."""
     n = weights.shape[0]
+    if n <= _PRIM_LISTS_MAX:
+        return _prim_lists(weights)
     best = weights[0].copy()
     parent = np.zeros(n, dtype=np.int64)
-    done = np.zeros(n, dtype=bool)
-    done[0] = True
+    left = np.ones(n, dtype=bool)   # not in the tree yet
+    left[0] = False
     best[0] = np.inf
     child = np.empty(n - 1, dtype=np.int64)
+    closer = np.empty(n, dtype=bool)
     for step in range(n - 1):
         j = int(np.argmin(best))
         child[step] = j
-        done[j] = True
+        left[j] = False
         best[j] = np.inf
         row = weights[j]
-        closer = (row < best) & ~done
-        best[closer] = row[closer]
-        parent[closer] = j
+        np.less(row, best, out=closer)
+        closer &= left
+        np.copyto(best, row, where=closer)
+        np.copyto(parent, j, where=closer)
     return child, parent[child]
+
+
+def _prim_lists(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_prim` in plain Python lists, the same steps (first least entry, strictly closer only):
+    the same tree, quicker where N is small and numpy's per-call cost is most of the work (the
+    Lagrangian runs up to a hundred Prims per bound, and tours of a few poses are planned by the
+    thousand: adaptive rounds, the option matrix of the tests)."""
+    n = weights.shape[0]
+    rows = weights.tolist()
+    best = list(rows[0])
+    best[0] = np.inf
+    parent = [0] * n
+    done = [False] * n
+    done[0] = True
+    child = []
+    order = range(n)
+    for _ in range(n - 1):
+        j = min(order, key=best.__getitem__)
+        child.append(j)
+        done[j] = True
+        best[j] = np.inf
+        for i, w in enumerate(rows[j]):
+            if w < best[i] and not done[i]:
+                best[i] = w
+                parent[i] = j
+    return np.array(child, dtype=np.int64), np.array([parent[c] for c in child], dtype=np.int64)
 
 
 def _relaxation(pair, to_ref, pi, runs: int):
@@ -300,7 +332,7 @@ def branch_neighbour_times(branches, metric: MoveMetric, k: int | None = None):
     owner = np.repeat(np.arange(n), w)
     k = min(2 * w + 2 if k is None else int(k), flat.shape[0] - 1)
     tree = cKDTree(flat * metric.scale)
-    dist, idx = tree.query(flat * metric.scale, k=k + 1, p=np.inf, workers=-1)
+    dist, idx = tree.query(flat * metric.scale, k=k + 1, p=np.inf, workers=kd_workers(flat.shape[0]))
     # With one v/a ratio the tree's distance is the metric's key: no need to measure the pairs again.
     times = metric.time_from_key(dist) if metric.uniform else metric.time(flat[:, None, :], flat[idx])
     other = owner[idx]
@@ -483,5 +515,5 @@ def _to_nearest(branches, options, metric: MoveMetric) -> np.ndarray:
         return pair_times(branches, options[None], metric)[:, 0]
     n, w, n_axes = branches.shape
     dist, _ = cKDTree(options * metric.scale).query(branches.reshape(-1, n_axes) * metric.scale, k=1,
-                                                      p=np.inf, workers=-1)
+                                                      p=np.inf, workers=kd_workers(n * w))
     return metric.time_from_key(dist.reshape(n, w).min(axis=1))

@@ -27,6 +27,7 @@ usual. Without it, a gantry halted there could not be moved at all, not even hom
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 from itertools import combinations, permutations
 
@@ -54,6 +55,13 @@ def check_targets(kin, target_deg) -> np.ndarray:
         n = len(kin.axis_names)
         raise ValueError(f"target_deg: expected shape ({n},) or (N, {n}) with columns "
                          f"{', '.join(kin.axis_names)}; got {target.shape}")
+    if target.ndim == 1:
+        # One target (the runner's every move, the planner's every step): plain floats, same rule.
+        limits = kin.limits_deg.tolist()
+        for name, (lo, hi), value in zip(kin.axis_names, limits, target.tolist(), strict=True):
+            if not (math.isfinite(value) and lo - 1e-9 <= value <= hi + 1e-9):
+                raise ValueError(f"axis '{name}': target {value:g}° is outside the limit [{lo:g}°, {hi:g}°]")
+        return target
     rows = target.reshape(-1, target.shape[-1])
     for j, (name, (lo, hi)) in enumerate(zip(kin.axis_names, kin.limits_deg.tolist(), strict=True)):
         col = rows[:, j]

@@ -29,6 +29,8 @@ def held_karp(branches, start, end, v, acc) -> float:
     v, acc : ndarray (n_axes,)
         Axis speeds (°/s) and accelerations (°/s²).
     """
+    # A pose's repeated branches (a free azimuth, the two-arm gantry's mirror images) change no minimum.
+    branches = [np.unique(np.asarray(b, dtype=np.float64), axis=0) for b in branches]
     n = len(branches)
     w = max(b.shape[0] for b in branches)
     pts = np.full((n, w, len(v)), np.nan)

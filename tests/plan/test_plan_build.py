@@ -56,9 +56,9 @@ def walk_estimate(plan, cfg):
 
 @pytest.mark.parametrize("grid", ["iso:step=20", "full:step=45", "merl:stride=15", "iso:step=30,mirror=true",
                                   "iso:step=15,reciprocity=false,order=raster"])
-def test_plan_is_consistent(cfg, grid):
-    plan = build_plan(grid, cfg)
+def test_plan_is_consistent(cfg, grid, planned):
     kin = make_kinematics(cfg)
+    plan = planned(grid, cfg, kin)
     p = len(plan.theta_i)
     assert plan.axes_deg.shape == (p, 4) and plan.reference_axes_deg.shape == (4,)
     # Counts: every pose of the last shortcut stage is either planned or counted infeasible.
@@ -83,8 +83,8 @@ def test_plan_is_consistent(cfg, grid):
     assert plan.grid.startswith(grid.split(":")[0] + ":") and "theta_max=80" in plan.grid
 
 
-def test_reference_axes_point_at_the_reference_pose(cfg):
-    plan = build_plan("iso:step=15", cfg)
+def test_reference_axes_point_at_the_reference_pose(cfg, planned):
+    plan = planned("iso:step=15", cfg, make_kinematics(cfg))
     wi, wo = make_kinematics(cfg).directions(plan.reference_axes_deg)
     t, d = np.radians(cfg.reference.theta_o_deg), np.radians(cfg.reference.dphi_deg)
     np.testing.assert_allclose(wi[0], [0, 0, 1], atol=1e-9)  # θi = 0 in sim and sample-stage configs
@@ -133,8 +133,8 @@ def test_reciprocity_plan_holds_one_of_each_pair(cfg, grid):
     assert len(kept) == len(on.theta_i) < len(off.theta_i)
 
 
-def test_serpentine_moves_less_than_raster(cfg):
-    serp = build_plan("iso:step=15,order=serpentine", cfg)
+def test_serpentine_moves_less_than_raster(cfg, planned):
+    serp = planned("iso:step=15,order=serpentine", cfg, make_kinematics(cfg))
     rast = build_plan("iso:step=15,order=raster", cfg)
     assert serp.timing["pose_motion_s"] < rast.timing["pose_motion_s"]
     assert serp.estimated_s < rast.estimated_s
@@ -145,19 +145,20 @@ def test_serpentine_moves_less_than_raster(cfg):
     assert key(serp) == key(rast)
 
 
-def test_merl_grid_uses_a_tour_and_beats_its_raster(cfg):
-    tour = build_plan("merl:stride=15", cfg)
+def test_merl_grid_uses_a_tour_and_beats_its_raster(cfg, planned):
+    tour = planned("merl:stride=15", cfg, make_kinematics(cfg))
     assert tour.order == "tour" and tour.grid.endswith("order=tour")
     rast = build_plan("merl:stride=15,order=raster", cfg)
     assert tour.timing["pose_motion_s"] < rast.timing["pose_motion_s"]
 
 
-def test_auto_keeps_the_quicker_of_serpentine_and_tour_on_iso_grids(cfg):
+def test_auto_keeps_the_quicker_of_serpentine_and_tour_on_iso_grids(cfg, planned):
     """On iso:step=15 (304 poses) the serpentine ends 8 % over the bound on both gantries; auto plans
     the tour too and keeps it, with the same poses; full grids keep the serpentine."""
-    auto = build_plan("iso:step=15", cfg)
-    serp = build_plan("iso:step=15,order=serpentine", cfg)
-    tour = build_plan("iso:step=15,order=tour", cfg)
+    kin = make_kinematics(cfg)
+    auto = planned("iso:step=15", cfg, kin)
+    serp = planned("iso:step=15,order=serpentine", cfg, kin)
+    tour = planned("iso:step=15,order=tour", cfg, kin)
     assert auto.order == "tour" and auto.grid.endswith("order=tour")
     assert auto.estimated_s == tour.estimated_s < serp.estimated_s
     assert tour.estimated_s < serp.estimated_s - 0.01 * serp.lower_bound_s  # 1.031 vs 1.077; 1.048 vs 1.074

@@ -14,7 +14,7 @@ from gonio.kinematics import make_kinematics
 from gonio.motion.estimate import campaign_estimate
 from gonio.motion.metric import MoveMetric
 from gonio.motion.safe import park_path, path_time, safe_path
-from gonio.plan import STEP_DARK, build_plan, format_plan, plan_summary
+from gonio.plan import STEP_DARK, format_plan, plan_summary
 from gonio.plan.transit import step_targets, via_points
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "motion"))
@@ -80,9 +80,9 @@ def test_via_points_are_timed_in_the_estimate():
     assert routed["via_s"] == pytest.approx(extra.sum())
 
 
-def test_report_counts_the_moves_with_via_points(gantry):
+def test_report_counts_the_moves_with_via_points(gantry, planned):
     cfg, kin = gantry
-    plan = build_plan("iso:step=15", cfg, kin)
+    plan = planned("iso:step=15", cfg, kin)
     summary = plan_summary(plan)
     assert summary["moves"] == np.count_nonzero(plan.step_kind != STEP_DARK) + 1
     assert summary["via_moves"] == len(plan.via_deg) + (plan.park_deg.shape[0] > 1)
