@@ -7,7 +7,7 @@ import os
 import re
 from collections.abc import Callable, Iterable
 
-__all__ = ["WORKER_WAIT_S", "connect", "bounded_map", "dashboard_link"]
+__all__ = ["WORKER_WAIT_S", "connect", "disconnect", "bounded_map", "dashboard_link"]
 
 #: How long a client of an existing scheduler waits for a first worker to join.
 WORKER_WAIT_S = 30.0
@@ -73,6 +73,29 @@ def connect(workers: int | None = None, scheduler: str | None = None):
         client.close()
         raise
     return client, None, None
+
+
+def disconnect(client, cluster) -> None:
+    """Closes what :func:`connect` returned. A local cluster's workers are told first that losing the
+    scheduler is expected: they are closed after it stops answering, and a heartbeat sent in between
+    (a loaded machine) would otherwise log a traceback to the user's terminal as the batch ends."""
+    try:
+        if cluster is not None:
+            try:
+                client.run(_closing)
+            except Exception:     # noqa: BLE001 - a worker already gone logs nothing more either
+                pass
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _closing() -> None:
+    import logging
+
+    for name in ("distributed.worker", "distributed.core", "distributed.comm", "distributed.nanny"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def _version() -> str:

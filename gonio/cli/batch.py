@@ -68,6 +68,8 @@ def cmd_batch(args) -> int:
         flag = {"grid": "--grid", "gantry": "--config", "material": "MATERIALS"}.get(err.field, err.field)
         raise UsageError(f"{flag}: {err}") from None
     client, cluster, threads = connected(args, out, f"batch of {n} material{'s' * (n != 1)}")
+    from gonio.batch.cluster import disconnect
+
     try:
         summary = _run(args, out, materials, args.grid, cfg, client, threads, store, planned)
     except Interrupted as err:
@@ -75,9 +77,7 @@ def cmd_batch(args) -> int:
               "do the rest", file=sys.stderr)
         return 130
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        disconnect(client, cluster)
     for material, error in summary.failed:
         out(f"failed: {material}: {error}")
     done = summary.done_before + summary.written - len(summary.failed)

@@ -66,6 +66,7 @@ def _holds_many(folder: Path) -> bool:
 
 def _fit_many(args, source: Path) -> int:
     """``gonio fit STORE.zarr|FOLDER``: every material or campaign on the cluster, one table."""
+    from gonio.batch.cluster import disconnect
     from gonio.batch.fit import FitJob, fit_many, sources, table_csv
     from gonio.cli.batch import connected
     from gonio.fit import parse_channels, parse_model
@@ -87,9 +88,7 @@ def _fit_many(args, source: Path) -> int:
         job = FitJob(args.model, args.channels, args.loss, args.starts)
         rows = fit_many(kind, items, job, client, threads, on_row=None if args.quiet else said)
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        disconnect(client, cluster)
     text = table_csv(rows)
     if out is None:
         sys.stdout.write(text)
