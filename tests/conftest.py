@@ -2,6 +2,7 @@
 
 import os
 import resource
+import sys
 import time
 
 import numpy as np
@@ -15,7 +16,8 @@ from gonio.jit import ENV_VAR, array_types
 def pytest_collection_modifyitems(items):
     """The tests marked ``slow`` (whole campaigns, subprocesses, emulators on the wall clock) first, the
     longest first (``slow(seconds=S)``: about how long it runs alone; unsaid, 0), then the rest, each group
-    in its collected order (a stable sort). ``make test`` runs on every core (pytest-xdist, ``--dist load
+    in its collected order (a stable sort); last, the tests whose work started early (``slow(last=True)``:
+    tests/pages.py). ``make test`` runs on every core (pytest-xdist, ``--dist load
     --maxschedchunk 2``): each worker is handed the next test or two of this order as it finishes, so the
     long tests are shared out as the workers come free and none is left alone at the end.
 
@@ -26,9 +28,34 @@ def pytest_collection_modifyitems(items):
     operation of 13."""
     def order(item):
         slow = item.get_closest_marker("slow")
-        return (slow is None, -(slow.kwargs.get("seconds", 0) if slow is not None else 0))
+        if slow is None:
+            return (1, 0)
+        if slow.kwargs.get("last"):   # started early, beside the others: collected at the end
+            return (2, 0)
+        return (0, -slow.kwargs.get("seconds", 0))
 
     items.sort(key=order)
+
+
+def pytest_collection_finish(session):
+    """Under pytest-xdist, the docs pages that wait on emulated servos start now, in the background of
+    the first worker to get here, if their test is among those to run (tests/pages.py, "Early start")."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    names = {item.name for item in session.items if item.nodeid.split("::")[0].endswith("test_readme.py")}
+    if not names:
+        return
+    import pages
+
+    for group in pages.early_groups():
+        if f"test_every_command_block_runs_as_written[{pages.group_id(group)}]" in names:
+            pages.start_early(group)
+
+
+def pytest_sessionfinish(session):
+    """A worker that started pages early waits for them before it leaves."""
+    if "pages" in sys.modules:
+        sys.modules["pages"].join_early()
 
 
 @pytest.hookimpl(hookwrapper=True)
