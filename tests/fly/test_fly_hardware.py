@@ -6,6 +6,8 @@ faults naming the axis, and a gantry whose sweeping axis is not a Dynamixel serv
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from fly_compare import matches_stop_and_go as _matches_stop_and_go
@@ -16,6 +18,7 @@ from fly_compare import z_scores as _z
 
 from gonio.campaign import create_campaign
 from gonio.cli import main
+from gonio.clock import VirtualClock
 from gonio.config import load_config
 from gonio.dataset import read_brdf
 from gonio.fly import fly_plan_of
@@ -324,8 +327,44 @@ def _progress(meter) -> int:
 #: request and one that streams, and the sample stage (its sweeps are coordinated lines).
 KILLED_MID_SWEEP = [(TWIN, "acknowledging"), (TWIN, "streaming-photodiode"),
                     ("emulated-sample-stage-dynamixel", "acknowledging")]
-#: Upper bound on one scenario (its kill within 90 s, its resumed run within 120 s), for the join below.
+#: Upper bound on one scenario (its kill within 90 s, its resumed run after it), for the join below.
 SCENARIO_LIMIT_S = 300.0
+#: Gantry time between the kill and the resumed run's first packet (a process starting): past the servos'
+#: bus watchdog (0.5 s), which stops a sweep the killed process left going, as it does on the wall clock.
+RESTART_S = 1.5
+
+
+class WallThenVirtual(SyncedVirtualClock):
+    """The wall clock while another process drives the emulators (the ``gonio run`` killed mid-sweep);
+    from :meth:`go_virtual` on, a synced virtual clock that carries on from that instant, for the run that
+    resumes in this process (the CLI's clock is this one): it does not wait for the servos' motion."""
+
+    def __init__(self):
+        super().__init__(time.monotonic())
+        self.real_time = True
+
+    def now(self) -> float:
+        return time.monotonic() if self.real_time else super().now()
+
+    def sleep(self, seconds: float) -> None:
+        if self.real_time:
+            time.sleep(seconds)
+        else:
+            super().sleep(seconds)
+
+    def sleep_until(self, t: float) -> None:
+        if self.real_time:
+            time.sleep(max(0.0, t - time.monotonic()))
+        else:
+            super().sleep_until(t)
+
+    def go_virtual(self, gap_s: float) -> None:
+        """Stop on the wall-clock instant now, then let ``gap_s`` of gantry time pass unheard (no emulator
+        drained: what the killed process's servos and stream did meanwhile is due, as on a wire nobody
+        reads)."""
+        self._t = time.monotonic()
+        self.real_time = False
+        VirtualClock.sleep(self, gap_s)
 
 
 @pytest.mark.slow
@@ -335,16 +374,19 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
     resumes and completes the campaign with exactly one reading per step. On the sample stage the sweep
     killed is a coordinated line (several servos along a path, segment by segment).
 
-    The emulated servos run in real time (the command is a process on the wall clock), so the scenarios
+    The emulated servos run in real time while the killed process drives them, so the scenarios
     (:data:`KILLED_MID_SWEEP`), independent of one another (each its own emulators, ports and folder),
-    run at once, each in a thread of its own: their waits overlap."""
+    run at once, each in a thread of its own: their waits overlap. The command run again runs in this
+    process (``gonio.cli.main``, one scenario at a time) with the emulators' clock gone virtual
+    (:class:`WallThenVirtual`): what is tested there is the resume, not the servos' speed."""
     import threading
 
     errors: dict[str, BaseException] = {}
+    one_at_a_time = threading.Lock()
 
     def scenario(twin, profile):
         try:
-            _killed_mid_sweep(tmp_path / f"{twin}-{profile}", twin, profile)
+            _killed_mid_sweep(tmp_path / f"{twin}-{profile}", twin, profile, one_at_a_time)
         except BaseException as err:   # reported below, named after its scenario
             errors[f"{twin}/{profile}"] = err
 
@@ -360,14 +402,16 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
                              ) from next(iter(errors.values()))
 
 
-def _killed_mid_sweep(tmp_path, twin, profile):
-    """One scenario of the test above, in the folder ``tmp_path``."""
+def _killed_mid_sweep(tmp_path, twin, profile, one_at_a_time):
+    """One scenario of the test above, in the folder ``tmp_path``; ``one_at_a_time`` is held while the
+    command runs again in this process (the CLI's clock is patched for the whole process)."""
+    import contextlib
+    import io
     import signal
     import subprocess
     import sys
-    import time
+    from unittest import mock
 
-    from gonio.clock import WallClock
     from gonio.config import parse_config
     from gonio.plan.flypath import COORDINATED
 
@@ -387,12 +431,14 @@ def _killed_mid_sweep(tmp_path, twin, profile):
     data["detector"]["profile"] = profile   # read on request, or from its stream
     cfg = parse_config(data)
     out = tmp_path / "run"
-    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True, referenced=True) as emu:
+    clock = WallThenVirtual()
+    with EmulatedGantry(cfg, MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         path = tmp_path / "gantry.toml"
         path.write_text(emu.config_toml())
-        argv = [sys.executable, "-m", "gonio.cli", "run", "--config", str(path), "--grid",
-                GRID + ",order=fly", "--out", str(out), "--sample", "gold", "--quiet"]
-        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        args = ["run", "--config", str(path), "--grid", GRID + ",order=fly", "--out", str(out), "--sample",
+                "gold", "--quiet"]
+        proc = subprocess.Popen([sys.executable, "-m", "gonio.cli", *args], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE)
         in_flight = None
         try:
             # Wait until a sweep of several readings is under way: the journal holds every unit before
@@ -429,15 +475,19 @@ def _killed_mid_sweep(tmp_path, twin, profile):
             if proc.poll() is None:
                 proc.kill()
                 proc.wait(10)
+        clock.go_virtual(RESTART_S)
         rows, _ = _measurements(out)
         done = {m.step for m in rows}
         for step, n, _ in units:
             part = done & set(range(step, step + n))
             assert len(part) in (0, n), (step, n, sorted(part))   # whole or nothing
         assert not done & set(range(in_flight[0], in_flight[0] + in_flight[1]))  # read in part, not kept
-        r = subprocess.run(argv, capture_output=True, text=True, timeout=120)
-        assert r.returncode == 0, r.stderr
-        assert "resuming" in r.stderr
+        err = io.StringIO()
+        with one_at_a_time, mock.patch("gonio.wiring.WallClock", lambda: clock), \
+                contextlib.redirect_stderr(err):
+            code = main(args)
+        assert code == 0, err.getvalue()
+        assert "resuming" in err.getvalue()
     j = Journal.open(out / JOURNAL_NAME, readonly=True)
     try:
         assert j.done_steps().tolist() == list(range(j.step_count()))
