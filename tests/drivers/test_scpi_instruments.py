@@ -18,7 +18,7 @@ from gonio.sim.emulators.tcp_link import TcpLink
 WATTS = 1.25e-6
 DARK_W = 2e-9
 #: Reply deadline: long enough for a loaded machine, short enough for the faults that wait it out.
-TIMEOUT_S = 0.8
+TIMEOUT_S = 0.3
 #: How a driver reaches an emulator: (link for the emulator, the port string the driver is given).
 TRANSPORTS = {
     "pty": (lambda: None, lambda emu: emu.port),

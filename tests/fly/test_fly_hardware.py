@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from emulated_clock import WallThenVirtual, gonio_on
 from fly_compare import matches_stop_and_go as _matches_stop_and_go
 from fly_compare import measurements as _measurements
 from fly_compare import pose_order as _rows
@@ -18,7 +19,6 @@ from fly_compare import z_scores as _z
 
 from gonio.campaign import create_campaign
 from gonio.cli import main
-from gonio.clock import VirtualClock
 from gonio.config import load_config
 from gonio.dataset import read_brdf
 from gonio.fly import fly_plan_of
@@ -334,39 +334,6 @@ SCENARIO_LIMIT_S = 300.0
 RESTART_S = 1.5
 
 
-class WallThenVirtual(SyncedVirtualClock):
-    """The wall clock while another process drives the emulators (the ``gonio run`` killed mid-sweep);
-    from :meth:`go_virtual` on, a synced virtual clock that carries on from that instant, for the run that
-    resumes in this process (the CLI's clock is this one): it does not wait for the servos' motion."""
-
-    def __init__(self):
-        super().__init__(time.monotonic())
-        self.real_time = True
-
-    def now(self) -> float:
-        return time.monotonic() if self.real_time else super().now()
-
-    def sleep(self, seconds: float) -> None:
-        if self.real_time:
-            time.sleep(seconds)
-        else:
-            super().sleep(seconds)
-
-    def sleep_until(self, t: float) -> None:
-        if self.real_time:
-            time.sleep(max(0.0, t - time.monotonic()))
-        else:
-            super().sleep_until(t)
-
-    def go_virtual(self, gap_s: float) -> None:
-        """Stop on the wall-clock instant now, then let ``gap_s`` of gantry time pass unheard (no emulator
-        drained: what the killed process's servos and stream did meanwhile is due, as on a wire nobody
-        reads)."""
-        self._t = time.monotonic()
-        self.real_time = False
-        VirtualClock.sleep(self, gap_s)
-
-
 @pytest.mark.slow
 def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp_path):
     """kill -9 of ``gonio run ... order=fly`` on the wall clock while a sweep is under way: the journal
@@ -382,11 +349,10 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
     import threading
 
     errors: dict[str, BaseException] = {}
-    one_at_a_time = threading.Lock()
 
     def scenario(twin, profile):
         try:
-            _killed_mid_sweep(tmp_path / f"{twin}-{profile}", twin, profile, one_at_a_time)
+            _killed_mid_sweep(tmp_path / f"{twin}-{profile}", twin, profile)
         except BaseException as err:   # reported below, named after its scenario
             errors[f"{twin}/{profile}"] = err
 
@@ -402,15 +368,11 @@ def test_gonio_run_order_fly_killed_mid_sweep_keeps_whole_sweeps_and_resumes(tmp
                              ) from next(iter(errors.values()))
 
 
-def _killed_mid_sweep(tmp_path, twin, profile, one_at_a_time):
-    """One scenario of the test above, in the folder ``tmp_path``; ``one_at_a_time`` is held while the
-    command runs again in this process (the CLI's clock is patched for the whole process)."""
-    import contextlib
-    import io
+def _killed_mid_sweep(tmp_path, twin, profile):
+    """One scenario of the test above, in the folder ``tmp_path``."""
     import signal
     import subprocess
     import sys
-    from unittest import mock
 
     from gonio.config import parse_config
     from gonio.plan.flypath import COORDINATED
@@ -482,12 +444,9 @@ def _killed_mid_sweep(tmp_path, twin, profile, one_at_a_time):
             part = done & set(range(step, step + n))
             assert len(part) in (0, n), (step, n, sorted(part))   # whole or nothing
         assert not done & set(range(in_flight[0], in_flight[0] + in_flight[1]))  # read in part, not kept
-        err = io.StringIO()
-        with one_at_a_time, mock.patch("gonio.wiring.WallClock", lambda: clock), \
-                contextlib.redirect_stderr(err):
-            code = main(args)
-        assert code == 0, err.getvalue()
-        assert "resuming" in err.getvalue()
+        code, err = gonio_on(clock, args)
+        assert code == 0, err
+        assert "resuming" in err
     j = Journal.open(out / JOURNAL_NAME, readonly=True)
     try:
         assert j.done_steps().tolist() == list(range(j.step_count()))
