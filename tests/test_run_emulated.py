@@ -460,16 +460,19 @@ def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp
              channel_mean=True)
 
 
-def test_gonio_run_measures_an_adaptive_campaign_through_the_drivers(tmp_path):
+def test_gonio_run_measures_an_adaptive_campaign_through_the_drivers(tmp_path, monkeypatch):
     """``gonio run --grid adaptive:...`` on the emulated Modbus sample stage: the pilot and a round placed
-    from what the drivers read, each pose matching the simulation of the same material there."""
+    from what the drivers read, each pose matching the simulation of the same material there. The CLI's
+    wall clock is the emulators' synced virtual one (the adaptive rounds are tested, not the motion)."""
     from gonio.cli import main
 
     cfg = parse_config(_fast("emulated-sample-stage-modbus"))
-    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True, referenced=True) as emu:
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(cfg, MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         path = tmp_path / "gantry.toml"
         path.write_text(emu.config_toml())
         out = tmp_path / "run"
+        monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
         assert main(["run", "--config", str(path), "--grid", "adaptive:poses=20", "--out", str(out),
                      "--sample", "gold", "--quiet"]) == 0
     j = Journal.open(out / JOURNAL_NAME, readonly=True)
