@@ -250,7 +250,17 @@ def _az_run(folder, data, on_step=None):
         return state, runner, emu, line
 
 
-def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_the_same_result(tmp_path):
+@pytest.fixture(scope="module")
+def az_together(tmp_path_factory):
+    """The shipped emulated sample stage's campaign with its AZ axes started together (``sync_start =
+    "auto"``, each unit behind its own TCP gateway): (folder, state, runner, emulator, start line), read
+    by the tests below, none of which changes it."""
+    folder = tmp_path_factory.mktemp("az") / "together"
+    return (folder, *_az_run(folder, _az("auto")))
+
+
+def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_the_same_result(tmp_path,
+                                                                                               az_together):
     """The shipped emulated sample stage (each AZ unit behind its own TCP gateway) starts each pose's
     moving axes with held moves and trigger frames sent on every connection before any reply is read
     (a unit answers its trigger only once every preloaded unit got its own: none waited); its brdf.h5
@@ -258,9 +268,9 @@ def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_
     state, runner, _emu, line = _az_run(tmp_path / "alone", _az("off"))
     assert state == State.DONE, runner.fault
     assert line.starts == 0  # axis by axis: no trigger ever started a move
-    state, runner, emu, line = _az_run(tmp_path / "together", _az("auto"))
+    together_folder, state, runner, emu, line = az_together
     assert state == State.DONE, runner.fault
-    _assert_no_retry_or_fault(tmp_path / "together")
+    _assert_no_retry_or_fault(together_folder)
     starts = {n: emu.motors[n].starts for n in AZ_AXES}
     assert line.starts == sum(map(len, starts.values())) > 20 and line.late == 0
     for n, made in starts.items():
@@ -272,12 +282,12 @@ def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_
         for t, _i, _wall in made:
             by_instant.setdefault(t, set()).add(n)
     assert max(map(len, by_instant.values())) >= 2  # poses that move several axes start them at one instant
-    alone, together = read_brdf(tmp_path / "alone" / "brdf.h5"), read_brdf(tmp_path / "together" / "brdf.h5")
+    alone, together = read_brdf(tmp_path / "alone" / "brdf.h5"), read_brdf(together_folder / "brdf.h5")
     np.testing.assert_array_equal(together.value, alone.value)
     np.testing.assert_array_equal(together.theta_o, alone.theta_o)
 
 
-def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(tmp_path):
+def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(tmp_path, az_together):
     """The four AZ units on one RTU line: each pose move is ONE group-send trigger query to the parent
     (sample_rotation, unit 1) that every unit executes (those not moving preloaded to stay); the result
     equals the campaign's behind separate gateways (bit for bit)."""
@@ -290,9 +300,10 @@ def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(t
     for n in AZ_AXES:  # every unit started by those very queries, and by nothing else
         assert [i for _t, i, _w in emu.motors[n].starts] == parent, n
     assert all(emu.motors[n].group_id == -1 for n in AZ_AXES)  # each group left after its start
-    state, runner, _emu, _line = _az_run(tmp_path / "tcp", _az("auto"))
+    together_folder, state, runner, _emu, _line = az_together
+    assert state == State.DONE, runner.fault
     np.testing.assert_array_equal(read_brdf(tmp_path / "line" / "brdf.h5").value,
-                                  read_brdf(tmp_path / "tcp" / "brdf.h5").value)
+                                  read_brdf(together_folder / "brdf.h5").value)
 
 
 def test_a_modbus_unit_power_cycled_between_its_preload_and_the_trigger_faults_named_and_resumes(tmp_path):
