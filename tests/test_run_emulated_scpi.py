@@ -58,10 +58,18 @@ def _matches(measured, simulated):
     assert bad.size == 0, [(m_keys[m_order][i], value[i], sim[i], tol[i]) for i in bad[:3]]
 
 
+#: The instruments' reply deadline here (the twin's is the default 1 s): the emulators answer from threads
+#: of this process at once, and the faults that wait a deadline out wait this one.
+REPLY_TIMEOUT_S = 0.3
+
+
 @pytest.fixture
 def emulated():
+    data = load_config(TWIN).model_dump(mode="json")
+    for bus in ("lamp", "powermeter"):
+        data["buses"][bus]["timeout_s"] = REPLY_TIMEOUT_S
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         yield emu, clock
 
 
@@ -105,8 +113,9 @@ def _inject(emu, at_step, action):
 @pytest.mark.parametrize("kind", ["delay", "drop", "corrupt", "truncate"])
 def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path, emulated, kind):
     emu, clock = emulated
-    # delay: 0.9 s after the reading's 1.1 s deadline, 1.2 s before its re-synchronisation gives up
-    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=2.0))
+    # delay: 0.3 s after the reading's 0.4 s deadline (the time-out and the exposure), 0.3 s before its
+    # re-synchronisation gives up (two time-outs more)
+    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=0.7))
     (state, runner), _ = _emulated_run(tmp_path / "r", emu, clock, on_step=on_step)
     assert state == State.DONE, runner.fault
     assert emu.meter.faults.applied == [(kind, "FETC?")]
