@@ -60,7 +60,7 @@ def _matches(measured, simulated):
 
 #: The instruments' reply deadline here (the twin's is the default 1 s): the emulators answer from threads
 #: of this process at once, and the faults that wait a deadline out wait this one.
-REPLY_TIMEOUT_S = 0.3
+REPLY_TIMEOUT_S = 0.5
 
 
 @pytest.fixture
@@ -113,9 +113,9 @@ def _inject(emu, at_step, action):
 @pytest.mark.parametrize("kind", ["delay", "drop", "corrupt", "truncate"])
 def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path, emulated, kind):
     emu, clock = emulated
-    # delay: 0.3 s after the reading's 0.4 s deadline (the time-out and the exposure), 0.3 s before its
+    # delay: 0.5 s after the reading's 0.6 s deadline (the time-out and the exposure), 0.5 s before its
     # re-synchronisation gives up (two time-outs more)
-    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=0.7))
+    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=1.1))
     (state, runner), _ = _emulated_run(tmp_path / "r", emu, clock, on_step=on_step)
     assert state == State.DONE, runner.fault
     assert emu.meter.faults.applied == [(kind, "FETC?")]
