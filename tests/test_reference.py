@@ -7,8 +7,6 @@ not a power cycle, and the journal records it."""
 from __future__ import annotations
 
 import json
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -47,11 +45,26 @@ def ring_gap(axes_deg: dict) -> float:
     return min(d, 360.0 - d)
 
 
+class WatchedClock(SyncedVirtualClock):
+    """The emulators' synced virtual clock that calls ``watch()`` after every advance (the commands wait in
+    slices of runner.poll_s, 5 ms here: the carriages are looked at every 0.6° of a 120 °/s move)."""
+
+    def __init__(self):
+        super().__init__()
+        self.watch = lambda: None
+
+    def sleep(self, seconds: float) -> None:
+        super().sleep(seconds)
+        self.watch()
+
+
 @pytest.fixture
-def fast_twin(tmp_path):
-    """The two-arm twin on the wall clock with quicker moves (2:1 ring pinions, so 120 °/s on the ring is
-    within the servos' velocity limit, and the approach at that speed): its emulators, powered up as
-    hardware does (a carriage's angle known modulo 180°), and the config file that reaches them."""
+def fast_twin(tmp_path, monkeypatch):
+    """The two-arm twin with quicker moves (2:1 ring pinions, so 120 °/s on the ring is within the servos'
+    velocity limit, and the approach at that speed): its emulators, powered up as hardware does (a
+    carriage's angle known modulo 180°), the config file that reaches them, and their clock (a
+    :class:`WatchedClock`), which is the CLI's wall clock here: the commands run in this process and do
+    not wait for the motion (gonio gantry reference on the wall clock: test_run_emulated_scpi)."""
     data = load_config(TWIN).model_dump(mode="json")
     for name, axis in data["axes"].items():
         if axis.get("reference") == "hard_stop":
@@ -62,14 +75,16 @@ def fast_twin(tmp_path):
     data["runner"].update(poll_s=0.005)
     for axis in data["axes"].values():
         axis["watchdog_s"] = 0.0
-    with EmulatedGantry(parse_config(data), clock=WallClock(), any_port=True) as emu:
+    clock = WatchedClock()
+    with EmulatedGantry(parse_config(data), clock=clock, any_port=True) as emu:
         path = tmp_path / "gantry.toml"
         path.write_text(emu.config_toml())
-        yield emu, str(path)
+        monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
+        yield emu, str(path), clock
 
 
 def test_home_is_refused_on_an_unreferenced_gantry_with_nothing_written(fast_twin, capsys):
-    emu, path = fast_twin
+    emu, path, _ = fast_twin
     truth = emu.axes_deg()
     for action in (["home"], ["jog", "--axis", "light_tilt", "--by", "5"], ["move", "--axes", "0,10,180,0"]):
         n = len(emu.emulators["arm"].received)
@@ -85,34 +100,24 @@ def test_reference_finds_the_true_angles_then_home_drives_there_and_the_carriage
     """The detector carriage really stands at 180° and reads 0°; after `gonio gantry reference` every axis
     reads its true angle within 0.5°, `gonio gantry home` works, and the carriages never came within
     arm_collision_deg of each other on the way (the emulators' true shafts, watched throughout)."""
-    emu, path = fast_twin
+    emu, path, clock = fast_twin
     assert main(["gantry", "status", "--config", path, "--json"]) == 0
     before = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
     assert before["detector_azimuth"]["position_deg"] == pytest.approx(0.0, abs=0.1)
     assert before["detector_azimuth"]["referenced"] is False and before["light_tilt"]["referenced"] is None
-    gaps, stop = [], threading.Event()
-
-    def watch():
-        while not stop.is_set():
-            gaps.append(ring_gap(emu.axes_deg()))
-            time.sleep(0.002)  # sampling the emulators' shafts while another thread drives them
-
-    t = threading.Thread(target=watch)
-    t.start()
-    try:
-        assert main(["gantry", "reference", "--config", path]) == 0
-        out = capsys.readouterr().out
-        assert "light_azimuth: referenced (hard_stop" in out and "detector_azimuth: referenced" in out
-        assert main(["gantry", "status", "--config", path, "--json"]) == 0
-        after = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
-        truth = emu.axes_deg()
-        for name, a in after.items():
-            assert a["position_deg"] == pytest.approx(truth[name], abs=0.5), name
-            assert a["referenced"] in (True, None)
-        assert main(["gantry", "home", "--config", path]) == 0
-    finally:
-        stop.set()
-        t.join(5.0)
+    gaps: list[float] = []
+    clock.watch = lambda: gaps.append(ring_gap(emu.axes_deg()))   # the emulators' true shafts
+    assert main(["gantry", "reference", "--config", path]) == 0
+    out = capsys.readouterr().out
+    assert "light_azimuth: referenced (hard_stop" in out and "detector_azimuth: referenced" in out
+    assert main(["gantry", "status", "--config", path, "--json"]) == 0
+    after = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
+    truth = emu.axes_deg()
+    for name, a in after.items():
+        assert a["position_deg"] == pytest.approx(truth[name], abs=0.5), name
+        assert a["referenced"] in (True, None)
+    assert main(["gantry", "home", "--config", path]) == 0
+    assert len(gaps) > 100   # looked at throughout
     home = emu.axes_deg()
     assert home["light_azimuth"] == pytest.approx(0.0, abs=0.1)
     assert home["detector_azimuth"] == pytest.approx(180.0, abs=0.1)

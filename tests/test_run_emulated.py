@@ -250,7 +250,17 @@ def _az_run(folder, data, on_step=None):
         return state, runner, emu, line
 
 
-def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_the_same_result(tmp_path):
+@pytest.fixture(scope="module")
+def az_together(tmp_path_factory):
+    """The shipped emulated sample stage's campaign with its AZ axes started together (``sync_start =
+    "auto"``, each unit behind its own TCP gateway): (folder, state, runner, emulator, start line), read
+    by the tests below, none of which changes it."""
+    folder = tmp_path_factory.mktemp("az") / "together"
+    return (folder, *_az_run(folder, _az("auto")))
+
+
+def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_the_same_result(tmp_path,
+                                                                                               az_together):
     """The shipped emulated sample stage (each AZ unit behind its own TCP gateway) starts each pose's
     moving axes with held moves and trigger frames sent on every connection before any reply is read
     (a unit answers its trigger only once every preloaded unit got its own: none waited); its brdf.h5
@@ -258,9 +268,9 @@ def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_
     state, runner, _emu, line = _az_run(tmp_path / "alone", _az("off"))
     assert state == State.DONE, runner.fault
     assert line.starts == 0  # axis by axis: no trigger ever started a move
-    state, runner, emu, line = _az_run(tmp_path / "together", _az("auto"))
+    together_folder, state, runner, emu, line = az_together
     assert state == State.DONE, runner.fault
-    _assert_no_retry_or_fault(tmp_path / "together")
+    _assert_no_retry_or_fault(together_folder)
     starts = {n: emu.motors[n].starts for n in AZ_AXES}
     assert line.starts == sum(map(len, starts.values())) > 20 and line.late == 0
     for n, made in starts.items():
@@ -272,12 +282,12 @@ def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_
         for t, _i, _wall in made:
             by_instant.setdefault(t, set()).add(n)
     assert max(map(len, by_instant.values())) >= 2  # poses that move several axes start them at one instant
-    alone, together = read_brdf(tmp_path / "alone" / "brdf.h5"), read_brdf(tmp_path / "together" / "brdf.h5")
+    alone, together = read_brdf(tmp_path / "alone" / "brdf.h5"), read_brdf(together_folder / "brdf.h5")
     np.testing.assert_array_equal(together.value, alone.value)
     np.testing.assert_array_equal(together.theta_o, alone.theta_o)
 
 
-def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(tmp_path):
+def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(tmp_path, az_together):
     """The four AZ units on one RTU line: each pose move is ONE group-send trigger query to the parent
     (sample_rotation, unit 1) that every unit executes (those not moving preloaded to stay); the result
     equals the campaign's behind separate gateways (bit for bit)."""
@@ -290,9 +300,10 @@ def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(t
     for n in AZ_AXES:  # every unit started by those very queries, and by nothing else
         assert [i for _t, i, _w in emu.motors[n].starts] == parent, n
     assert all(emu.motors[n].group_id == -1 for n in AZ_AXES)  # each group left after its start
-    state, runner, _emu, _line = _az_run(tmp_path / "tcp", _az("auto"))
+    together_folder, state, runner, _emu, _line = az_together
+    assert state == State.DONE, runner.fault
     np.testing.assert_array_equal(read_brdf(tmp_path / "line" / "brdf.h5").value,
-                                  read_brdf(tmp_path / "tcp" / "brdf.h5").value)
+                                  read_brdf(together_folder / "brdf.h5").value)
 
 
 def test_a_modbus_unit_power_cycled_between_its_preload_and_the_trigger_faults_named_and_resumes(tmp_path):
@@ -325,14 +336,20 @@ def _fast(twin: str) -> dict:
 
 @pytest.mark.slow
 def test_gonio_run_killed_mid_campaign_resumes_when_run_again(tmp_path):
+    """kill -9 of ``gonio run`` (a process on the wall clock) after 8 steps; the same command run again
+    resumes and the result matches the simulation. It runs again in this process with the emulators'
+    clock gone virtual at the kill (:class:`WallThenVirtual`): the resume is tested, not the motion."""
+    from emulated_clock import WallThenVirtual, gonio_on
+
     cfg = parse_config(_fast("emulated-sample-stage-modbus"))
-    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True, referenced=True) as emu:
+    clock = WallThenVirtual()
+    with EmulatedGantry(cfg, MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         path = tmp_path / "gantry.toml"
         path.write_text(emu.config_toml())
         out = tmp_path / "run"
-        argv = [*GONIO, "run", "--config", str(path), "--grid", GRID, "--out", str(out), "--sample", "gold",
+        args = ["run", "--config", str(path), "--grid", GRID, "--out", str(out), "--sample", "gold",
                 "--quiet"]
-        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        proc = subprocess.Popen([*GONIO, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         try:
             deadline = time.monotonic() + 60.0
             done = 0
@@ -350,9 +367,10 @@ def test_gonio_run_killed_mid_campaign_resumes_when_run_again(tmp_path):
         finally:
             if proc.poll() is None:
                 proc.kill()
-        r = subprocess.run(argv, capture_output=True, text=True, timeout=120)
-        assert r.returncode == 0, r.stderr
-        assert "resuming" in r.stderr
+        clock.go_virtual(1.0)   # a process starting
+        code, err = gonio_on(clock, args)
+        assert code == 0, err
+        assert "resuming" in err
     measured = read_brdf(out / "brdf.h5")
     _matches(measured, _simulated(tmp_path, "sample-stage"), channel_mean=False)
 
@@ -415,23 +433,31 @@ WATCHDOG_GRID = "iso:step=60,theta_max=60"
 
 @pytest.mark.slow
 def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp_path):
-    """The shipped Dynamixel twin (bus watchdog 0.5 s) on the wall clock, with the arms' moves slowed so
-    that many last several watchdog periods: only the feeding reads keep the servos going. The campaign
-    finishes with no watchdog fired, no retry, every servo disarmed at rest, and the simulation's values.
-    A small grid (6 poses, θ to 60°) whose moves are long; the changer at its quickest (it would add
-    four 1.7 s moves of waiting to the arms' seven that last over 1 s)."""
+    """The Dynamixel twin on the wall clock with its bus watchdog at 0.2 s (the shipped 0.5 s, shortened
+    as a config may: the runner then feeds it every 0.1 s) and the arms' moves slowed so that many last
+    several watchdog periods: only the feeding reads keep the servos going. The campaign finishes with no
+    watchdog fired, no retry, every servo disarmed at rest, and the simulation's values. A small grid (6
+    poses, θ to 60°) whose moves are long for the watchdog, each the shipped run's at 2.5 times its speed
+    (the azimuth carriages on 1.5:1 pinions to allow it, within the servos' velocity limit); the changer
+    at its quickest (its moves are not counted)."""
     data = _fast("emulated-two-arm-dynamixel")
+    assert {a["watchdog_s"] for a in data["axes"].values()} == {0.5}   # the shipped twin arms it
+    watchdog_s = 0.2
     for name, axis in data["axes"].items():
         fast = name == "changer"  # 300 °/s: within the XL430's velocity limit
-        axis["max_velocity_deg_s"] = 300.0 if fast else 60.0  # within each servo's limit, gear included
-        axis["max_accel_deg_s2"] = 3000.0 if fast else 240.0
+        if "azimuth" in name:
+            axis["gear_ratio"] = 1.5
+        axis["max_velocity_deg_s"] = 300.0 if fast else 150.0  # within each servo's limit, gear included
+        axis["max_accel_deg_s2"] = 3000.0 if fast else 1500.0
+        axis["watchdog_s"] = watchdog_s
     cfg = parse_config(data)
-    watchdog_s = data["axes"]["light_tilt"]["watchdog_s"]
-    assert watchdog_s == 0.5
     clock = WallClock()
     with EmulatedGantry(cfg, MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         lasted: list[float] = []
-        for s in emu.servos.values():
+        for name, s in emu.servos.items():
+            if name == "changer":
+                continue
+
             def start(goal, s=s, start=s._start_move):
                 start(goal)
                 lasted.append(s.trajectory.duration)
@@ -445,16 +471,19 @@ def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp
              channel_mean=True)
 
 
-def test_gonio_run_measures_an_adaptive_campaign_through_the_drivers(tmp_path):
+def test_gonio_run_measures_an_adaptive_campaign_through_the_drivers(tmp_path, monkeypatch):
     """``gonio run --grid adaptive:...`` on the emulated Modbus sample stage: the pilot and a round placed
-    from what the drivers read, each pose matching the simulation of the same material there."""
+    from what the drivers read, each pose matching the simulation of the same material there. The CLI's
+    wall clock is the emulators' synced virtual one (the adaptive rounds are tested, not the motion)."""
     from gonio.cli import main
 
     cfg = parse_config(_fast("emulated-sample-stage-modbus"))
-    with EmulatedGantry(cfg, MATERIAL, clock=WallClock(), any_port=True, referenced=True) as emu:
+    clock = SyncedVirtualClock()
+    with EmulatedGantry(cfg, MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         path = tmp_path / "gantry.toml"
         path.write_text(emu.config_toml())
         out = tmp_path / "run"
+        monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
         assert main(["run", "--config", str(path), "--grid", "adaptive:poses=20", "--out", str(out),
                      "--sample", "gold", "--quiet"]) == 0
     j = Journal.open(out / JOURNAL_NAME, readonly=True)

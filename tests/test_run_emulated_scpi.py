@@ -58,10 +58,18 @@ def _matches(measured, simulated):
     assert bad.size == 0, [(m_keys[m_order][i], value[i], sim[i], tol[i]) for i in bad[:3]]
 
 
+#: The instruments' reply deadline here (the twin's is the default 1 s): the emulators answer from threads
+#: of this process at once, and the faults that wait a deadline out wait this one.
+REPLY_TIMEOUT_S = 0.5
+
+
 @pytest.fixture
 def emulated():
+    data = load_config(TWIN).model_dump(mode="json")
+    for bus in ("lamp", "powermeter"):
+        data["buses"][bus]["timeout_s"] = REPLY_TIMEOUT_S
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         yield emu, clock
 
 
@@ -105,8 +113,9 @@ def _inject(emu, at_step, action):
 @pytest.mark.parametrize("kind", ["delay", "drop", "corrupt", "truncate"])
 def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path, emulated, kind):
     emu, clock = emulated
-    # delay: 0.9 s after the reading's 1.1 s deadline, 1.2 s before its re-synchronisation gives up
-    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=2.0))
+    # delay: 0.5 s after the reading's 0.6 s deadline (the time-out and the exposure), 0.5 s before its
+    # re-synchronisation gives up (two time-outs more)
+    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=1.1))
     (state, runner), _ = _emulated_run(tmp_path / "r", emu, clock, on_step=on_step)
     assert state == State.DONE, runner.fault
     assert emu.meter.faults.applied == [(kind, "FETC?")]
@@ -183,16 +192,19 @@ def test_a_power_meter_power_cycled_mid_campaign_is_configured_again(tmp_path, e
     assert {(w, c) for w, c, _ in emu.meter.measurements} == {(633.0, 33)}
 
 
-# -- as a user runs it: gonio emulate in one process, gonio run in another ----------------------------
+# -- as a user runs it: gonio emulate in one process, gonio gantry reference and gonio run in another --
 @pytest.mark.slow
-def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path):
+def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path, capsys):
+    from gonio.cli import main
+
     data = _fast(TWIN)
     for axis in data["axes"].values():  # within each servo's velocity limit, its gear included
         axis["max_velocity_deg_s"], axis["max_accel_deg_s2"] = 180.0, 2000.0
-        if axis.get("reference") == "hard_stop":  # the ring carriages: 2:1 pinions (as test_reference's
-            # quick twin), so 120 °/s on the ring, and the approach to the stop at that speed
-            axis.update(gear_ratio=2.0, max_velocity_deg_s=120.0, max_accel_deg_s2=2400.0,
-                        reference_velocity_deg_s=120.0)
+        if axis.get("reference") == "hard_stop":  # the ring carriages: 1:1 pinions, so 240 °/s on the
+            # ring, and the approach to the stop at that speed
+            axis.update(gear_ratio=1.0, max_velocity_deg_s=240.0, max_accel_deg_s2=4800.0,
+                        reference_velocity_deg_s=240.0)
+    data["axes"]["changer"].update(max_velocity_deg_s=300.0, max_accel_deg_s2=3000.0)  # the XL430's quickest
     data["light"]["settle_s"] = 0.0
     src = tmp_path / "scpi.toml"
     from gonio.sim.emulators.gantry import to_toml
@@ -207,15 +219,13 @@ def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path):
         while not written.exists() and time.monotonic() < deadline and emulate.poll() is None:
             time.sleep(0.05)  # waiting for another process to write its file; bounded by the deadline
         assert written.exists(), emulate.communicate(timeout=10)
-        # The emulated servos power up as real ones do: the carriages are referenced first.
-        r = subprocess.run([*GONIO, "gantry", "reference", "--config", str(written)], capture_output=True,
-                           text=True, timeout=300)
-        assert r.returncode == 0, r.stderr
+        # The emulated servos power up as real ones do: the carriages are referenced first. Both
+        # commands run in this process (another than the emulators', as a user's would).
+        assert main(["gantry", "reference", "--config", str(written)]) == 0, capsys.readouterr().err
         out = tmp_path / "run"
-        argv = [*GONIO, "run", "--config", str(written), "--grid", "iso:step=45", "--out", str(out),
-                "--sample", "gold", "--quiet"]
-        r = subprocess.run(argv, capture_output=True, text=True, timeout=300)
-        assert r.returncode == 0, r.stderr
+        argv = ["run", "--config", str(written), "--grid", "iso:step=45", "--out", str(out), "--sample",
+                "gold", "--quiet"]
+        assert main(argv) == 0, capsys.readouterr().err
     finally:
         emulate.terminate()
         emulate.communicate(timeout=30)

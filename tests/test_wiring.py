@@ -11,6 +11,7 @@ from gonio.clock import WallClock
 from gonio.config import ConfigError, load_config, parse_config, relocate
 from gonio.gantry import AssembledGantry
 from gonio.sim.emulators.gantry import EmulatedGantry
+from gonio.sim.emulators.link import SyncedVirtualClock
 from gonio.wiring import build_gantry
 
 TWIN = "emulated-two-arm-dynamixel"
@@ -55,17 +56,30 @@ def test_devices_on_one_bus_share_one_bus_object():
     assert len(buses) == 1
 
 
-@pytest.fixture
-def emulated(tmp_path):
-    """The two-arm twin emulated on the wall clock with fast motion; its config file with the ptys."""
+def _emulated(tmp_path, clock):
     data = _data()
     for axis in data["axes"].values():
         axis.update(gear_ratio=1.0, max_velocity_deg_s=250.0, max_accel_deg_s2=5000.0)
     data["runner"].update(poll_s=0.005)
-    with EmulatedGantry(parse_config(data), clock=WallClock(), any_port=True, referenced=True) as emu:
+    with EmulatedGantry(parse_config(data), clock=clock, any_port=True, referenced=True) as emu:
         path = tmp_path / "gantry.toml"
         path.write_text(emu.config_toml())
         yield emu, str(path)
+
+
+@pytest.fixture
+def emulated(tmp_path):
+    """The two-arm twin emulated on the wall clock with fast motion; its config file with the ptys."""
+    yield from _emulated(tmp_path, WallClock())
+
+
+@pytest.fixture
+def emulated_virtual(tmp_path, monkeypatch):
+    """As :func:`emulated` on a synced virtual clock that is also the CLI's wall clock (the gantry commands
+    run in this process; where the test is not about the servos moving in real time)."""
+    clock = SyncedVirtualClock()
+    monkeypatch.setattr("gonio.wiring.WallClock", lambda: clock)
+    yield from _emulated(tmp_path, clock)
 
 
 def _ticks(emu):
@@ -78,8 +92,8 @@ def _ticks(emu):
     (["--theta-i", "30", "--phi-i", "0", "--theta-o", "31", "--phi-o", "0"], "occlusion"),
     (["--theta-i", "85", "--phi-i", "0", "--theta-o", "30", "--phi-o", "180"], "beyond_theta_max"),
 ])
-def test_gantry_move_refuses_before_anything_moves(emulated, capsys, args, message):
-    emu, path = emulated
+def test_gantry_move_refuses_before_anything_moves(emulated_virtual, capsys, args, message):
+    emu, path = emulated_virtual
     before = _ticks(emu)
     assert main(["gantry", "move", "--config", path, *args]) == 2
     assert message in capsys.readouterr().err
@@ -102,11 +116,11 @@ def test_gantry_move_and_status(emulated, capsys):
     assert abs(tilt["position_deg"] - 30.0) < 0.1
 
 
-def test_gantry_home_from_a_pose_read_back_a_tick_inside_the_carriages_clearance(emulated, capsys):
+def test_gantry_home_from_a_pose_read_back_a_tick_inside_the_carriages_clearance(emulated_virtual, capsys):
     """Carriages sent exactly arm_collision_deg = 10° apart stop on the nearest encoder ticks: the light
     rounds up and the detector down (0.0686° closer than 10°, each axis within its 0.05° tolerance).
     From that read-back no path was clear, not even home; it may be left, not approached."""
-    emu, path = emulated
+    emu, path = emulated_virtual
     light = 1877.6 * 360 / 4096                                  # 0.6 of a tick: rounds up
     assert main(["gantry", "move", "--config", path, "--axes", f"{light},0,{light + 10},0"]) == 0
     at = emu.axes_deg()
