@@ -67,6 +67,8 @@ def chebyshev_neighbours(data, queries, k: int, ties_ok: bool = False) -> tuple[
     if not 1 <= k <= n:
         raise ValueError(f"k: {k} neighbours asked of {n} points; give 1 <= k <= {n}")
     found = _brute(data, queries, k, ties_ok) if n * m <= BRUTE_MAX_PAIRS else None
+    if found is None and n <= LEAF_SIZE:
+        found = _leaf_order(_distances(data, queries), k)
     if found is not None:
         return found
     from scipy.spatial import cKDTree
@@ -81,17 +83,9 @@ def _brute(data, queries, k, ties_ok):
     n, m = data.shape[0], queries.shape[0]
     dist = np.empty((m, k))
     idx = np.empty((m, k), dtype=np.int64)
-    cols = data.T.copy()
-    leaf = not ties_ok and n <= LEAF_SIZE
     rows = max(1, _BLOCK_ENTRIES // max(n, 1))
     for lo in range(0, m, rows):
-        q = queries[lo:lo + rows]
-        d = np.abs(q[:, :1] - cols[0])
-        for axis in range(1, data.shape[1]):
-            np.maximum(d, np.abs(q[:, axis:axis + 1] - cols[axis]), out=d)
-        if leaf:
-            dist[lo:lo + rows], idx[lo:lo + rows] = _leaf_order(d, k)
-            continue
+        d = _distances(data, queries[lo:lo + rows])
         if k < n:
             # The k least: those below the k-th, and the k-th itself when nothing else lies as far.
             kth = np.partition(d, k - 1, axis=1)[:, k - 1:k]
@@ -101,9 +95,9 @@ def _brute(data, queries, k, ties_ok):
                 return None   # the k-th is tied (with a nearer one or one left out)
             # Of the points as far as the k-th, the lowest indices (nonzero lists each row by index).
             room = k - np.count_nonzero(less, axis=1, keepdims=True)
-            pick = np.nonzero(less | (tied & (np.cumsum(tied, axis=1) <= room)))[1].reshape(q.shape[0], k)
+            pick = np.nonzero(less | (tied & (np.cumsum(tied, axis=1) <= room)))[1].reshape(d.shape[0], k)
         else:
-            pick = np.broadcast_to(np.arange(n), (q.shape[0], n))
+            pick = np.broadcast_to(np.arange(n), d.shape)
         near = np.take_along_axis(d, pick, axis=1)
         order = np.argsort(near, axis=1, kind="stable")
         near = np.take_along_axis(near, order, axis=1)
@@ -112,6 +106,14 @@ def _brute(data, queries, k, ties_ok):
         dist[lo:lo + rows] = near
         idx[lo:lo + rows] = np.take_along_axis(pick, order, axis=1)
     return dist, idx
+
+
+def _distances(data: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    """Chebyshev distances (M, N) from each query to each data row."""
+    d = np.abs(queries[:, :1] - data[:, 0])
+    for axis in range(1, data.shape[1]):
+        np.maximum(d, np.abs(queries[:, axis:axis + 1] - data[:, axis]), out=d)
+    return d
 
 
 def _leaf_order(d: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
