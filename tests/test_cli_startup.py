@@ -62,9 +62,10 @@ NOT_NEEDED = {
                "fastapi", "httpx", "skimage"),
     "export": ("scipy", "drjit", "matplotlib", "pydantic", "gonio.config", "gonio.plan.build", "fastapi",
                "skimage"),
-    "plan": ("drjit", "matplotlib", "h5py", "fastapi", "skimage", "gonio.sim.materials"),
+    "plan": ("drjit", "matplotlib", "h5py", "fastapi", "skimage", "gonio.sim.materials", "scipy.spatial"),
+    # A plan of a few poses finds neighbours without a k-d tree (gonio.motion.nearest).
     "simulate": ("matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage", "scipy.optimize",
-                 "gonio.export", "gonio.fit", "gonio.daemon.app"),
+                 "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app"),
 }
 
 

@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.motion.metric import MoveMetric, kd_workers
+from gonio.motion.metric import MoveMetric
+from gonio.motion.nearest import chebyshev_neighbours
 
 __all__ = ["mst_edge_times", "neighbour_times", "motion_lower_bound", "MST_MAX_POSES"]
 
@@ -106,28 +107,25 @@ def neighbour_times(points_deg, metric: MoveMetric, k: int | None = None) -> tup
         Lower bounds on the shortest and second-shortest move from each pose to another pose, in s
         (exact when ``metric.uniform``).
     """
-    from scipy.spatial import cKDTree
-
     pts = _points(points_deg, metric.n_axes)
     n = pts.shape[0]
     if n < 3:
         raise ValueError(f"points_deg: need at least 3 poses for two neighbours each, got {n}")
     k = (2 if metric.uniform else 8) if k is None else int(k)
-    tree = cKDTree(pts * metric.scale)
-    nn1, nn2, beyond = _neighbours(tree, pts, np.arange(n), metric, min(k, n - 1))
+    nn1, nn2, beyond = _neighbours(pts, np.arange(n), metric, min(k, n - 1))
     if not metric.uniform:
         # Where the ball was too small to settle the second neighbour, look again with a larger one.
         loose = np.flatnonzero(beyond < nn2)
         if loose.size:
-            nn1[loose], nn2[loose], beyond[loose] = _neighbours(tree, pts, loose, metric, min(8 * k, n - 1))
+            nn1[loose], nn2[loose], beyond[loose] = _neighbours(pts, loose, metric, min(8 * k, n - 1))
     return np.minimum(nn1, beyond), np.minimum(nn2, beyond)
 
 
-def _neighbours(tree, pts, which, metric, k):
-    """Nearest and second-nearest candidate times of poses ``which`` among their k tree neighbours,
-    and the bound on every pose outside that ball."""
+def _neighbours(pts, which, metric, k):
+    """Nearest and second-nearest candidate times of poses ``which`` among their k nearest in the
+    scaled Chebyshev distance, and the bound on every pose outside that ball."""
     # k + 1 because each pose finds itself.
-    dist, idx = tree.query(pts[which] * metric.scale, k=k + 1, p=np.inf, workers=kd_workers(which.size))
+    dist, idx = chebyshev_neighbours(pts * metric.scale, pts[which] * metric.scale, k + 1, ties_ok=True)
     own = idx == which[:, None]
     # A pose sharing its position with another may not be returned first; drop itself wherever it is,
     # and when it is missing (k + 1 ties at distance 0) drop the last column instead.

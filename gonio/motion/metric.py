@@ -21,12 +21,8 @@ import numpy as np
 
 from gonio.motion.trapezoid import move_time
 
-__all__ = ["MoveMetric", "kd_workers", "KD_THREADS_MIN_POINTS"]
+__all__ = ["MoveMetric"]
 
-#: Query points from which a k-d tree search (of scaled axis positions) uses every core: below it the
-#: calling thread searches alone, since starting the pool costs about a millisecond, more than a search
-#: of a few thousand points, and plans of a few poses are made by the thousand (adaptive rounds).
-KD_THREADS_MIN_POINTS = 20_000
 # Relative tolerance for "all axes share one v/a ratio" (config values are plain decimals).
 _RATIO_RTOL = 1e-12
 
@@ -106,8 +102,3 @@ class MoveMetric:
         # Some axis k moves at least r / scale_k degrees; the move takes at least that axis's time.
         return np.min(move_time(r[..., None] / self.scale, self.velocity_deg_s, self.accel_deg_s2), axis=-1)
 
-
-def kd_workers(points: int) -> int:
-    """``workers`` for a ``cKDTree.query`` of this many points (:data:`KD_THREADS_MIN_POINTS`); the
-    answer is the same either way."""
-    return -1 if points >= KD_THREADS_MIN_POINTS else 1

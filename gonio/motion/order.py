@@ -13,7 +13,8 @@ from collections import deque
 
 import numpy as np
 
-from gonio.motion.metric import MoveMetric, kd_workers
+from gonio.motion.metric import MoveMetric
+from gonio.motion.nearest import chebyshev_neighbours
 
 __all__ = ["raster_order", "serpentine_order", "nearest_neighbour_tour", "improve_tour", "perturb_tour",
            "tour_time", "neighbour_lists", "PERTURB_SPAN"]
@@ -80,8 +81,9 @@ def tour_time(points_deg, order, metric: MoveMetric, depot_deg) -> float:
 def neighbour_lists(points_deg, metric: MoveMetric, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Each pose's ``k`` nearest other poses by move time, nearest first.
 
-    Candidates come from a k-d tree in the metric's scaled Chebyshev coordinates (exact when the
-    metric is uniform, a good approximation otherwise) and are re-ranked by the true move time.
+    Candidates are the nearest in the metric's scaled Chebyshev coordinates
+    (:func:`gonio.motion.nearest.chebyshev_neighbours`; exact when the metric is uniform, a good
+    approximation otherwise), re-ranked by the true move time.
 
     Returns
     -------
@@ -90,8 +92,6 @@ def neighbour_lists(points_deg, metric: MoveMetric, k: int = 8) -> tuple[np.ndar
     times : ndarray, shape (N, k')
         Their move times in s.
     """
-    from scipy.spatial import cKDTree
-
     pts = np.asarray(points_deg, dtype=np.float64)
     n = pts.shape[0]
     k = min(k, n - 1)
@@ -99,7 +99,7 @@ def neighbour_lists(points_deg, metric: MoveMetric, k: int = 8) -> tuple[np.ndar
         return np.empty((n, 0), dtype=np.int64), np.empty((n, 0))
     extra = 0 if metric.uniform else k  # oversample when the tree's norm only approximates the metric
     q = min(k + 1 + extra, n)
-    _, idx = cKDTree(pts * metric.scale).query(pts * metric.scale, k=q, p=np.inf, workers=kd_workers(n))
+    _, idx = chebyshev_neighbours(pts * metric.scale, pts * metric.scale, q)
     times = metric.time(pts[:, None, :], pts[idx])
     times[idx == np.arange(n)[:, None]] = np.inf
     pick = np.argsort(times, axis=1, kind="stable")[:, :k]

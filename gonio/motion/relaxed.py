@@ -37,7 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.motion.metric import MoveMetric, kd_workers
+from gonio.motion.metric import MoveMetric
+from gonio.motion.nearest import chebyshev_neighbours
 
 __all__ = ["pose_branches", "pair_times", "pair_time_matrix", "branch_mst_edge_times",
            "branch_neighbour_times", "lagrangian_penalties", "lagrangian_motion", "relaxed_campaign_bound",
@@ -322,8 +323,6 @@ def branch_neighbour_times(branches, metric: MoveMetric, k: int | None = None):
     nn1, nn2 : ndarray, shape (N,)
         Bounds on the least and second-least pair time from each pose to another pose, in s.
     """
-    from scipy.spatial import cKDTree
-
     pts = np.asarray(branches, dtype=np.float64)
     n, w, n_axes = pts.shape
     if n < 3:
@@ -331,8 +330,7 @@ def branch_neighbour_times(branches, metric: MoveMetric, k: int | None = None):
     flat = pts.reshape(-1, n_axes)
     owner = np.repeat(np.arange(n), w)
     k = min(2 * w + 2 if k is None else int(k), flat.shape[0] - 1)
-    tree = cKDTree(flat * metric.scale)
-    dist, idx = tree.query(flat * metric.scale, k=k + 1, p=np.inf, workers=kd_workers(flat.shape[0]))
+    dist, idx = chebyshev_neighbours(flat * metric.scale, flat * metric.scale, k + 1, ties_ok=True)
     # With one v/a ratio the tree's distance is the metric's key: no need to measure the pairs again.
     times = metric.time_from_key(dist) if metric.uniform else metric.time(flat[:, None, :], flat[idx])
     other = owner[idx]
@@ -508,12 +506,10 @@ def relaxed_campaign_bound(branches, free, reference_options, home_deg, metric: 
 
 def _to_nearest(branches, options, metric: MoveMetric) -> np.ndarray:
     """Least move time (N,) from any branch of each pose (N, W, n) to any of ``options`` (K, n): a
-    k-d tree search when the metric's key is a scaled Chebyshev distance, else every pair."""
-    from scipy.spatial import cKDTree
-
+    nearest-neighbour search when the metric's key is a scaled Chebyshev distance, else every pair."""
     if not metric.uniform:
         return pair_times(branches, options[None], metric)[:, 0]
     n, w, n_axes = branches.shape
-    dist, _ = cKDTree(options * metric.scale).query(branches.reshape(-1, n_axes) * metric.scale, k=1,
-                                                      p=np.inf, workers=kd_workers(n * w))
+    dist, _ = chebyshev_neighbours(options * metric.scale, branches.reshape(-1, n_axes) * metric.scale, 1,
+                                   ties_ok=True)
     return metric.time_from_key(dist.reshape(n, w).min(axis=1))

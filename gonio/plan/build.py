@@ -36,6 +36,7 @@ Choices worth knowing:
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -574,8 +575,33 @@ def _valid_bound(kin, angles, ref_options, home, metric, settle_s, reading_s, ev
 
     It depends on the pose set, not on its order (``run_lengths`` only through their number, on
     count-only schedules, which is the same for every order): the poses are taken in a canonical order
-    so that every order of the same grid gets the same figure, to the last digit."""
+    so that every order of the same grid gets the same figure, to the last digit. The last
+    :data:`_BOUNDS_KEPT` bounds of each kinematics are remembered by their inputs (the Lagrangian's
+    hundred spanning trees are most of a small plan's time), so that planning the same poses in another
+    order (``order=auto`` after ``serpentine``, or a daemon's next plan) computes it once (with the
+    tuning of :mod:`gonio.motion.relaxed` as it was then)."""
     angles = tuple(a[np.lexsort(angles[::-1])] for a in angles)
+    key = (b"".join(np.ascontiguousarray(x, dtype=np.float64).tobytes()
+                    for x in (*angles, ref_options, home, metric.velocity_deg_s, metric.accel_deg_s2)),
+           np.asarray(run_lengths, dtype=np.int64).tobytes(), float(settle_s), float(reading_s), every,
+           every_s)
+    known = _BOUNDS.setdefault(kin, {})
+    if key not in known:
+        known[key] = _relaxed_bound(kin, angles, ref_options, home, metric, settle_s, reading_s, every,
+                                    every_s, run_lengths)
+        while len(known) > _BOUNDS_KEPT:
+            known.pop(next(iter(known)))
+    return dict(known[key])
+
+
+#: Bounds remembered per kinematics (:func:`_valid_bound`), the oldest forgotten first.
+_BOUNDS_KEPT = 8
+_BOUNDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _relaxed_bound(kin, angles, ref_options, home, metric, settle_s, reading_s, every, every_s,
+                   run_lengths) -> dict:
+    """:func:`_valid_bound` computed, the poses in canonical order."""
     n = angles[0].size
     keep = np.arange(n)
     if n > BOUND_MAX_POSES:

@@ -41,9 +41,13 @@ def collides(design: str, collision_deg: float, axes):
     return to_support < collision_deg - NOISE_DEG
 
 
-def replay(kin, start, end, step_deg: float = STEP_DEG, chunk: int = 4000) -> np.ndarray:
-    """Collisions found (bool (M,)) on moves (M, 4) -> (M, 4) sampled every ``step_deg`` of travel of
-    the axis that travels most, both ends included, on every axis's own trapezoid."""
+def replay(kin, start, end, step_deg: float = STEP_DEG, batch_samples: int = 400_000) -> np.ndarray:
+    """Collisions found (bool (M,)) on moves (M, 4) -> (M, 4) sampled at least every ``step_deg`` of
+    travel of the axis that travels most, both ends included, on every axis's own trapezoid.
+
+    Moves are replayed in batches of similar length (the longest at most twice the shortest, at most
+    ``batch_samples`` samples a batch), each move at its batch's longest count: never sparser than
+    ``step_deg``, and no thousands of short moves padded to the count of a half-turn."""
     start = np.asarray(start, dtype=np.float64).reshape(-1, 4)
     end = np.asarray(end, dtype=np.float64).reshape(-1, 4)
     v, a = np.asarray(kin.velocity_deg_s), np.asarray(kin.accel_deg_s2)
@@ -53,10 +57,17 @@ def replay(kin, start, end, step_deg: float = STEP_DEG, chunk: int = 4000) -> np
     duration = np.max(2 * peak / a + cruise, 1)
     samples = np.maximum(np.ceil(np.max(d, axis=1) / step_deg).astype(int), 1) + 1
     hit = np.zeros(start.shape[0], dtype=bool)
-    order = np.argsort(samples)
-    for lo in range(0, order.size, chunk):
-        idx = order[lo:lo + chunk]
-        k = int(samples[idx].max())
+    order = np.argsort(samples, kind="stable")
+    counts = samples[order]
+    lo = 0
+    while lo < order.size:
+        hi = lo + 1
+        while (hi < order.size and counts[hi] <= 2 * counts[lo]
+               and (hi + 1 - lo) * counts[hi] <= batch_samples):
+            hi += 1
+        idx = order[lo:hi]
+        lo = hi
+        k = int(counts[hi - 1])
         t = np.linspace(0.0, 1.0, k)[:, None] * duration[idx]
         pos = np.stack([trapezoid(t, start[idx, j], end[idx, j], v[j], a[j]) for j in range(4)], -1)
         hit[idx] = collides(kin.design, kin.arm_collision_deg, pos).any(axis=0)

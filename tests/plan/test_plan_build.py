@@ -270,3 +270,25 @@ def test_summary_and_report(cfg):
         assert stage in text and f"{count:,}" in text
     for reason, count in plan.infeasible.items():
         assert reason in text and f"{count:,}" in text
+
+
+def test_the_valid_bound_of_a_pose_set_is_computed_once_per_kinematics(monkeypatch):
+    """Orders of the same poses share the bound (it does not depend on the order): computed once for a
+    kinematics, the same figures to the last digit as a fresh computation, and a caller's copy."""
+    import gonio.plan.build as build
+
+    calls = []
+    real = build.relaxed_campaign_bound
+    monkeypatch.setattr(build, "relaxed_campaign_bound", lambda *a, **k: calls.append(1) or real(*a, **k))
+    cfg = load_config(CONFIGS["sample-stage"])
+    kin = make_kinematics(cfg)
+    plans = [build_plan(f"iso:step=30,order={order}", cfg, kin) for order in ("serpentine", "raster", "tour")]
+    assert len(calls) == 1
+    plans[0].timing["lower_bound"]["total_s"] = -1.0       # the caller's own copy
+    fresh = build_plan("iso:step=30,order=raster", cfg, make_kinematics(cfg))
+    assert len(calls) == 2                                  # another kinematics: computed again
+    for p in plans[1:]:
+        assert p.timing["lower_bound"] == fresh.timing["lower_bound"]
+        assert p.lower_bound_s == fresh.lower_bound_s
+    build_plan("iso:step=45", cfg, kin)                      # other poses: their own bound
+    assert len(calls) == 3
