@@ -29,7 +29,6 @@ Seeding: frame f of bracket entry b of reading (step, attempt) is the camera's f
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -202,7 +201,7 @@ class CameraDetector:
                 "black_level": s.black_level,
                 "saturation": None if math.isinf(s.saturation) else s.saturation,
                 "brackets": list(c.brackets), "frames": frames,
-                "camera": {k: v for k, v in dataclasses.asdict(s).items() if k != "saturation"}}
+                "camera": {k: v for k, v in s.as_dict().items() if k != "saturation"}}
         extra = {"target": self._target, "pose_deg": list(pose), "region_pixels": n, "t_s": t0,
                  "key": [step, attempt], "exposures_s": [exposure_s * b for b in c.brackets] or [exposure_s]}
         if c.save_frames:

@@ -200,13 +200,14 @@ def test_a_rendered_sphere_agrees_within_noise(exported, variant):
     assert top_right > 2 * bottom_left > 0.3
 
 
-def test_bsdf_material_measures_a_measured_material_again(tmp_path, make_sampled):
-    data = make_sampled(GGX, "merl:stride=2", theta_max_deg=90.0)
-    export(data, "bsdf", tmp_path / "g.bsdf")
-    m = load(f"bsdf:{tmp_path / 'g.bsdf'}")
+def test_bsdf_material_measures_a_measured_material_again(exported):
+    # the module's RGB export: the bsdf file of GGX sampled on merl:stride=2 (made once, read only here)
+    path, _ = exported("scalar_rgb")
+    assert CASES["scalar_rgb"][:2] == ("bsdf", GGX)
+    m = load(f"bsdf:{path}")
     wi, wo = _pairs(4000, seed=11)
     fr = m.eval(wi, wo, precision="float64")
-    np.testing.assert_allclose(fr * wo[:, 2:3], eval_measured(read_tensor(tmp_path / "g.bsdf"), wi, wo),
+    np.testing.assert_allclose(fr * wo[:, 2:3], eval_measured(read_tensor(path), wi, wo),
                                rtol=1e-9, atol=1e-12)
     truth = load(GGX).eval(wi, wo, precision="float64")
     w = wo[:, 2:3]
