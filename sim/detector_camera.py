@@ -32,7 +32,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from skimage import morphology
 
 from gonio.frames import Frame, FrameError, auto_exposure, check_frame, merge_brackets, region_mean
 from gonio.jit import resolve_backend
@@ -146,6 +145,8 @@ class CameraDetector:
         mask = self._cameras["sample"].sample_mask(theta_o_deg, phi_o_deg)
         erode = self.cfg.sim.camera.erode_px
         if erode > 0:
+            from skimage import morphology  # on first use: its import costs more than this module's
+
             mask = morphology.erosion(mask, morphology.disk(erode))
         return mask
 

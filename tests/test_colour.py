@@ -26,6 +26,8 @@ class _ColourScience:
     use: not while every test process collects this module."""
 
     def __getattr__(self, name):
+        if name.startswith("_"):  # what pytest probes each module attribute for while it collects
+            raise AttributeError(name)
         return getattr(gc.colour_science(), name)
 
 
