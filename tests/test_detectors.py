@@ -261,9 +261,10 @@ def test_camera_lambert_half_against_the_099_reference_is_half_over_pi_within_1_
     """Every θi, θo to 70° in 10° steps; Δφ over [0°, 180°] only (mirror=true: 528 poses, not 885): the
     patch, the light and the camera are symmetric about the plane of incidence, and a Lambertian's value
     does not depend on Δφ, so the other half held no pose that could read otherwise (a region mask
-    off-centre by azimuth still reads 20 % low here)."""
+    off-centre by azimuth still reads 20 % low here). In raster order: what is read does not depend on
+    the order, and the tour takes 0.4 s longer to plan."""
     c, state, _ = _campaign(tmp_path, _cfg("camera"), "lambert:albedo=0.5",
-                            "iso:step=10,theta_max=70,mirror=true")
+                            "iso:step=10,theta_max=70,mirror=true,order=raster")
     c.close()
     b = read_brdf(tmp_path / "brdf.h5")
     assert state == State.DONE and b.theta_i.max() > 69.9 and b.theta_o.max() > 69.9

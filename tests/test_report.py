@@ -76,9 +76,10 @@ def _verdict(rep, topic):
 
 @pytest.fixture(scope="module")
 def copper(tmp_path_factory):
-    """Measured without the reciprocity shortcut, with one transient axis time-out (one retry)."""
+    """Measured without the reciprocity shortcut, with one transient axis time-out (one retry); in raster
+    order (the tour takes 0.4 s longer to plan, and no check here depends on the order)."""
     folder = tmp_path_factory.mktemp("report") / "copper"
-    _run(folder, COPPER, GRID + ",reciprocity=false", _often_referenced(50), seed=2,
+    _run(folder, COPPER, GRID + ",reciprocity=false,order=raster", _often_referenced(50), seed=2,
          before=lambda g: g.axes["detector_tilt"].fail_next("timeout"))
     out = folder.parent / "copper.html"
     return folder, out, report(folder, out)
