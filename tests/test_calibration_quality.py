@@ -20,7 +20,7 @@ from gonio.sim.detector_spectral import spectral_material
 from gonio.wiring import build_gantry
 
 LAMBERT = "lambert:albedo=0.5"
-GRID = "iso:step=20,theta_max=70"
+GRID = "iso:step=20,theta_max=70,order=raster"  # no check here depends on the order; the tour plans longer
 
 
 def _cfg(kind="photodiode", camera=None, light=None, reference=None, runner=None):
