@@ -161,7 +161,7 @@ def test_the_default_models_recover_a_ggx_with_a_diffuse_part(copper, capsys):
 
 # -- model selection -------------------------------------------------------------------------------------
 def test_cook_torrance_fitted_with_phong_is_flagged_at_the_peak_and_the_right_model_is_not(tmp_path):
-    folder = _run(tmp_path / "ct", "cook-torrance:d=beckmann,m=0.3,metal=gold", GRID)
+    folder = _run(tmp_path / "ct", "cook-torrance:d=beckmann,m=0.3,metal=gold", GRID + ",order=raster")
     rep = build_report(folder, "phong,cook-torrance:metal=gold")
     right, wrong = rep.fits
     assert (right["model"], wrong["model"]) == ("cook-torrance:metal=gold", "phong")
@@ -175,7 +175,7 @@ def test_cook_torrance_fitted_with_phong_is_flagged_at_the_peak_and_the_right_mo
 
 
 def test_a_ggx_campaign_fitted_with_ggx_is_not_flagged_anywhere(tmp_path):
-    folder = _run(tmp_path / "ggx", "ggx:alpha=0.25,fresnel=none,rho_s=0.8", GRID)
+    folder = _run(tmp_path / "ggx", "ggx:alpha=0.25,fresnel=none,rho_s=0.8", GRID + ",order=raster")
     rep = build_report(folder, ["ggx"])
     (m,) = rep.fits
     assert m["flagged"] == [] and all(r["n"] >= 3 for r in m["regions"].values())
