@@ -43,8 +43,8 @@ import numpy as np
 from gonio.plan.schedule import STEP_DARK, STEP_POSE, STEP_REFERENCE
 from gonio.store import Measurement
 
-__all__ = ["CalibrationError", "Calibrated", "calibrate", "reference_rho", "interpolation_weights",
-           "interpolate_readings", "SPACING_RATIO"]
+__all__ = ["CalibrationError", "Calibrated", "calibrate", "calibrate_with_shifts", "reference_rho",
+           "interpolation_weights", "interpolate_readings", "SPACING_RATIO"]
 
 #: The drift interpolation uses a reading beyond the two around a pose only when the interval to it is
 #: within this factor of theirs.
@@ -110,7 +110,11 @@ def interpolation_weights(t, tk, ratio: float = None) -> tuple[np.ndarray, np.nd
 def interpolate_readings(t, tk, yk, ek):
     """Values ``yk`` (K, C) with standard errors ``ek`` (K, C), read at the times ``tk``, interpolated at
     the times ``t`` (N,) as :func:`interpolation_weights` says. Returns (value, stddev), each (N, C)."""
-    idx, weights = interpolation_weights(t, tk)
+    return _interpolated(interpolation_weights(t, tk), yk, ek)
+
+
+def _interpolated(weighting, yk, ek):
+    idx, weights = weighting
     value = np.einsum("nj,njc->nc", weights, yk[idx])
     stddev = np.sqrt(np.einsum("nj,njc->nc", weights**2, ek[idx] ** 2))
     return value, stddev
@@ -132,58 +136,97 @@ def calibrate(measurements: list[Measurement], reference_albedo) -> Calibrated:
 
     ``reference_albedo``: the white standard's reflectance ρ_ref, one number or one per channel (C,).
     Readings of any shape are flattened to their channels (a spectrometer's bands)."""
-    rho = np.asarray(reference_albedo, dtype=np.float64)
-    if rho.ndim > 1 or not np.all((rho > 0.0) & (rho <= 1.0)):
-        raise CalibrationError(f"reference_albedo must be in (0, 1], one value or one per channel, got "
-                               f"{reference_albedo}")
-    if measurements and rho.ndim == 1 and rho.size != np.size(measurements[0].signal):
-        raise CalibrationError(f"reference_albedo: {rho.size} values for readings of "
-                               f"{np.size(measurements[0].signal)} channels")
-    reference_albedo = float(rho) if rho.ndim == 0 else rho
-    kind = np.array([m.kind for m in measurements], dtype=np.int8)
-    if not np.any(kind == STEP_DARK):
-        raise CalibrationError("no dark reading in the journal: cannot subtract the dark signal")
-    if not np.any(kind == STEP_REFERENCE):
-        raise CalibrationError("no white-reference reading in the journal: cannot calibrate to sr^-1")
-    t = np.array([m.campaign_s for m in measurements], dtype=np.float64)
-    back = np.flatnonzero(np.diff(t) < 0.0)
-    if back.size:
-        i = int(back[0])
-        raise CalibrationError(
-            f"campaign time goes backwards from step {measurements[i].step} ({t[i]:.3f} s) to step "
-            f"{measurements[i + 1].step} ({t[i + 1]:.3f} s): the drift correction cannot order these "
-            "readings (a journal of gonio < 0.2 that was resumed?)")
-    exposure = np.array([m.exposure_s for m in measurements], dtype=np.float64)[:, None]
-    if not np.all(exposure > 0.0):
-        raise CalibrationError("a reading has exposure_s <= 0: cannot turn it into a rate")
-    rate = np.stack([np.ravel(m.signal) for m in measurements]) / exposure
-    err = np.stack([np.ravel(m.stderr) for m in measurements]) / exposure
-    theta_i = np.radians([m.angles_deg[0] for m in measurements])
+    return _Readings(measurements, reference_albedo).calibrated()
 
-    dk = kind == STEP_DARK
-    dark, dark_err = interpolate_readings(t, t[dk], rate[dk], err[dk])
 
-    rk = kind == STEP_REFERENCE
-    ref_net = rate[rk] - dark[rk]
-    ref_cos = np.cos(theta_i[rk])[:, None]
-    # K: signal rate per unit of f_r·cos θi.
-    k_ref = ref_net / (reference_albedo / np.pi * ref_cos)
-    if np.any(k_ref <= 0.0):
-        raise CalibrationError("a white-reference reading is not above the dark signal: check the light "
-                               "source and the reference standard")
-    k_ref_err = k_ref * np.hypot(err[rk], dark_err[rk]) / ref_net
+def calibrate_with_shifts(measurements: list[Measurement], reference_albedo,
+                          expect: np.ndarray | None = None) -> tuple[Calibrated, np.ndarray | None]:
+    """:func:`calibrate`, and how its values move when each dark and white-reference reading's signal is
+    moved by its own standard error: U of shape (N, C, M), column m the change of every sample's f_r for
+    the m-th such reading (in step order; M may be 0). Each column is exactly what :func:`calibrate`
+    gives with that one reading moved, minus the unmoved values; the readings are gathered and the
+    interpolation weights found once, not once per column. With ``expect``, U is None (and not
+    computed) unless the calibrated values reproduce ``expect`` (rtol 1e-9, atol 1e-12)."""
+    readings = _Readings(measurements, reference_albedo)
+    base = readings.calibrated()
+    if expect is not None and (base.value.shape != np.shape(expect)
+                               or not np.allclose(base.value, expect, rtol=1e-9, atol=1e-12)):
+        return base, None
+    columns = []
+    for i in np.flatnonzero((readings.kind == STEP_DARK) | (readings.kind == STEP_REFERENCE)):
+        rate = readings.rate.copy()
+        rate[i] = (readings.signal[i] + readings.signal_err[i]) / readings.exposure[i]
+        columns.append(readings.values(rate)[0] - base.value)
+    n, c = base.value.shape
+    return base, np.stack(columns, axis=-1) if columns else np.zeros((n, c, 0))
 
-    pk = kind == STEP_POSE
-    k, k_err = interpolate_readings(t[pk], t[rk], k_ref, k_ref_err)
-    cos_i = np.cos(theta_i[pk])[:, None]
-    net = rate[pk] - dark[pk]
-    net_err = np.hypot(err[pk], dark_err[pk])
-    value = net / (k * cos_i)
-    # σ_f² = (σ_net / (K cos))² + (f σ_K / K)²: well defined also where the net signal is 0.
-    stddev = np.hypot(net_err / (k * cos_i), value * k_err / k)
-    return Calibrated(
-        angles_deg=np.stack([m.angles_deg for m, p in zip(measurements, pk, strict=True) if p]),
-        value=value, stddev=stddev,
-        steps=np.array([m.step for m in measurements])[pk],
-        poses=np.array([m.pose for m in measurements])[pk],
-        campaign_s=t[pk])
+
+class _Readings:
+    """The readings of a journal as arrays (rates, errors, times), checked, with the drift
+    interpolation's weights: what :func:`calibrate` computes on."""
+
+    def __init__(self, measurements: list[Measurement], reference_albedo):
+        rho = np.asarray(reference_albedo, dtype=np.float64)
+        if rho.ndim > 1 or not np.all((rho > 0.0) & (rho <= 1.0)):
+            raise CalibrationError(f"reference_albedo must be in (0, 1], one value or one per channel, got "
+                                   f"{reference_albedo}")
+        if measurements and rho.ndim == 1 and rho.size != np.size(measurements[0].signal):
+            raise CalibrationError(f"reference_albedo: {rho.size} values for readings of "
+                                   f"{np.size(measurements[0].signal)} channels")
+        self.reference_albedo = float(rho) if rho.ndim == 0 else rho
+        self.measurements = measurements
+        kind = self.kind = np.array([m.kind for m in measurements], dtype=np.int8)
+        if not np.any(kind == STEP_DARK):
+            raise CalibrationError("no dark reading in the journal: cannot subtract the dark signal")
+        if not np.any(kind == STEP_REFERENCE):
+            raise CalibrationError("no white-reference reading in the journal: cannot calibrate to sr^-1")
+        t = self.t = np.array([m.campaign_s for m in measurements], dtype=np.float64)
+        back = np.flatnonzero(np.diff(t) < 0.0)
+        if back.size:
+            i = int(back[0])
+            raise CalibrationError(
+                f"campaign time goes backwards from step {measurements[i].step} ({t[i]:.3f} s) to step "
+                f"{measurements[i + 1].step} ({t[i + 1]:.3f} s): the drift correction cannot order these "
+                "readings (a journal of gonio < 0.2 that was resumed?)")
+        exposure = self.exposure = np.array([m.exposure_s for m in measurements], dtype=np.float64)[:, None]
+        if not np.all(exposure > 0.0):
+            raise CalibrationError("a reading has exposure_s <= 0: cannot turn it into a rate")
+        self.signal = np.stack([np.ravel(m.signal) for m in measurements])
+        self.signal_err = np.stack([np.ravel(m.stderr) for m in measurements])
+        self.rate = self.signal / exposure
+        self.err = self.signal_err / exposure
+        self.theta_i = np.radians([m.angles_deg[0] for m in measurements])
+        self.dk, self.rk, self.pk = kind == STEP_DARK, kind == STEP_REFERENCE, kind == STEP_POSE
+        self.dark_weighting = interpolation_weights(t, t[self.dk])
+        self.k_weighting = interpolation_weights(t[self.pk], t[self.rk])
+
+    def values(self, rate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(value, stddev), each (N, C), of the pose readings for the rates ``rate`` of every reading."""
+        dk, rk, pk, err = self.dk, self.rk, self.pk, self.err
+        dark, dark_err = _interpolated(self.dark_weighting, rate[dk], err[dk])
+        ref_net = rate[rk] - dark[rk]
+        ref_cos = np.cos(self.theta_i[rk])[:, None]
+        # K: signal rate per unit of f_r·cos θi.
+        k_ref = ref_net / (self.reference_albedo / np.pi * ref_cos)
+        if np.any(k_ref <= 0.0):
+            raise CalibrationError("a white-reference reading is not above the dark signal: check the light "
+                                   "source and the reference standard")
+        k_ref_err = k_ref * np.hypot(err[rk], dark_err[rk]) / ref_net
+        k, k_err = _interpolated(self.k_weighting, k_ref, k_ref_err)
+        cos_i = np.cos(self.theta_i[pk])[:, None]
+        net = rate[pk] - dark[pk]
+        net_err = np.hypot(err[pk], dark_err[pk])
+        value = net / (k * cos_i)
+        # σ_f² = (σ_net / (K cos))² + (f σ_K / K)²: well defined also where the net signal is 0.
+        stddev = np.hypot(net_err / (k * cos_i), value * k_err / k)
+        return value, stddev
+
+    def calibrated(self) -> Calibrated:
+        value, stddev = self.values(self.rate)
+        pk, t, measurements = self.pk, self.t, self.measurements
+        return Calibrated(
+            angles_deg=np.stack([m.angles_deg for m, p in zip(measurements, pk, strict=True) if p]),
+            value=value, stddev=stddev,
+            steps=np.array([m.step for m in measurements])[pk],
+            poses=np.array([m.pose for m in measurements])[pk],
+            campaign_s=t[pk])

@@ -35,25 +35,30 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy.optimize import minimize_scalar
-
-# colour-science sets numpy's print options (legacy="1.13") when imported: keep the process's own.
-with np.printoptions():
-    import colour
 
 from gonio.jit import array_types, resolve_backend
 from gonio.sim.materials.fresnel import conductor_exact
 from gonio.sim.materials.spectral import conductor_index
 
-__all__ = ["SPACES", "OBSERVER", "WAVELENGTH_NM", "cmf_weights", "spectral_to_XYZ", "XYZ_to_linear_rgb",
-           "spectral_to_rgb", "bands_to_XYZ", "bands_to_rgb", "material_rgb", "normal_reflectance_rgb",
-           "effective_rgb_conductor"]
+__all__ = ["colour_science", "SPACES", "OBSERVER", "WAVELENGTH_NM", "cmf_weights", "spectral_to_XYZ",
+           "XYZ_to_linear_rgb", "spectral_to_rgb", "bands_to_XYZ", "bands_to_rgb", "material_rgb",
+           "normal_reflectance_rgb", "effective_rgb_conductor"]
 
 #: RGB spaces: name in colour-science's registry; the output is linear (no transfer function).
 SPACES = ("sRGB", "ACEScg")
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
 #: The wavelength grid of the conversion (nm).
 WAVELENGTH_NM = np.arange(380.0, 781.0, 5.0)
+
+
+@lru_cache(maxsize=1)
+def colour_science():
+    """colour-science, imported on first use (its import, plotting and matplotlib included, costs ~1.4 s of
+    CPU, which importing this module does not). It sets numpy's print options (legacy="1.13") when
+    imported: the process keeps its own."""
+    with np.printoptions():
+        import colour
+    return colour
 
 
 def _check_space(space: str) -> str:
@@ -64,6 +69,7 @@ def _check_space(space: str) -> str:
 
 @lru_cache(maxsize=8)
 def _weights(illuminant: str) -> tuple[np.ndarray, np.ndarray]:
+    colour = colour_science()
     if illuminant not in colour.SDS_ILLUMINANTS:
         raise ValueError(f"illuminant: {illuminant!r} is not a CIE illuminant colour-science knows "
                          f"(e.g. D65, D50, A)")
@@ -107,7 +113,7 @@ def XYZ_to_linear_rgb(XYZ, space: str = "sRGB", illuminant: str = "D65") -> np.n
     _check_space(space)
     white = _weights(illuminant)[1]
     xy = white[:2] / white.sum()
-    return np.asarray(colour.XYZ_to_RGB(np.asarray(XYZ, dtype=np.float64), space, illuminant=xy,
+    return np.asarray(colour_science().XYZ_to_RGB(np.asarray(XYZ, dtype=np.float64), space, illuminant=xy,
                                         chromatic_adaptation_transform="CAT02", apply_cctf_encoding=False))
 
 
@@ -220,6 +226,8 @@ def effective_rgb_conductor(name: str, space: str = "sRGB", illuminant: str = "D
     # kept Y but lifted gold's blue F0 from 0.36 to 0.46: a paler gold than the data.)
     target = np.minimum(target, spectra.max(axis=1, keepdims=True))
     weight = np.sin(theta) * np.cos(theta)
+    from scipy.optimize import minimize_scalar
+
     etas, ks = [], []
     for c in range(3):
         f0 = float(target[0, c])

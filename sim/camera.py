@@ -35,7 +35,8 @@ and seed are opaque: new poses and keys reuse the compiled kernel.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
+from functools import lru_cache
 
 import drjit as dr
 import numpy as np
@@ -47,6 +48,11 @@ from gonio.sim.aperture import seed_state
 __all__ = ["CameraSettings", "SimCamera"]
 
 _RENDER_STREAM, _NOISE_STREAM = 10, 11
+
+
+@lru_cache(maxsize=32)
+def _settings_dict(settings: CameraSettings) -> dict:
+    return {f.name: getattr(settings, f.name) for f in fields(settings)}
 
 
 @dataclass(frozen=True)
@@ -93,6 +99,11 @@ class CameraSettings:
     read_sigma: float = 0.0
     shot_counts_per_unit: float = 0.0
     saturation: float = math.inf
+
+    def as_dict(self) -> dict:
+        """The settings as a new dict, field name to value (each a scalar): what a frame's metadata
+        carries (made once per settings, not per frame as ``dataclasses.asdict``'s deep copy was)."""
+        return dict(_settings_dict(self))
 
     def __post_init__(self):
         for name, lo, hi in (("width", 1, 8192), ("height", 1, 8192), ("samples_per_pixel", 1, 4096)):
@@ -316,6 +327,6 @@ class SimCamera:
         meta = {"theta_i_deg": pose[0], "phi_i_deg": pose[1], "theta_o_deg": pose[2], "phi_o_deg": pose[3],
                 "exposure_s": exposure_s, "key": None if key is None else [a, b], "seed": self.seed,
                 "backend": self.backend, "black_level": s.black_level, "saturation": s.saturation,
-                "camera": {k: v for k, v in asdict(s).items()}}
+                "camera": s.as_dict()}
         return Frame(signal, meta)
 

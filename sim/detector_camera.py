@@ -29,11 +29,9 @@ Seeding: frame f of bracket entry b of reading (step, attempt) is the camera's f
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
-from skimage import morphology
 
 from gonio.frames import Frame, FrameError, auto_exposure, check_frame, merge_brackets, region_mean
 from gonio.jit import resolve_backend
@@ -147,6 +145,8 @@ class CameraDetector:
         mask = self._cameras["sample"].sample_mask(theta_o_deg, phi_o_deg)
         erode = self.cfg.sim.camera.erode_px
         if erode > 0:
+            from skimage import morphology  # on first use: its import costs more than this module's
+
             mask = morphology.erosion(mask, morphology.disk(erode))
         return mask
 
@@ -202,7 +202,7 @@ class CameraDetector:
                 "black_level": s.black_level,
                 "saturation": None if math.isinf(s.saturation) else s.saturation,
                 "brackets": list(c.brackets), "frames": frames,
-                "camera": {k: v for k, v in dataclasses.asdict(s).items() if k != "saturation"}}
+                "camera": {k: v for k, v in s.as_dict().items() if k != "saturation"}}
         extra = {"target": self._target, "pose_deg": list(pose), "region_pixels": n, "t_s": t0,
                  "key": [step, attempt], "exposures_s": [exposure_s * b for b in c.brackets] or [exposure_s]}
         if c.save_frames:

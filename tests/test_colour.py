@@ -19,9 +19,19 @@ from gonio.sim.materials.spectral import (
     dielectric_index,
 )
 
-# colour-science through gonio.colour, which imports it without changing numpy's print options (a bare
-# import sets legacy="1.13" for the whole process, and other modules' doctests print arrays).
-colour = gc.colour
+
+class _ColourScience:
+    """colour-science through gonio.colour, which imports it without changing numpy's print options (a bare
+    import sets legacy="1.13" for the whole process, and other modules' doctests print arrays), on first
+    use: not while every test process collects this module."""
+
+    def __getattr__(self, name):
+        if name.startswith("_"):  # what pytest probes each module attribute for while it collects
+            raise AttributeError(name)
+        return getattr(gc.colour_science(), name)
+
+
+colour = _ColourScience()
 Z = np.array([[0.0, 0.0, 1.0]])
 # colour-science warns each time it aligns a distribution to the CMFs' grid; that is intended here.
 # Each test runs on every Dr.Jit backend (CUDA skipped without a device).

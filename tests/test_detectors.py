@@ -261,9 +261,11 @@ def test_camera_lambert_half_against_the_099_reference_is_half_over_pi_within_1_
     """Every θi, θo to 70° in 10° steps; Δφ over [0°, 180°] only (mirror=true: 528 poses, not 885): the
     patch, the light and the camera are symmetric about the plane of incidence, and a Lambertian's value
     does not depend on Δφ, so the other half held no pose that could read otherwise (a region mask
-    off-centre by azimuth still reads 20 % low here)."""
-    c, state, _ = _campaign(tmp_path, _cfg("camera"), "lambert:albedo=0.5",
-                            "iso:step=10,theta_max=70,mirror=true")
+    off-centre by azimuth still reads 20 % low here). In raster order: what is read does not depend on
+    the order, and the tour takes 0.4 s longer to plan. Its frames are not kept (the values are what is
+    checked here; keeping frames is test_a_camera_campaign_keeps_its_frames...): 40 % of each step's cost."""
+    c, state, _ = _campaign(tmp_path, _cfg("camera", save_frames=False), "lambert:albedo=0.5",
+                            "iso:step=10,theta_max=70,mirror=true,order=raster")
     c.close()
     b = read_brdf(tmp_path / "brdf.h5")
     assert state == State.DONE and b.theta_i.max() > 69.9 and b.theta_o.max() > 69.9
@@ -272,7 +274,8 @@ def test_camera_lambert_half_against_the_099_reference_is_half_over_pi_within_1_
 
 def test_camera_rough_gold_is_within_2_percent_of_its_analytic_value(tmp_path):
     material = "ggx:alpha=0.3,metal=gold"
-    c, state, _ = _campaign(tmp_path, _cfg("camera"), material, "iso:step=15,theta_max=70")
+    # frames not kept: the values are what is checked here (as above)
+    c, state, _ = _campaign(tmp_path, _cfg("camera", save_frames=False), material, "iso:step=15,theta_max=70")
     c.close()
     b = read_brdf(tmp_path / "brdf.h5")
     truth = _truth(b, load(material))

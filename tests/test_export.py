@@ -98,7 +98,8 @@ def test_a_real_simulated_campaign_exports(tmp_path):
     from gonio.wiring import build_gantry
 
     spec = "ggx:alpha=0.4,metal=gold"
-    c = planned.create(tmp_path / "c", load_config(), grid="iso:step=15", material=spec, seed=1)
+    c = planned.create(tmp_path / "c", load_config(), grid="iso:step=15,order=raster", material=spec,
+                        seed=1)
     try:
         run_campaign(c, build_gantry(c.cfg, spec, seed=1))
     except TypeError as exc:  # another layer mid-change in this tree

@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from gonio import frames
 from gonio.sim.aperture import aperture_radiance_factor
@@ -73,6 +72,8 @@ def test_bracket_merge_agrees_with_a_single_unsaturated_exposure():
 def test_saturated_pixels_are_left_out_of_the_mean():
     cam = _glossy_camera(saturation=1.0)
     pose = (30.0, 0.0, 33.0, 180.0)
+    from scipy import ndimage
+
     region = ndimage.binary_erosion(cam.sample_mask(33.0, 180.0), iterations=2)  # given, not found
     t = 1.0 / float(np.median(cam.radiance(*pose)[region].max(axis=1)))  # about half the region clips
     frame = cam.render(*pose, t, key=(0, 0))

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ast
 from collections import defaultdict
+from functools import cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,7 +79,11 @@ def _imports(module: str, tree: ast.AST) -> list[tuple[str, str, int]]:
     return out
 
 
-TREES = {m: ast.parse(p.read_text(), filename=str(p)) for m, p in MODULES.items()}
+@cache
+def _trees() -> dict[str, ast.AST]:
+    """Every module's syntax tree, parsed once and only by the tests that read them (not at collection,
+    which every test process pays)."""
+    return {m: ast.parse(p.read_text(), filename=str(p)) for m, p in MODULES.items()}
 
 
 def _private(name: str) -> bool:
@@ -102,7 +107,7 @@ def _defined_private_attributes(tree: ast.AST) -> set[str]:
 
 def test_no_module_uses_another_modules_private_names():
     found = []
-    for module, tree in TREES.items():
+    for module, tree in _trees().items():
         where = MODULES[module].relative_to(ROOT)
         own = _defined_private_attributes(tree)
         for target, name, line in _imports(module, tree):
@@ -148,7 +153,7 @@ def _layer(module: str) -> int:
 
 def test_no_import_goes_up_a_layer():
     found = []
-    for module, tree in TREES.items():
+    for module, tree in _trees().items():
         for target, _, line in _imports(module, tree):
             if _layer(target) > _layer(module):
                 found.append(f"{MODULES[module].relative_to(ROOT)}:{line}: {module} (layer {_layer(module)}) "
@@ -158,7 +163,7 @@ def test_no_import_goes_up_a_layer():
 
 def test_no_import_cycle():
     graph = defaultdict(set)
-    for module, tree in TREES.items():
+    for module, tree in _trees().items():
         for target, _, _ in _imports(module, tree):
             # A package's __init__ gathering its own modules, and a module importing its package's
             # names, are one unit: only edges between different units count.

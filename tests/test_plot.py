@@ -21,7 +21,9 @@ def campaign(tmp_path_factory):
     from gonio.wiring import build_gantry
 
     folder = tmp_path_factory.mktemp("plot") / "copper"
-    c = create_campaign(folder, load_config(), grid="iso:step=15,reciprocity=false", material=SPEC, seed=2)
+    # raster order: the plots do not depend on the order, and the tour takes 0.45 s longer to plan
+    c = create_campaign(folder, load_config(), grid="iso:step=15,reciprocity=false,order=raster",
+                        material=SPEC, seed=2)
     try:
         run_campaign(c, build_gantry(c.cfg, SPEC, seed=2))
     finally:
@@ -184,7 +186,8 @@ def test_the_albedo_plot_reads_a_lambertian_right_and_says_where_the_peak_went_u
     from gonio.wiring import build_gantry
 
     folder = tmp_path / "lambert"
-    c = create_campaign(folder, load_config(), grid="iso:step=15", material="lambert:albedo=0.5", seed=3)
+    c = create_campaign(folder, load_config(), grid="iso:step=15,order=raster",  # the tour: 0.3 s more
+                        material="lambert:albedo=0.5", seed=3)
     try:
         run_campaign(c, build_gantry(c.cfg, "lambert:albedo=0.5", seed=3))
     finally:

@@ -15,13 +15,11 @@ diag(σ² − Σ U²) + U Uᵀ per channel (the channels are calibrated independ
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 
-from gonio.calibrate import calibrate
-from gonio.plan.schedule import STEP_DARK, STEP_REFERENCE
+from gonio.calibrate import calibrate_with_shifts
 
 __all__ = ["shared_errors"]
 
@@ -48,16 +46,5 @@ def shared_errors(folder, value: np.ndarray) -> np.ndarray | None:
         measurements = journal.measurements()
     finally:
         journal.close()
-    base = calibrate(measurements, albedo)
-    if base.value.shape != value.shape or not np.allclose(base.value, value, rtol=1e-9, atol=1e-12):
-        return None
-    columns = []
-    for i, m in enumerate(measurements):
-        if m.kind not in (STEP_DARK, STEP_REFERENCE):
-            continue
-        moved = list(measurements)
-        moved[i] = dataclasses.replace(m, signal=np.asarray(m.signal) + np.asarray(m.stderr))
-        columns.append(calibrate(moved, albedo).value - base.value)
-    if not columns:
-        return None
-    return np.stack(columns, axis=-1)
+    shifts = calibrate_with_shifts(measurements, albedo, expect=value)[1]
+    return shifts if shifts is not None and shifts.shape[-1] else None

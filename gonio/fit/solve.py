@@ -43,7 +43,6 @@ from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
-from scipy.optimize import least_squares
 
 from gonio.fit.models import FitModel
 from gonio.geometry import to_half_diff
@@ -200,6 +199,8 @@ def solve(problem: Problem, *, starts: int = 4, jac: str = "ad", max_nfev: int =
             if best is None or cost < best[1]:
                 best = (x, cost)
             continue
+        from scipy.optimize import least_squares  # only the trf paths: its import costs ~0.5 s of CPU
+
         r = least_squares(problem.residuals, np.asarray(x0), jac=jacobian, bounds=(lo, hi), method="trf",
                           x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=max_nfev)
         cost = float(np.sum(r.fun ** 2))

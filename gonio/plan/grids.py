@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gonio.geometry import MERL_SHAPE, from_half_diff, merl_bin_centres, vec_to_sph
+from gonio.geometry import MERL_SHAPE, from_half_diff_grid, merl_bin_centres, vec_to_sph
 from gonio.registries import GRID_KINDS, ORDERS
 
 __all__ = ["GridSpec", "GridPoses", "GridKind", "parse_grid", "enumerate_grid", "pose_bound",
@@ -405,8 +405,10 @@ def _merl(spec: GridSpec, theta_max_deg: float) -> GridPoses:
         # φd and φd + π are the two members of a Helmholtz pair (ωi and ωo swapped): keep [0, π).
         keep &= half == 0
         counts["reciprocity"] = int(keep.sum())
-    theta_h, theta_d, phi_d = merl_bin_centres(ih, id_, ip)
-    wi, wo = from_half_diff(theta_h, 0.0, theta_d, phi_d + np.pi * half)
+    # the bins' directions, computed per grid line (the same numbers as from_half_diff of every point)
+    theta_h, theta_d, phi_d = merl_bin_centres(*(np.arange(0, n, k) for n in MERL_SHAPE))
+    wi, wo = (w.reshape(-1, 3) for w in
+              from_half_diff_grid(theta_h, theta_d, (phi_d[:, None] + np.pi * np.arange(2)).reshape(-1)))
     keep &= (wi[:, 2] > _ANGLE_TOL) & (wo[:, 2] > _ANGLE_TOL)
     counts["horizon"] = int(keep.sum())
     theta_i, phi_i = vec_to_sph(wi)

@@ -15,9 +15,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import integrate
 
 from gonio.geometry import merl_index, to_half_diff
+
+
+def _quad(*args, **kw):
+    """scipy.integrate.quad, imported on first use (not while every test process collects this module)."""
+    from scipy.integrate import quad
+
+    return quad(*args, **kw)
+
 
 # The built-in metals, name → ((η R, G, B), (k R, G, B)), pinned here as numbers. They used to be the
 # lecture notes' one (η, k) for all channels, which made gold grey; gold, silver, copper and aluminium
@@ -75,7 +82,7 @@ def lambert(wi, wo, albedo):
 
 def blinn_phong_normalization(ke):
     """1 / (normal-incidence albedo of the (H·N)^ke lobe), by adaptive quadrature over θo."""
-    albedo, _ = integrate.quad(lambda t: np.cos(t / 2) ** ke * np.cos(t) * np.sin(t) * 2 * np.pi,
+    albedo, _ = _quad(lambda t: np.cos(t / 2) ** ke * np.cos(t) * np.sin(t) * 2 * np.pi,
                                0, np.pi / 2, epsabs=1e-14, epsrel=1e-13)
     return 1.0 / albedo
 
@@ -157,7 +164,7 @@ def fresnel(form, c, eta=None, k=None, *, exact=False):
 # -- microfacet distributions ------------------------------------------------------------------------
 def projected_integral(d_of_alpha):
     """∫ D(α) cos α dω over the hemisphere, by adaptive quadrature."""
-    value, _ = integrate.quad(lambda a: d_of_alpha(a) * np.cos(a) * np.sin(a) * 2 * np.pi, 0, np.pi / 2,
+    value, _ = _quad(lambda a: d_of_alpha(a) * np.cos(a) * np.sin(a) * 2 * np.pi, 0, np.pi / 2,
                               epsabs=1e-13, epsrel=1e-12, limit=200)
     return value
 
@@ -180,7 +187,7 @@ def d_gaussian(cos_alpha, m):
     split = min(8 * m, np.pi / 2)
     total = 0.0
     for a, b in ((0, split), (split, np.pi / 2)):
-        total += integrate.quad(lambda t: np.exp(-((t / m) ** 2)) * np.cos(t) * np.sin(t) * 2 * np.pi, a, b,
+        total += _quad(lambda t: np.exp(-((t / m) ** 2)) * np.cos(t) * np.sin(t) * 2 * np.pi, a, b,
                                 epsabs=1e-15, epsrel=1e-12)[0]
     return np.exp(-((alpha / m) ** 2)) / total
 

@@ -7,7 +7,6 @@ import math
 import drjit as dr
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from gonio.sim.camera import CameraSettings, SimCamera
 from gonio.sim.materials import load
@@ -43,6 +42,8 @@ def test_the_patch_is_centred_and_as_large_as_its_projection(pose, backend):
     assert mask.sum() == pytest.approx(want, rel=0.03)
     frame = cam.render(*pose, exposure_s=1.0, key=(0, 0))
     lit = frame.pixels.sum(axis=2) > 0
+    from scipy import ndimage
+
     # A dark surround: lit pixels are those of the patch and the partly covered ones around it.
     assert not (lit & ~ndimage.binary_dilation(mask, np.ones((3, 3), bool))).any()
     assert lit[mask].all()
