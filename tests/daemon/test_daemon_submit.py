@@ -142,3 +142,36 @@ def test_the_planner_plans_at_idle_priority_unless_told_otherwise(serve, tmp_pat
     r = serve(data=tmp_path / "idle", plan_idle=True)
     assert submit(r.client)["id"] == "c00001"
     assert len(idle_descendants()) == 1
+
+
+def test_the_planner_plans_a_grid_once_and_each_campaign_gets_a_plan_of_its_own(monkeypatch):
+    """The worker keeps the plans it made (a lab submits one grid for sample after sample): a grid asked
+    again is a copy of the plan made first, equal to a fresh plan (pickled, bit for bit), and a campaign
+    that changes its copy changes no other; another config or grid is planned anew; the oldest plan
+    makes room for the newest."""
+    import pickle
+
+    import gonio.campaign as campaign
+    from gonio.config import load_config
+    from gonio.daemon.planner import PlanCache
+
+    cfg, calls = load_config(), []
+    plan_campaign = campaign.plan_campaign
+    monkeypatch.setattr(campaign, "plan_campaign", lambda grid, c: calls.append(grid) or plan_campaign(grid, c))
+    plans = PlanCache(size=2)
+    a, b = plans("iso:step=45", cfg), plans("iso:step=45", cfg)
+    assert calls == ["iso:step=45"] and plans.planned == 1
+    fresh = plan_campaign("iso:step=45", cfg)
+    assert pickle.dumps(a) == pickle.dumps(b) == pickle.dumps(fresh)
+    a.plan.theta_i[:] = -1.0
+    a.meta["x"] = 1
+    assert pickle.dumps(plans("iso:step=45", cfg)) == pickle.dumps(fresh)
+    other = cfg.model_copy(update={"name": "another"})
+    plans("iso:step=45", other)
+    plans("iso:step=60", cfg)          # three kept in two places: the least recently used goes
+    assert calls == ["iso:step=45", "iso:step=45", "iso:step=60"] and plans.planned == 3
+    plans("iso:step=60", cfg)
+    plans("iso:step=45", other)
+    assert plans.planned == 3
+    plans("iso:step=45", cfg)
+    assert plans.planned == 4
