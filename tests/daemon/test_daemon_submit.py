@@ -157,7 +157,8 @@ def test_the_planner_plans_a_grid_once_and_each_campaign_gets_a_plan_of_its_own(
 
     cfg, calls = load_config(), []
     plan_campaign = campaign.plan_campaign
-    monkeypatch.setattr(campaign, "plan_campaign", lambda grid, c: calls.append(grid) or plan_campaign(grid, c))
+    monkeypatch.setattr(campaign, "plan_campaign",
+                        lambda grid, c: calls.append(grid) or plan_campaign(grid, c))
     plans = PlanCache(size=2)
     a, b = plans("iso:step=45", cfg), plans("iso:step=45", cfg)
     assert calls == ["iso:step=45"] and plans.planned == 1
