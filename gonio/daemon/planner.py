@@ -141,7 +141,10 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:
         os.nice(19)
     materials = MaterialsFolder(materials_root)
     plans = PlanCache()
-    conn.send(("ready",))
+    try:
+        conn.send(("ready",))
+    except (BrokenPipeError, OSError):   # the daemon stopped while this worker started
+        return
     while True:
         try:
             req, folder = conn.recv()
@@ -190,6 +193,7 @@ class Planner:
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
+        self._starting = threading.Event()   # a worker is being started
         self._proc = None
         self._conn = None
         self.busy = False          # a request is being planned now
@@ -202,11 +206,13 @@ class Planner:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop the worker: the request being planned and every waiting one fail (PlannerFailed)."""
+        """Stop the worker: the request being planned and every waiting one fail (PlannerFailed). A
+        worker still starting is not waited for (a fresh fork server imports the planner for a second or
+        more; a daemon stopped as it starts waited for that): it is killed as soon as it has started."""
         self._stopping.set()
         self._jobs.put(None)
         if self._thread is not None:
-            self._thread.join(START_TIMEOUT_S)
+            self._thread.join(0.0 if self._starting.is_set() else START_TIMEOUT_S)
         self._kill()
 
     def _worker(self):
@@ -218,12 +224,30 @@ class Planner:
         parent, child = ctx.Pipe()
         proc = ctx.Process(target=_worker_main, args=(child, self.cfg, self.materials.root, self.idle),
                            daemon=True, name="gonio-planner-worker")
-        proc.start()
-        child.close()
-        self._proc, self._conn = proc, parent
-        if not parent.poll(START_TIMEOUT_S) or parent.recv() != ("ready",):
-            self._kill()
-            raise PlannerFailed(f"the planner did not start within {START_TIMEOUT_S:g} s")
+        self._starting.set()
+        try:
+            proc.start()     # blocks while a fresh fork server imports the planner
+            child.close()
+            self._proc, self._conn = proc, parent
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while True:
+                if self._stopping.is_set():
+                    self._kill()
+                    raise PlannerFailed("the daemon is stopping")
+                if parent.poll(_POLL_S):
+                    break
+                if time.monotonic() > deadline:
+                    self._kill()
+                    raise PlannerFailed(f"the planner did not start within {START_TIMEOUT_S:g} s")
+            try:
+                ready = parent.recv()
+            except (EOFError, OSError):     # it died starting
+                ready = None
+            if ready != ("ready",):
+                self._kill()
+                raise PlannerFailed("the planner's worker stopped as it started")
+        finally:
+            self._starting.clear()
         return parent
 
     def _kill(self) -> None:
@@ -273,6 +297,7 @@ class Planner:
         while True:
             job = self._jobs.get()
             if job is None:
+                self._kill()      # one that started after stop() looked
                 return
             if job.cancelled.is_set():
                 job.done.set_exception(ClientGone("the client went away"))

@@ -176,3 +176,55 @@ def test_the_planner_plans_a_grid_once_and_each_campaign_gets_a_plan_of_its_own(
     assert plans.planned == 3
     plans("iso:step=45", cfg)
     assert plans.planned == 4
+
+
+def test_a_planner_stopped_while_its_worker_starts_does_not_wait_for_it(monkeypatch):
+    """A fresh fork server imports the planner for a second or more before the worker runs; a daemon
+    stopped meanwhile (a SIGTERM as it starts) waited for that. stop() now returns while the worker is
+    still starting, and the worker is killed once it has started."""
+    import multiprocessing
+    import threading
+
+    import gonio.daemon.planner as planner_module
+    from gonio.config import load_config
+    from gonio.sim.materials.library import MaterialsFolder
+
+    release, procs = threading.Event(), []
+
+    class SlowStart:      # a worker whose start blocks, as on a fork server still importing
+        def __init__(self, **kw):
+            self.killed = False
+            procs.append(self)
+
+        def start(self):
+            release.wait(3 * WAIT_S)
+
+        def is_alive(self):
+            return not self.killed
+
+        def kill(self):
+            self.killed = True
+
+        def join(self, timeout=None):
+            pass
+
+    class Context:
+        Process = SlowStart
+
+        @staticmethod
+        def Pipe():
+            return multiprocessing.Pipe()
+
+    monkeypatch.setattr(planner_module, "_context", Context)
+    planner = planner_module.Planner(load_config(), MaterialsFolder(None))
+    planner.start()
+    wait_for(lambda: procs, "the worker's start")
+    stopper = threading.Thread(target=planner.stop)
+    stopper.start()
+    try:
+        stopper.join(WAIT_S)
+        assert not stopper.is_alive()                             # returned with the start still blocked
+    finally:
+        release.set()
+    planner._thread.join(WAIT_S)
+    assert not planner._thread.is_alive() and procs[0].killed and len(procs) == 1
