@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
+from daemon_helpers import TOKEN, WAIT_S, submit, unpace, wait_for, wait_state
 from test_daemon_web import CHROMIUM, FLAGS, pytestmark  # noqa: F401  (the skip when chromium is absent)
 
 from gonio.store import JOURNAL_NAME, Journal
@@ -97,6 +97,7 @@ def test_cross_site_forms_and_no_cors_fetches_are_refused_while_a_campaign_runs(
     after = _events(r)
     assert after[:len(before)] == before and not {"pause", "halt", "park"} & set(after)
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]
+    unpace(r.daemon)   # its park at once (pacing spends wall time only), then the abort
     r.client.post("/campaigns/c00001/abort").raise_for_status()
 
 
@@ -133,4 +134,5 @@ def test_a_rebinding_page_can_neither_read_nor_write(serve, browser):
     assert r.client.get("/campaigns/c00001").json()["state"] == "running"
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]
     assert not {"pause", "halt"} & set(_events(r))
+    unpace(r.daemon)   # its park at once (pacing spends wall time only), then the abort
     r.client.post("/campaigns/c00001/abort").raise_for_status()
