@@ -46,8 +46,10 @@ MAX_WAITING = 32
 #: Seconds a fresh worker may take to start.
 START_TIMEOUT_S = 60.0
 _POLL_S = 0.05
-#: Plans the worker keeps for the next request of the same grid (:class:`PlanCache`).
+#: Plans the worker keeps for the next request of the same grid (:class:`PlanCache`), and their steps in
+#: all (~80 bytes a step: at most ~80 MB however fine the grids).
 PLANS_KEPT = 8
+PLAN_STEPS_KEPT = 1_000_000
 #: Seconds between checks that a waiting request's client is still there.
 _CLIENT_POLL_S = 0.5
 _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -110,10 +112,12 @@ class PlanCache:
     config: planning is deterministic (the same grid on the same config plans the same poses, order and
     estimates), and a lab submits one grid for sample after sample (each took a fresh plan: 0.4 s of CPU
     for iso:step=15, minutes for the finest grids). Each call gets a copy of its own: nothing a campaign
-    does to its plan reaches another's. A grid the planner refuses is not kept."""
+    does to its plan reaches another's. A grid the planner refuses is not kept; the least recently asked
+    plans make room, past ``size`` plans or ``max_steps`` steps in all (the newest is always kept)."""
 
-    def __init__(self, size: int = PLANS_KEPT):
+    def __init__(self, size: int = PLANS_KEPT, max_steps: int = PLAN_STEPS_KEPT):
         self.size = size
+        self.max_steps = max_steps
         self.planned = 0            # plans made (the others were copies of kept ones)
         self._plans: OrderedDict = OrderedDict()
 
@@ -126,9 +130,12 @@ class PlanCache:
         else:
             self._plans[key] = plan_campaign(grid, cfg)
             self.planned += 1
-            while len(self._plans) > self.size:
+            while len(self._plans) > 1 and (len(self._plans) > self.size or self._steps() > self.max_steps):
                 self._plans.popitem(last=False)
         return copy.deepcopy(self._plans[key])
+
+    def _steps(self) -> int:
+        return sum(len(p.plan.step_kind) for p in self._plans.values())
 
 
 def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:

@@ -176,6 +176,14 @@ def test_the_planner_plans_a_grid_once_and_each_campaign_gets_a_plan_of_its_own(
     assert plans.planned == 3
     plans("iso:step=45", cfg)
     assert plans.planned == 4
+    # Past its steps in all, the oldest plans go too (the newest is kept, however large).
+    steps = len(plans("iso:step=60", cfg).plan.step_kind)
+    small = PlanCache(size=8, max_steps=steps)
+    small("iso:step=60", cfg)
+    small("iso:step=45", cfg)                     # more steps than the budget: kept alone
+    small("iso:step=45", cfg)
+    small("iso:step=60", cfg)
+    assert small.planned == 3
 
 
 def test_a_planner_stopped_while_its_worker_starts_does_not_wait_for_it(monkeypatch):
