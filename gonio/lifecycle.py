@@ -115,10 +115,11 @@ def check_request(cfg: GonioConfig, request: Request, load: Callable | None = No
     return material
 
 
-def plan_request(cfg: GonioConfig, request: Request, material=None) -> Planned:
-    """Plan ``request`` on the gantry ``cfg`` (:func:`gonio.campaign.plan_campaign`); a fly campaign
-    only once the gantry's devices declare they can fly it (checked on the gantry wired from ``cfg``,
-    not connected: nothing is opened). ``material``: what :func:`check_request` gave.
+def plan_request(cfg: GonioConfig, request: Request, material=None, *, plan=None) -> Planned:
+    """Plan ``request`` on the gantry ``cfg`` with ``plan`` (default :func:`gonio.campaign.plan_campaign`;
+    the daemon's planner passes one that keeps what it planned); a fly campaign only once the gantry's
+    devices declare they can fly it (checked on the gantry wired from ``cfg``, not connected: nothing is
+    opened). ``material``: what :func:`check_request` gave.
 
     Raises
     ------
@@ -126,7 +127,7 @@ def plan_request(cfg: GonioConfig, request: Request, material=None) -> Planned:
         ``grid`` (the planner refuses it) or ``gantry`` (the gantry cannot fly it).
     """
     try:
-        planned = plan_campaign(request.grid, cfg)
+        planned = (plan or plan_campaign)(request.grid, cfg)
     except ValueError as err:
         raise RequestError("grid", str(err)) from None
     if planned.kind == FLY:

@@ -39,7 +39,9 @@ def installed(tmp_path_factory):
     (base / "build.log").write_text(build.stdout + build.stderr)
     (wheel,) = wheels.glob("gonio-*.whl")
     venv = base / "venv"
-    _run([sys.executable, "-m", "venv", str(venv)])
+    # Without a pip of its own (ensurepip installing one into it cost 4.4 s of CPU): this environment's
+    # pip installs into it (--python), as the new environment's own would.
+    _run([sys.executable, "-m", "venv", "--without-pip", str(venv)])
     py = venv / "bin" / "python"
     # gonio's dependencies come from this environment (a path, not its .pth files: the editable gonio of
     # the source tree stays out); gonio itself from the wheel, installed by pip into the new environment.
@@ -49,7 +51,8 @@ def installed(tmp_path_factory):
     # from another one through a .pth file of its own, which the new environment would not follow.
     deps = [sysconfig.get_paths()["purelib"]] + [p for p in sys.path if p.endswith("site-packages")]
     (site / "deps.pth").write_text("\n".join(dict.fromkeys(deps)) + "\n")
-    _run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)])
+    _run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-deps", "--no-index",
+          str(wheel)])
     return venv, base / "elsewhere"
 
 
@@ -78,33 +81,13 @@ def test_the_wheel_build_warns_of_nothing_and_carries_every_data_file(wheel_buil
     assert missing == []
 
 
-def test_wheel_installs_gonio_with_its_configs_outside_the_source_tree(installed):
-    venv, cwd = installed
-    cwd.mkdir(exist_ok=True)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    code = "import gonio, gonio.config as c; print(gonio.__file__); print(c.DEFAULT_CONFIG)"
-    r = _run([str(venv / "bin" / "python"), "-c", code], cwd=cwd, env=env)
-    module, default = r.stdout.split()
-    assert Path(module).is_relative_to(venv) and Path(default).is_relative_to(venv)
-    assert not Path(module).is_relative_to(ROOT)
-    # The console script, then the commands through gonio.cli.main in one process of the new environment
-    # (each `gonio` process would pay the start-up again; what is tested is what the wheel installed).
-    assert "gonio 0." in _run([str(venv / "bin" / "gonio"), "--version"], cwd=cwd, env=env).stdout
-    (config, plan, *_, simulate) = _commands(venv, cwd, env, [
-        ["config", "list"],
-        ["plan", "--grid", "iso:step=30"],
-        ["plan", "--grid", "full:step=60", "--config", "sample-stage"],
-        # a config naming the SCPI instrument profiles: they ship as package data too
-        ["plan", "--grid", "iso:step=60", "--config", "emulated-two-arm-scpi"],
-        ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", "run", "--quiet"]])
-    assert "sample-stage" in config[0] and "lower bound" in plan[0]
-    assert (cwd / "run" / "brdf.h5").is_file() and "median relative error" in simulate[1]
-
-
-#: Runs each argv (JSON on the command line) through gonio.cli.main, printing a JSON list of
-#: [exit code, stdout, stderr], one per command.
-_COMMANDS = """
-import contextlib, io, json, sys
+#: What runs in one process of the new environment (each process pays gonio's start-up again; what is
+#: tested is what the wheel installed): each argv of sys.argv[1] (JSON) through gonio.cli.main, then an
+#: import of each module named in sys.argv[2] (JSON). Prints a JSON object: "commands", a list of
+#: [exit code, stdout, stderr], one per argv, and "bad", the modules that failed to import from
+#: site-packages, each "NAME: ERROR".
+_IN_THE_WHEEL = """
+import contextlib, importlib, io, json, sys
 from gonio.cli import main
 done = []
 for argv in json.loads(sys.argv[1]):
@@ -112,24 +95,29 @@ for argv in json.loads(sys.argv[1]):
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = main(argv)
     done.append([rc, out.getvalue(), err.getvalue()])
-print(json.dumps(done))
+bad = []
+for n in json.loads(sys.argv[2]):
+    try:
+        m = importlib.import_module(n)
+        assert 'site-packages' in (m.__file__ or ''), m.__file__
+    except Exception as e:
+        bad.append(f'{n}: {type(e).__name__}: {e}')
+print(json.dumps({"commands": done, "bad": bad}))
 """
 
+#: The commands run from the installed wheel, in one process (:data:`_IN_THE_WHEEL`).
+COMMANDS = [
+    ["config", "list"],
+    ["plan", "--grid", "iso:step=30"],
+    ["plan", "--grid", "full:step=60", "--config", "sample-stage"],
+    # a config naming the SCPI instrument profiles: they ship as package data too
+    ["plan", "--grid", "iso:step=60", "--config", "emulated-two-arm-scpi"],
+    ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", "run", "--quiet"]]
 
-def _commands(venv, cwd, env, argvs):
-    """(stdout, stderr) of each ``gonio`` command, run in one process of ``venv``; each must exit 0."""
-    r = _run([str(venv / "bin" / "python"), "-c", _COMMANDS, json.dumps(argvs)], cwd=cwd, env=env)
-    done = json.loads(r.stdout)
-    for argv, (rc, out, err) in zip(argvs, done, strict=True):
-        assert rc == 0, f"gonio {' '.join(argv)}: {out}\n{err}"
-    return [(out, err) for _, out, err in done]
 
-
-def test_every_module_of_the_source_tree_is_in_the_wheel_and_imports(installed):
-    """The wheel's package list is written by hand (drivers/ and sim/ are mapped into gonio): a package
-    left out of it installs without complaint and fails only when its command runs."""
-    venv, cwd = installed
-    cwd.mkdir(exist_ok=True)
+def _source_modules() -> list[str]:
+    """Every module of the source tree, by the name the wheel installs it under (drivers/ and sim/ are
+    mapped into gonio)."""
     roots = {"gonio": ROOT / "gonio", "gonio.drivers": ROOT / "drivers", "gonio.sim": ROOT / "sim"}
     names = set()
     for prefix, folder in roots.items():
@@ -140,18 +128,42 @@ def test_every_module_of_the_source_tree_is_in_the_wheel_and_imports(installed):
             if parts[-1:] == ("__main__",):
                 continue
             names.add(".".join((prefix, *parts)))
-    code = ("import importlib, sys\n"
-            "bad = []\n"
-            "for n in sys.argv[1:]:\n"
-            "    try:\n"
-            "        m = importlib.import_module(n)\n"
-            "        assert 'site-packages' in (m.__file__ or ''), m.__file__\n"
-            "    except Exception as e:\n"
-            "        bad.append(f'{n}: {type(e).__name__}: {e}')\n"
-            "print('\\n'.join(bad))")
+    return sorted(names)
+
+
+@pytest.fixture(scope="module")
+def in_the_wheel(installed):
+    """The new environment run outside the source tree: (venv, cwd, env, what :data:`_IN_THE_WHEEL`
+    printed for :data:`COMMANDS` and every module of the source tree)."""
+    venv, cwd = installed
+    cwd.mkdir(exist_ok=True)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    r = _run([str(venv / "bin" / "python"), "-c", code, *sorted(names)], cwd=cwd, env=env)
-    assert r.stdout.strip() == "", r.stdout
-    assert len(names) > 80
+    r = _run([str(venv / "bin" / "python"), "-c", _IN_THE_WHEEL, json.dumps(COMMANDS),
+              json.dumps(_source_modules())], cwd=cwd, env=env)
+    return venv, cwd, env, json.loads(r.stdout)
+
+
+def test_wheel_installs_gonio_with_its_configs_outside_the_source_tree(in_the_wheel):
+    venv, cwd, env, ran = in_the_wheel
+    code = "import gonio, gonio.config as c; print(gonio.__file__); print(c.DEFAULT_CONFIG)"
+    r = _run([str(venv / "bin" / "python"), "-c", code], cwd=cwd, env=env)
+    module, default = r.stdout.split()
+    assert Path(module).is_relative_to(venv) and Path(default).is_relative_to(venv)
+    assert not Path(module).is_relative_to(ROOT)
+    # The console script, then the commands through gonio.cli.main in one process of the new environment.
+    assert "gonio 0." in _run([str(venv / "bin" / "gonio"), "--version"], cwd=cwd, env=env).stdout
+    for argv, (rc, out, err) in zip(COMMANDS, ran["commands"], strict=True):
+        assert rc == 0, f"gonio {' '.join(argv)}: {out}\n{err}"
+    (config, plan, *_, simulate) = [(out, err) for _, out, err in ran["commands"]]
+    assert "sample-stage" in config[0] and "lower bound" in plan[0]
+    assert (cwd / "run" / "brdf.h5").is_file() and "median relative error" in simulate[1]
+
+
+def test_every_module_of_the_source_tree_is_in_the_wheel_and_imports(in_the_wheel):
+    """The wheel's package list is written by hand (drivers/ and sim/ are mapped into gonio): a package
+    left out of it installs without complaint and fails only when its command runs."""
+    venv, cwd, env, ran = in_the_wheel
+    assert ran["bad"] == []
+    assert len(_source_modules()) > 80
     r = _run([str(venv / "bin" / "gonio"), "fit", "--help"], cwd=cwd, env=env)
     assert "--model" in r.stdout

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import copy
 import errno
 import logging
 import multiprocessing
@@ -26,13 +27,14 @@ import os
 import queue
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from gonio.daemon.records import DiskFull, FieldError, is_disk_full, prepare_campaign
 from gonio.sim.materials.library import MaterialsFolder
 
-__all__ = ["Planner", "PlannerBusy", "ClientGone", "PLAN_TIMEOUT_S", "MAX_WAITING"]
+__all__ = ["Planner", "PlannerBusy", "ClientGone", "PlanCache", "PLAN_TIMEOUT_S", "MAX_WAITING"]
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +46,10 @@ MAX_WAITING = 32
 #: Seconds a fresh worker may take to start.
 START_TIMEOUT_S = 60.0
 _POLL_S = 0.05
+#: Plans the worker keeps for the next request of the same grid (:class:`PlanCache`), and their steps in
+#: all (~80 bytes a step: at most ~80 MB however fine the grids).
+PLANS_KEPT = 8
+PLAN_STEPS_KEPT = 1_000_000
 #: Seconds between checks that a waiting request's client is still there.
 _CLIENT_POLL_S = 0.5
 _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -101,6 +107,37 @@ def _context():
     return ctx
 
 
+class PlanCache:
+    """:func:`gonio.campaign.plan_campaign` that keeps the ``size`` plans it made last, by grid and
+    config: planning is deterministic (the same grid on the same config plans the same poses, order and
+    estimates), and a lab submits one grid for sample after sample (each took a fresh plan: 0.4 s of CPU
+    for iso:step=15, minutes for the finest grids). Each call gets a copy of its own: nothing a campaign
+    does to its plan reaches another's. A grid the planner refuses is not kept; the least recently asked
+    plans make room, past ``size`` plans or ``max_steps`` steps in all (the newest is always kept)."""
+
+    def __init__(self, size: int = PLANS_KEPT, max_steps: int = PLAN_STEPS_KEPT):
+        self.size = size
+        self.max_steps = max_steps
+        self.planned = 0            # plans made (the others were copies of kept ones)
+        self._plans: OrderedDict = OrderedDict()
+
+    def __call__(self, grid: str, cfg):
+        from gonio.campaign import config_hash, plan_campaign
+
+        key = (grid, config_hash(cfg))
+        if key in self._plans:
+            self._plans.move_to_end(key)
+        else:
+            self._plans[key] = plan_campaign(grid, cfg)
+            self.planned += 1
+            while len(self._plans) > 1 and (len(self._plans) > self.size or self._steps() > self.max_steps):
+                self._plans.popitem(last=False)
+        return copy.deepcopy(self._plans[key])
+
+    def _steps(self) -> int:
+        return sum(len(p.plan.step_kind) for p in self._plans.values())
+
+
 def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:
     """The worker: one request at a time from ``conn``, each answered with one tuple; at idle priority
     unless ``idle`` is False."""
@@ -110,14 +147,18 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:
     except (AttributeError, OSError):
         os.nice(19)
     materials = MaterialsFolder(materials_root)
-    conn.send(("ready",))
+    plans = PlanCache()
+    try:
+        conn.send(("ready",))
+    except (BrokenPipeError, OSError):   # the daemon stopped while this worker started
+        return
     while True:
         try:
             req, folder = conn.recv()
         except (EOFError, OSError):   # the daemon is gone
             return
         try:
-            reply = ("ok", prepare_campaign(cfg, req, materials, Path(folder)))
+            reply = ("ok", prepare_campaign(cfg, req, materials, Path(folder), plan=plans))
         except FieldError as err:
             reply = ("field", err.field, str(err))
         except Exception as err:
@@ -159,6 +200,7 @@ class Planner:
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
+        self._starting = threading.Event()   # a worker is being started
         self._proc = None
         self._conn = None
         self.busy = False          # a request is being planned now
@@ -171,11 +213,13 @@ class Planner:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop the worker: the request being planned and every waiting one fail (PlannerFailed)."""
+        """Stop the worker: the request being planned and every waiting one fail (PlannerFailed). A
+        worker still starting is not waited for (a fresh fork server imports the planner for a second or
+        more; a daemon stopped as it starts waited for that): it is killed as soon as it has started."""
         self._stopping.set()
         self._jobs.put(None)
         if self._thread is not None:
-            self._thread.join(START_TIMEOUT_S)
+            self._thread.join(0.0 if self._starting.is_set() else START_TIMEOUT_S)
         self._kill()
 
     def _worker(self):
@@ -187,12 +231,30 @@ class Planner:
         parent, child = ctx.Pipe()
         proc = ctx.Process(target=_worker_main, args=(child, self.cfg, self.materials.root, self.idle),
                            daemon=True, name="gonio-planner-worker")
-        proc.start()
-        child.close()
-        self._proc, self._conn = proc, parent
-        if not parent.poll(START_TIMEOUT_S) or parent.recv() != ("ready",):
-            self._kill()
-            raise PlannerFailed(f"the planner did not start within {START_TIMEOUT_S:g} s")
+        self._starting.set()
+        try:
+            proc.start()     # blocks while a fresh fork server imports the planner
+            child.close()
+            self._proc, self._conn = proc, parent
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while True:
+                if self._stopping.is_set():
+                    self._kill()
+                    raise PlannerFailed("the daemon is stopping")
+                if parent.poll(_POLL_S):
+                    break
+                if time.monotonic() > deadline:
+                    self._kill()
+                    raise PlannerFailed(f"the planner did not start within {START_TIMEOUT_S:g} s")
+            try:
+                ready = parent.recv()
+            except (EOFError, OSError):     # it died starting
+                ready = None
+            if ready != ("ready",):
+                self._kill()
+                raise PlannerFailed("the planner's worker stopped as it started")
+        finally:
+            self._starting.clear()
         return parent
 
     def _kill(self) -> None:
@@ -242,6 +304,7 @@ class Planner:
         while True:
             job = self._jobs.get()
             if job is None:
+                self._kill()      # one that started after stop() looked
                 return
             if job.cancelled.is_set():
                 job.done.set_exception(ClientGone("the client went away"))

@@ -150,24 +150,24 @@ def precheck_request(cfg: GonioConfig, req: dict, materials) -> None:
                 raise FieldError("material", str(err)) from None
 
 
-def prepare_campaign(cfg: GonioConfig, req: dict, materials, folder: Path) -> str | None:
-    """Validate ``req`` (:func:`validate_request`), plan it and create its journal in ``folder`` (the
-    planner's process does this); the material's normalized spec, or None."""
+def prepare_campaign(cfg: GonioConfig, req: dict, materials, folder: Path, plan=None) -> str | None:
+    """Validate ``req`` (:func:`validate_request`), plan it (with ``plan``, as there) and create its
+    journal in ``folder`` (the planner's process does this); the material's normalized spec, or None."""
     from gonio.campaign import create_campaign
 
-    spec, cfg, planned = validate_request(cfg, req, materials)
+    spec, cfg, planned = validate_request(cfg, req, materials, plan=plan)
     c = create_campaign(folder, cfg, grid=req["grid"], material=spec, seed=int(req.get("seed", 0)),
                         sample=req.get("sample"), planned=planned)
     c.close()
     return spec
 
 
-def validate_request(cfg: GonioConfig, req: dict, materials):
+def validate_request(cfg: GonioConfig, req: dict, materials, plan=None):
     """Check a campaign request against the daemon's gantry by the lifecycle's request rules
-    (:func:`gonio.lifecycle.check_request`, :func:`gonio.lifecycle.plan_request`) and plan it;
-    (material spec or None, cfg, :class:`gonio.campaign.Planned`). A fly campaign (``order=fly``) is
-    planned once the gantry's devices declare they can fly it, on a configured gantry or the simulated
-    one.
+    (:func:`gonio.lifecycle.check_request`, :func:`gonio.lifecycle.plan_request`) and plan it (with
+    ``plan``, as there); (material spec or None, cfg, :class:`gonio.campaign.Planned`). A fly campaign
+    (``order=fly``) is planned once the gantry's devices declare they can fly it, on a configured gantry
+    or the simulated one.
 
     Raises :class:`FieldError` naming the field at fault (``grid`` where the gantry cannot do what the
     grid asks). Measured materials (``bsdf:NAME``, ``merl:NAME``) are names in the daemon's materials
@@ -185,7 +185,7 @@ def validate_request(cfg: GonioConfig, req: dict, materials):
         raise FieldError(err.field, str(err)) from None
     cfg = _with_detector(cfg, req.get("detector"))
     try:
-        planned = plan_request(cfg, request, material)
+        planned = plan_request(cfg, request, material, plan=plan)
     except RequestError as err:
         raise FieldError("grid" if err.field == "gantry" else err.field, str(err)) from None
     steps = planned.steps

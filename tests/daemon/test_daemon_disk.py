@@ -60,7 +60,9 @@ def _entries(small) -> list[str]:
 
 @pytest.mark.slow
 def test_a_full_disk_answers_507_and_a_runner_fault_is_journaled_at_the_next_start(small_disk):
-    s = Serve(small_disk.data, "--pace", "0.05", prefix=small_disk.prefix)
+    # Paced so that the campaign still runs when the disk is filled: 20 ms of wall time per gantry second
+    # (~20 ms a step; the journal fails ~60 steps later, when its file must grow, and 250 remain).
+    s = Serve(small_disk.data, "--pace", "0.02", prefix=small_disk.prefix)
     body = {"material": "lambert:albedo=0.5", "grid": "iso:step=15"}
     filler = _fill(small_disk.inside)
     before = _entries(small_disk)

@@ -150,6 +150,7 @@ def test_a_halt_recorded_late_leaves_the_campaign_resumed_since_running(serve):
     r.client.post("/campaigns/c00001/resume").raise_for_status()
     wait_for(lambda: queue.runner not in (None, halted_runner), "the resumed campaign's runner")
     queue._record_halt(halted_runner, rec, "halt requested through the API")   # the late record
-    assert r.client.get("/campaigns/c00001").json()["state"] in ("running", "finishing", "done")
+    # not halted again (its runner may still be starting on a loaded machine: the end below says it ran)
+    assert r.client.get("/campaigns/c00001").json()["state"] in ("starting", "running", "finishing", "done")
     unpace(r.daemon)
     wait_state(r.client, "c00001", "done", timeout_s=15.0)

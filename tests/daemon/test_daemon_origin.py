@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import json
 
-from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
+import pytest
+from daemon_helpers import TOKEN, WAIT_S, submit, unpace, wait_for, wait_state
 from test_daemon_web import CHROMIUM, FLAGS, pytestmark  # noqa: F401  (the skip when chromium is absent)
 
 from gonio.store import JOURNAL_NAME, Journal
@@ -17,14 +18,23 @@ ATTACKS = ["/gantry/halt", "/campaigns/c00001/pause", "/campaigns/c00001/resume"
            "/campaigns"]
 
 
-def _browser(p):
+@pytest.fixture(scope="module")
+def browser():
     """Chromium with every *.test name resolving to 127.0.0.1 (as a rebinding attacker's DNS makes it),
     and without its Local Network Access checks: Firefox and Safari have none, and they do not stop a
-    page served from the LAN. The daemon must refuse on its own."""
-    return p.chromium.launch(executable_path=CHROMIUM, headless=True, args=[
-        *FLAGS, "--host-resolver-rules=MAP *.test 127.0.0.1",
-        "--disable-features=LocalNetworkAccessChecks,BlockInsecurePrivateNetworkRequests,"
-        "PrivateNetworkAccessRespectPreflightResults"])
+    page served from the LAN. The daemon must refuse on its own. One for this module's tests (a launch
+    costs ~1.5 s of CPU); each page has a browser context of its own."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=[
+            *FLAGS, "--host-resolver-rules=MAP *.test 127.0.0.1",
+            "--disable-features=LocalNetworkAccessChecks,BlockInsecurePrivateNetworkRequests,"
+            "PrivateNetworkAccessRespectPreflightResults"])
+        try:
+            yield b
+        finally:
+            b.close()
 
 
 def _events(r) -> list[str]:
@@ -47,87 +57,75 @@ def _page_at(browser, url: str, html: str):
     return page, seen
 
 
-def test_cross_site_forms_and_no_cors_fetches_are_refused_while_a_campaign_runs(serve):
-    from playwright.sync_api import sync_playwright
-
+def test_cross_site_forms_and_no_cors_fetches_are_refused_while_a_campaign_runs(serve, browser):
     r = serve(pace=0.5)
     submit(r.client, grid="iso:step=15")   # half a real second per gantry second: it outlasts the test
     wait_state(r.client, "c00001", "running")
     before = _events(r)
     port = r.url.rsplit(":", 1)[1]
     daemon = f"http://127.0.0.1:{port}"
-    with sync_playwright() as p:
-        browser = _browser(p)
-        try:
-            # Another site (attacker.test), and the same site on another port (127.0.0.1:1).
-            for origin in ("http://attacker.test/", f"http://127.0.0.1:{int(port) % 60000 + 1}/"):
-                page, seen = _page_at(browser, origin, '<html><body></body></html>')
-                for path in ATTACKS:
-                    for enctype in ("text/plain", "application/x-www-form-urlencoded"):
-                        with page.expect_response(f"{daemon}{path}") as resp:
-                            # A frame of its own for each form: a submission into a frame still
-                            # loading the last answer was sometimes never sent.
-                            page.evaluate("""([url, enctype]) => {
-                                const sink = document.createElement('iframe');
-                                sink.name = 'sink' + Math.random(); document.body.appendChild(sink);
-                                const f = document.createElement('form');
-                                f.method = 'POST'; f.action = url; f.enctype = enctype; f.target = sink.name;
-                                const i = document.createElement('input');
-                                i.name = '{"grid": "iso:step=30", "material": "lambert:albedo=0.5", "x';
-                                i.value = '"}';
-                                f.appendChild(i); document.body.appendChild(f); f.submit(); }""",
-                                          [f"{daemon}{path}", enctype])
-                        assert resp.value.status == 403, (origin, path, enctype)
-                    page.evaluate("""async (url) => { await fetch(url, {method: 'POST', mode: 'no-cors',
-                        body: JSON.stringify({grid: 'iso:step=30', material: 'lambert:albedo=0.5'}),
-                        headers: {'Content-Type': 'text/plain'}}); }""", f"{daemon}{path}")
-                    wait_for(lambda path=path, seen=seen: any(
-                        m == "POST" and u == f"{daemon}{path}" and s == 403 for m, u, s in seen),
-                        f"the no-cors fetch of {path} to be answered")
-                posts = [s for m, u, s in seen if m == "POST" and u.startswith(daemon)]
-                assert posts and set(posts) == {403}, seen
-                page.close()
-        finally:
-            browser.close()
+    # Another site (attacker.test), and the same site on another port (127.0.0.1:1).
+    for origin in ("http://attacker.test/", f"http://127.0.0.1:{int(port) % 60000 + 1}/"):
+        page, seen = _page_at(browser, origin, '<html><body></body></html>')
+        for path in ATTACKS:
+            for enctype in ("text/plain", "application/x-www-form-urlencoded"):
+                with page.expect_response(f"{daemon}{path}") as resp:
+                    # A frame of its own for each form: a submission into a frame still
+                    # loading the last answer was sometimes never sent.
+                    page.evaluate("""([url, enctype]) => {
+                        const sink = document.createElement('iframe');
+                        sink.name = 'sink' + Math.random(); document.body.appendChild(sink);
+                        const f = document.createElement('form');
+                        f.method = 'POST'; f.action = url; f.enctype = enctype; f.target = sink.name;
+                        const i = document.createElement('input');
+                        i.name = '{"grid": "iso:step=30", "material": "lambert:albedo=0.5", "x';
+                        i.value = '"}';
+                        f.appendChild(i); document.body.appendChild(f); f.submit(); }""",
+                                  [f"{daemon}{path}", enctype])
+                assert resp.value.status == 403, (origin, path, enctype)
+            page.evaluate("""async (url) => { await fetch(url, {method: 'POST', mode: 'no-cors',
+                body: JSON.stringify({grid: 'iso:step=30', material: 'lambert:albedo=0.5'}),
+                headers: {'Content-Type': 'text/plain'}}); }""", f"{daemon}{path}")
+            wait_for(lambda path=path, seen=seen: any(
+                m == "POST" and u == f"{daemon}{path}" and s == 403 for m, u, s in seen),
+                f"the no-cors fetch of {path} to be answered")
+        posts = [s for m, u, s in seen if m == "POST" and u.startswith(daemon)]
+        assert posts and set(posts) == {403}, seen
+        page.close()
     st = r.client.get("/campaigns/c00001").json()
     assert st["state"] == "running", st          # never paused, halted or aborted
     after = _events(r)
     assert after[:len(before)] == before and not {"pause", "halt", "park"} & set(after)
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]
+    unpace(r.daemon)   # its park at once (pacing spends wall time only), then the abort
     r.client.post("/campaigns/c00001/abort").raise_for_status()
 
 
-def test_a_rebinding_page_can_neither_read_nor_write(serve):
+def test_a_rebinding_page_can_neither_read_nor_write(serve, browser):
     """DNS rebinding: a page of rebind.test:PORT, the name then pointed at 127.0.0.1, is same-origin
     with itself, so the browser lets it read what it fetches; the daemon refuses any Host not its own."""
-    from playwright.sync_api import sync_playwright
-
     r = serve(token=TOKEN, pace=0.5)
     submit(r.client, grid="iso:step=15")   # half a real second per gantry second: it outlasts the test
     wait_state(r.client, "c00001", "running")
     port = r.url.rsplit(":", 1)[1]
     origin = f"http://rebind.test:{port}"
-    with sync_playwright() as p:
-        browser = _browser(p)
-        try:
-            page, seen = _page_at(browser, f"{origin}/attack.html", "<html><body>hi</body></html>")
-            out = page.evaluate("""async () => {
-                const out = {};
-                for (const path of ['/campaigns', '/campaigns/c00001', '/campaigns/c00001/brdf', '/health',
-                                    '/gantry', '/campaigns/c00001/log', '/openapi.json']) {
-                    const r = await fetch(path); out['GET ' + path] = [r.status, await r.text()];
-                }
-                for (const path of ['/gantry/halt', '/campaigns/c00001/pause', '/campaigns/c00001/abort']) {
-                    const r = await fetch(path, {method: 'POST'});
-                    out['POST ' + path] = [r.status, await r.text()];
-                }
-                const r = await fetch('/campaigns', {method: 'POST',
-                    headers: {'Content-Type': 'application/json'},
-                    body: JSON.stringify({grid: 'iso:step=30', material: 'lambert:albedo=0.5'})});
-                out['POST /campaigns'] = [r.status, await r.text()];
-                return out; }""")
-        finally:
-            browser.close()
+    page, seen = _page_at(browser, f"{origin}/attack.html", "<html><body>hi</body></html>")
+    out = page.evaluate("""async () => {
+        const out = {};
+        for (const path of ['/campaigns', '/campaigns/c00001', '/campaigns/c00001/brdf', '/health',
+                            '/gantry', '/campaigns/c00001/log', '/openapi.json']) {
+            const r = await fetch(path); out['GET ' + path] = [r.status, await r.text()];
+        }
+        for (const path of ['/gantry/halt', '/campaigns/c00001/pause', '/campaigns/c00001/abort']) {
+            const r = await fetch(path, {method: 'POST'});
+            out['POST ' + path] = [r.status, await r.text()];
+        }
+        const r = await fetch('/campaigns', {method: 'POST',
+            headers: {'Content-Type': 'application/json'},
+            body: JSON.stringify({grid: 'iso:step=30', material: 'lambert:albedo=0.5'})});
+        out['POST /campaigns'] = [r.status, await r.text()];
+        return out; }""")
+    page.close()
     assert len(out) == 11
     for what, (status, text) in out.items():
         assert status == 403, (what, status, text)
@@ -136,4 +134,5 @@ def test_a_rebinding_page_can_neither_read_nor_write(serve):
     assert r.client.get("/campaigns/c00001").json()["state"] == "running"
     assert [c["id"] for c in r.client.get("/campaigns").json()["campaigns"]] == ["c00001"]
     assert not {"pause", "halt"} & set(_events(r))
+    unpace(r.daemon)   # its park at once (pacing spends wall time only), then the abort
     r.client.post("/campaigns/c00001/abort").raise_for_status()

@@ -142,3 +142,97 @@ def test_the_planner_plans_at_idle_priority_unless_told_otherwise(serve, tmp_pat
     r = serve(data=tmp_path / "idle", plan_idle=True)
     assert submit(r.client)["id"] == "c00001"
     assert len(idle_descendants()) == 1
+
+
+def test_the_planner_plans_a_grid_once_and_each_campaign_gets_a_plan_of_its_own(monkeypatch):
+    """The worker keeps the plans it made (a lab submits one grid for sample after sample): a grid asked
+    again is a copy of the plan made first, equal to a fresh plan (pickled, bit for bit), and a campaign
+    that changes its copy changes no other; another config or grid is planned anew; the oldest plan
+    makes room for the newest."""
+    import pickle
+
+    import gonio.campaign as campaign
+    from gonio.config import load_config
+    from gonio.daemon.planner import PlanCache
+
+    cfg, calls = load_config(), []
+    plan_campaign = campaign.plan_campaign
+    monkeypatch.setattr(campaign, "plan_campaign",
+                        lambda grid, c: calls.append(grid) or plan_campaign(grid, c))
+    plans = PlanCache(size=2)
+    a, b = plans("iso:step=45", cfg), plans("iso:step=45", cfg)
+    assert calls == ["iso:step=45"] and plans.planned == 1
+    fresh = plan_campaign("iso:step=45", cfg)
+    assert pickle.dumps(a) == pickle.dumps(b) == pickle.dumps(fresh)
+    a.plan.theta_i[:] = -1.0
+    a.meta["x"] = 1
+    assert pickle.dumps(plans("iso:step=45", cfg)) == pickle.dumps(fresh)
+    other = cfg.model_copy(update={"name": "another"})
+    plans("iso:step=45", other)
+    plans("iso:step=60", cfg)          # three kept in two places: the least recently used goes
+    assert calls == ["iso:step=45", "iso:step=45", "iso:step=60"] and plans.planned == 3
+    plans("iso:step=60", cfg)
+    plans("iso:step=45", other)
+    assert plans.planned == 3
+    plans("iso:step=45", cfg)
+    assert plans.planned == 4
+    # Past its steps in all, the oldest plans go too (the newest is kept, however large).
+    steps = len(plans("iso:step=60", cfg).plan.step_kind)
+    small = PlanCache(size=8, max_steps=steps)
+    small("iso:step=60", cfg)
+    small("iso:step=45", cfg)                     # more steps than the budget: kept alone
+    small("iso:step=45", cfg)
+    small("iso:step=60", cfg)
+    assert small.planned == 3
+
+
+def test_a_planner_stopped_while_its_worker_starts_does_not_wait_for_it(monkeypatch):
+    """A fresh fork server imports the planner for a second or more before the worker runs; a daemon
+    stopped meanwhile (a SIGTERM as it starts) waited for that. stop() now returns while the worker is
+    still starting, and the worker is killed once it has started."""
+    import multiprocessing
+    import threading
+
+    import gonio.daemon.planner as planner_module
+    from gonio.config import load_config
+    from gonio.sim.materials.library import MaterialsFolder
+
+    release, procs = threading.Event(), []
+
+    class SlowStart:      # a worker whose start blocks, as on a fork server still importing
+        def __init__(self, **kw):
+            self.killed = False
+            procs.append(self)
+
+        def start(self):
+            release.wait(3 * WAIT_S)
+
+        def is_alive(self):
+            return not self.killed
+
+        def kill(self):
+            self.killed = True
+
+        def join(self, timeout=None):
+            pass
+
+    class Context:
+        Process = SlowStart
+
+        @staticmethod
+        def Pipe():
+            return multiprocessing.Pipe()
+
+    monkeypatch.setattr(planner_module, "_context", Context)
+    planner = planner_module.Planner(load_config(), MaterialsFolder(None))
+    planner.start()
+    wait_for(lambda: procs, "the worker's start")
+    stopper = threading.Thread(target=planner.stop)
+    stopper.start()
+    try:
+        stopper.join(WAIT_S)
+        assert not stopper.is_alive()                             # returned with the start still blocked
+    finally:
+        release.set()
+    planner._thread.join(WAIT_S)
+    assert not planner._thread.is_alive() and procs[0].killed and len(procs) == 1

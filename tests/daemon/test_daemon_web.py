@@ -20,18 +20,28 @@ pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="chromium is
                                 "(apt-get install -y chromium; tools/setup.sh does it)")
 
 
-@pytest.fixture
-def page():
+@pytest.fixture(scope="module")
+def browser():
+    """One Chromium for this module's tests (a launch costs ~1.5 s of CPU); each test's page has a
+    browser context of its own (cookies, storage, cache)."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+        b = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
         try:
-            pg = browser.new_page(viewport={"width": 1200, "height": 800})
-            pg.set_default_timeout(WAIT_S * 1000)
-            yield pg
+            yield b
         finally:
-            browser.close()
+            b.close()
+
+
+@pytest.fixture
+def page(browser):
+    pg = browser.new_page(viewport={"width": 1200, "height": 800})
+    pg.set_default_timeout(WAIT_S * 1000)
+    try:
+        yield pg
+    finally:
+        pg.context.close()
 
 
 @pytest.mark.slow
