@@ -47,12 +47,16 @@ def test_a_late_reply_is_discarded_where_the_sdk_alone_takes_it_for_the_next_ans
     """The temperature reply comes after its request timed out, while the next one-byte read waits: the
     SDK's own read returns the temperature as that answer; the driver discards it and counts it."""
     dxl_emu.servos[1].temperature_c = 51
-    dxl_emu.faults.add("late", match=(1, Inst.READ))
     port = sdk.PortHandler(dxl_emu.port)  # the SDK alone on the same line, to show what it would take
     assert port.openPort() and port.setBaudRate(1_000_000)
     ph = sdk.Protocol2PacketHandler()
-    assert ph.read1ByteTxRx(port, 1, 146)[1] == sdk.COMM_RX_TIMEOUT
-    value, comm, _ = ph.read1ByteTxRx(port, 1, 64)  # Torque Enable, 0
+    for _ in range(3):  # the SDK waits 34 ms for a reply: a loaded host can miss even the late one
+        dxl_emu.faults.add("late", match=(1, Inst.READ))
+        assert ph.read1ByteTxRx(port, 1, 146)[1] == sdk.COMM_RX_TIMEOUT
+        value, comm, _ = ph.read1ByteTxRx(port, 1, 64)  # Torque Enable, 0
+        if comm != sdk.COMM_RX_TIMEOUT:
+            break
+        port.clearPort()   # both replies came after the SDK gave up: start again
     port.closePort()
     assert (value, comm) == (51, sdk.COMM_SUCCESS)  # the late temperature, taken for Torque Enable
 
