@@ -1,5 +1,5 @@
 """Running the command blocks of README.md and of each page of docs/ as written (tests/test_readme.py),
-and starting the pages that wait on emulated servos early, beside the other tests.
+and starting the pages that wait in real time early, beside the other tests.
 
 A block is a fenced block whose info string starts with ``bash`` (or ``sh``) or ``python``; the others
 (``toml``, ``text``) are not commands. Words after the language say how a person runs it:
@@ -15,14 +15,17 @@ campaign as written without installing anything again; the set-up itself is cove
 tests/test_setup.py. Docs pages run with the environment activated, as the README leaves a shell
 (`source .venv/bin/activate`).
 
-Early start. The pages that start ``gonio emulate`` (README.md, docs/measure.md) spend about 45 s of
-their minute waiting on servos that move in real time. Under pytest-xdist the first worker to finish
-collecting starts them in a background thread (:func:`start_early`) while both workers go on with other
-tests; their test, put last in the order (tests/conftest.py), then only collects the outcome
-(:func:`early_outcome`), wherever it runs. The starter holds an exclusive ``flock`` on a file for as long
-as the pages run and the test takes a shared one, so it waits without polling and a starter that died
-releases it (the test then fails saying so). The starter's worker waits for its runs before it leaves
-(:func:`join_early`). Without xdist the test runs its pages itself.
+Early start. The pages that start ``gonio emulate`` or ``gonio serve`` in a second terminal (README.md,
+docs/measure.md, docs/daemon.md) wait most of their time: on servos that move in real time, on a daemon
+whose simulated gantry keeps the default pace and whose planner runs at idle priority (on a machine
+whose every core runs tests, it plans only when one waits). They run side by side, and under
+pytest-xdist the first worker to finish collecting starts them in a background thread
+(:func:`start_early`) while both workers go on with other tests; their test, put last in the order
+(tests/conftest.py), then only collects the outcome (:func:`early_outcome`), wherever it runs. The
+starter holds an exclusive ``flock`` on a file for as long as the pages run and the test takes a shared
+one, so it waits without polling and a starter that died releases it (the test then fails saying so).
+The starter's worker waits for its runs before it leaves (:func:`join_early`). Without xdist the test
+runs its pages itself.
 """
 
 from __future__ import annotations
@@ -103,25 +106,29 @@ def script(page: str, activated: bool) -> str:
     return "\n".join(lines) + "\n"
 
 
-def emulates(page: str) -> bool:
-    """Whether ``page`` starts ``gonio emulate`` in a second terminal: its campaign then waits on servos
-    that move in real time (README.md and docs/measure.md: about 45 s of their minute is waiting)."""
-    return any("second-terminal" in options and "gonio emulate" in text
+#: The commands that keep running in a second terminal and make a page wait in real time.
+REAL_TIME = ("gonio emulate", "gonio serve")
+
+
+def waits_in_real_time(page: str) -> bool:
+    """Whether ``page`` starts ``gonio emulate`` (servos that move in real time) or ``gonio serve`` (a
+    daemon at the default pace) in a second terminal."""
+    return any("second-terminal" in options and any(cmd in text for cmd in REAL_TIME)
                for _, _, options, text in blocks(page))
 
 
 def page_groups() -> list[tuple[str, ...]]:
-    """The pages with command blocks, each alone, except those that drive emulated servos in real time:
-    they make one group whose pages run side by side (each in its own copy, with its own emulators), so
-    that their waits overlap."""
+    """The pages with command blocks, each alone, except those that wait in real time: they make one
+    group whose pages run side by side (each in its own copy, with its own emulators or daemon), so that
+    their waits overlap."""
     pages = [p for p in PAGES if blocks(p)]
-    real_time = tuple(p for p in pages if emulates(p))
+    real_time = tuple(p for p in pages if waits_in_real_time(p))
     return ([real_time] if real_time else []) + [(p,) for p in pages if p not in real_time]
 
 
 def early_groups() -> list[tuple[str, ...]]:
-    """The groups started early under pytest-xdist: those whose pages wait on emulated servos."""
-    return [g for g in page_groups() if any(emulates(p) for p in g)]
+    """The groups started early under pytest-xdist: those whose pages wait in real time."""
+    return [g for g in page_groups() if any(waits_in_real_time(p) for p in g)]
 
 
 def group_id(group: tuple[str, ...]) -> str:

@@ -1,7 +1,7 @@
 """Every command block of README.md and of each page of docs/ runs as written, in order, on a fresh copy
 of the repository, as a new user would run them (how: tests/pages.py).
 
-The pages that start ``gonio emulate`` wait on servos that move in real time; they run side by side in one
+The pages that start ``gonio emulate`` or ``gonio serve`` wait in real time; they run side by side in one
 test, each in its own copy, and under pytest-xdist they start early, beside the other tests
 (tests/pages.py, "Early start").
 """
@@ -17,7 +17,7 @@ pytestmark = pytest.mark.slow
 #: About how long a page's blocks run alone (s), where it is among the longest tests of the suite: the
 #: order in which ``make test`` starts them (tests/conftest.py); the other pages take 10-30 s. A group
 #: started early goes last instead (``slow(last=True)``): by then its pages have run.
-SECONDS = {"README.md": 80, "docs/measure.md": 60, "docs/batch.md": 40}
+SECONDS = {"docs/batch.md": 40}
 
 
 def _mark(group):
@@ -34,9 +34,9 @@ def test_every_command_block_runs_as_written(pages, tmp_path):
     assert not any(failures), "\n\n".join(f for f in failures if f)
 
 
-def test_the_pages_that_emulate_a_gantry_run_side_by_side_and_every_page_runs():
+def test_the_pages_that_wait_in_real_time_run_side_by_side_and_every_page_runs():
     groups = page_groups()
-    assert groups[0] == ("README.md", "docs/measure.md")
+    assert groups[0] == ("README.md", "docs/daemon.md", "docs/measure.md")
     assert early_groups() == [groups[0]]
     assert sorted(p for g in groups for p in g) == sorted(p for p in PAGES if blocks(p))
 
