@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fly_compare import matches_stop_and_go, simulate_stop_and_go
+from fly_compare import matches_stop_and_go, measurements, simulate_stop_and_go
 
 from gonio.campaign import create_campaign
 from gonio.config import load_config, parse_config
@@ -64,16 +64,23 @@ def test_each_segment_of_a_coordinated_line_starts_with_one_sync_write_of_goal_a
     """One Sync Write at address 108 (Profile Acceleration, Profile Velocity, Goal Position: 12 bytes a
     servo) per segment naming both detector servos (IDs 3, 4) together; as many as the coordinated lines
     have segments (plus one per one-axis line's kickoff, naming one servo)."""
-    _folder, _meta, fp, packets = stage_flown
+    folder, _meta, fp, packets = stage_flown
     starts = [p for p in packets if p.inst == Inst.SYNC_WRITE and p.params[:4] == bytes([108, 0, 12, 0])]
     assert all(p.dxl_id == BROADCAST_ID and p.crc_ok for p in starts)
     ids = [tuple(p.params[4::13]) for p in starts]
     assert all(len(p.params) == 4 + 13 * len(i) for p, i in zip(starts, ids, strict=True))
     together = [i for i in ids if len(i) > 1]
     segments = sum(ln.n - 1 for ln in fp.lines if ln.axis == COORDINATED)
-    assert len(together) == segments and set(together) == {(3, 4)}
     one_axis = sum(1 for ln in fp.lines if ln.moving and ln.axis != COORDINATED)
-    assert len(ids) - len(together) == one_axis
+    assert set(together) == {(3, 4)}
+    # A sweep retried after a transient fault (a reply the loaded host read too late) is flown again from
+    # its start: its Sync Writes go out again, so the counts are exact only where nothing was retried.
+    retries = [e for e in measurements(folder)[1] if e["kind"] == "retry"]
+    if not retries:
+        assert len(together) == segments
+        assert len(ids) - len(together) == one_axis
+    else:
+        assert len(together) >= segments and len(ids) - len(together) >= one_axis, retries
 
 
 def test_a_coordinated_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(
