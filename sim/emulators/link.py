@@ -70,8 +70,14 @@ class PtyLink:
         self.master, self._slave = master, slave
 
     def unplug(self) -> None:
-        """Close both ends: the driver's open port stops working, as when a cable is pulled."""
+        """Close both ends: the driver's open port stops working, as when a cable is pulled; the port's
+        name goes too, as a pulled adapter's /dev/serial/by-id link does (else a driver reopening it could
+        open the pty number another process was given since: another emulator's servo 1)."""
         with self._lock:
+            try:
+                os.unlink(self.port)
+            except FileNotFoundError:
+                pass
             for fd in (self.master, self._slave):
                 if fd is not None:
                     try:
