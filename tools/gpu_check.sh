@@ -26,12 +26,19 @@ mkdir -p "$scratch/w" && cp -r "$repo/tests" "$repo/pyproject.toml" "$scratch/w/
 python3 -c "import sys, drjit as dr, gonio; print(sys.version.split()[0], 'drjit', dr.__version__, 'cuda:',
 dr.has_backend(dr.JitBackend.CUDA), gonio.__file__)"
 echo "== tests on every backend (CUDA the default where present)"
-timeout "${GPU_TEST_TIMEOUT:-240}" python3 -m pytest -q -p no:cacheprovider -rfs --durations=5 \
+timeout "${GPU_TEST_TIMEOUT:-240}" python3 -m pytest -q -p no:cacheprovider -rfs --durations=5 -n "${GPU_TEST_WORKERS:-4}" \
   tests/test_jit.py tests/sim tests/test_fit.py 2>&1 | tail -60
 echo "== camera frames"
 timeout 120 python3 "$repo/tools/bench_camera.py" --frames 20
-echo "== detector per reading"
-timeout 120 python3 "$repo/tools/bench_batch.py" --only detector --poses 300
+for b in llvm cuda; do
+  echo "== detector per reading, $b"
+  GONIO_BACKEND=$b timeout 120 python3 "$repo/tools/bench_batch.py" --only detector --poses 300
+done
+for b in llvm cuda; do
+  echo "== a whole simulated campaign per step (chunked detector path against one step a unit), $b"
+  GONIO_BACKEND=$b timeout 150 python3 "$repo/tools/bench_batch.py" --only campaign --repeats 3 \
+    --campaign-grid iso:step=15
+done
 echo "== float64 accuracy of Dr.Jit operations per backend (max relative error against numpy)"
 python3 - <<'PY'
 import numpy as np
