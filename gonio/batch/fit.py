@@ -55,12 +55,12 @@ def sources(path: Path) -> tuple[str, list]:
 
     path = Path(path)
     if (path / ".zgroup").is_file():
-        from gonio.batch.store import DONE, open_store, row_brdf
+        from gonio.batch.store import DONE, BatchStore
 
-        ds = open_store(path)
-        status = ds["status"].values
-        return "store", [(str(m), row_brdf(ds, k) if status[k] == DONE else None)
-                         for k, m in enumerate(ds["material"].values)]
+        store = BatchStore.open(path)
+        status = store.status()
+        return "store", [(m, store.row(k) if status[k] == DONE else None)
+                         for k, m in enumerate(store.materials)]
     campaigns = sorted(p for p in path.iterdir() if (p / BRDF_NAME).is_file()) if path.is_dir() else []
     if not campaigns:
         raise ValueError(f"{path}: neither a batch store nor a folder of finished campaigns (folders with "

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "MISSING", "DONE", "FAILED", "Row", "BatchStore", "open_store",
-           "row_data", "row_brdf"]
+           "row_data"]
 
 FORMAT = "gonio-batch"
 FORMAT_VERSION = 1
@@ -92,57 +92,76 @@ def _shared_attrs(attrs: dict) -> dict:
 class BatchStore:
     """An open batch store (the Zarr group at ``path``), for :meth:`write` of rows and :meth:`status`."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, mode: str = "r+"):
         import zarr
 
         self.path = Path(path)
-        self._group = zarr.open_group(str(self.path), mode="r+", zarr_format=2)
+        self._group = zarr.open_group(str(self.path), mode=mode, zarr_format=2)
         self.attrs = dict(self._group.attrs)
         self.materials = [str(m) for m in self._group["material"][:]]
 
     @classmethod
+    def open(cls, path) -> BatchStore:
+        """The batch store at ``path``, read-only; ValueError where ``path`` is not a gonio batch store."""
+        path = Path(path)
+        _check_group(path)
+        store = cls(path, mode="r")
+        _check_format(path, store.attrs)
+        return store
+
+    @classmethod
     def create(cls, path: Path, materials: list[str], seed: int, first: Row, batch_attrs: dict) -> BatchStore:
         """Create the store for ``materials`` shaped like ``first`` (every row of a batch has its shape:
-        one grid, one config), under a temporary name renamed into place."""
-        import dask.array as da
-        import xarray as xr
+        one grid, one config), under a temporary name renamed into place.
+
+        Written with zarr alone, as xarray writes a dataset whose variables are not computed yet
+        (``to_zarr(compute=False)``): each variable's dimensions in ``_ARRAY_DIMENSIONS``, the
+        non-dimension coordinates named in ``coordinates``, the coordinates' values, no chunk of a
+        variable, consolidated metadata. The process that writes a batch so imports neither xarray nor
+        dask.array (about 1 s of CPU at every ``gonio batch``)."""
+        import zarr
+
+        from gonio.sim.materials import load
 
         path = Path(path)
         m, (n, c), k = len(materials), first.arrays["value"].shape, first.arrays["grid_index"].shape[1]
         dims = {"material": m, "sample": n, "channel": c, "grid_axis": k}
-        data_vars, encoding = {}, {}
-        for name, arr in first.arrays.items():
-            d = ("material", "sample") + (("channel",) if name in _PER_CHANNEL else
-                                          ("grid_axis",) if name == "grid_index" else ())
-            shape = tuple(dims[x] for x in d)
-            fill = np.nan if arr.dtype.kind == "f" else 0
-            data_vars[name] = (d, da.full(shape, fill, dtype=arr.dtype, chunks=(1,) + shape[1:]))
-            encoding[name] = {"_FillValue": np.nan} if arr.dtype.kind == "f" else {"_FillValue": None}
-        data_vars["status"] = (("material",), da.zeros(m, dtype=np.int8, chunks=1))
-        data_vars["error"] = (("material",), da.full(m, "", dtype=f"<U{ERROR_CHARS}", chunks=1))
-        encoding["status"] = {"_FillValue": None}
-        encoding["error"] = {"_FillValue": None}
-        from gonio.sim.materials import load
-
-        specs = [load(m).spec for m in materials]
         coords = {"material": ("material", np.array(materials, dtype=object)),
-                  "spec": ("material", np.array(specs, dtype=object)),
+                  "spec": ("material", np.array([load(x).spec for x in materials], dtype=object)),
                   "seed": ("material", np.full(m, seed, np.int64)),
                   "sample": ("sample", np.arange(n, dtype=np.int64)),
                   "channel": ("channel", np.array([str(x) for x in first.attrs["channels"]], dtype=object)),
                   "grid_axis": ("grid_axis", np.array(first.attrs["grid_axes"], dtype=object))}
+        variables = {}
+        for name, arr in first.arrays.items():
+            d = ("material", "sample") + (("channel",) if name in _PER_CHANNEL else
+                                          ("grid_axis",) if name == "grid_index" else ())
+            variables[name] = (d, arr.dtype, np.nan if arr.dtype.kind == "f" else None)
+        variables["status"] = (("material",), np.dtype(np.int8), None)
+        variables["error"] = (("material",), np.dtype(f"<U{ERROR_CHARS}"), None)
         attrs = _shared_attrs(first.attrs) | batch_attrs
         attrs |= {"format": FORMAT, "format_version": FORMAT_VERSION}
         attrs.pop("grid_axes", None)
-        ds = xr.Dataset(data_vars, coords=coords, attrs=attrs)
         path.parent.mkdir(parents=True, exist_ok=True)
         for stale in path.parent.glob(f".{path.name}.partial-*"):    # of a run killed while it created
             shutil.rmtree(stale, ignore_errors=True)                   # (the caller holds the batch's lock)
         tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
         try:
+            group = zarr.open_group(str(tmp), mode="w-", zarr_format=2, attributes=attrs)
+            for name, (d, values) in coords.items():
+                # strings as variable-length UTF-8; an empty list (an adaptive grid's grid_axis) as
+                # float64, as xarray stores it; a chunk holds at least one element (Zarr's spec)
+                dtype = values.dtype if values.dtype != object else str if values.size else np.float64
+                group.create_array(name, shape=values.shape, chunks=(max(values.size, 1),), fill_value=None,
+                                   dtype=dtype, attributes={"_ARRAY_DIMENSIONS": [d]})[...] = values
+            others = " ".join(sorted(x for x in coords if x not in dims))
+            for name, (d, dtype, fill) in variables.items():
+                shape = tuple(dims[x] for x in d)
+                group.create_array(name, shape=shape, chunks=(1,) + tuple(max(x, 1) for x in shape[1:]),
+                                   dtype=dtype, fill_value=fill,
+                                   attributes={"coordinates": others, "_ARRAY_DIMENSIONS": list(d)})
             # consolidated: the metadata never changes after this (rows write chunks only)
-            ds.to_zarr(str(tmp), mode="w-", compute=False, encoding=encoding, zarr_format=2,
-                       consolidated=True)
+            zarr.consolidate_metadata(str(tmp), zarr_format=2)
             tmp.rename(path)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -152,6 +171,24 @@ class BatchStore:
     def status(self) -> np.ndarray:
         """Per material: :data:`MISSING`, :data:`DONE` or :data:`FAILED`."""
         return np.asarray(self._group["status"][:])
+
+    def row(self, k: int):
+        """Material ``k`` as the :class:`gonio.dataset.SampledBRDF` its ``brdf.h5`` held (its attributes:
+        the store's, with its material and seed): the values :func:`open_store` gives, read with zarr
+        alone (no xarray, no dask in the process that reads)."""
+        from gonio.dataset import SampledBRDF
+
+        g = self._group
+        attrs = self.attrs | {"material": str(g["spec"][k]), "seed": int(g["seed"][k])}
+        for key in ("symmetries", "config"):
+            if isinstance(attrs.get(key), str):
+                attrs[key] = json.loads(attrs[key])
+        get = {name: np.asarray(g[name][k]) for name in (*_PER_SAMPLE, *_PER_CHANNEL, "grid_index")}
+        planned = np.stack([get[f"{a}_planned"] for a in _ANGLES], axis=1)
+        return SampledBRDF(*(get[a] for a in _ANGLES), get["value"], get["stddev"], attrs, planned=planned,
+                           step=get["step"], pose=get["pose"], exposure_s=get["exposure_s"],
+                           campaign_s=get["campaign_s"], grid_index=get["grid_index"],
+                           grid_axes=tuple(str(a) for a in g["grid_axis"][:]))
 
     def write(self, i: int, row: Row) -> None:
         """Material ``i``'s row: its arrays, then its status (done, or failed with ``row.error``)."""
@@ -169,22 +206,15 @@ class BatchStore:
         self._group["status"][i] = DONE
 
 
-def row_brdf(ds, k: int):
-    """Material ``k`` of an open store (:func:`open_store`) as the :class:`gonio.dataset.SampledBRDF`
-    its ``brdf.h5`` held (its attributes: the store's, with its material and seed)."""
-    from gonio.dataset import SampledBRDF
+def _check_group(path: Path) -> None:
+    if not (path / ".zgroup").is_file():
+        raise ValueError(f"{path}: not a batch store (no Zarr group there)")
 
-    row = ds.isel(material=k).load()
-    attrs = dict(ds.attrs) | {"material": str(row["spec"].values), "seed": int(row["seed"].values)}
-    for key in ("symmetries", "config"):
-        if isinstance(attrs.get(key), str):
-            attrs[key] = json.loads(attrs[key])
-    get = {name: row[name].values for name in row.data_vars}
-    planned = np.stack([get[f"{a}_planned"] for a in _ANGLES], axis=1)
-    return SampledBRDF(*(get[a] for a in _ANGLES), get["value"], get["stddev"], attrs, planned=planned,
-                       step=get["step"], pose=get["pose"], exposure_s=get["exposure_s"],
-                       campaign_s=get["campaign_s"], grid_index=get["grid_index"],
-                       grid_axes=tuple(str(a) for a in ds["grid_axis"].values))
+
+def _check_format(path: Path, attrs) -> None:
+    if attrs.get("format") != FORMAT:
+        raise ValueError(f"{path}: a Zarr store, but not a gonio batch store (format "
+                         f"{attrs.get('format')!r})")
 
 
 def open_store(path):
@@ -198,10 +228,7 @@ def open_store(path):
     import xarray as xr
 
     path = Path(path)
-    if not (path / ".zgroup").is_file():
-        raise ValueError(f"{path}: not a batch store (no Zarr group there)")
+    _check_group(path)
     ds = xr.open_zarr(str(path), consolidated=True)
-    if ds.attrs.get("format") != FORMAT:
-        raise ValueError(f"{path}: a Zarr store, but not a gonio batch store (format "
-                         f"{ds.attrs.get('format')!r})")
+    _check_format(path, ds.attrs)
     return ds
