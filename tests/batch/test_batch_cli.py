@@ -45,7 +45,12 @@ def _stop(p: subprocess.Popen, sig=signal.SIGTERM) -> None:
 
 
 def _done(store: Path) -> int:
+    """Rows done in ``store``. A row's status is written as one chunk file of ``status`` (a missing row has
+    none: Zarr leaves a chunk that holds only the fill value unwritten), so until a chunk file is there no
+    row is done and the store is not opened: polled every 10 ms, this costs a directory listing."""
     try:
+        if not any(name[:1].isdigit() for name in os.listdir(store / "status")):
+            return 0
         return int((zarr.open_group(str(store), mode="r")["status"][:] == DONE).sum())
     except Exception:        # not created yet
         return 0
