@@ -20,7 +20,7 @@ from gonio.store import JOURNAL_NAME
 from gonio.wiring import build_gantry
 
 MATERIAL = "ggx:alpha=0.3,metal=gold"
-GRID = "iso:step=10"
+GRID = "iso:step=15"
 
 
 def simulate(folder: Path) -> None:
