@@ -47,3 +47,74 @@ def test_what_the_workers_are_told_silences_the_heartbeat_traceback_of_a_closing
     finally:
         for name in ("distributed.worker", "distributed.core", "distributed.comm", "distributed.nanny"):
             logging.getLogger(name).setLevel(before if name == "distributed.worker" else logging.NOTSET)
+
+
+class _Scheduler:
+    """What dashboard_link asks of a client: the scheduler's address and its services."""
+
+    def __init__(self, port):
+        self.scheduler = type("S", (), {"address": "tcp://127.0.0.1:8786"})()
+        self.port = port
+
+    def scheduler_info(self, n_workers):
+        return {"services": {} if self.port is None else {"dashboard": self.port}}
+
+
+def test_the_dashboard_link_says_what_the_schedulers_http_server_answers():
+    """A dashboard: its address; Dask's page that says bokeh is missing: a note; an error status or no
+    answer at all: nothing (each from a loopback server answering as told)."""
+    import http.server
+    import socket
+    import threading
+
+    answer = {}
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):
+            answer["path"] = self.path
+            body = answer["body"].encode()
+            self.send_response(answer["status"])
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args):
+            pass
+
+    server = http.server.HTTPServer(("127.0.0.1", 0), Handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        port = server.server_address[1]
+        for status, body, want in (
+                (200, "<html>the dashboard</html>", f"http://127.0.0.1:{port}/status"),
+                (200, "Dask needs bokeh>=3.1.0 for the dashboard.", "none (the scheduler lacks bokeh >= 3.1, "
+                 "which the dashboard needs)"),
+                (404, "not found", None), (500, "bokeh", None)):
+            answer.update(status=status, body=body)
+            assert cluster.dashboard_link(_Scheduler(port)) == want, (status, body)
+            assert answer["path"] == "/status"
+    finally:
+        server.shutdown()
+        server.server_close()
+    with socket.socket() as s:          # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        closed = s.getsockname()[1]
+    assert cluster.dashboard_link(_Scheduler(closed)) is None
+    assert cluster.dashboard_link(_Scheduler(None)) is None     # no dashboard service at all
+
+
+def test_the_dashboard_link_of_a_real_scheduler():
+    """A Dask scheduler on loopback TCP (no workers: none are asked) serves its HTTP pages: its dashboard,
+    or (bokeh not installed) the page saying it needs bokeh, which the link reports as such."""
+    import importlib.util
+
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=0, processes=False, protocol="tcp://", host="127.0.0.1",
+                      dashboard_address="127.0.0.1:0") as lc, Client(lc) as client:
+        link = cluster.dashboard_link(client)
+    if importlib.util.find_spec("bokeh") is None:
+        assert link == "none (the scheduler lacks bokeh >= 3.1, which the dashboard needs)"
+    else:
+        assert link.startswith("http://127.0.0.1:") and link.endswith("/status")
