@@ -103,11 +103,12 @@ class BatchStore:
     @classmethod
     def open(cls, path) -> BatchStore:
         """The batch store at ``path``, read-only; ValueError where ``path`` is not a gonio batch store."""
+        import zarr
+
         path = Path(path)
         _check_group(path)
-        store = cls(path, mode="r")
-        _check_format(path, store.attrs)
-        return store
+        _check_format(path, zarr.open_group(str(path), mode="r", zarr_format=2).attrs)
+        return cls(path, mode="r")
 
     @classmethod
     def create(cls, path: Path, materials: list[str], seed: int, first: Row, batch_attrs: dict) -> BatchStore:

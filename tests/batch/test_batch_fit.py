@@ -79,3 +79,18 @@ def test_a_folder_of_campaigns_is_fitted_each_and_workers_for_one_campaign_refus
     capsys.readouterr()
     assert main(["fit", str(folder / "0.2"), "--model", "lambert", "--workers", "2"]) == 2
     assert "--workers/--scheduler: for a batch store or a folder of campaigns" in capsys.readouterr().err
+
+
+def test_a_zarr_store_of_something_else_is_refused_in_one_line_before_any_cluster(tmp_path, capsys):
+    from cli_helpers import one_clear_line
+
+    from gonio.cli import main
+
+    other = tmp_path / "other.zarr"
+    group = zarr.open_group(str(other), mode="w", zarr_format=2)
+    group.attrs["format"] = "someone-else"
+    group.create_array("x", shape=(3,), dtype="f8")
+    out = tmp_path / "fits.csv"
+    assert main(["fit", str(other), "--model", "lambert", "--workers", "1", "--out", str(out)]) == 2
+    one_clear_line(capsys, str(other), "not a gonio batch store", "'someone-else'")
+    assert not out.exists()
