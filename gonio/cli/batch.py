@@ -33,6 +33,13 @@ def _check_out(text: str) -> Path:
         raise UsageError(f"--out: {out} is a file; a batch store is a folder (e.g. batch.zarr)")
     if out.is_dir() and not (out / ".zgroup").is_file():
         raise UsageError(f"--out: {out} is a folder but no batch store; choose a new name (e.g. batch.zarr)")
+    if out.is_dir():
+        from gonio.batch.store import BatchStore
+
+        try:
+            BatchStore.open(out)
+        except ValueError as e:
+            raise UsageError(f"--out: {e}; choose a new name (e.g. batch.zarr)") from None
     return creatable_folder(out)
 
 

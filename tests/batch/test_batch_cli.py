@@ -161,9 +161,21 @@ def test_bad_arguments_are_refused_by_the_parser_nothing_written(tmp_path, capsy
     assert list(tmp_path.iterdir()) == []
 
 
+def _other_zarr(path: Path) -> None:
+    group = zarr.open_group(str(path), mode="w", zarr_format=2)
+    group.attrs["format"] = "someone-else"
+    group.create_array("x", shape=(3,), dtype="f8")
+
+
 def test_a_file_or_a_folder_that_is_no_store_is_refused_as_out(tmp_path, capsys):
-    for name, make in (("f.zarr", lambda p: p.write_text("x")), ("d.zarr", lambda p: p.mkdir())):
+    """A file, a folder, and a Zarr store of something else: one line, exit 2, left as they were (the
+    Zarr store was read for its materials and ended in a KeyError traceback, after a cluster started)."""
+    for name, make, says in (("f.zarr", lambda p: p.write_text("x"), "is a file"),
+                             ("d.zarr", lambda p: p.mkdir(), "no batch store"),
+                             ("z.zarr", _other_zarr, "not a gonio batch store (format 'someone-else')")):
         out = tmp_path / name
         make(out)
+        before = sorted(out.rglob("*")) if out.is_dir() else out.read_bytes()
         assert main(["batch", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", str(out)]) == 2
-        one_clear_line(capsys, "gonio batch: --out:")
+        one_clear_line(capsys, "gonio batch: --out:", says)
+        assert before == (sorted(out.rglob("*")) if out.is_dir() else out.read_bytes())   # left alone
