@@ -6,11 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import planned
 import pytest
 import xarray as xr
 
 from gonio.batch import DONE, FAILED, MISSING, BatchStore, open_store, read_materials, run_batch
-from gonio.campaign import create_campaign
 from gonio.config import load_config
 from gonio.dataset import read_brdf
 from gonio.lifecycle import run_campaign
@@ -32,7 +32,7 @@ def _simulated(tmp_path: Path, material: str, grid: str = GRID):
     """What gonio simulate writes for the material (its steps, in this process)."""
     cfg = load_config()
     folder = tmp_path / f"ref-{abs(hash(material))}"
-    c = create_campaign(folder, cfg, grid=grid, material=load(material).spec, seed=SEED)
+    c = planned.create(folder, cfg, grid=grid, material=load(material).spec, seed=SEED)
     try:
         state, _ = run_campaign(c, build_gantry(cfg, material, seed=SEED))
     finally:
