@@ -66,6 +66,8 @@ def test_never_clear_where_the_dense_replay_collides(design):
     hit = replay(kin, a, b, step_deg=0.1)
     assert not np.any(clear & hit)
     assert hit.sum() > 100 and clear.sum() > 100      # both outcomes occur
+    # The check without margins (what the planner asks of its candidate moves) answers the same.
+    np.testing.assert_array_equal(kin.sweep_clear(a, b), clear)
     # The margin means what it says: a move it puts 1° into the rule collides at some sample (the
     # margin changes by at most 0.2° between samples 0.1° of travel apart) ...
     assert np.all(hit[margin < -1.0])
@@ -86,6 +88,7 @@ def test_certified_on_arbitrary_moves(design, data):
         assert not replay(kin, a, b, step_deg=0.02)[0]
     one = kin.sweep_clear_one(a, b)
     assert one[0] == clear[0] and one[1] == pytest.approx(margin[0], abs=1e-9)
+    assert kin.sweep_clear(a, b)[0] == clear[0]
 
 
 def test_two_arm_margin_is_the_exact_smallest_separation():
