@@ -27,7 +27,7 @@ from gonio.motion.relaxed import pose_branches, relaxed_campaign_bound
 sys.path.insert(0, str(Path(__file__).parent))
 from exact import held_karp  # noqa: E402
 
-SUBSETS = 200
+SUBSETS = 100
 
 
 @pytest.fixture(scope="module", params=["sim.toml", "sample-stage.toml"])
