@@ -119,18 +119,17 @@ def best_branch_walk(branches, ref, lengths, metric) -> float:
     n = branches.shape[0]
     pair = metric.time(branches[:, None, :, None, :], branches[None, :, None, :, :])  # (n, n, W, W)
     enter = metric.time(ref, branches)  # (n, W)
-    best = np.inf
-    for perm in itertools.permutations(range(n)):
-        cost, i = 0.0, 0
-        for length in lengths:
-            run = perm[i:i + length]
-            i += length
-            c = enter[run[0]].copy()
-            for a, b in zip(run[:-1], run[1:], strict=True):
-                c = np.min(c[:, None] + pair[a, b], axis=0)
-            cost += float(np.min(c + enter[run[-1]]))
-        best = min(best, cost)
-    return best
+    # Every order at once (rows), each run's branches by dynamic programming along it.
+    perms = np.array(list(itertools.permutations(range(n))))
+    cost, i = np.zeros(perms.shape[0]), 0
+    for length in lengths:
+        run = perms[:, i:i + length]
+        i += length
+        c = enter[run[:, 0]]
+        for a, b in zip(run.T[:-1], run.T[1:], strict=True):
+            c = np.min(c[:, :, None] + pair[a, b], axis=1)
+        cost += np.min(c + enter[run[:, -1]], axis=1)
+    return float(cost.min())
 
 
 @pytest.mark.parametrize("metric", [UNIFORM, MIXED], ids=["uniform", "mixed"])
