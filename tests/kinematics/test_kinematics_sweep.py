@@ -95,13 +95,18 @@ def test_two_arm_margin_is_the_exact_smallest_separation():
     kin = SLOW_DETECTOR
     a, b = random_moves(kin, 500, 3)
     _, margin = kin.sweep_clearance(a, b)
-    # Brute force: the smallest carriage separation over 20,000 instants of each move.
+    # Brute force: the smallest carriage separation over 20,000 instants of each move (16 moves at a
+    # time: the same figures, with temporaries that stay in cache).
     v, acc = kin.velocity_deg_s, kin.accel_deg_s2
     total = np.max(move_time(b - a, v, acc), axis=1)
-    t = np.linspace(0, 1, 20001)[:, None] * total
-    light = position_at(t, a[:, 0], b[:, 0], v[0], acc[0])
-    gap = np.mod(light - position_at(t, a[:, 2], b[:, 2], v[2], acc[2]), 360.0)
-    brute = np.min(np.minimum(gap, 360.0 - gap), axis=0) - kin.arm_collision_deg
+    frac = np.linspace(0, 1, 20001)[:, None]
+    brute = np.empty(a.shape[0])
+    for lo in range(0, a.shape[0], 16):
+        m = slice(lo, lo + 16)
+        t = frac * total[m]
+        light = position_at(t, a[m, 0], b[m, 0], v[0], acc[0])
+        gap = np.mod(light - position_at(t, a[m, 2], b[m, 2], v[2], acc[2]), 360.0)
+        brute[m] = np.min(np.minimum(gap, 360.0 - gap), axis=0) - kin.arm_collision_deg
     assert np.all(margin <= brute + 1e-9)                 # never more optimistic than any instant
     moved = np.max(np.abs(b - a)[:, [0, 2]], axis=1)
     np.testing.assert_array_less(brute - margin, moved / 20000 * 2 + 1e-9)   # and within sampling
