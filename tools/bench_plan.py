@@ -11,6 +11,7 @@ printed, never asserted: they depend on the machine and its load.
     .venv/bin/python tools/bench_plan.py --subsets  # worst gap of tours on 8-12 (13-14) pose subsets, windows
     .venv/bin/python tools/bench_plan.py --orders   # serpentine vs tours (kicks, seeds) vs auto; bounds
     .venv/bin/python tools/bench_plan.py --cpu      # CPU s of the parts small plans and the tests lean on
+    .venv/bin/python tools/bench_plan.py --digest   # a hash of every array and figure of reference plans
 
 Figures:
 
@@ -475,6 +476,44 @@ def cpu_rows(seed: int) -> None:
               flush=True)
 
 
+DIGEST_GRIDS = ["iso:step=10", "iso:step=5", "full:step=15", "merl:stride=8", "iso:step=15",
+                "iso:step=30,mirror=true", "iso:step=20,order=tour", "full:step=20", "iso:step=10,order=auto"]
+
+
+def plan_digest(plan) -> str:
+    """SHA-256 (16 hex digits) of every array, mapping and figure of a plan, in field order: equal
+    digests before and after a change meant as a pure speed-up show the plans are the same bit for bit."""
+    import hashlib
+    from dataclasses import fields
+
+    h = hashlib.sha256()
+    for f in fields(plan):
+        value = getattr(plan, f.name)
+        h.update(f.name.encode())
+        if isinstance(value, np.ndarray):
+            h.update(np.ascontiguousarray(value).tobytes())
+        elif isinstance(value, dict):
+            for key in sorted(value, key=str):
+                item = value[key]
+                h.update(repr(key).encode())
+                h.update(np.ascontiguousarray(item).tobytes() if isinstance(item, np.ndarray)
+                         else repr(item).encode())
+        else:
+            h.update(repr(value).encode())
+    return h.hexdigest()[:16]
+
+
+def digest_rows(grids) -> None:
+    """One line per gantry and grid: the plan's digest, estimate and bound (diff two trees' outputs)."""
+    for name, path in CONFIGS.items():
+        cfg = load_config(path)
+        kin = make_kinematics(cfg)
+        for grid in grids:
+            plan = build_plan(grid, cfg, kin)
+            print(f"{name}  {grid}  {plan_digest(plan)}  {plan.estimated_s!r}  {plan.lower_bound_s!r}",
+                  flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip iso:step=1 and use 5,000 scattered poses")
@@ -494,7 +533,13 @@ def main() -> None:
                     help="only the swept-path figures: iso:step=1 build and the single-move check cost")
     ap.add_argument("--cpu", action="store_true",
                     help="CPU s of small and medium plans, tours' refinement and bounds of small sets")
+    ap.add_argument("--digest", nargs="*", metavar="GRID",
+                    help="only a digest of every array and figure of these plans on both gantries "
+                         f"(default: {', '.join(DIGEST_GRIDS)})")
     args = ap.parse_args()
+    if args.digest is not None:
+        digest_rows(args.digest or DIGEST_GRIDS)
+        return
     print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, python {platform.python_version()}, "
           f"numpy {np.__version__}; load average at start {os.getloadavg()[0]:.2f}\n")
     if args.bounds:

@@ -32,11 +32,14 @@ it then returns (θi, φi, θo, φo).
 
 Purity: the only inputs are the samples, ``n``, the gantry (its reach), theta_max, the domain and a
 seed; random numbers come from ``numpy.random.default_rng([seed, len(samples)])``; nothing reads a clock
-or a global state. The same inputs give the same poses, bit for bit, which is what lets a resume replay a
+or a global state (the seeded uniform cloud is remembered per process, a pure function of theta_max, the
+seed and the domain). The same inputs give the same poses, bit for bit, which is what lets a resume replay a
 round from the journal.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -76,10 +79,9 @@ def cell_errors(samples: Samples, theta_max: float, domain: str = CELLS, seed: i
 
     points, owner = samples.points(domain)
     n = len(samples)
-    wi, wo = random_pairs(CLOUD, theta_max, seed)
-    cloud = embed_pairs(domain, wi, wo)
     near = spacing(cKDTree(points), points, owner, n)
-    radius = cKDTree(cloud).query(points[:n], k=DENSITY_NEIGHBOURS)[0][:, -1]
+    cloud = _cloud_tree(float(theta_max), int(seed), domain)
+    radius = cloud.query(points[:n], k=DENSITY_NEIGHBOURS)[0][:, -1]
     dim = points.shape[1]
     density = DENSITY_NEIGHBOURS / (CLOUD * radius ** dim)  # per unit volume, up to a constant
     weight = np.cos(samples.theta_i) * np.cos(samples.theta_o)
@@ -155,6 +157,24 @@ def plan_round(samples: Samples, n: int, kin, theta_max: float, domain: str = CE
     return tuple(out[:, c].copy() for c in range(columns))
 
 
+@functools.lru_cache(maxsize=8)
+def _cloud(theta_max: float, seed: int, domain: str) -> np.ndarray:
+    """The seeded uniform cloud of :data:`CLOUD` pairs embedded in ``domain`` (read-only). It depends on
+    these three alone, so the rounds of a campaign draw it once per process, not once a round."""
+    wi, wo = random_pairs(CLOUD, theta_max, seed)
+    cloud = embed_pairs(domain, wi, wo)
+    cloud.flags.writeable = False
+    return cloud
+
+
+@functools.lru_cache(maxsize=8)
+def _cloud_tree(theta_max: float, seed: int, domain: str):
+    """A k-d tree over :func:`_cloud` (queries only), built once per process."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(_cloud(theta_max, seed, domain))
+
+
 def spacing(tree, points, owner, n: int) -> np.ndarray:
     """ρ_j: each of the first ``n`` points' distance to the nearest point of another sample (a pose on the
     specular line θo = θi, Δφ = π is its own reciprocal twin: that copy does not count)."""
@@ -185,8 +205,7 @@ def _fallback(samples, chosen, count, kin, theta_max, domain, seed, tree):
     first (fewer when the cloud holds no more reachable poses apart from every sample)."""
     from scipy.spatial import cKDTree
 
-    wi, wo = random_pairs(CLOUD, theta_max, seed + 1)
-    cloud = embed_pairs(domain, wi, wo)
+    cloud = _cloud(float(theta_max), int(seed) + 1, domain)
     ok, *angles = _measurable(kin, cloud, theta_max, domain)
     idx = np.flatnonzero(ok)
     if idx.size == 0:

@@ -287,6 +287,20 @@ class Kinematics:
             exact on the two-arm gantry, a certified lower bound on the sample-stage gantry (within
             1e-3° of the true minimum when negative). Limits are not part of it.
         """
+        start, end = self._moves(start_deg, end_deg)
+        margin = self._sweep_margin(start, end) if start.shape[0] else np.empty(0)
+        return (margin >= -DEG_TOL) & self.within_limits(start) & self.within_limits(end), margin
+
+    def sweep_clear(self, start_deg, end_deg) -> np.ndarray:
+        """The first result of :meth:`sweep_clearance` alone (bool (M,)), the same move for move, without
+        the margins: quicker where a design refines a margin only until it is known to break the rule
+        (the planner asks this of every candidate move)."""
+        start, end = self._moves(start_deg, end_deg)
+        margin = self._sweep_margin_below(start, end, -DEG_TOL) if start.shape[0] else np.empty(0)
+        return (margin >= -DEG_TOL) & self.within_limits(start) & self.within_limits(end)
+
+    def _moves(self, start_deg, end_deg) -> tuple[np.ndarray, np.ndarray]:
+        """Validated (start, end) rows of moves, one row broadcast against the other's count."""
         start = self._axes(start_deg, "start_deg")
         end = self._axes(end_deg, "end_deg")
         if start.shape != end.shape:
@@ -297,8 +311,7 @@ class Kinematics:
             else:
                 raise ValueError(f"start_deg, end_deg: {start.shape[0]} and {end.shape[0]} rows; give equal "
                                  "counts or one row")
-        margin = self._sweep_margin(start, end) if start.shape[0] else np.empty(0)
-        return (margin >= -DEG_TOL) & self.within_limits(start) & self.within_limits(end), margin
+        return start, end
 
     def sweep_clear_one(self, start_deg, end_deg) -> tuple[bool, float]:
         """:meth:`sweep_clearance` of one move given as two sequences of floats (unvalidated), in plain
@@ -352,6 +365,11 @@ class Kinematics:
     def _sweep_margin(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """Smallest collision margin (M,) in degrees over moves (M, n_axes) -> (M, n_axes)."""
         raise NotImplementedError
+
+    def _sweep_margin_below(self, start: np.ndarray, end: np.ndarray, floor: float) -> np.ndarray:
+        """:meth:`_sweep_margin`, except that a margin below ``floor`` may be any value below it (a design
+        whose margins are refined iteratively stops there; by default the margins themselves)."""
+        return self._sweep_margin(start, end)
 
     def _sweep_margin_one(self, start: list, end: list) -> float:
         """:meth:`_sweep_margin` of one move in plain floats."""

@@ -199,6 +199,10 @@ class SampleStage(Kinematics):
     def _sweep_margin(self, start, end):
         return lipschitz_min(self.support_margin, start, end, self.velocity_deg_s, self.accel_deg_s2, (2, 3))
 
+    def _sweep_margin_below(self, start, end, floor):
+        return lipschitz_min(self.support_margin, start, end, self.velocity_deg_s, self.accel_deg_s2, (2, 3),
+                             floor=floor)
+
     def _sweep_margin_one(self, start, end):
         # Most moves are proved clear by the bound over the whole move; only the others pay for numpy.
         g0 = self._support_margin_one(start[2], start[3])

@@ -136,8 +136,8 @@ def difference_range_scalar(sj, ej, sk, ek, v_j, a_j, v_k, a_k) -> tuple[float, 
     return min(values), max(values)
 
 
-def lipschitz_min(margin_fn, start, end, velocity, accel, axes, tol_deg: float = MARGIN_TOL_DEG
-                  ) -> np.ndarray:
+def lipschitz_min(margin_fn, start, end, velocity, accel, axes, tol_deg: float = MARGIN_TOL_DEG,
+                  floor: float | None = None) -> np.ndarray:
     """A certified lower bound (M,) on ``min_t margin_fn(x(t))`` over each move, degrees.
 
     Parameters
@@ -156,6 +156,11 @@ def lipschitz_min(margin_fn, start, end, velocity, accel, axes, tol_deg: float =
         Where the first bound is negative, intervals are bisected until the bound is within this of the
         smallest sampled margin (or proves the move clear): the result is then that close to the
         true minimum. Where the first bound is >= 0 it is returned as is.
+    floor : float, optional
+        Only whether each bound is below ``floor`` is wanted: a move stops being refined as soon as a
+        sampled margin or a settled interval's bound is below it (every sample's margin ends up in some
+        settled interval's bound, so the full refinement would end below it too), and its result is
+        then some value below ``floor``. Results at or above ``floor`` are those of a call without it.
 
     Returns
     -------
@@ -203,6 +208,8 @@ def lipschitz_min(margin_fn, start, end, velocity, accel, axes, tol_deg: float =
         settled = (lb >= 0.0) | (lb >= best[move] - tol_deg)
         np.minimum.at(lower, move[settled], np.minimum(lb[settled], np.minimum(g0, g1)[settled]))
         keep = ~settled
+        if floor is not None:
+            keep &= np.minimum(lower, best)[move] >= floor
         if not keep.any():
             break
         move, t0, t1, g0, g1, p0, p1 = (x[keep] for x in (move, t0, t1, g0, g1, p0, p1))
@@ -219,4 +226,7 @@ def lipschitz_min(margin_fn, start, end, velocity, accel, axes, tol_deg: float =
         lb = 0.5 * (g0 + g1 - np.sum(np.abs(p1 - p0), axis=1))
         np.minimum.at(lower, move, lb)
     out[need] = lower[need]
+    if floor is not None:
+        below = np.minimum(lower[need], best[need]) < floor
+        out[need[below]] = np.minimum(lower, best)[need[below]]
     return out

@@ -153,7 +153,7 @@ def _solve_group(kin, metric, poses, free, r_starts, r_ends, ref, out, check_mov
                 at_free = np.flatnonzero(~known)
             if check_moves and at_free.size:
                 finite = np.flatnonzero(~np.isnan(home[at_free].reshape(-1)))
-                clear, _ = kin.sweep_clearance(prev[d[at_free]].reshape(-1, n_axes)[finite], ref)
+                clear = kin.sweep_clear(prev[d[at_free]].reshape(-1, n_axes)[finite], ref)
                 sub = home[at_free]
                 sub.reshape(-1)[finite[~clear]] += COLLISION_PENALTY_S
                 home[at_free] = sub
@@ -211,7 +211,7 @@ def _clear_moves(kin, sols, free, starts, ends, ref):
         b = np.concatenate([sols[lo + r, j], np.broadcast_to(ref, (home_r.size, n_axes))])
         if a.shape[0] == 0:
             continue
-        clear = kin.sweep_clearance(a, b)[0]
+        clear = kin.sweep_clear(a, b)
         clear_in[lo + r, i, j] = clear[:r.size]
         clear_home[lo + home_r, home_j] = clear[r.size:]
     return clear_in, clear_home
@@ -240,7 +240,7 @@ def _free_candidates(kin, metric, poses, prev, before, width, home_part, ref, ch
     times = np.where(np.isnan(times), np.inf, times)
     if check_moves:
         b, i, j = np.nonzero(np.isfinite(times))
-        clear, _ = kin.sweep_clearance(prev[b, i], sols[b, i, j])
+        clear = kin.sweep_clear(prev[b, i], sols[b, i, j])
         times[b[~clear], i[~clear], j[~clear]] += COLLISION_PENALTY_S
     through = before[:, :, None] + times
     via = np.argmin(through, axis=1)                                   # (F, n_b)
@@ -266,7 +266,7 @@ def _price_collisions(kin, times, prev, cand) -> None:
     if not finite.any():
         return
     b, i, j = np.nonzero(finite)
-    clear, _ = kin.sweep_clearance(prev[b, i], cand[b, j])
+    clear = kin.sweep_clear(prev[b, i], cand[b, j])
     times[b[~clear], i[~clear], j[~clear]] += COLLISION_PENALTY_S
 
 

@@ -130,7 +130,7 @@ def _prim(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     child = np.empty(n - 1, dtype=np.int64)
     closer = np.empty(n, dtype=bool)
     for step in range(n - 1):
-        j = int(np.argmin(best))
+        j = int(best.argmin())
         child[step] = j
         left[j] = False
         best[j] = np.inf
@@ -168,11 +168,13 @@ def _prim_lists(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array(child, dtype=np.int64), np.array([parent[c] for c in child], dtype=np.int64)
 
 
-def _relaxation(pair, to_ref, pi, runs: int):
+def _relaxation(pair, to_ref, pi, runs: int, scratch=None):
     """The Lagrangian relaxation at penalties ``pi`` for ``runs`` runs: its value, each pose's degree
-    in it, and the parts :func:`lagrangian_motion` needs for other run counts."""
+    in it, and the parts :func:`lagrangian_motion` needs for other run counts. ``scratch``: an array
+    like ``pair`` to hold the penalised times (a new one each step costs as much as a Prim)."""
     n = pair.shape[0]
-    child, parent = _prim(pair + pi[:, None] + pi[None, :])
+    weights = np.add(pair, pi[:, None], out=scratch)
+    child, parent = _prim(np.add(weights, pi[None, :], out=weights))
     w = pair[child, parent] + pi[child] + pi[parent]
     order = np.argsort(w, kind="stable")
     kept = order[:n - runs]
@@ -210,8 +212,9 @@ def lagrangian_penalties(pair, to_ref, runs: int, steps: int = LAGRANGE_STEPS) -
     previous = np.zeros(n)
     length = None
     since = 0   # steps since the value last rose by more than a part in 10⁹
+    scratch = np.empty_like(pair)
     for k in range(int(steps)):
-        value, degree, _, _ = _relaxation(pair, to_ref, pi, runs)
+        value, degree, _, _ = _relaxation(pair, to_ref, pi, runs, scratch)
         since = 0 if value > best_value + 1e-9 * abs(best_value if np.isfinite(best_value) else value) \
             else since + 1
         if value > best_value:

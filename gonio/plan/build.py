@@ -412,7 +412,7 @@ def _best_reference(kin, options: np.ndarray, angles, starts: np.ndarray, home: 
     # A branch the gantry cannot reach from home without a collision is no option; one whose move
     # from home collides only as made directly would need via points: the last resort.
     cost[kin.free_component(options) != kin.free_component(home)[0]] = np.inf
-    cost[~kin.sweep_clearance(np.broadcast_to(home, options.shape), options)[0]] += COLLISION_PENALTY_S
+    cost[~kin.sweep_clear(np.broadcast_to(home, options.shape), options)] += COLLISION_PENALTY_S
     for k, option in enumerate(options):
         here = np.broadcast_to(option, (ends.size, option.size))
         near = nearest_branch(sols, here, metric)

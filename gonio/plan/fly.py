@@ -157,7 +157,7 @@ def _lines_of_run(kin, axes, i, j, axis, step, exposure_s) -> list[FlyLine]:
     """The lines a run becomes: split where its sweep collides, each rest to rest between its end
     poses at the axis's top speed and acceleration."""
     pts = axes[i:j]
-    clear, _ = kin.sweep_clearance(pts[:-1], pts[1:])
+    clear = kin.sweep_clear(pts[:-1], pts[1:])
     if not clear.all():
         cut = int(np.argmin(clear)) + 1
         head = _lines_of_run(kin, axes, i, i + cut, axis, step, exposure_s) if cut > 1 else \

@@ -50,7 +50,7 @@ def colliding_runs(kin, step_kind, step_pose, axes_deg, reference_deg, home_deg,
     """Indices of the runs with a move into, inside or out of them that collides in transit."""
     targets = step_targets(step_kind, step_pose, axes_deg, reference_deg)
     steps, a, b = _moves(targets, np.asarray(home_deg, dtype=np.float64))
-    clear, _ = kin.sweep_clearance(a, b)
+    clear = kin.sweep_clear(a, b)
     bad = steps[~clear]
     bad = bad[bad >= 0]
     runs = []

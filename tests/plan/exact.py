@@ -48,13 +48,18 @@ def held_karp(branches, start, end, v, acc) -> float:
         dp[1 << i, i] = first[i]
     # One layer of sets at a time (those of k poses visited), all its sets at once:
     # best[m, j, c] = min over (i, b) of dp[m, i, b] + d[i, b, j, c], then each j not in m extends m.
-    # Each (set of k+1, last pose) has exactly one set of k it comes from, so one assignment fills it.
+    # Only a pose i in m can be its last (dp is infinite for the others): the sets holding each i are
+    # taken in turn. Each (set of k+1, last pose) has exactly one set of k it comes from, so one
+    # assignment fills it.
     masks = np.arange(full)
     size = np.array([m.bit_count() for m in range(full)])
-    flat = d.reshape(n * w, n, w)
     for k in range(1, n):
         layer = masks[size == k]
-        best = np.min(dp[layer].reshape(layer.size, n * w, 1, 1) + flat[None], axis=1)   # (sets, n, w)
+        best = np.full((layer.size, n, w), np.inf)
+        for i in range(n):
+            rows = np.flatnonzero(layer & (1 << i))
+            via = np.min(dp[layer[rows], i][:, :, None, None] + d[i][None], axis=1)   # (sets, n, w)
+            best[rows] = np.minimum(best[rows], via)
         for j in range(n):
             lacking = (layer & (1 << j)) == 0
             dp[layer[lacking] | (1 << j), j] = best[lacking, j]

@@ -23,21 +23,32 @@ from gonio.registries import ORDERS
 CONFIG_DIR = DEFAULT_CONFIG.parent
 
 
-def _distinct_configs() -> list[Path]:
-    """The shipped configs, one per distinct planning input (an emulated twin plans as its gantry)."""
-    seen, out = set(), []
-    for path in sorted(CONFIG_DIR.glob("*.toml")):
-        cfg = load_config(path)
-        key = json.dumps([cfg.kinematics.model_dump(), {n: a.model_dump() for n, a in cfg.axes.items()},
-                          cfg.reference.model_dump(), cfg.runner.model_dump(), cfg.detector.exposure_s],
-                         sort_keys=True, default=str)
-        if key not in seen:
-            seen.add(key)
-            out.append(path)
+def _planning_input(cfg) -> str:
+    """What planning reads of a config: the kinematics, the design's axes' limits, speeds and homes, the
+    reference schedule, the runner's timing and the exposure. Not the drivers, buses, gear ratios or the
+    other axes (a filter changer) of an emulated or hardware twin: it plans as its gantry
+    (test_twins_plan_as_their_gantry)."""
+    axes = {n: [getattr(cfg.axes[n], f) for f in ("min_deg", "max_deg", "max_velocity_deg_s",
+                                                   "max_accel_deg_s2", "home_deg")]
+            for n in cfg.axis_names}
+    return json.dumps([cfg.kinematics.model_dump(), axes, cfg.reference.model_dump(), cfg.runner.model_dump(),
+                       cfg.detector.exposure_s, cfg.detector.frames], sort_keys=True, default=str)
+
+
+SHIPPED = sorted(CONFIG_DIR.glob("*.toml"), key=lambda p: (p.stem.startswith("emulated-"), p.stem))
+
+
+def _distinct_configs() -> dict[str, Path]:
+    """The shipped configs, one per distinct planning input (the simulated gantry before its twins), by
+    that input."""
+    out: dict[str, Path] = {}
+    for path in SHIPPED:
+        out.setdefault(_planning_input(load_config(path)), path)
     return out
 
 
-CONFIGS = _distinct_configs()
+DISTINCT = _distinct_configs()
+CONFIGS = list(DISTINCT.values())
 
 
 def _grids(step: int, stride: int) -> list[str]:
@@ -55,7 +66,26 @@ def test_the_matrix_covers_every_option_of_every_kind():
     grids = _grids(45, 30)
     assert {g.split(":")[0] for g in grids} == {"iso", "full", "merl"}
     assert {g.rsplit("order=", 1)[1] for g in grids} == set(ORDERS)
-    assert len(CONFIGS) >= 4  # two-arm and sample stage, simulated and on hardware
+    # Both designs, and the sample stage also on the slower axes of its emulated Dynamixel twin.
+    assert len(CONFIGS) >= 3
+    assert {load_config(p).kinematics.design for p in CONFIGS} == {"two-arm", "sample-stage"}
+
+
+@pytest.mark.parametrize("path", [p for p in SHIPPED if p not in CONFIGS], ids=lambda p: p.stem)
+def test_twins_plan_as_their_gantry(path):
+    """Each shipped config the matrix leaves out plans exactly as the one it plans for the same planning
+    input (a tour, and a serpentine with a theta limit): the matrix covers it."""
+    cfg = load_config(path)
+    twin = load_config(DISTINCT[_planning_input(cfg)])
+    for grid in ("iso:step=30,order=tour", "full:step=45,theta_max=60"):
+        a, b = build_plan(grid, cfg), build_plan(grid, twin)
+        for name, value in vars(a).items():
+            other = getattr(b, name)
+            if isinstance(value, np.ndarray):
+                np.testing.assert_array_equal(value, other, err_msg=f"{grid}: {name}")
+            elif name not in ("via_deg", "timing"):
+                assert value == other, f"{grid}: {name}"
+        assert a.via_deg.keys() == b.via_deg.keys() and a.timing == b.timing, grid
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.stem)

@@ -21,7 +21,11 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "motion"))
 from transit_brute import planned_moves, replay  # noqa: E402
 
 CONFIGS = {"two-arm": DEFAULT_CONFIG, "sample-stage": DEFAULT_CONFIG.parent / "sample-stage.toml"}
-GRIDS = ["iso:step=10", "iso:step=5", "full:step=15", "merl:stride=8"]
+# Not iso:step=5 as well (9,196 poses, 8 s of planning on the two gantries): scratch breaks of the
+# transit planning (re-solving turned off; colliding moves credited to the run before; the two-arm
+# check turned permissive with its carriages' sides merged) fail here exactly where they failed with it,
+# on iso:step=10 (the sample stage's 1,156 poses, re-solved in checks of several chunks) or full:step=15.
+GRIDS = ["iso:step=10", "full:step=15", "merl:stride=8"]
 
 
 @pytest.fixture(scope="module", params=list(CONFIGS))
