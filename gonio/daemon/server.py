@@ -159,6 +159,7 @@ class _PromptServer(uvicorn.Server):
         close: stop listening, ask each connection to close once its response is out, wait for the
         connections and their tasks (looked at every 5 ms, at most ``timeout_graceful_shutdown``; the
         tasks left are cancelled, an event stream's among them)."""
+        logging.getLogger("uvicorn.error").info("Shutting down")   # as uvicorn's own says it
         for server in self.servers:
             server.close()
         for sock in sockets or []:
