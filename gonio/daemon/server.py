@@ -168,7 +168,8 @@ class _PromptServer(uvicorn.Server):
         for connection in list(state.connections):
             connection.shutdown()
         loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.config.timeout_graceful_shutdown
+        grace = self.config.timeout_graceful_shutdown   # None: no limit, as in uvicorn
+        deadline = loop.time() + (float("inf") if grace is None else grace)
         while (state.connections or state.tasks) and not self.force_exit and loop.time() < deadline:
             await asyncio.sleep(0.005)
         for task in list(state.tasks):
