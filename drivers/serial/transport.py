@@ -16,17 +16,24 @@ on a ``SOCKET`` resource a read returns the bytes it has as a complete message w
 a millisecond or so (a reply cut short would pass for a whole one) unless the suppress-end attribute is
 set, and its ``clear()``/read-buffer flush waits 0.1 s for silence each time; the flush here instead
 drains with immediate reads.
+
+One of pyserial's (3.5): closing a ``socket://`` port sleeps 0.3 s afterwards ("in case of quick reconnects,
+give the server some time"), which an instrument's server does not need; the driver closes a port at
+every reconnect after a time-out. The port here is pyserial's own ``socket://`` handler without that
+sleep.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import socket
 import termios
 import time
 from typing import Protocol
 
 import serial
+from serial.urlhandler import protocol_socket
 
 __all__ = ["Transport", "PortLost", "SerialTransport", "VisaTransport", "open_transport", "is_visa_resource",
            "check_visa_resource"]
@@ -62,12 +69,29 @@ def check_visa_resource(port: str) -> None:
         raise ValueError(f"{port!r} is not a VISA resource string ({str(err).splitlines()[0]})") from None
 
 
+class _SocketPort(protocol_socket.Serial):
+    """pyserial's ``socket://`` port, closed at once (its own close sleeps 0.3 s after closing)."""
+
+    def close(self) -> None:
+        if self.is_open and self._socket is not None:
+            try:
+                self._socket.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass  # the peer has gone already
+            self._socket.close()
+            self._socket = None
+        self.is_open = False
+
+
 class SerialTransport:
     """A pyserial port or URL."""
 
     def __init__(self, port: str, baudrate: int):
         try:
-            self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.01)
+            if port.lower().startswith("socket://"):
+                self._ser = _SocketPort(port, baudrate=baudrate, timeout=0.01)
+            else:
+                self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.01)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PortLost(f"cannot open {port} ({type(exc).__name__})") from exc
 

@@ -444,6 +444,8 @@ class CampaignQueue:
             withdrawn = (self.current is rec and state == "pausing" and self.runner is not None
                          and self.runner.request_resume("resume requested through the API"))
             rec.intent, rec.clear_fault, rec.halt_pending, rec.error = "run", clear_fault, False, None
+            if self.current is not rec or state in ("halted", "faulted", "paused"):
+                rec.resumes += 1    # not a pause withdrawn: the run it stopped is over (see _run)
             self._save(rec)
             self._cond.notify_all()
         log.info("campaign %s: resume requested%s%s", cid, " (clearing the fault)" if clear_fault else "",
@@ -578,6 +580,9 @@ class CampaignQueue:
 
         if self.before_run is not None:
             self.before_run()
+        # A resume asked once this run has stopped (the API says halted or faulted as soon as the engine
+        # does, before the worker has let the campaign go) stands: the hold below is not put over it.
+        resumes = rec.resumes
         c = open_campaign(rec.folder)
         try:
             meta = c.meta
@@ -618,10 +623,12 @@ class CampaignQueue:
             with self._cond:  # requests reach the runner under this lock: none after its journal closes
                 self.runner, self.gantry, self.finishing = None, None, True
             c.close()
-        rec.clear_fault = False
-        if result == State.ABORTED:
-            rec.abort_pending = False
-        if result in (State.HALTED, State.FAULTED):
-            rec.intent = "hold"
-            self._save(rec)
+        with self._cond:
+            if rec.resumes == resumes:
+                rec.clear_fault = False
+            if result == State.ABORTED:
+                rec.abort_pending = False
+            if result in (State.HALTED, State.FAULTED) and rec.resumes == resumes:
+                rec.intent = "hold"
+                self._save(rec)
         log.info("campaign %s: %s%s", rec.id, result, f" ({runner.fault})" if runner.fault else "")

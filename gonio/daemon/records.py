@@ -83,6 +83,7 @@ class Record:
     final: str | None = None            # done or aborted, once seen: never changes again
     live: tuple | None = None           # (steps done, campaign_s, Unix time) from the runner's last step
     cache: tuple | None = None          # (monotonic time, status) of the running or a final campaign
+    resumes: int = 0                    # resumes asked so far (in memory): one after a run ended stands
 
     def save(self, folder: Path | None = None) -> None:
         """Write ``daemon.json`` into its folder (or ``folder``: a campaign being admitted), atomically."""

@@ -94,7 +94,7 @@ class DynamixelBusEmulator(EmulatorThread):
         if not self.link.plugged:
             self._stop.wait(self.poll_s)
             return
-        if not self.link.readable(self.poll_s):
+        if not self.link.readable(self.poll_s, self.wake_fd):
             return
         with self.lock:  # read under the lock: drain() holding it sees every byte handled or waiting
             data = self.link.read(0.0)

@@ -79,7 +79,7 @@ class LineInstrumentEmulator(EmulatorThread):
         if not self.link.plugged:
             self._stop.wait(self.poll_s)
             return
-        data = self.link.read(self.poll_s)
+        data = self.link.read(self.poll_s, self.wake_fd)
         if not self.powered:
             return
         self._buf += data

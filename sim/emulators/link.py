@@ -90,13 +90,14 @@ class PtyLink:
     def plugged(self) -> bool:
         return self.master is not None
 
-    def readable(self, timeout_s: float = 0.0) -> bool:
-        """Whether bytes the driver wrote wait to be read (waiting at most ``timeout_s`` s)."""
+    def readable(self, timeout_s: float = 0.0, wake: int | None = None) -> bool:
+        """Whether bytes the driver wrote wait to be read (waiting at most ``timeout_s`` s, or until the
+        file descriptor ``wake`` is readable: :attr:`EmulatorThread.wake_fd`)."""
         fd = self.master
         if fd is None:
             return False
         try:
-            return bool(select.select([fd], [], [], timeout_s)[0])
+            return fd in select.select([fd] if wake is None else [fd, wake], [], [], timeout_s)[0]
         except (OSError, ValueError):
             return False
 
@@ -110,14 +111,15 @@ class PtyLink:
         except OSError:
             return 0
 
-    def read(self, timeout_s: float) -> bytes:
-        """Bytes the driver wrote, waiting at most ``timeout_s`` s (b"" when none, or unplugged)."""
+    def read(self, timeout_s: float, wake: int | None = None) -> bytes:
+        """Bytes the driver wrote, waiting at most ``timeout_s`` s or until ``wake`` is readable (b"" when
+        none, or unplugged)."""
         fd = self.master
         if fd is None:
             return b""
         try:
-            ready, _, _ = select.select([fd], [], [], timeout_s)
-            if not ready:
+            ready, _, _ = select.select([fd] if wake is None else [fd, wake], [], [], timeout_s)
+            if fd not in ready:
                 return b""
             return os.read(fd, 4096)
         except (OSError, ValueError):
@@ -267,7 +269,9 @@ class Deferred:
 
 
 class EmulatorThread:
-    """A daemon thread running ``step()`` until :meth:`stop`; each step waits at most ``poll_s``."""
+    """A daemon thread running ``step()`` until :meth:`stop`; each step waits at most ``poll_s``, and
+    ends its wait at once when :meth:`stop` is called if it waits on :attr:`wake_fd` too (a link's
+    ``read``/``readable`` take it as ``wake``)."""
 
     poll_s = 0.02
 
@@ -275,12 +279,19 @@ class EmulatorThread:
         self._name = name
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._wake: tuple[int, int] | None = None
         self.error: BaseException | None = None
+
+    @property
+    def wake_fd(self) -> int | None:
+        """A file descriptor that becomes readable when :meth:`stop` is called (None when not running)."""
+        return None if self._wake is None else self._wake[0]
 
     def start(self) -> None:
         if self._thread is not None:
             raise RuntimeError(f"emulator '{self._name}' is already running")
         self._stop.clear()
+        self._wake = os.pipe()
         self._thread = threading.Thread(target=self._run, name=f"emu-{self._name}", daemon=True)
         self._thread.start()
 
@@ -297,11 +308,17 @@ class EmulatorThread:
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop the thread and wait for it (at most ``timeout_s`` s)."""
         self._stop.set()
+        if self._wake is not None:
+            os.write(self._wake[1], b"\0")
         if self._thread is not None:
             self._thread.join(timeout_s)
             if self._thread.is_alive():
                 raise RuntimeError(f"emulator '{self._name}' did not stop within {timeout_s} s")
         self._thread = None
+        if self._wake is not None:
+            for fd in self._wake:
+                os.close(fd)
+            self._wake = None
 
     def __enter__(self):
         self.start()

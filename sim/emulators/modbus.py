@@ -33,6 +33,8 @@ reply before sending the next trigger is seen: :attr:`StartLine.late`).
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
 import select
 import socket
 import threading
@@ -139,6 +141,8 @@ class ModbusMotorEmulator:
         self._links: list[PtyLink] = []
         self._relay_stop = threading.Event()
         self._relay: threading.Thread | None = None
+        self._relay_wake: tuple[int, int] | None = None   # a pipe: stop() ends the relay's wait at once
+        self._wake: asyncio.Event | None = None            # set by stop(): the server's loop ends at once
         self.address: tuple[str, int] | None = None
         self.port: str | None = None
         #: The line this unit shares with others (set by :class:`ModbusBusEmulator`), or None.
@@ -405,10 +409,12 @@ class ModbusMotorEmulator:
 
         async def main():
             self._server = make_server()
+            self._wake = asyncio.Event()
             await self._server.serve_forever(background=True)
             ready.set()
             while self._server is not None and not self._stopping:
-                await asyncio.sleep(0.02)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._wake.wait(), 0.02)
             await self._server.shutdown()
 
         self._stopping = False
@@ -448,6 +454,7 @@ class ModbusMotorEmulator:
         client_side, server_side = PtyLink("ttyMB"), PtyLink("ttyMBsrv")
         self._links = [client_side, server_side]
         self._relay_stop.clear()
+        self._relay_wake = os.pipe()
         self._relay = threading.Thread(target=self._bridge, daemon=True, name="emu-modbus-relay")
         self._relay.start()
         self.port = client_side.port
@@ -466,10 +473,12 @@ class ModbusMotorEmulator:
                 self._relay_stop.wait(0.01)
                 continue
             try:
-                ready, _, _ = select.select(list(fds), [], [], 0.02)
+                ready, _, _ = select.select([*fds, self._relay_wake[0]], [], [], 0.02)
             except (OSError, ValueError):
                 continue
             for fd in ready:
+                if fd not in fds:
+                    continue   # the wake pipe: stopping
                 src, dst = fds[fd]
                 data = src.read(0.0)
                 if data and src is a and self._line is not None:
@@ -479,6 +488,10 @@ class ModbusMotorEmulator:
 
     def stop(self) -> None:
         self._stopping = True
+        loop, wake = self._loop, self._wake
+        if loop is not None and wake is not None:
+            with contextlib.suppress(RuntimeError):   # its loop has closed already
+                loop.call_soon_threadsafe(wake.set)
         if self._thread is not None:
             self._thread.join(5.0)
             if self._thread.is_alive():
@@ -486,8 +499,14 @@ class ModbusMotorEmulator:
         self._thread = None
         self._server = None
         self._relay_stop.set()
+        if self._relay_wake is not None:
+            os.write(self._relay_wake[1], b"\0")
         if self._relay is not None:
             self._relay.join(5.0)
+        if self._relay_wake is not None and (self._relay is None or not self._relay.is_alive()):
+            for fd in self._relay_wake:
+                os.close(fd)
+            self._relay_wake = None
         for link in self._links:
             link.close()
         self._links = []

@@ -88,12 +88,15 @@ class TcpLink:
             self._conn.close()
         self._conn = conn
 
-    def readable(self, timeout_s: float = 0.0) -> bool:
+    def readable(self, timeout_s: float = 0.0, wake: int | None = None) -> bool:
+        """Whether the client sent bytes not read yet (waiting at most ``timeout_s`` s, or until ``wake``
+        is readable); a client that connects meanwhile is accepted."""
         srv, conn = self._srv, self._conn
         if srv is None:
             return False
+        waits = [s for s in (srv, conn) if s is not None] + ([] if wake is None else [wake])
         try:
-            ready = select.select([s for s in (srv, conn) if s is not None], [], [], timeout_s)[0]
+            ready = select.select(waits, [], [], timeout_s)[0]
         except (OSError, ValueError):
             return False
         if srv in ready:
@@ -102,9 +105,10 @@ class TcpLink:
                     self._accept()
         return conn is not None and conn in ready
 
-    def read(self, timeout_s: float) -> bytes:
-        """Bytes the client sent, waiting at most ``timeout_s`` s (b"" when none, or unplugged)."""
-        if not self.readable(timeout_s):
+    def read(self, timeout_s: float, wake: int | None = None) -> bytes:
+        """Bytes the client sent, waiting at most ``timeout_s`` s or until ``wake`` is readable (b"" when
+        none, or unplugged)."""
+        if not self.readable(timeout_s, wake):
             return b""
         conn = self._conn
         if conn is None:

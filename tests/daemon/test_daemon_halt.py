@@ -154,3 +154,40 @@ def test_a_halt_recorded_late_leaves_the_campaign_resumed_since_running(serve):
     assert r.client.get("/campaigns/c00001").json()["state"] in ("starting", "running", "finishing", "done")
     unpace(r.daemon)
     wait_state(r.client, "c00001", "done", timeout_s=15.0)
+
+
+def test_a_resume_as_soon_as_the_halt_shows_is_not_lost(serve, monkeypatch):
+    """The operator resumes the moment the API says ``halted``, while the worker is still letting the
+    halted campaign go (closing its journal): the worker then put it back on hold, the resume was lost
+    and the campaign stayed halted (test_daemon_fly's halt-and-resume, 3 runs in ~30 at load 3-4). Here
+    the worker is held at that moment until the resume has been answered."""
+    from gonio.daemon import queue as queue_module
+
+    real_open = queue_module.open_campaign
+    closing, resumed = threading.Event(), threading.Event()
+
+    def open_held(folder, *args, **kw):
+        c = real_open(folder, *args, **kw)
+        real_close = c.close
+
+        def close():
+            if not resumed.is_set() and _journal_state(r) == "halted":
+                closing.set()
+                resumed.wait(HALT_WAIT_S)
+            real_close()
+        c.close = close
+        return c
+
+    r = serve(pace=0.01)
+    monkeypatch.setattr(queue_module, "open_campaign", open_held)
+    submit(r.client, grid="iso:step=15")
+    wait_for(lambda: r.client.get("/campaigns/c00001").json()["steps_done"], "a committed step")
+    assert r.client.post("/gantry/halt").status_code == 200
+    assert closing.wait(HALT_WAIT_S), "the worker never let the halted campaign go"
+    assert r.client.get("/campaigns/c00001").json()["state"] == "halted"
+    r.client.post("/campaigns/c00001/resume").raise_for_status()
+    resumed.set()
+    from daemon_helpers import unpace
+
+    unpace(r.daemon)
+    wait_state(r.client, "c00001", "done", timeout_s=30.0)    # it stayed halted, the resume lost

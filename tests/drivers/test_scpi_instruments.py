@@ -6,10 +6,12 @@ replies that are not numbers, and each fault of the serial-instrument fault matr
 from __future__ import annotations
 
 import math
+import threading
 from contextlib import contextmanager
 
 import pytest
 
+from gonio.clock import VirtualClock
 from gonio.drivers.serial import InstrumentCommError, InstrumentError, SerialLightSource, SerialPowerMeter
 from gonio.drivers.serial.transport import open_transport
 from gonio.sim.emulators.scpi import CurrentSourceEmulator, Pm100Emulator, header_matches
@@ -19,7 +21,7 @@ WATTS = 1.25e-6
 DARK_W = 2e-9
 #: Reply deadline: long enough for a loaded machine (the emulator answers from a thread of this process;
 #: at load 8-9 on 2 cores, 0.3 s was seen to run out on a good reply), short enough for the faults that
-#: wait it out (about 16 tests wait one or two of them).
+#: wait it out (about 16 scenarios wait one or two of them; those of one test wait side by side).
 TIMEOUT_S = 0.5
 #: How a driver reaches an emulator: (link for the emulator, the port string the driver is given).
 TRANSPORTS = {
@@ -75,16 +77,48 @@ def _meter(port, clock, **kw):
                             clock=clock, **kw)
 
 
+def _side_by_side(scenarios: dict) -> None:
+    """Run independent scenarios (name -> function), each in a thread of its own: those that wait a reply
+    deadline out wait it out together. Fails naming every scenario that failed (the first one's error
+    chained), or one that did not end within a minute."""
+    errors: dict = {}
+
+    def run(name, fn):
+        try:
+            fn()
+        except BaseException as exc:  # reported below, by name
+            errors[name] = exc
+
+    threads = [threading.Thread(target=run, args=item, name=f"scenario {item[0]}", daemon=True)
+               for item in scenarios.items()]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60.0)
+    assert not [t.name for t in threads if t.is_alive()], "a scenario did not end within 60 s"
+    if errors:
+        name = sorted(errors)[0]
+        raise AssertionError(f"scenarios {sorted(errors)} of {len(scenarios)} failed; {name}: "
+                             f"{errors[name]!r}") from errors[name]
+
+
 @pytest.fixture(params=sorted(TRANSPORTS))
 def transport(request):
     return request.param
 
 
-@pytest.fixture
-def pm100(clock, transport):
+@contextmanager
+def _pm100_on(transport, clock):
+    """The PM100 emulator and a driver connected to it through ``transport``."""
     link, port = TRANSPORTS[transport]
     emu = Pm100Emulator(lambda exposure_s: WATTS, dark_w=DARK_W, clock=clock, link=link())
     with running(emu, _meter(port(emu), clock)) as both:
+        yield both
+
+
+@pytest.fixture
+def pm100(clock, transport):
+    with _pm100_on(transport, clock) as both:
         yield both
 
 
@@ -182,23 +216,34 @@ def test_an_empty_reply_line_is_not_a_number(clock):
             dev.measure(0.1)
 
 
-@pytest.mark.parametrize("transport", ["pty", "visa-socket"])  # faults: the two ends of the matrix
-@pytest.mark.parametrize("kind", ["drop", "corrupt", "truncate", "delay"])
-def test_a_bad_reply_is_transient_and_the_next_reading_is_its_own(pm100, kind):
+#: The fault tests run on the two ends of the matrix.
+FAULT_TRANSPORTS = ("pty", "visa-socket")
+
+
+def test_a_bad_reply_is_transient_and_the_next_reading_is_its_own():
     """Dropped, corrupt, truncated or late (after the time-out) FETC? replies: a transient fault; the
-    next reading is the meter's new one, never the late one (the driver re-synchronises on *IDN?)."""
-    emu, dev = pm100
-    # Late by 0.4 s after the FETC? deadline (time-out + 0.1 s exposure), and 0.6 s before the end of the
-    # re-synchronisation that follows (its two time-outs after the first), so neither edge is close.
-    emu.faults.add(kind, match="FETC?", delay_s=2 * TIMEOUT_S)
-    with pytest.raises(InstrumentCommError) as err:
-        dev.measure(0.1)
-    assert err.value.transient and emu.faults.applied == [(kind, "FETC?")]
-    emu.signal = lambda exposure_s: 3 * WATTS
-    assert dev.measure(0.1).signal[0] == pytest.approx(3 * WATTS + DARK_W, rel=1e-6)
-    # the late line was flushed, or discarded while re-synchronising (a TCP driver reconnected after the
-    # time-out: it went to the closed connection)
-    assert dev.late_replies <= 1
+    next reading is the meter's new one, never the late one (the driver re-synchronises on *IDN?). Each
+    fault on each transport is a meter of its own, all side by side (three of the four wait the
+    deadline out)."""
+    def scenario(kind, transport):
+        def run():
+            with _pm100_on(transport, VirtualClock()) as (emu, dev):
+                # Late by 0.4 s after the FETC? deadline (time-out + 0.1 s exposure), and 0.6 s before the
+                # end of the re-synchronisation that follows (its two time-outs after the first), so
+                # neither edge is close.
+                emu.faults.add(kind, match="FETC?", delay_s=2 * TIMEOUT_S)
+                with pytest.raises(InstrumentCommError) as err:
+                    dev.measure(0.1)
+                assert err.value.transient and emu.faults.applied == [(kind, "FETC?")]
+                emu.signal = lambda exposure_s: 3 * WATTS
+                assert dev.measure(0.1).signal[0] == pytest.approx(3 * WATTS + DARK_W, rel=1e-6)
+                # the late line was flushed, or discarded while re-synchronising (a TCP driver reconnected
+                # after the time-out: it went to the closed connection)
+                assert dev.late_replies <= 1
+        return run
+
+    _side_by_side({f"{kind}-{transport}": scenario(kind, transport)
+                   for kind in ("drop", "corrupt", "truncate", "delay") for transport in FAULT_TRANSPORTS})
 
 
 def test_lines_that_come_after_the_flush_are_discarded_until_the_identity(clock):
@@ -223,17 +268,22 @@ def test_lines_that_come_after_the_flush_are_discarded_until_the_identity(clock)
         assert dev.late_replies == 2
 
 
-@pytest.mark.parametrize("transport", ["pty", "visa-socket"])  # faults: the two ends of the matrix
 @pytest.mark.parametrize("kind, says", [("drop", "-230"), ("corrupt", "-102")])
-def test_a_setter_lost_or_garbled_on_the_wire_is_caught_by_the_error_queue(pm100, kind, says):
+def test_a_setter_lost_or_garbled_on_the_wire_is_caught_by_the_error_queue(kind, says):
     """A lost INIT leaves nothing to fetch (-230, data stale); a garbled one is a syntax error (-102).
-    Both transient: the next reading is right."""
-    emu, dev = pm100
-    emu.faults.add(kind, match="INIT")
-    with pytest.raises(InstrumentError, match=says) as err:
-        dev.measure(0.1)
-    assert err.value.transient
-    assert dev.measure(0.1).signal[0] == pytest.approx(WATTS + DARK_W, rel=1e-6)
+    Both transient: the next reading is right. The two transports side by side (a lost INIT waits the
+    FETC? deadline out)."""
+    def scenario(transport):
+        def run():
+            with _pm100_on(transport, VirtualClock()) as (emu, dev):
+                emu.faults.add(kind, match="INIT")
+                with pytest.raises(InstrumentError, match=says) as err:
+                    dev.measure(0.1)
+                assert err.value.transient
+                assert dev.measure(0.1).signal[0] == pytest.approx(WATTS + DARK_W, rel=1e-6)
+        return run
+
+    _side_by_side({transport: scenario(transport) for transport in FAULT_TRANSPORTS})
 
 
 def test_unplugged_mid_reading_reconnects(pm100):
@@ -247,18 +297,31 @@ def test_unplugged_mid_reading_reconnects(pm100):
 
 
 @pytest.mark.parametrize("unplug", [True, False], ids=["usb", "rs232"])
-def test_a_power_cycled_meter_is_configured_again_before_its_next_reading(pm100, unplug):
+def test_a_power_cycled_meter_is_configured_again_before_its_next_reading(unplug):
     """Off (its USB port gone, or an RS-232 line silent): a transient fault. On again it is in its
-    reset state (635 nm, no averaging); the next reading sets wavelength and averaging again."""
-    emu, dev = pm100
-    dev.measure(0.1)
-    emu.power_off(unplug=unplug)
-    with pytest.raises(InstrumentCommError):
-        dev.measure(0.1)
-    emu.power_on()
-    assert (emu.wavelength_nm, emu.count) == (635.0, 1)
-    assert dev.measure(0.1).signal[0] == pytest.approx(WATTS + DARK_W, rel=1e-6)
-    assert emu.measurements[-1] == (633.0, 33, WATTS + DARK_W)
+    reset state (635 nm, no averaging); the next reading sets wavelength and averaging again. A silent
+    line waits the deadline out: its transports side by side. A port that goes closes its pty under the
+    emulator's thread, which may be reading the fd number just freed, and that number can be another
+    scenario's next pty: those one after the other (they wait nothing)."""
+    def scenario(transport):
+        def run():
+            with _pm100_on(transport, VirtualClock()) as (emu, dev):
+                dev.measure(0.1)
+                emu.power_off(unplug=unplug)
+                with pytest.raises(InstrumentCommError):
+                    dev.measure(0.1)
+                emu.power_on()
+                assert (emu.wavelength_nm, emu.count) == (635.0, 1)
+                assert dev.measure(0.1).signal[0] == pytest.approx(WATTS + DARK_W, rel=1e-6)
+                assert emu.measurements[-1] == (633.0, 33, WATTS + DARK_W)
+        return run
+
+    scenarios = {transport: scenario(transport) for transport in sorted(TRANSPORTS)}
+    if unplug:
+        for run in scenarios.values():
+            run()
+    else:
+        _side_by_side(scenarios)
 
 
 # -- the current source --------------------------------------------------------------------------------
@@ -284,7 +347,7 @@ def test_a_current_beyond_the_source_is_its_error(source):
     assert not err.value.transient and emu.current_a == 1.5
 
 
-@pytest.mark.parametrize("transport", ["pty", "visa-socket"])  # faults: the two ends of the matrix
+@pytest.mark.parametrize("transport", FAULT_TRANSPORTS)
 @pytest.mark.parametrize("kind", ["drop", "corrupt"])
 def test_a_switch_lost_on_the_wire_is_caught_by_the_read_back(source, kind):
     """A silent setter that never arrives gives no error at all: only reading the output back shows it
