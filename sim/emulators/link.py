@@ -49,6 +49,10 @@ class PtyLink:
         self.port = os.path.join(self._dir, name)
         self.master: int | None = None
         self._slave: int | None = None
+        # Bumped at every plug and unplug: a read or write that waited on a descriptor number checks,
+        # under the lock, that the number is still this link's before it reads or writes (once closed,
+        # the number can be given to another pty of the process, whose bytes are not this link's).
+        self._generation = 0
         # The emulator thread unplugs (an injected disconnect) while a test may replug: one at a time.
         self._lock = threading.RLock()
         self.replug()
@@ -68,6 +72,7 @@ class PtyLink:
         os.replace(tmp, self.port)
         # The emulator keeps the slave open too: the master never sees EIO while a driver reopens.
         self.master, self._slave = master, slave
+        self._generation += 1
 
     def unplug(self) -> None:
         """Close both ends: the driver's open port stops working, as when a cable is pulled; the port's
@@ -85,6 +90,7 @@ class PtyLink:
                     except OSError:
                         pass
             self.master = self._slave = None
+            self._generation += 1
 
     @property
     def plugged(self) -> bool:
@@ -114,28 +120,39 @@ class PtyLink:
     def read(self, timeout_s: float, wake: int | None = None) -> bytes:
         """Bytes the driver wrote, waiting at most ``timeout_s`` s or until ``wake`` is readable (b"" when
         none, or unplugged)."""
-        fd = self.master
+        with self._lock:
+            fd, generation = self.master, self._generation
         if fd is None:
             return b""
         try:
             ready, _, _ = select.select([fd] if wake is None else [fd, wake], [], [], timeout_s)
             if fd not in ready:
                 return b""
-            return os.read(fd, 4096)
+            with self._lock:                # unplugged (and the number perhaps reused) while waiting?
+                if self._generation != generation:
+                    return b""
+                return os.read(fd, 4096)    # non-blocking: never holds the lock for long
         except (OSError, ValueError):
             return b""
 
     def write(self, data: bytes) -> None:
-        fd = self.master
+        with self._lock:
+            fd, generation = self.master, self._generation
         if fd is None or not data:
             return
         view = memoryview(data)
         deadline = time.monotonic() + 1.0
         while view and time.monotonic() < deadline:
             try:
-                n = os.write(fd, view)
+                with self._lock:
+                    if self._generation != generation:
+                        return              # unplugged: the rest of the reply is lost, as on a cable
+                    n = os.write(fd, view)
             except BlockingIOError:
-                select.select([], [fd], [], 0.01)
+                try:
+                    select.select([], [fd], [], 0.01)
+                except (OSError, ValueError):
+                    return
                 continue
             except OSError:
                 return
