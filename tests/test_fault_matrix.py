@@ -240,7 +240,9 @@ def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp
     dropped or cut short they make that read fail (the step retried, journaled); duplicated or stale
     (an earlier answer to the same read, at most a time-out old) they are skipped by transaction id (TCP),
     or discarded when they are not the request's (RTU), or read as what they are: the axis at rest."""
-    emu, clock = _modbus(rtu=transport == "rtu", waits_out=kind in ("late", "reorder", "drop", "truncate"))
+    # stale on TCP: skipped by its old transaction id, the request's own reply never comes (a time-out)
+    emu, clock = _modbus(rtu=transport == "rtu",
+                         waits_out=kind in ("late", "reorder", "drop", "truncate", "stale"))
     with emu:
         motor = emu.motors["sample_tilt"]
         first, _, events, _ = _campaign(tmp_path, emu, clock,

@@ -371,18 +371,27 @@ class EmulatedGantry:
 
     def stop(self) -> None:
         """Stop every emulator that was started (each, even if another fails to stop)."""
-        first = None
-        for name in list(self._locations):
-            emu = self.emulators[name]
-            if hasattr(emu, "drain") and hasattr(self.clock, "detach"):
-                self.clock.detach(emu.drain)
+        errors: dict[str, Exception] = {}
+
+        def stop(name, emu):
             try:
                 emu.stop()
             except Exception as err:
-                first = first or err
+                errors[name] = err
+
+        # All at once: each waits out its own poll (a select's time-out) before its thread ends.
+        stopping, names = [], list(self._locations)
+        for name in names:
+            emu = self.emulators[name]
+            if hasattr(emu, "drain") and hasattr(self.clock, "detach"):
+                self.clock.detach(emu.drain)
+            stopping.append(threading.Thread(target=stop, args=(name, emu), name=f"stop-{name}"))
+            stopping[-1].start()
             del self._locations[name]
-        if first is not None:
-            raise first
+        for t in stopping:
+            t.join()
+        if errors:
+            raise next(errors[n] for n in names if n in errors)
 
     def __enter__(self) -> EmulatedGantry:
         return self.start()
