@@ -184,9 +184,12 @@ def test_dropped_servo_replies_are_retried_and_the_campaign_finishes(tmp_path):
 
 
 def test_a_lost_photodiode_port_is_reopened_and_the_step_retried(tmp_path):
+    """A reply cut short (no terminator) is waited for until the photodiode's reply time-out, here
+    0.25 s of wall time (a config may: the shipped 1 s), then the port is reopened and the step retried."""
+    data = load_config("emulated-two-arm-dynamixel").model_dump(mode="json")
+    data["buses"]["photodiode"]["timeout_s"] = 0.25
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config("emulated-two-arm-dynamixel"), MATERIAL, clock=clock,
-                        any_port=True, referenced=True) as emu:
+    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         fired = []
 
         def on_step(runner, step):
