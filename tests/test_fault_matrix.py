@@ -93,8 +93,8 @@ def _dxl(**kw):
 def _modbus(rtu: bool = False, waits_out: bool = False, retries: int | None = None):
     """The Modbus twin; its tilt bus (where the faults go) on an RTU line where ``rtu``, its reply
     time-out 0.1 s on RTU, and on TCP where the fault ``waits_out`` one (a reply dropped, late, cut short,
-    or a controller that stopped answering: 0.1 s of wall time each, not the shipped 0.5 s); ``retries``:
-    the bus's own retries of a request (pymodbus's; the config's default 1 where None)."""
+    stale, or a controller that stopped answering: 0.1 s of wall time each, not the shipped 0.5 s);
+    ``retries``: the bus's own retries of a request (pymodbus's; the config's default 1 where None)."""
     data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
     if retries is not None:
         data["buses"]["tilt"]["retries"] = retries
