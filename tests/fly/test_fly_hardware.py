@@ -62,23 +62,44 @@ def stop_and_go(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def flown(tmp_path_factory):
-    """An uninterrupted fly campaign on the emulated Dynamixel gantry."""
+    """An uninterrupted fly campaign on the emulated Dynamixel gantry: (folder, the servos' watchdog and
+    profile registers after it, the axes' profiles, the campaign's meta, what the executor sent). Its
+    moves are watched, not changed (on the synced virtual clock the watching takes no gantry time):
+    every ``send_move`` as (servos moving then, the axes its target changes), every ``goto`` target."""
+    from gonio.executor import MotionExecutor
+
     folder = tmp_path_factory.mktemp("fly")
     clock = SyncedVirtualClock()
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+    sent, gotos = [], []
+    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu, \
+            pytest.MonkeyPatch.context() as mp:
+        send, goto = MotionExecutor.send_move, MotionExecutor.goto
+
+        def spy_send(self, start, target):
+            moving = [n for n, s in emu.servos.items() if s._moving() and n != "changer"]
+            changed = [self.kinematics.axis_names[i] for i in np.flatnonzero(np.asarray(target) != start)]
+            sent.append((moving, changed))
+            return send(self, start, target)
+
+        def spy_goto(self, target):
+            gotos.append(np.asarray(target, dtype=float).copy())
+            return goto(self, target)
+
+        mp.setattr(MotionExecutor, "send_move", spy_send)
+        mp.setattr(MotionExecutor, "goto", spy_goto)
         state, runner, meta = _fly(folder, emu, clock)
         assert state == State.DONE, runner.fault
         servos = {n: (s.watchdog_fired_at, s.value(98), s.value(112), s.value(108))
                   for n, s in emu.servos.items()}
         profiles = {n: (a.profile_velocity, a.profile_acceleration)
                     for n, a in runner.gantry.axes.items()}
-    return folder, servos, profiles, meta
+    return folder, servos, profiles, meta, (sent, gotos, runner.gantry.kinematics.axis_names)
 
 
 
 
 def test_a_fly_campaign_through_the_drivers_matches_the_stop_and_go_simulation(flown, stop_and_go):
-    folder, servos, profiles, meta = flown
+    folder, servos, profiles, meta, _ = flown
     assert meta["fly"]["lines"] >= 4
     rows, events, swept = _matches_stop_and_go(folder, meta, stop_and_go)
     assert any(np.max(m.extra["stderr_blur"]) > 0 for m in swept)
@@ -476,32 +497,13 @@ def _killed_mid_sweep(tmp_path, twin, profile):
 
 
 
-def test_a_swept_turnaround_sends_the_change_while_the_sweeping_servo_runs_out(tmp_path, monkeypatch):
+def test_a_swept_turnaround_sends_the_change_while_the_sweeping_servo_runs_out(flown):
     """At each turnaround the plan sweeps, the sweeper sends the other axes to the next line's start as
     soon as the last reading is over: the sweeping servo (read from its emulator) is still moving then,
-    and the next line starts there with no move of its own."""
-    from gonio.executor import MotionExecutor
-
-    clock = SyncedVirtualClock()
-    sent, gotos = [], []
-    with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
-        send, goto = MotionExecutor.send_move, MotionExecutor.goto
-
-        def spy_send(self, start, target):
-            moving = [n for n, s in emu.servos.items() if s._moving() and n != "changer"]
-            changed = [self.kinematics.axis_names[i] for i in np.flatnonzero(np.asarray(target) != start)]
-            sent.append((moving, changed))
-            return send(self, start, target)
-
-        def spy_goto(self, target):
-            gotos.append(np.asarray(target, dtype=float).copy())
-            return goto(self, target)
-
-        monkeypatch.setattr(MotionExecutor, "send_move", spy_send)
-        monkeypatch.setattr(MotionExecutor, "goto", spy_goto)
-        state, runner, _ = _fly(tmp_path / "fly", emu, clock)
-        assert state == State.DONE, runner.fault
-    fp = fly_plan_of_folder(tmp_path / "fly")
+    and the next line starts there with no move of its own (the uninterrupted campaign's moves, as
+    :func:`flown` watched them)."""
+    folder, _, _, _, (sent, gotos, axis_names) = flown
+    fp = fly_plan_of_folder(folder)
     turns = [k for k in range(len(fp.lines)) if fp.swept_turn(k)]
     assert len(turns) >= 2
     # send_move is also how every leg of a move is sent: the turnarounds' are those sent mid-sweep.
@@ -509,8 +511,8 @@ def test_a_swept_turnaround_sends_the_change_while_the_sweeping_servo_runs_out(t
     assert len(mid_sweep) == len(turns)
     for (moving, changed), k in zip(mid_sweep, turns, strict=True):
         axis = fp.lines[k].axis
-        assert moving == [runner.gantry.kinematics.axis_names[axis]]
-        assert changed and axis not in [runner.gantry.kinematics.axis_names.index(n) for n in changed]
+        assert moving == [axis_names[axis]]
+        assert changed and axis not in [axis_names.index(n) for n in changed]
     # The lines entered through a turnaround are not gone to: no goto targets their start.
     for k in turns:
         start = fp.lines[k].start_deg
