@@ -72,6 +72,8 @@ class LineInstrumentEmulator(EmulatorThread):
         """The instrument's power-on state (subclasses)."""
 
     def stop(self, timeout_s: float = 5.0) -> None:
+        self._stop.set()
+        self.link.wake()   # its wait for bytes ends now, not after a poll
         super().stop(timeout_s)
         self.link.close()
 

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 from gonio.clock import VirtualClock
 
-__all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "mangle", "SyncedVirtualClock",
-           "Deferred"]
+__all__ = ["PtyLink", "Waker", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "mangle",
+           "SyncedVirtualClock", "Deferred"]
 
 #: Kinds of fault an emulator applies to its next matching reply: ``drop`` it, ``corrupt`` its last
 #: byte, ``truncate`` it to half, ``delay`` it (the emulator waits ``delay_s`` before it goes on),
@@ -33,6 +33,34 @@ __all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "ma
 #: last identical request: what a late reply of the same length carries, which no pairing by ID,
 #: instruction and length can tell apart).
 FAULT_KINDS = ("drop", "corrupt", "truncate", "delay", "disconnect", "duplicate", "late", "reorder", "stale")
+
+
+class Waker:
+    """A pipe that ends a wait in ``select`` at once: :meth:`wake` writes to it; a waiter that selects on
+    :attr:`fd` too and finds it ready calls :meth:`clear` (a link whose emulator thread is stopped)."""
+
+    def __init__(self):
+        self.fd, self._w = os.pipe()
+
+    def wake(self) -> None:
+        try:
+            os.write(self._w, b"w")
+        except OSError:
+            pass
+
+    def clear(self) -> None:
+        try:
+            os.read(self.fd, 64)
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        for fd in (self.fd, self._w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self.fd = self._w = -1
 
 
 class PtyLink:
@@ -51,6 +79,7 @@ class PtyLink:
         self._slave: int | None = None
         # The emulator thread unplugs (an injected disconnect) while a test may replug: one at a time.
         self._lock = threading.RLock()
+        self._waker = Waker()   # a wait in readable() or read() ends at once on wake()
         self.replug()
 
     def replug(self) -> None:
@@ -90,13 +119,25 @@ class PtyLink:
     def plugged(self) -> bool:
         return self.master is not None
 
+    def wake(self) -> None:
+        """End a wait in :meth:`readable` or :meth:`read` now (the emulator thread is being stopped)."""
+        self._waker.wake()
+
+    def _ready(self, fd: int, timeout_s: float) -> bool:
+        """Whether ``fd`` is readable within ``timeout_s`` s; False at once after :meth:`wake`."""
+        ready = select.select([fd, self._waker.fd], [], [], timeout_s)[0]
+        if self._waker.fd in ready:
+            self._waker.clear()
+            return False
+        return bool(ready)
+
     def readable(self, timeout_s: float = 0.0) -> bool:
         """Whether bytes the driver wrote wait to be read (waiting at most ``timeout_s`` s)."""
         fd = self.master
         if fd is None:
             return False
         try:
-            return bool(select.select([fd], [], [], timeout_s)[0])
+            return self._ready(fd, timeout_s)
         except (OSError, ValueError):
             return False
 
@@ -116,8 +157,7 @@ class PtyLink:
         if fd is None:
             return b""
         try:
-            ready, _, _ = select.select([fd], [], [], timeout_s)
-            if not ready:
+            if not self._ready(fd, timeout_s):
                 return b""
             return os.read(fd, 4096)
         except (OSError, ValueError):
@@ -149,6 +189,7 @@ class PtyLink:
             os.rmdir(self._dir)
         except OSError:
             pass
+        self._waker.close()
 
 
 @dataclass

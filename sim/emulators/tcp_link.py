@@ -17,6 +17,8 @@ import termios
 import threading
 import time
 
+from gonio.sim.emulators.link import Waker
+
 __all__ = ["TcpLink"]
 
 
@@ -31,6 +33,7 @@ class TcpLink:
         self._srv: socket.socket | None = None
         self._conn: socket.socket | None = None
         self._lock = threading.RLock()
+        self._waker = Waker()   # a wait in readable() or read() ends at once on wake()
         self.replug()
 
     @property
@@ -88,12 +91,20 @@ class TcpLink:
             self._conn.close()
         self._conn = conn
 
+    def wake(self) -> None:
+        """End a wait in :meth:`readable` or :meth:`read` now (the emulator thread is being stopped)."""
+        self._waker.wake()
+
     def readable(self, timeout_s: float = 0.0) -> bool:
         srv, conn = self._srv, self._conn
         if srv is None:
             return False
         try:
-            ready = select.select([s for s in (srv, conn) if s is not None], [], [], timeout_s)[0]
+            ready = select.select([s for s in (srv, conn) if s is not None] + [self._waker.fd], [], [],
+                                  timeout_s)[0]
+            if self._waker.fd in ready:
+                self._waker.clear()
+                return False
         except (OSError, ValueError):
             return False
         if srv in ready:
@@ -144,3 +155,4 @@ class TcpLink:
 
     def close(self) -> None:
         self.unplug()
+        self._waker.close()
