@@ -403,7 +403,7 @@ def _killed_mid_sweep(tmp_path, twin, profile):
     stage = twin != TWIN
     for name, axis in data["axes"].items():   # near each servo's velocity limit, quick ramps
         # The XM430s (275 °/s at the shaft) on 2:1 reducers where the shipped twins have 4:1 or 10:1
-        # (the stage's cap its axes at 27 °/s), the tilts' 1.5:1 kept; the changer's XL430 (364 °/s)
+        # (the stage's 10:1 cap its axes at 27 °/s), the tilts' 1.5:1 kept; the changer's XL430 (364 °/s)
         # direct: the run up to the first sweep is short. The kill does not depend on the pace: the
         # photodiode is frozen mid-sweep before it (below).
         if name == "changer":
@@ -419,8 +419,9 @@ def _killed_mid_sweep(tmp_path, twin, profile):
     data["detector"]["profile"] = profile   # read on request, or from its stream
     if profile == "streaming-photodiode":
         # 20 ms a sample (the profile's 200 Hz streams four times the lines the resumed run, on the
-        # synced clock, hands over one by one): still several a sub-read (the test of the stream's
-        # rate is tests/fly/test_fly_stream.py's)
+        # synced clock, hands over one by one): one or two in each 25 ms sub-read of these sweeps'
+        # 0.1 s exposures, every window holding a sample's mid-time (tests/fly/test_fly_stream.py
+        # tests the stream's readings and rate)
         data["detector"]["stream_rate_hz"] = 50.0
     cfg = parse_config(data)
     out = tmp_path / "run"
