@@ -47,7 +47,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from gonio.clock import WallClock
 from gonio.drivers.modbus.profile import MotorProfile, load_profile
 from gonio.motion.trapezoid import move_time, position_at
-from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, mangle
+from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, Waker, mangle
 
 __all__ = ["ModbusMotorEmulator", "ModbusBusEmulator", "StartLine", "DATA_ALARM"]
 
@@ -134,10 +134,12 @@ class ModbusMotorEmulator:
         self._base = min(r.address for r in self.profile.registers.values())
         self._regs = [0] * (top - self._base)
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._wake: asyncio.Event | None = None   # set (in the loop) by stop(): the server ends at once
         self._server = None
         self._thread: threading.Thread | None = None
         self._links: list[PtyLink] = []
         self._relay_stop = threading.Event()
+        self._relay_waker: Waker | None = None   # stop() ends the relay's wait at once
         self._relay: threading.Thread | None = None
         self.address: tuple[str, int] | None = None
         self.port: str | None = None
@@ -406,9 +408,13 @@ class ModbusMotorEmulator:
         async def main():
             self._server = make_server()
             await self._server.serve_forever(background=True)
+            self._wake = asyncio.Event()
             ready.set()
             while self._server is not None and not self._stopping:
-                await asyncio.sleep(0.02)
+                try:
+                    await asyncio.wait_for(self._wake.wait(), 0.02)
+                except TimeoutError:
+                    pass
             await self._server.shutdown()
 
         self._stopping = False
@@ -448,6 +454,7 @@ class ModbusMotorEmulator:
         client_side, server_side = PtyLink("ttyMB"), PtyLink("ttyMBsrv")
         self._links = [client_side, server_side]
         self._relay_stop.clear()
+        self._relay_waker = Waker()
         self._relay = threading.Thread(target=self._bridge, daemon=True, name="emu-modbus-relay")
         self._relay.start()
         self.port = client_side.port
@@ -466,10 +473,10 @@ class ModbusMotorEmulator:
                 self._relay_stop.wait(0.01)
                 continue
             try:
-                ready, _, _ = select.select(list(fds), [], [], 0.02)
+                ready, _, _ = select.select([*fds, self._relay_waker.fd], [], [], 0.02)
             except (OSError, ValueError):
                 continue
-            for fd in ready:
+            for fd in (fd for fd in ready if fd in fds):
                 src, dst = fds[fd]
                 data = src.read(0.0)
                 if data and src is a and self._line is not None:
@@ -479,6 +486,12 @@ class ModbusMotorEmulator:
 
     def stop(self) -> None:
         self._stopping = True
+        loop, wake = self._loop, self._wake
+        if loop is not None and wake is not None:
+            try:
+                loop.call_soon_threadsafe(wake.set)
+            except RuntimeError:
+                pass   # its loop has ended already
         if self._thread is not None:
             self._thread.join(5.0)
             if self._thread.is_alive():
@@ -486,8 +499,13 @@ class ModbusMotorEmulator:
         self._thread = None
         self._server = None
         self._relay_stop.set()
+        if self._relay_waker is not None:
+            self._relay_waker.wake()
         if self._relay is not None:
             self._relay.join(5.0)
+        if self._relay_waker is not None:
+            self._relay_waker.close()
+            self._relay_waker = None
         for link in self._links:
             link.close()
         self._links = []
