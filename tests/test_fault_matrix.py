@@ -93,8 +93,8 @@ def _dxl(**kw):
 def _modbus(rtu: bool = False, waits_out: bool = False, retries: int | None = None):
     """The Modbus twin; its tilt bus (where the faults go) on an RTU line where ``rtu``, its reply
     time-out 0.1 s on RTU, and on TCP where the fault ``waits_out`` one (a reply dropped, late, cut short,
-    or a controller that stopped answering: 0.1 s of wall time each, not the shipped 0.5 s); ``retries``:
-    the bus's own retries of a request (pymodbus's; the config's default 1 where None)."""
+    stale, or a controller that stopped answering: 0.1 s of wall time each, not the shipped 0.5 s);
+    ``retries``: the bus's own retries of a request (pymodbus's; the config's default 1 where None)."""
     data = load_config("emulated-sample-stage-modbus").model_dump(mode="json")
     if retries is not None:
         data["buses"]["tilt"]["retries"] = retries
@@ -240,7 +240,9 @@ def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp
     dropped or cut short they make that read fail (the step retried, journaled); duplicated or stale
     (an earlier answer to the same read, at most a time-out old) they are skipped by transaction id (TCP),
     or discarded when they are not the request's (RTU), or read as what they are: the axis at rest."""
-    emu, clock = _modbus(rtu=transport == "rtu", waits_out=kind in ("late", "reorder", "drop", "truncate"))
+    # stale on TCP: skipped by its old transaction id, the request's own reply never comes (a time-out)
+    emu, clock = _modbus(rtu=transport == "rtu",
+                         waits_out=kind in ("late", "reorder", "drop", "truncate", "stale"))
     with emu:
         motor = emu.motors["sample_tilt"]
         first, _, events, _ = _campaign(tmp_path, emu, clock,

@@ -226,7 +226,7 @@ class SpectrometerEmulator(PowerMeterEmulator):
 
 
 #: Wall time a drain leaves the driver's stream reader to stamp the lines it just read (s).
-STAMP_GRACE_S = 0.001
+STAMP_GRACE_S = 0.0003
 #: A drain stops waiting for the driver to read the lines when it took none for this long (s, wall).
 UNREAD_S = 0.02
 
