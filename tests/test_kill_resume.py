@@ -39,13 +39,17 @@ RUN_LIMIT_S = 120.0
 @pytest.fixture(autouse=True)
 def _each_plan_made_once(monkeypatch):
     """The campaigns here plan each grid on the same gantry again and again (the uninterrupted run, the
-    crashed one's creation, in this process): the planner (deterministic: a function of the grid and the
-    gantry) runs once per (grid, config) and each campaign gets a copy of its plan
-    (:func:`planned.planned`). What these tests check comes after the plan: the crashes, the resumes, the
-    results bit for bit."""
+    crashed one's creation, in this process; a fly campaign's every run rebuilds its fly plan from the
+    journal): the planner (deterministic: a function of the grid and the gantry) runs once per (grid,
+    config) and each campaign gets a copy of its plan (:func:`planned.planned`, :func:`planned.fly_plans`).
+    What these tests check comes after the plan: the crashes, the resumes, the results bit for bit (and a
+    resumed fly campaign still checks the plan it gets against its journal's steps; the SIGKILLed one's
+    journal was planned by another process)."""
+    import gonio.fly.plans as fly_planning
     import gonio.lifecycle as lifecycle
 
     monkeypatch.setattr(lifecycle, "plan_campaign", planned.planned)
+    monkeypatch.setattr(fly_planning, "fly_plans", planned.fly_plans)
 
 
 def _toml(data: dict, prefix: str = "") -> str:
