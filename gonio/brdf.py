@@ -306,7 +306,12 @@ class MeasuredBRDF:
         """f_r at direction pairs given as angles in degrees (arrays broadcast and are flattened)."""
         arrays = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in
                                        (theta_i, phi_i, theta_o, phi_o)))
-        ti, pi_, to, po = (np.radians(a.ravel()) for a in arrays)
+        return self.eval_rad(*(np.radians(a.ravel()) for a in arrays))
+
+    def eval_rad(self, theta_i, phi_i, theta_o, phi_o) -> Evaluation:
+        """f_r at direction pairs given as angles in radians (arrays broadcast and are flattened)."""
+        ti, pi_, to, po = (a.ravel() for a in np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in
+                                                                    (theta_i, phi_i, theta_o, phi_o))))
         bad = ~(np.isfinite(ti) & np.isfinite(pi_) & np.isfinite(to) & np.isfinite(po)) | (ti < 0) | (to < 0)
         ti, to = np.where(bad, np.nan, ti), np.where(bad, np.nan, to)
         return self._eval(ti, np.nan_to_num(pi_), to, np.nan_to_num(po))

@@ -45,7 +45,7 @@ from gonio.formats.merl import MERL_BINS, write_merl
 from gonio.formats.radiance import LUMINANCE_WEIGHTS, write_pabopto
 from gonio.formats.rgl import NEAR_RETRO_DEG, build_measured, retro_from_samples
 from gonio.formats.tensor import write_tensor
-from gonio.geometry import MERL_SHAPE, from_half_diff_grid, merl_bin_centres, sph_to_vec
+from gonio.geometry import merl_centre_angles, sph_to_vec
 from gonio.registries import EXPORT_FORMATS
 
 __all__ = ["export", "ExportReport", "ExportJob", "parse_formats", "export_merl", "export_bsdf",
@@ -226,9 +226,7 @@ def export_merl(job: ExportJob, out: Path) -> ExportReport:
     brdf = job.brdf
     if len(brdf.channels) != 3:
         raise ValueError(f"merl: the format holds R, G, B; the dataset has channels {brdf.channels}")
-    # every bin's centre, in the table's order (iθh, iθd, iφd), φh = 0
-    wi, wo = (w.reshape(-1, 3) for w in from_half_diff_grid(*merl_bin_centres(*map(np.arange, MERL_SHAPE))))
-    ev = brdf.eval(wi, wo)
+    ev = brdf.eval_rad(*merl_centre_angles())   # every bin's centre, in the table's order, φh = 0
     report = ExportReport(job.format, cells=MERL_BINS,
                           notes=["f_r in sr^-1, no cosine; stored = f_r * 1500/(1, 1.15, 1.66); -1 = no data",
                                  "MERL files carry no metadata"])

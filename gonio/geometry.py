@@ -11,6 +11,8 @@ difference vector is ωi rotated by −φh about z and then by −θh about y, w
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 __all__ = [
@@ -28,6 +30,7 @@ __all__ = [
     "merl_index",
     "merl_unindex",
     "merl_bin_centres",
+    "merl_centre_angles",
     "canonical_reciprocal",
     "to_isotropic",
     "canonical_isotropic",
@@ -194,6 +197,19 @@ def merl_bin_centres(i_theta_h, i_theta_d, i_phi_d) -> tuple[np.ndarray, np.ndar
     theta_d = (np.asarray(i_theta_d, dtype=np.float64) + 0.5) / nd * HALF_PI
     phi_d = (np.asarray(i_phi_d, dtype=np.float64) + 0.5) / nphi * np.pi
     return theta_h, theta_d, phi_d
+
+
+@lru_cache(maxsize=1)
+def merl_centre_angles() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(θi, φi, θo, φo) of the centre of every MERL bin (φh = 0), radians, in the table's flat order: the
+    :func:`vec_to_sph` of :func:`from_half_diff_grid` of :func:`merl_bin_centres` of every bin (what a MERL
+    export evaluates). Computed once per process (1,458,000 pairs, about 0.7 s; 47 MB kept); the arrays are
+    read-only."""
+    wi, wo = (w.reshape(-1, 3) for w in from_half_diff_grid(*merl_bin_centres(*map(np.arange, MERL_SHAPE))))
+    angles = (*vec_to_sph(wi), *vec_to_sph(wo))
+    for a in angles:
+        a.flags.writeable = False
+    return angles
 
 
 def _key_less(a, b):

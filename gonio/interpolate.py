@@ -108,9 +108,12 @@ class Lattice:
     def __init__(self, nodes, periods, edges, values, stddev):
         self.nodes, self.periods, self.edges = nodes, periods, edges
         self.shape = tuple(len(n) for n in nodes)
-        self.values = values.reshape(-1, values.shape[-1])
-        self.variance = (stddev ** 2).reshape(self.values.shape)
-        self.missing = np.isnan(self.values).any(axis=1)
+        values = values.reshape(-1, values.shape[-1])
+        self.missing = np.isnan(values).any(axis=1)
+        # What eval weighs, made finite once (np.nan_to_num: 0 for a node not measured, which ``missing``
+        # marks) rather than at each of its 2^d corners a call
+        self.values = np.nan_to_num(values)
+        self.variance = np.nan_to_num((stddev ** 2).reshape(values.shape))
         self.strides = np.cumprod((1,) + self.shape[::-1])[:-1][::-1]
 
     @classmethod
@@ -239,8 +242,8 @@ class Lattice:
             used += live
             gap |= live & self.missing[flat]
             wv = np.where(live, w, 0.0)[:, None]
-            value += wv * np.nan_to_num(self.values[flat])
-            var += wv * wv * np.nan_to_num(self.variance[flat])
+            value += wv * self.values[flat]
+            var += wv * wv * self.variance[flat]
         reason = np.where(out, Reason.OUT_OF_RANGE, np.where(gap, Reason.NO_DATA, Reason.OK)).astype(np.uint8)
         return value, np.sqrt(var), reason, (used == 1) & (reason == Reason.OK)
 

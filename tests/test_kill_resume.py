@@ -39,13 +39,17 @@ RUN_LIMIT_S = 120.0
 @pytest.fixture(autouse=True)
 def _each_plan_made_once(monkeypatch):
     """The campaigns here plan each grid on the same gantry again and again (the uninterrupted run, the
-    crashed one's creation, in this process): the planner (deterministic: a function of the grid and the
-    gantry) runs once per (grid, config) and each campaign gets a copy of its plan
-    (:func:`planned.planned`). What these tests check comes after the plan: the crashes, the resumes, the
-    results bit for bit."""
+    crashed one's creation, in this process; a fly campaign's every run rebuilds its fly plan from the
+    journal): the planner (deterministic: a function of the grid and the gantry) runs once per (grid,
+    config) and each campaign gets a copy of its plan (:func:`planned.planned`, :func:`planned.fly_plans`).
+    What these tests check comes after the plan: the crashes, the resumes, the results bit for bit (and a
+    resumed fly campaign still checks the plan it gets against its journal's steps; the SIGKILLed one's
+    journal was planned by another process)."""
+    import gonio.fly.plans as fly_planning
     import gonio.lifecycle as lifecycle
 
     monkeypatch.setattr(lifecycle, "plan_campaign", planned.planned)
+    monkeypatch.setattr(fly_planning, "fly_plans", planned.fly_plans)
 
 
 def _toml(data: dict, prefix: str = "") -> str:
@@ -204,19 +208,21 @@ def test_crashes_with_a_drifting_lamp_and_dark_offset_match_the_truth_within_its
 
 
 def test_a_fly_campaign_crashed_at_random_journal_writes_resumes_to_the_uninterrupted_result(tmp_path,
-                                                                                              monkeypatch):
+                                                                                              monkeypatch,
+                                                                                              shared_reference):
     """The same for on-the-fly scanning (one journal transaction per sweep): a crash loses at most the
     sweep in flight, and the resumed campaign is the uninterrupted one bit for bit. Most of its lines
     are in serpentine passes (entered through a swept turnaround from the line before), so the crashes
     cut passes: a resumed pass starts at its first line with no reading, moved to at rest."""
     from gonio.fly.plans import fly_plans
 
-    config = _config(tmp_path)
-    _, fp = fly_plans("iso:step=15,order=fly", load_config(config))
+    material, grid = "ward:rho_d=0.1,rho_s=0.05,alpha=0.15", "iso:step=15,order=fly"
+    config, reference = shared_reference(material, grid)   # the SIGKILLed fly campaign's as well
+    _, fp = fly_plans(grid, load_config(config))
     turned = sum(fp.swept_turn(k) for k in range(len(fp.lines)))
     assert turned >= 0.3 * len(fp.lines)
-    b = _crashed_equals_uninterrupted(tmp_path, monkeypatch, "ward:rho_d=0.1,rho_s=0.05,alpha=0.15",
-                                      "iso:step=15,order=fly", config, kills=6, seed=4, creation=1)
+    b = _crashed_equals_uninterrupted(tmp_path, monkeypatch, material, grid, config, kills=6, seed=4,
+                                      creation=1, reference=reference)
     assert len(b["value"]) == 304   # every pose of iso:step=15
 
 
@@ -293,9 +299,10 @@ def test_sigkill_during_creation_and_mid_campaign_then_resume_equals_an_uninterr
 
 
 @pytest.mark.slow
-def test_a_sigkilled_fly_campaign_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch):
+def test_a_sigkilled_fly_campaign_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch,
+                                                                    shared_reference):
     _sigkilled_equals_uninterrupted(tmp_path, monkeypatch, "ward:rho_d=0.1,rho_s=0.05,alpha=0.15",
-                                    "iso:step=15,order=fly", 3)
+                                    "iso:step=15,order=fly", 3, shared=shared_reference)
 
 
 # -- adaptive campaigns: rounds planned from the journal ------------------------------------------------

@@ -396,19 +396,20 @@ def _full(spec: GridSpec, theta_max_deg: float) -> GridPoses:
 def _merl(spec: GridSpec, theta_max_deg: float) -> GridPoses:
     k = spec.stride
     nh, nd, nphi = MERL_SHAPE
+    # φd and φd + π are the two members of a Helmholtz pair (ωi and ωo swapped): with reciprocity only
+    # [0, π) is kept, so only that half is made.
+    halves = 1 if spec.reciprocity else 2
     ih, id_, ip, half = np.meshgrid(np.arange(0, nh, k), np.arange(0, nd, k), np.arange(0, nphi, k),
-                                    np.arange(2), indexing="ij")
+                                    np.arange(halves), indexing="ij")
     ih, id_, ip, half = ih.ravel(), id_.ravel(), ip.ravel(), half.ravel()
-    counts = {"grid": ih.size}
+    counts = {"grid": ih.size * 2 // halves}
     keep = np.ones(ih.size, dtype=bool)
     if spec.reciprocity:
-        # φd and φd + π are the two members of a Helmholtz pair (ωi and ωo swapped): keep [0, π).
-        keep &= half == 0
         counts["reciprocity"] = int(keep.sum())
     # the bins' directions, computed per grid line (the same numbers as from_half_diff of every point)
     theta_h, theta_d, phi_d = merl_bin_centres(*(np.arange(0, n, k) for n in MERL_SHAPE))
     wi, wo = (w.reshape(-1, 3) for w in
-              from_half_diff_grid(theta_h, theta_d, (phi_d[:, None] + np.pi * np.arange(2)).reshape(-1)))
+              from_half_diff_grid(theta_h, theta_d, (phi_d[:, None] + np.pi * np.arange(halves)).reshape(-1)))
     keep &= (wi[:, 2] > _ANGLE_TOL) & (wo[:, 2] > _ANGLE_TOL)
     counts["horizon"] = int(keep.sum())
     theta_i, phi_i = vec_to_sph(wi)
