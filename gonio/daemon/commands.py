@@ -49,6 +49,7 @@ def cmd_serve(args) -> int:
     return serve(cfg, data=Path(args.data), host=args.host, port=args.port, token=token, pace=pace,
                  hold=args.hold, max_streams=args.max_streams, materials=args.materials,
                  allow_hosts=args.allow_host, halt_needs_token=args.halt_needs_token,
+                 plan_idle=args.plan_priority == "idle",
                  announce=lambda line: print(line, file=sys.stderr, flush=True))
 
 
@@ -238,6 +239,10 @@ def add_parsers(sub, fmt, seed_type) -> None:
     sv.add_argument("--hold", action="store_true",
                     help="hold the campaigns that were running when the daemon stopped paused, not "
                     "resume them")
+    sv.add_argument("--plan-priority", choices=("idle", "normal"), default="idle",
+                    help="CPU priority of the worker that plans submitted campaigns: idle (the default: it "
+                    "takes only CPU time nothing else wants, so the running campaign comes first) or normal "
+                    "(a machine whose other work is no more urgent than the planning, e.g. a test suite's)")
     sv.add_argument("--max-streams", type=int, default=16, help="event-stream clients served at once")
     sv.add_argument("--log-json", action="store_true", help="log one JSON object per line")
     sv.set_defaults(func=cmd_serve)

@@ -84,6 +84,27 @@ def _serve_here(monkeypatch, capsys, args: list[str], token: str) -> tuple[int, 
     return code, capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("args", "idle"), [((), True), (("--plan-priority", "normal"), False),
+                                            (("--plan-priority", "idle"), True)])
+def test_serve_plans_at_idle_priority_unless_told_otherwise(tmp_path, monkeypatch, args, idle):
+    """What ``--plan-priority`` hands the daemon (the worker's scheduling policy for each value is
+    checked in test_daemon_submit.py); a value not allowed is refused (exit status 2, argparse's)."""
+    import logging
+
+    import gonio.daemon.server as server
+    from gonio.cli import main
+
+    seen = []
+    root = logging.getLogger()
+    monkeypatch.setattr(root, "handlers", list(root.handlers))
+    monkeypatch.setattr(root, "level", root.level)
+    monkeypatch.setattr(server, "serve", lambda cfg, **kw: seen.append(kw["plan_idle"]) or 0)
+    assert main(["serve", "--data", str(tmp_path / "d"), *args]) == 0 and seen == [idle]
+    with pytest.raises(SystemExit) as exc:
+        main(["serve", "--data", str(tmp_path / "d"), "--plan-priority", "low"])
+    assert exc.value.code == 2 and seen == [idle]
+
+
 @pytest.mark.slow
 def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path, monkeypatch, capsys, serve):
     data = tmp_path / "data"

@@ -10,7 +10,7 @@ import os
 import httpx
 import pytest
 from brdf_samples import tiny_tensor_file
-from daemon_helpers import WAIT_S, submit, wait_for, wait_state
+from daemon_helpers import WAIT_S, http_client, submit, wait_for, wait_state
 
 from gonio.store import JOURNAL_NAME
 
@@ -50,7 +50,7 @@ def test_planning_past_the_time_limit_is_stopped_and_leaves_nothing(serve):
 
 def test_a_client_that_goes_away_cancels_its_planning(serve):
     r = serve()
-    with httpx.Client(base_url=r.url, timeout=httpx.Timeout(WAIT_S, read=0.5)) as impatient:
+    with http_client(r.url, timeout=httpx.Timeout(WAIT_S, read=0.5)) as impatient:
         with pytest.raises(httpx.ReadTimeout):
             impatient.post("/campaigns", json={"material": "lambert:albedo=0.5", "grid": "iso:step=2"})
     wait_for(lambda: r.daemon.planner.killed == 1 and not r.daemon.planner.busy, "the planning to be stopped")
