@@ -30,11 +30,15 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gonio.daemon.records import DiskFull, FieldError, is_disk_full, prepare_campaign
-from gonio.sim.materials.library import MaterialsFolder
 
-__all__ = ["Planner", "PlannerBusy", "ClientGone", "PlanCache", "PLAN_TIMEOUT_S", "MAX_WAITING"]
+if TYPE_CHECKING:   # the worker imports it (and Dr.Jit with it) after its fork
+    from gonio.sim.materials.library import MaterialsFolder
+
+__all__ = ["Planner", "PlannerBusy", "ClientGone", "PlanCache", "PLAN_TIMEOUT_S", "MAX_WAITING",
+           "start_fork_server"]
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +111,17 @@ def _context():
     return ctx
 
 
+def start_fork_server() -> None:
+    """Start the fork server the planner's workers fork from, now, without waiting for it: a fresh
+    interpreter importing the planner (~0.7 s of CPU) then overlaps the rest of the daemon's start (its
+    web stack's imports), where the first worker, started once the daemon listens, waited for it. Where
+    it runs already (one per process), nothing."""
+    from multiprocessing import forkserver
+
+    _context()
+    forkserver.ensure_running()
+
+
 class PlanCache:
     """:func:`gonio.campaign.plan_campaign` that keeps the ``size`` plans it made last, by grid and
     config: planning is deterministic (the same grid on the same config plans the same poses, order and
@@ -146,6 +161,8 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:
             os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
         os.nice(19)
+    from gonio.sim.materials.library import MaterialsFolder
+
     materials = MaterialsFolder(materials_root)
     plans = PlanCache()
     try:
