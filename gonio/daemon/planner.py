@@ -54,8 +54,9 @@ _POLL_S = 0.05
 #: all (~80 bytes a step: at most ~80 MB however fine the grids).
 PLANS_KEPT = 8
 PLAN_STEPS_KEPT = 1_000_000
-#: Seconds between checks that a waiting request's client is still there.
-_CLIENT_POLL_S = 0.5
+#: Seconds between checks that a waiting request's client is still there (a look at the connection's
+#: receive queue: a client gone is noticed, and its planning stopped, within this).
+_CLIENT_POLL_S = 0.1
 _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 #: A request's planning is stopped after this many times its time limit of wall time, however little CPU
 #: time the machine's other work left it (it runs at idle priority).
