@@ -34,8 +34,9 @@ def _fail(args, err) -> int:
 def cmd_serve(args) -> int:
     from gonio.cli.common import refuse_emulated_placeholders
     from gonio.config import load_config
+    from gonio.daemon.auth import check_bind, check_token
     from gonio.daemon.pacing import check_pace
-    from gonio.daemon.server import serve, setup_logging
+    from gonio.daemon.planner import start_fork_server
 
     cfg = load_config(args.config)
     refuse_emulated_placeholders(cfg, args.config)
@@ -45,10 +46,16 @@ def cmd_serve(args) -> int:
     if not 1 <= args.max_streams <= 1024:
         raise ValueError(f"--max-streams: must be within [1, 1024], got {args.max_streams}")
     token = args.token if args.token is not None else os.environ.get("GONIO_TOKEN")
+    check_bind(args.host, check_token(token))   # as serve() does, before the fork server is started
+    # The planner's fork server imports the planner while this process imports its web stack.
+    start_fork_server()
+    from gonio.daemon.server import serve, setup_logging
+
     setup_logging(json_lines=args.log_json)
     return serve(cfg, data=Path(args.data), host=args.host, port=args.port, token=token, pace=pace,
                  hold=args.hold, max_streams=args.max_streams, materials=args.materials,
                  allow_hosts=args.allow_host, halt_needs_token=args.halt_needs_token,
+                 plan_idle=args.plan_priority == "idle",
                  announce=lambda line: print(line, file=sys.stderr, flush=True))
 
 
@@ -238,6 +245,10 @@ def add_parsers(sub, fmt, seed_type) -> None:
     sv.add_argument("--hold", action="store_true",
                     help="hold the campaigns that were running when the daemon stopped paused, not "
                     "resume them")
+    sv.add_argument("--plan-priority", choices=("idle", "normal"), default="idle",
+                    help="CPU priority of the worker that plans submitted campaigns: idle (the default: it "
+                    "takes only CPU time nothing else wants, so the running campaign comes first) or normal "
+                    "(a machine whose other work is no more urgent than the planning, e.g. a test suite's)")
     sv.add_argument("--max-streams", type=int, default=16, help="event-stream clients served at once")
     sv.add_argument("--log-json", action="store_true", help="log one JSON object per line")
     sv.set_defaults(func=cmd_serve)

@@ -30,11 +30,15 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gonio.daemon.records import DiskFull, FieldError, is_disk_full, prepare_campaign
-from gonio.sim.materials.library import MaterialsFolder
 
-__all__ = ["Planner", "PlannerBusy", "ClientGone", "PlanCache", "PLAN_TIMEOUT_S", "MAX_WAITING"]
+if TYPE_CHECKING:   # the worker imports it (and Dr.Jit with it) after its fork
+    from gonio.sim.materials.library import MaterialsFolder
+
+__all__ = ["Planner", "PlannerBusy", "ClientGone", "PlanCache", "PLAN_TIMEOUT_S", "MAX_WAITING",
+           "start_fork_server"]
 
 log = logging.getLogger(__name__)
 
@@ -50,8 +54,9 @@ _POLL_S = 0.05
 #: all (~80 bytes a step: at most ~80 MB however fine the grids).
 PLANS_KEPT = 8
 PLAN_STEPS_KEPT = 1_000_000
-#: Seconds between checks that a waiting request's client is still there.
-_CLIENT_POLL_S = 0.5
+#: Seconds between checks that a waiting request's client is still there (a look at the connection's
+#: receive queue: a client gone is noticed, and its planning stopped, within this).
+_CLIENT_POLL_S = 0.1
 _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 #: A request's planning is stopped after this many times its time limit of wall time, however little CPU
 #: time the machine's other work left it (it runs at idle priority).
@@ -107,6 +112,17 @@ def _context():
     return ctx
 
 
+def start_fork_server() -> None:
+    """Start the fork server the planner's workers fork from, now, without waiting for it: a fresh
+    interpreter importing the planner (~0.7 s of CPU) then overlaps the rest of the daemon's start (its
+    web stack's imports), where the first worker, started once the daemon listens, waited for it. Where
+    it runs already (one per process), nothing."""
+    from multiprocessing import forkserver
+
+    _context()
+    forkserver.ensure_running()
+
+
 class PlanCache:
     """:func:`gonio.campaign.plan_campaign` that keeps the ``size`` plans it made last, by grid and
     config: planning is deterministic (the same grid on the same config plans the same poses, order and
@@ -146,6 +162,8 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:
             os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
         os.nice(19)
+    from gonio.sim.materials.library import MaterialsFolder
+
     materials = MaterialsFolder(materials_root)
     plans = PlanCache()
     try:

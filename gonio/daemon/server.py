@@ -232,12 +232,13 @@ def _config(d: Daemon, access_log: bool, head_timeout_s: float = HEAD_TIMEOUT_S)
 def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 8765,
           token: str | None = None, pace: float = 0.02, hold: bool = False, access_log: bool = True,
           max_streams: int = 16, materials: str | Path | None = None, allow_hosts=(),
-          halt_needs_token: bool = False, announce=print) -> int:
+          halt_needs_token: bool = False, plan_idle: bool = True, announce=print) -> int:
     """Run the daemon until SIGTERM/SIGINT. Refuses a non-loopback ``host`` without a token, and a token
-    too weak, before anything is written."""
+    too weak, before anything is written. ``plan_idle``: as :func:`build_daemon`'s."""
     check_bind(host, check_token(token))
     d = build_daemon(cfg, data, token=token, pace=pace, hold=hold, max_streams=max_streams,
-                     materials=materials, allow_hosts=allow_hosts, halt_needs_token=halt_needs_token)
+                     materials=materials, allow_hosts=allow_hosts, halt_needs_token=halt_needs_token,
+                     plan_idle=plan_idle)
     # The port first: a port that is taken leaves nothing behind in the data folder (no daemon.lock).
     try:
         sock = _listen(host, port)

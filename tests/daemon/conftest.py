@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import httpx
 import pytest
-from daemon_helpers import STARTED, WAIT_S
+from daemon_helpers import STARTED, WAIT_S, http_client
 
 from gonio.config import load_config
 from gonio.daemon.server import build_daemon, start_in_thread
@@ -27,7 +26,7 @@ def serve(tmp_path):
                          max_streams=max_streams, clock=clock, **kw)
         r = start_in_thread(d, head_timeout_s=head_timeout_s)
         headers = {"Authorization": f"Bearer {token}"} if token else {}
-        r.client = httpx.Client(base_url=r.url, headers=headers, timeout=WAIT_S)
+        r.client = http_client(r.url, headers=headers)
         running.append(r)
         return r
 

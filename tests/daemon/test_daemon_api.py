@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import threading
 
-import httpx
 import pytest
-from daemon_helpers import TOKEN, WAIT_S, submit, unpace, wait_for, wait_state
+from daemon_helpers import TOKEN, WAIT_S, http_client, submit, unpace, wait_for, wait_state
 
 from gonio.daemon.auth import FAILURES_ALLOWED, check_bind, check_token, is_loopback, token_ok
 from gonio.store import JOURNAL_NAME, Journal
@@ -65,8 +64,8 @@ def test_bad_requests_are_refused_with_422_naming_the_field(serve, body, field, 
 
 def test_writes_need_the_token_reads_do_not(serve):
     r = serve(token=TOKEN)
-    anon = httpx.Client(base_url=r.url, timeout=WAIT_S)
-    wrong = httpx.Client(base_url=r.url, timeout=WAIT_S, headers={"Authorization": "Bearer nope"})
+    anon = http_client(r.url)
+    wrong = http_client(r.url, headers={"Authorization": "Bearer nope"})
     try:
         for method, path, body in WRITES[:-1]:
             for c in (anon, wrong):
@@ -78,7 +77,7 @@ def test_writes_need_the_token_reads_do_not(serve):
         assert anon.get("/campaigns").status_code == 200 and anon.get("/gantry").status_code == 200
         # The emergency stop from the rig (a loopback client) needs no token.
         assert anon.post("/gantry/halt").json()["message"] == "halt: every axis stopped"
-        lower = httpx.Client(base_url=r.url, timeout=WAIT_S, headers={"Authorization": f"bearer  {TOKEN}"})
+        lower = http_client(r.url, headers={"Authorization": f"bearer  {TOKEN}"})
         with lower:                                      # RFC 7235: the scheme in any case
             assert submit(lower)["id"] == "c00001"       # the token opens writes
     finally:
@@ -88,14 +87,14 @@ def test_writes_need_the_token_reads_do_not(serve):
 
 def test_the_halt_needs_the_token_when_configured_so(serve):
     r = serve(token=TOKEN, halt_needs_token=True)
-    with httpx.Client(base_url=r.url, timeout=WAIT_S) as anon:
+    with http_client(r.url) as anon:
         assert anon.post("/gantry/halt").status_code == 401
     assert r.client.post("/gantry/halt").status_code == 200
 
 
 def test_wrong_tokens_are_rate_limited_per_client(serve):
     r = serve(token=TOKEN)
-    with httpx.Client(base_url=r.url, timeout=WAIT_S, headers={"Authorization": "Bearer x" * 4}) as wrong:
+    with http_client(r.url, headers={"Authorization": "Bearer x" * 4}) as wrong:
         codes = [wrong.post("/campaigns/c00001/pause").status_code for _ in range(FAILURES_ALLOWED + 2)]
     assert codes == [401] * FAILURES_ALLOWED + [429, 429]
     blocked = r.client.post("/campaigns/c00001/pause")          # the right token too, from that client

@@ -7,9 +7,8 @@ from __future__ import annotations
 import socket
 import time
 
-import httpx
 import pytest
-from daemon_helpers import WAIT_S
+from daemon_helpers import WAIT_S, http_client
 
 from gonio.daemon.guard import HostNames, parse_allow_host
 
@@ -33,7 +32,7 @@ def test_only_the_daemons_own_names_are_answered(serve):
           f"gantry.lab:{port}", "proxy.lab:8443"]
     bad = ["evil.test", f"evil.test:{port}", "127.0.0.1", f"127.0.0.1:{int(port) + 1}", "gantry.lab",
            f"gantry.lab.evil.test:{port}", f"127.0.0.1:{port}@evil", ""]
-    with httpx.Client(base_url=r.url, timeout=WAIT_S) as c:
+    with http_client(r.url) as c:
         for host in ok:
             assert c.get("/health", headers={"Host": host}).status_code == 200, host
         for host in bad:

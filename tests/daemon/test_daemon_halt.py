@@ -11,7 +11,7 @@ import threading
 
 import httpx
 import pytest
-from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
+from daemon_helpers import TOKEN, WAIT_S, http_client, submit, wait_for, wait_state
 
 from gonio.store import JOURNAL_NAME, Journal
 
@@ -66,7 +66,7 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
 
     def read():
         headers = {"Authorization": f"Bearer {TOKEN}"}
-        with httpx.Client(base_url=r.url, timeout=WAIT_S, headers=headers) as c:
+        with http_client(r.url, headers=headers) as c:
             reads.append(c.get("/campaigns").status_code)
 
     def slow_submit():
@@ -100,14 +100,14 @@ def test_the_halt_is_answered_with_every_pool_saturated(serve, monkeypatch):
         wait_for(lambda: len(blocked) >= 40, "every request thread to be held up")
         wait_for(lambda: r.daemon.planner.busy, "the planner to be busy")
         # The rig's client (no token) gives up long before the held-up requests are released (WAIT_S).
-        with httpx.Client(base_url=r.url, timeout=HALT_WAIT_S) as rig:
+        with http_client(r.url, timeout=HALT_WAIT_S) as rig:
             halt = rig.post("/gantry/halt")
         assert halt.status_code == 200 and halt.json()["id"] == "c00001", halt.text
         wait_for(lambda: _journal_state(r) == "halted", "the runner to journal its halt")
         # The queue's worker, looking for the next campaign, now waits in a slow read holding the queue's
         # lock: a second halt is answered all the same (nothing is moving: every axis is stopped again).
         wait_for(lambda: len(blocked) > 40, "the queue's worker to be held up too")
-        with httpx.Client(base_url=r.url, timeout=HALT_WAIT_S) as rig:
+        with http_client(r.url, timeout=HALT_WAIT_S) as rig:
             again = rig.post("/gantry/halt")
         assert again.status_code == 200 and again.json()["message"] == "halt: every axis stopped", again.text
         assert not reads and not submits                      # every other request is still held up

@@ -84,11 +84,34 @@ def _serve_here(monkeypatch, capsys, args: list[str], token: str) -> tuple[int, 
     return code, capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("args", "idle"), [((), True), (("--plan-priority", "normal"), False),
+                                            (("--plan-priority", "idle"), True)])
+def test_serve_plans_at_idle_priority_unless_told_otherwise(tmp_path, monkeypatch, args, idle):
+    """What ``--plan-priority`` hands the daemon (the worker's scheduling policy for each value is
+    checked in test_daemon_submit.py); a value not allowed is refused (exit status 2, argparse's)."""
+    import logging
+
+    import gonio.daemon.server as server
+    from gonio.cli import main
+
+    seen = []
+    root = logging.getLogger()
+    monkeypatch.setattr(root, "handlers", list(root.handlers))
+    monkeypatch.setattr(root, "level", root.level)
+    monkeypatch.setattr(server, "serve", lambda cfg, **kw: seen.append(kw["plan_idle"]) or 0)
+    assert main(["serve", "--data", str(tmp_path / "d"), *args]) == 0 and seen == [idle]
+    with pytest.raises(SystemExit) as exc:
+        main(["serve", "--data", str(tmp_path / "d"), "--plan-priority", "low"])
+    assert exc.value.code == 2 and seen == [idle]
+
+
 @pytest.mark.slow
 def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path, monkeypatch, capsys, serve):
     data = tmp_path / "data"
-    s = Serve(data, "--pace", "0.005")
-    body = {"material": "lambert:albedo=0.5", "grid": "iso:step=10"}
+    # 310 steps paced at 10 ms of wall time per gantry second (~20 ms a step): seconds of runway for the
+    # waits below, and a plan of 0.3 s of CPU where iso:step=10 (1168 steps) took 1.2 s, then ran on.
+    s = Serve(data, "--pace", "0.01")
+    body = {"material": "lambert:albedo=0.5", "grid": "iso:step=15"}
     s.client.post("/campaigns", json=body).raise_for_status()
     folder = data / "campaigns" / "c00001"
     wait_for(lambda: _done(folder) >= 2, "two committed steps")
@@ -105,7 +128,7 @@ def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path,
     finally:
         j.close()
     assert 0 < n < total
-    held = Serve(data, "--pace", "0.005", "--hold")
+    held = Serve(data, "--pace", "0.01", "--hold")
     assert held.client.get("/campaigns/c00001").json()["state"] == "paused"
     assert _done(folder) == n
     held.client.post("/campaigns/c00001/resume").raise_for_status()   # held until an operator resumes
@@ -171,7 +194,8 @@ PACE = "0.01"
 
 @pytest.mark.slow
 def test_sigkill_at_random_moments_then_the_daemon_resumes_to_an_identical_result(tmp_path, serve):
-    material, grid, seed = "ggx:alpha=0.2,metal=gold", "iso:step=12", 5
+    # 310 steps (iso:step=12's 549 planned in 0.8 s of CPU, twice: the reference and the daemon's).
+    material, grid, seed = "ggx:alpha=0.2,metal=gold", "iso:step=15", 5
     ref = _reference(tmp_path, material, grid, seed)
     data = tmp_path / "data"
     folder = data / "campaigns" / "c00001"
