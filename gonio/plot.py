@@ -29,6 +29,7 @@ import numpy as np
 
 from gonio.brdf import MeasuredBRDF, open_brdf
 from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
+from gonio.figure_layout import PAD_IN, lay_out
 from gonio.formats import atomic_path
 from gonio.registries import PLOT_KINDS
 from gonio.slices import (
@@ -127,8 +128,12 @@ def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float 
         write_exr(out, s, meta)
         return report
     fig = how.draw(b, data, s, _title(name, b), report)
+    laid_out = fig.get_layout_engine() is None
+    if laid_out:  # laid out in one pass, to the figure's edges (gonio.figure_layout)
+        lay_out(fig)
+    tight = {} if laid_out else {"bbox_inches": "tight"}
     with atomic_path(out) as tmp:
-        fig.savefig(tmp, format=out.suffix.lower()[1:], dpi=150, bbox_inches="tight")
+        fig.savefig(tmp, format=out.suffix.lower()[1:], dpi=150, **tight)
     return report
 
 
@@ -189,10 +194,12 @@ def _albedo_slice(b, data, theta_i_deg, phi_i_deg) -> Slice:
     return albedo_slice(b, np.linspace(0.0, top, max(2, int(round(top / 2.5)) + 1)), phi_i_deg)
 
 
-def _figure(w=6.4, h=5.2):
+def _figure(w=6.4, h=5.2, layout: str | None = "constrained"):
+    """A figure; ``layout=None``: laid out by :func:`gonio.figure_layout.lay_out` when it is saved (the
+    kinds without a colour bar beside an image of fixed aspect)."""
     from matplotlib.figure import Figure
 
-    return Figure(figsize=(w, h), layout="constrained")
+    return Figure(figsize=(w, h), layout=layout)
 
 
 def _norm(values: np.ndarray):
@@ -249,7 +256,7 @@ def _in_plane_samples(b, data, theta_i, phi_i, tol=0.5):
 def _draw_polar(b, data, s, title, report):
     import matplotlib
 
-    fig = _figure(11.5, 5.2)
+    fig = _figure(11.5, 5.2, layout=None)
     ax = fig.add_subplot(1, 2, 1, projection="polar")
     cx = fig.add_subplot(1, 2, 2)
     ax.set_theta_zero_location("N")
@@ -294,7 +301,8 @@ def _draw_polar(b, data, s, title, report):
     cx.grid(alpha=0.3, which="major")
     cx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
               title="lines: interpolant\npoints: measured ±1σ\ndotted: mirror θo", title_fontsize=8)
-    fig.suptitle(f"{title}\nin-plane f_r, plane of incidence φi = {s.attrs['phi_i_deg']:g}°", fontsize=10)
+    fig.text(0.5, 1.0 - PAD_IN / fig.get_figheight(), f"{title}\nin-plane f_r, plane of incidence "
+             f"φi = {s.attrs['phi_i_deg']:g}°", fontsize=10, ha="center", va="top")  # over both panels
     return fig
 
 
@@ -394,7 +402,7 @@ def _draw_albedo(b, data, s, title, report):
     alone (dotted; a lower bound). Shaded: incidences whose
     specular direction lies where nothing was measured (the occlusion gap around retro-reflection
     holds the mirror direction at small θi), where the albedo misses the specular peak."""
-    fig = _figure(6.8, 4.6)
+    fig = _figure(6.8, 4.6, layout=None)
     ax = fig.add_subplot()
     th = np.asarray(s.attrs["cols_deg"])
     phi = float(s.attrs["phi_i_deg"])
