@@ -317,12 +317,11 @@ def polar_floor(least: float) -> float:
 
 # -- hemisphere -------------------------------------------------------------------------------------
 def _draw_hemisphere(b, data, s, title, report):
-    fig = _figure(6.4, 5.4)
-    ax = fig.add_subplot()
+    fig, ax, bar = _with_colour_bar(6.4, 5.4)
     y = luminance(s.image, b.channels)
     norm, log = _norm(y)
     im = ax.imshow(y, extent=(-90, 90, -90, 90), cmap=_cmap("inferno"), norm=norm, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label=_ylabel(b) + (" (log scale)" if log else ""), shrink=0.85)
+    fig.colorbar(im, cax=bar, label=_ylabel(b) + (" (log scale)" if log else ""))
     circle = np.linspace(0, 2 * np.pi, 361)
     for r in (30, 60, 90):
         ax.plot(r * np.cos(circle), r * np.sin(circle), color="0.55", lw=0.6)
@@ -341,14 +340,23 @@ def _draw_hemisphere(b, data, s, title, report):
     return fig
 
 
+def _with_colour_bar(w, h):
+    """A figure laid out by :func:`gonio.figure_layout.lay_out` with one square image and its colour bar
+    (a narrow last column, an empty one between; the image keeps to its right edge, near the bar)."""
+    fig = _figure(w, h, layout=None)
+    grid = fig.add_gridspec(1, 3, width_ratios=[1.0, 0.03, 0.05])
+    ax = fig.add_subplot(grid[0, 0])
+    ax.set_anchor("E")
+    return fig, ax, fig.add_subplot(grid[0, 2])
+
+
 # -- merl -------------------------------------------------------------------------------------------
 def _draw_merl(b, data, s, title, report):
-    fig = _figure(6.2, 5.2)
-    ax = fig.add_subplot()
+    fig, ax, bar = _with_colour_bar(6.2, 5.2)
     y = luminance(s.image, b.channels)
     norm, log = _norm(y)
     im = ax.imshow(y, extent=(0, 90, 0, 90), cmap=_cmap("magma"), norm=norm, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label=_ylabel(b) + (" (log scale)" if log else ""), shrink=0.85)
+    fig.colorbar(im, cax=bar, label=_ylabel(b) + (" (log scale)" if log else ""))
     ax.set_xlabel("θh, half-vector angle from the normal (°)")
     ax.set_ylabel("θd, difference angle (°)")
     ax.set_xticks(range(0, 91, 15))
