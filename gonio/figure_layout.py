@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["lay_out", "PAD_IN"]
+__all__ = ["lay_out", "inside", "PAD_IN"]
 
 #: Space (inches) around each axes' labels, titles and legends, and at the figure's edges.
 PAD_IN = 3 / 72
@@ -50,6 +50,22 @@ def lay_out(fig, pad_in: float = PAD_IN) -> None:
         x0, x1 = xs[spec.colspan.start][0], xs[spec.colspan.stop - 1][1]
         top, bottom = ys[spec.rowspan.start][0], ys[spec.rowspan.stop - 1][1]
         ax.set_position([x0 / w, 1 - bottom / h, (x1 - x0) / w, (bottom - top) / h])
+
+
+def inside(fig) -> bool:
+    """Whether every axes' title and axis labels and every figure text lie within the figure (after
+    :func:`lay_out`, which leaves out how far a title or an x label wider than its axes reaches: a
+    caller saves with ``bbox_inches="tight"`` where one does not fit)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    texts = [*fig.texts]
+    for ax in fig.axes:
+        if ax.get_visible():
+            texts += [ax.title, ax.xaxis.label, ax.yaxis.label]
+    edge = fig.bbox.padded(1.0)   # a pixel of rounding
+    return all(edge.x0 <= (box := t.get_window_extent(renderer)).x0 and box.x1 <= edge.x1
+               and edge.y0 <= box.y0 and box.y1 <= edge.y1 for t in texts if t.get_visible() and t.get_text())
 
 
 def _spans(size, before, after, ratios) -> list[tuple[float, float]]:

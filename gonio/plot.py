@@ -29,7 +29,7 @@ import numpy as np
 
 from gonio.brdf import MeasuredBRDF, open_brdf
 from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
-from gonio.figure_layout import PAD_IN, lay_out
+from gonio.figure_layout import PAD_IN, inside, lay_out
 from gonio.formats import atomic_path
 from gonio.registries import PLOT_KINDS
 from gonio.slices import (
@@ -131,7 +131,8 @@ def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float 
     laid_out = fig.get_layout_engine() is None
     if laid_out:  # laid out in one pass, to the figure's edges (gonio.figure_layout)
         lay_out(fig)
-    tight = {} if laid_out else {"bbox_inches": "tight"}
+    # cropped to what is drawn where a title wider than the figure, or constrained layout, needs it
+    tight = {} if laid_out and inside(fig) else {"bbox_inches": "tight"}
     with atomic_path(out) as tmp:
         fig.savefig(tmp, format=out.suffix.lower()[1:], dpi=150, **tight)
     return report

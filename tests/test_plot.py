@@ -227,7 +227,7 @@ def test_one_pass_layout_keeps_every_label_legend_and_title_inside_and_apart():
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from gonio.figure_layout import lay_out
+    from gonio.figure_layout import inside, lay_out
 
     fig = Figure(figsize=(8.0, 6.0), dpi=100)
     title = fig.text(0.5, 0.99, "a title\nover every panel", ha="center", va="top", fontsize=12)
@@ -252,3 +252,7 @@ def test_one_pass_layout_keeps_every_label_legend_and_title_inside_and_apart():
         assert not box.overlaps(top), k
         for j, other in enumerate(boxes[:k]):
             assert not box.overlaps(other), (j, k)
+    # a title wider than the figure cannot be laid out: inside() says so (gonio plot then crops to it)
+    assert inside(fig)
+    axes[0].set_title("a title far wider than its panel and than the whole figure " * 3)
+    assert not inside(fig)
