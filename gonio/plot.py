@@ -29,6 +29,7 @@ import numpy as np
 
 from gonio.brdf import MeasuredBRDF, open_brdf
 from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
+from gonio.figure_layout import PAD_IN, inside, lay_out
 from gonio.formats import atomic_path
 from gonio.registries import PLOT_KINDS
 from gonio.slices import (
@@ -127,8 +128,13 @@ def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float 
         write_exr(out, s, meta)
         return report
     fig = how.draw(b, data, s, _title(name, b), report)
+    laid_out = fig.get_layout_engine() is None
+    if laid_out:  # laid out in one pass, to the figure's edges (gonio.figure_layout)
+        lay_out(fig)
+    # cropped to what is drawn where a title wider than the figure, or constrained layout, needs it
+    tight = {} if laid_out and inside(fig) else {"bbox_inches": "tight"}
     with atomic_path(out) as tmp:
-        fig.savefig(tmp, format=out.suffix.lower()[1:], dpi=150, bbox_inches="tight")
+        fig.savefig(tmp, format=out.suffix.lower()[1:], dpi=150, **tight)
     return report
 
 
@@ -189,10 +195,12 @@ def _albedo_slice(b, data, theta_i_deg, phi_i_deg) -> Slice:
     return albedo_slice(b, np.linspace(0.0, top, max(2, int(round(top / 2.5)) + 1)), phi_i_deg)
 
 
-def _figure(w=6.4, h=5.2):
+def _figure(w=6.4, h=5.2, layout: str | None = "constrained"):
+    """A figure; ``layout=None``: laid out by :func:`gonio.figure_layout.lay_out` when it is saved (the
+    kinds without a colour bar beside an image of fixed aspect)."""
     from matplotlib.figure import Figure
 
-    return Figure(figsize=(w, h), layout="constrained")
+    return Figure(figsize=(w, h), layout=layout)
 
 
 def _norm(values: np.ndarray):
@@ -249,7 +257,7 @@ def _in_plane_samples(b, data, theta_i, phi_i, tol=0.5):
 def _draw_polar(b, data, s, title, report):
     import matplotlib
 
-    fig = _figure(11.5, 5.2)
+    fig = _figure(11.5, 5.2, layout=None)
     ax = fig.add_subplot(1, 2, 1, projection="polar")
     cx = fig.add_subplot(1, 2, 2)
     ax.set_theta_zero_location("N")
@@ -294,7 +302,8 @@ def _draw_polar(b, data, s, title, report):
     cx.grid(alpha=0.3, which="major")
     cx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
               title="lines: interpolant\npoints: measured ±1σ\ndotted: mirror θo", title_fontsize=8)
-    fig.suptitle(f"{title}\nin-plane f_r, plane of incidence φi = {s.attrs['phi_i_deg']:g}°", fontsize=10)
+    fig.text(0.5, 1.0 - PAD_IN / fig.get_figheight(), f"{title}\nin-plane f_r, plane of incidence "
+             f"φi = {s.attrs['phi_i_deg']:g}°", fontsize=10, ha="center", va="top")  # over both panels
     return fig
 
 
@@ -309,12 +318,11 @@ def polar_floor(least: float) -> float:
 
 # -- hemisphere -------------------------------------------------------------------------------------
 def _draw_hemisphere(b, data, s, title, report):
-    fig = _figure(6.4, 5.4)
-    ax = fig.add_subplot()
+    fig, ax, bar = _with_colour_bar(6.4, 5.4)
     y = luminance(s.image, b.channels)
     norm, log = _norm(y)
     im = ax.imshow(y, extent=(-90, 90, -90, 90), cmap=_cmap("inferno"), norm=norm, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label=_ylabel(b) + (" (log scale)" if log else ""), shrink=0.85)
+    fig.colorbar(im, cax=bar, label=_ylabel(b) + (" (log scale)" if log else ""))
     circle = np.linspace(0, 2 * np.pi, 361)
     for r in (30, 60, 90):
         ax.plot(r * np.cos(circle), r * np.sin(circle), color="0.55", lw=0.6)
@@ -333,14 +341,23 @@ def _draw_hemisphere(b, data, s, title, report):
     return fig
 
 
+def _with_colour_bar(w, h):
+    """A figure laid out by :func:`gonio.figure_layout.lay_out` with one square image and its colour bar
+    (a narrow last column, an empty one between; the image keeps to its right edge, near the bar)."""
+    fig = _figure(w, h, layout=None)
+    grid = fig.add_gridspec(1, 3, width_ratios=[1.0, 0.03, 0.05])
+    ax = fig.add_subplot(grid[0, 0])
+    ax.set_anchor("E")
+    return fig, ax, fig.add_subplot(grid[0, 2])
+
+
 # -- merl -------------------------------------------------------------------------------------------
 def _draw_merl(b, data, s, title, report):
-    fig = _figure(6.2, 5.2)
-    ax = fig.add_subplot()
+    fig, ax, bar = _with_colour_bar(6.2, 5.2)
     y = luminance(s.image, b.channels)
     norm, log = _norm(y)
     im = ax.imshow(y, extent=(0, 90, 0, 90), cmap=_cmap("magma"), norm=norm, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label=_ylabel(b) + (" (log scale)" if log else ""), shrink=0.85)
+    fig.colorbar(im, cax=bar, label=_ylabel(b) + (" (log scale)" if log else ""))
     ax.set_xlabel("θh, half-vector angle from the normal (°)")
     ax.set_ylabel("θd, difference angle (°)")
     ax.set_xticks(range(0, 91, 15))
@@ -394,7 +411,7 @@ def _draw_albedo(b, data, s, title, report):
     alone (dotted; a lower bound). Shaded: incidences whose
     specular direction lies where nothing was measured (the occlusion gap around retro-reflection
     holds the mirror direction at small θi), where the albedo misses the specular peak."""
-    fig = _figure(6.8, 4.6)
+    fig = _figure(6.8, 4.6, layout=None)
     ax = fig.add_subplot()
     th = np.asarray(s.attrs["cols_deg"])
     phi = float(s.attrs["phi_i_deg"])

@@ -218,3 +218,41 @@ def test_the_log_polar_panel_keeps_the_diffuse_body_out_of_its_centre(campaign, 
     lo, hi = rep.shown["polar_rlim"]
     out_from_centre = np.log10(rep.shown["least"] / lo) / np.log10(hi / lo)
     assert out_from_centre >= 0.2, out_from_centre
+
+
+def test_one_pass_layout_keeps_every_label_legend_and_title_inside_and_apart():
+    """gonio.figure_layout.lay_out (the report's and these plots' layout): on a grid with long axis
+    labels, a legend placed beside its axes, a title over every panel and a colour-bar column, every
+    axes' labels lie inside the figure, clear of the title and of each other's."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from gonio.figure_layout import inside, lay_out
+
+    fig = Figure(figsize=(8.0, 6.0), dpi=100)
+    title = fig.text(0.5, 0.99, "a title\nover every panel", ha="center", va="top", fontsize=12)
+    grid = fig.add_gridspec(2, 3, width_ratios=[1.0, 1.6, 0.06])
+    axes = [fig.add_subplot(grid[i, j]) for i in range(2) for j in range(2)]
+    for k, ax in enumerate(axes):
+        ax.plot([0, 1e5], [0, 1e5], label=f"a long legend entry {k}")
+        ax.set_ylabel("a long\ny label (units)")
+        ax.set_xlabel("an x label")
+        ax.set_title(f"panel {k}")
+    axes[1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    bar = fig.add_subplot(grid[:, 2])
+    fig.colorbar(axes[0].scatter([0, 1], [0, 1], c=[0, 1]), cax=bar, label="colour (units)")
+    lay_out(fig)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    boxes = [ax.get_tightbbox(renderer) for ax in [*axes, bar]]
+    edge = fig.bbox
+    for box in boxes:
+        assert edge.x0 <= box.x0 and box.x1 <= edge.x1 and edge.y0 <= box.y0 and box.y1 <= edge.y1, box
+    top = title.get_window_extent(renderer)
+    for k, box in enumerate(boxes):
+        assert not box.overlaps(top), k
+        for j, other in enumerate(boxes[:k]):
+            assert not box.overlaps(other), (j, k)
+    # a title wider than the figure cannot be laid out: inside() says so (gonio plot then crops to it)
+    assert inside(fig)
+    axes[0].set_title("a title far wider than its panel and than the whole figure " * 3)
+    assert not inside(fig)

@@ -195,7 +195,8 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
         raise ValueError(f"model {m.text!r}: every parameter is held fixed; nothing to fit")
     problem = Problem(m, data, loss, backend)
     if problem.loss == "chi2" and isinstance(source, str | Path) and Path(source).is_dir():
-        problem.set_shared(shared_errors(source, data.value))
+        albedo = attrs.get("reference_albedo")   # what brdf.h5 was calibrated with, when it says
+        problem.set_shared(shared_errors(source, data.value, None if albedo is None else float(albedo)))
     best = solve(problem, starts=starts, jac=jac)
     x = best["x"]
     residual = problem.residuals(x)

@@ -6,6 +6,7 @@ import io
 
 import numpy as np
 
+from gonio.figure_layout import lay_out
 from gonio.report.models import FRESNEL_THETA_D_DEG, PEAK_THETA_H_DEG
 
 __all__ = ["png", "overview", "calibration", "albedo", "reciprocity", "residual_maps", "DPI"]
@@ -20,11 +21,12 @@ _CLIP_PERCENT = 25.0
 def _figure(w, h):
     from matplotlib.figure import Figure
 
-    return Figure(figsize=(w, h), layout="constrained")
+    return Figure(figsize=(w, h), dpi=DPI)
 
 
 def png(fig) -> bytes:
-    """A figure as PNG bytes."""
+    """A figure as PNG bytes, laid out first (:func:`lay_out`)."""
+    lay_out(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
     return buf.getvalue()
@@ -221,7 +223,10 @@ def residual_maps(fits: list[dict]) -> bytes:
     cols = min(n, 3)
     rows = (n + cols - 1) // cols
     fig = _figure(3.7 * cols + 1.0, 3.3 * rows + 0.3)
-    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    # the colour bar is a narrow last column of the grid, beside every row
+    grid = fig.add_gridspec(rows, cols + 1, width_ratios=[1.0] * cols + [0.075])
+    axes = np.array([fig.add_subplot(grid[i, j]) for i in range(rows) for j in range(cols)])
+    bar = fig.add_subplot(grid[:, cols])
     norm = Normalize(-_CLIP_PERCENT, _CLIP_PERCENT)
     sc = None
     for ax, r in zip(axes, ok, strict=False):
@@ -240,8 +245,9 @@ def residual_maps(fits: list[dict]) -> bytes:
     for ax in axes[len(ok):]:
         ax.set_visible(False)
     if sc is not None:
-        fig.colorbar(sc, ax=list(axes[:len(ok)]), shrink=0.9,
-                     label=f"(model − data) / data  (%, clipped to ±{_CLIP_PERCENT:g})")
+        fig.colorbar(sc, cax=bar, label=f"(model − data) / data  (%, clipped to ±{_CLIP_PERCENT:g})")
+    else:
+        bar.set_visible(False)
     return png(fig)
 
 
