@@ -74,8 +74,10 @@ _VISA_ASRL = re.compile(r"^ASRL(.+)::INSTR$", re.IGNORECASE)
 
 #: The latency (ms) a Dynamixel bus's config allows an emulator's replies, twice per reply as for a
 #: USB adapter's latency timer: the servos' emulator is a thread on this host, and a host loaded by
-#: other work (a test suite on every core) can hold its reply for tens of ms past the SDK's 34 ms.
-EMULATOR_LATENCY_MS = 50.0
+#: other work (a test suite on every core) can hold its reply for tens of ms past the SDK's 34 ms. At 50 ms
+#: (a reply time-out of ~100 ms, two tries) `gonio gantry reference` on the README's emulated gantry missed
+#: a status packet twice in a row while both cores ran the test suite and other pages beside it.
+EMULATOR_LATENCY_MS = 100.0
 
 
 def _socket_address(port: str) -> tuple[str, int, str] | None:
