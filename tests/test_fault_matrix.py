@@ -313,7 +313,8 @@ def test_modbus_a_controller_that_stops_answering_faults_after_the_retries_and_r
         retries = _kinds(events, "retry")
         step = retries[-1].split(",")[0]
         assert [r.split(",")[0] for r in retries].count(step) == 2, retries
-        assert [r.split(",")[1].split(":")[0].strip() for r in retries[-2:]] == ["attempt 1", "attempt 2"], retries
+        attempts = [r.split(",")[1].split(":")[0].strip() for r in retries[-2:]]
+        assert attempts == ["attempt 1", "attempt 2"], retries
 
 
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
