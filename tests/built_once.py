@@ -27,9 +27,10 @@ T = TypeVar("T")
 
 def built_once(tmp_path_factory, name: str, build: Callable[[Path], T]) -> T:
     """``build(folder)`` (``folder`` an empty folder of its own) once per run, its value to every worker."""
-    if not os.environ.get("PYTEST_XDIST_WORKER"):
+    worker, base = os.environ.get("PYTEST_XDIST_WORKER"), tmp_path_factory.getbasetemp()
+    if not worker or base.name != f"popen-{worker}":  # not a worker's folder inside the run's own
         return build(tmp_path_factory.mktemp(name))
-    shared = tmp_path_factory.getbasetemp().parent / "built-once"
+    shared = base.parent / "built-once"
     shared.mkdir(exist_ok=True)
     folder, value = shared / name, shared / f"{name}.pickle"
     with open(shared / f"{name}.lock", "a") as lock:
