@@ -35,7 +35,7 @@ from gonio.registries import PLOT_KINDS
 from gonio.slices import (
     LUMA,
     Slice,
-    albedo_slice,
+    albedo_slices,
     hemisphere_slice,
     luminance,
     merl_slice,
@@ -190,9 +190,18 @@ def _incidences(b: MeasuredBRDF, data: SampledBRDF, most: int = 6) -> np.ndarray
     return values
 
 
+@dataclass
+class _AlbedoSlice(Slice):
+    """The albedo of the measured part (what an ``.exr`` holds) and, for the figure, ``whole``: the image of
+    the whole hemisphere's albedo (``albedo_slice(fill=True)``), from the same evaluations of f_r."""
+
+    whole: np.ndarray | None = None
+
+
 def _albedo_slice(b, data, theta_i_deg, phi_i_deg) -> Slice:
     top = min(b.theta_max_deg, 89.0)
-    return albedo_slice(b, np.linspace(0.0, top, max(2, int(round(top / 2.5)) + 1)), phi_i_deg)
+    measured, whole = albedo_slices(b, np.linspace(0.0, top, max(2, int(round(top / 2.5)) + 1)), phi_i_deg)
+    return _AlbedoSlice(**vars(measured), whole=whole.image)
 
 
 def _figure(w=6.4, h=5.2, layout: str | None = "constrained"):
@@ -417,7 +426,7 @@ def _draw_albedo(b, data, s, title, report):
     phi = float(s.attrs["phi_i_deg"])
     cov = np.asarray(s.attrs["coverage"])
     lower = s.image[0]
-    whole = albedo_slice(b, th, phi, fill=True).image[0]
+    whole = s.whole[0]
     from gonio.brdf import Reason
 
     mirror = b.eval_deg(th, np.full_like(th, phi), th, np.full_like(th, phi + 180.0))

@@ -146,6 +146,13 @@ def albedo_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0, *, fill:
     hemisphere that is exact for a diffuse sample and adds no peak that was not measured (a glossy
     sample's gaps get its diffuse level; its specular peak counts only where it was measured).
     """
+    return albedo_slices(b, thetas_i_deg, phi_i_deg, fills=(fill,))[0]
+
+
+def albedo_slices(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0, *,
+                  fills: tuple[bool, ...] = (False, True)) -> list[Slice]:
+    """:func:`albedo_slice` with each ``fill`` of ``fills``, in that order, from one evaluation of ``b``
+    per θi (the albedo plot draws the measured part and the whole hemisphere)."""
     cols = np.asarray(thetas_i_deg, dtype=np.float64)
     dt, dp = 1.0, 5.0
     to = np.arange(0.0, 90.0, dt) + dt / 2
@@ -153,23 +160,28 @@ def albedo_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0, *, fill:
     t, p = (a.ravel() for a in np.meshgrid(to, po, indexing="ij"))
     # cos θo dω over a cell: cos θ sin θ dθ dφ
     w = np.cos(np.radians(t)) * np.sin(np.radians(t)) * np.radians(dt) * np.radians(dp)
-    out = np.zeros((1, len(cols), len(b.channels)))
+    out = np.zeros((len(fills), 1, len(cols), len(b.channels)))
     coverage = np.zeros(len(cols))
     for k, ti in enumerate(cols):
         ev = b.eval_deg(ti, phi_i_deg, t, phi_i_deg + p)
-        ok = ev.reason == Reason.OK
-        coverage[k] = w[ok].sum() / np.pi
-        value = ev.value
-        if fill and ok.any() and not ok.all():
-            value, ok = _ring_minimum_fill(value, ok, len(to)), np.ones_like(ok)
-        out[0, k] = (w[ok, None] * value[ok]).sum(axis=0)
-    rule = ("sum over every cell of f_r cos(theta_o) dw, a cell where nothing was measured taking the least "
-            "f_r measured on its theta_o ring (or the nearest ring measured)" if fill else
-            "sum over the measured cells of f_r cos(theta_o) dw")
-    return Slice("albedo", out, b.channels, "directional albedo (dimensionless)",
-                 f"one row; column c: theta_i = cols_deg[c] deg at phi_i; value = {rule}, midpoint rule with "
-                 "1 deg in theta_o and 5 deg in phi_o",
-                 {"cols_deg": cols.tolist(), "phi_i_deg": float(phi_i_deg), "coverage": coverage.tolist()})
+        measured = ev.reason == Reason.OK
+        coverage[k] = w[measured].sum() / np.pi
+        for j, fill in enumerate(fills):
+            value, ok = ev.value, measured
+            if fill and ok.any() and not ok.all():
+                value, ok = _ring_minimum_fill(value, ok, len(to)), np.ones_like(ok)
+            out[j, 0, k] = (w[ok, None] * value[ok]).sum(axis=0)
+    slices = []
+    for j, fill in enumerate(fills):
+        rule = ("sum over every cell of f_r cos(theta_o) dw, a cell where nothing was measured taking the "
+                "least f_r measured on its theta_o ring (or the nearest ring measured)" if fill else
+                "sum over the measured cells of f_r cos(theta_o) dw")
+        slices.append(Slice("albedo", out[j], b.channels, "directional albedo (dimensionless)",
+                            f"one row; column c: theta_i = cols_deg[c] deg at phi_i; value = {rule}, "
+                            "midpoint rule with 1 deg in theta_o and 5 deg in phi_o",
+                            {"cols_deg": cols.tolist(), "phi_i_deg": float(phi_i_deg),
+                             "coverage": coverage.tolist()}))
+    return slices
 
 
 def _ring_minimum_fill(value: np.ndarray, ok: np.ndarray, rings: int) -> np.ndarray:

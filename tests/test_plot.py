@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from brdf_samples import sampled
+from built_once import built_once
 
 from gonio.brdf import Reason, open_brdf
 from gonio.cli import main
@@ -20,15 +21,18 @@ def campaign(tmp_path_factory):
     from gonio.lifecycle import run_campaign
     from gonio.wiring import build_gantry
 
-    folder = tmp_path_factory.mktemp("plot") / "copper"
-    # raster order: the plots do not depend on the order, and the tour takes 0.45 s longer to plan
-    c = create_campaign(folder, load_config(), grid="iso:step=15,reciprocity=false,order=raster",
-                        material=SPEC, seed=2)
-    try:
-        run_campaign(c, build_gantry(c.cfg, SPEC, seed=2))
-    finally:
-        c.close()
-    return folder
+    def build(parent):
+        folder = parent / "copper"
+        # raster order: the plots do not depend on the order, and the tour takes 0.45 s longer to plan
+        c = create_campaign(folder, load_config(), grid="iso:step=15,reciprocity=false,order=raster",
+                            material=SPEC, seed=2)
+        try:
+            run_campaign(c, build_gantry(c.cfg, SPEC, seed=2))
+        finally:
+            c.close()
+        return folder
+
+    return built_once(tmp_path_factory, "plot-copper", build)  # the tests only read it
 
 
 def _exr(path):

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import planned
 import pytest
+from built_once import built_once
 
 from gonio.campaign import create_campaign, finish_campaign, open_campaign
 from gonio.cli import main
@@ -77,19 +78,23 @@ def _verdict(rep, topic):
 @pytest.fixture(scope="module")
 def copper(tmp_path_factory):
     """Measured without the reciprocity shortcut, with one transient axis time-out (one retry); in raster
-    order (the tour takes 0.4 s longer to plan, and no check here depends on the order)."""
-    folder = tmp_path_factory.mktemp("report") / "copper"
-    _run(folder, COPPER, GRID + ",reciprocity=false,order=raster", _often_referenced(50), seed=2,
-         before=lambda g: g.axes["detector_tilt"].fail_next("timeout"))
-    out = folder.parent / "copper.html"
-    return folder, out, report(folder, out)
+    order (the tour takes 0.4 s longer to plan, and no check here depends on the order). Built once per run
+    (tests/built_once.py): the tests only read it."""
+    def build(parent):
+        folder, out = parent / "copper", parent / "copper.html"
+        _run(folder, COPPER, GRID + ",reciprocity=false,order=raster", _often_referenced(50), seed=2,
+             before=lambda g: g.axes["detector_tilt"].fail_next("timeout"))
+        return folder, out, report(folder, out)
+
+    return built_once(tmp_path_factory, "report-copper", build)
 
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
-    """lambert:albedo=0.8 on iso:step=30 with references every 8 poses: the one to tamper with."""
-    return _run(tmp_path_factory.mktemp("report") / "lambert", "lambert:albedo=0.8", "iso:step=30",
-                _often_referenced())
+    """lambert:albedo=0.8 on iso:step=30 with references every 8 poses: the one to tamper with (each test
+    tampers with a copy); built once per run."""
+    return built_once(tmp_path_factory, "report-lambert", lambda parent: _run(
+        parent / "lambert", "lambert:albedo=0.8", "iso:step=30", _often_referenced()))
 
 
 # -- a good campaign -----------------------------------------------------------------------------------
