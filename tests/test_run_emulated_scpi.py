@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pytest
+from side_by_side import side_by_side
 from test_run_emulated import GONIO, MATERIAL, _emulated_run, _fast, _faulted_then_cleared, _rows, _simulated
 
 from gonio.config import load_config, parse_config
@@ -63,13 +64,19 @@ def _matches(measured, simulated):
 REPLY_TIMEOUT_S = 0.5
 
 
-@pytest.fixture
-def emulated():
+def _emulated():
+    """The SCPI twin's emulators, its instruments' reply deadline REPLY_TIMEOUT_S: (gantry, clock)."""
     data = load_config(TWIN).model_dump(mode="json")
     for bus in ("lamp", "powermeter"):
         data["buses"][bus]["timeout_s"] = REPLY_TIMEOUT_S
     clock = SyncedVirtualClock()
-    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+    return EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True), clock
+
+
+@pytest.fixture
+def emulated():
+    emu, clock = _emulated()
+    with emu:
         yield emu, clock
 
 
@@ -110,18 +117,27 @@ def _inject(emu, at_step, action):
     return on_step
 
 
-@pytest.mark.parametrize("kind", ["delay", "drop", "corrupt", "truncate"])
-def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path, emulated, kind):
-    emu, clock = emulated
-    # delay: 0.5 s after the reading's 0.6 s deadline (the time-out and the exposure), 0.5 s before its
-    # re-synchronisation gives up (two time-outs more)
-    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=1.1))
-    (state, runner), _ = _emulated_run(tmp_path / "r", emu, clock, on_step=on_step)
-    assert state == State.DONE, runner.fault
-    assert emu.meter.faults.applied == [(kind, "FETC?")]
-    events, _ = _whole(tmp_path / "r")
+def _bad_reply(folder, kind):
+    """A campaign whose power meter answers one FETC? badly (``kind``): retried once, then it finishes."""
+    emu, clock = _emulated()
+    with emu:
+        # delay: 0.5 s after the reading's 0.6 s deadline (the time-out and the exposure), 0.5 s before its
+        # re-synchronisation gives up (two time-outs more)
+        on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=1.1))
+        (state, runner), _ = _emulated_run(folder, emu, clock, on_step=on_step)
+        assert state == State.DONE, runner.fault
+        assert emu.meter.faults.applied == [(kind, "FETC?")]
+    events, _ = _whole(folder)
     retries = [e for e in events if e["kind"] == "retry"]
     assert len(retries) == 1 and retries[0]["step"] == 5 and "detector: 'FETC?'" in retries[0]["message"]
+
+
+def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path):
+    """A reply late, dropped, corrupt or cut short: the step is retried once and the campaign finishes.
+    The four are independent (each its own emulators, ports and folder) and run side by side: the
+    deadlines three of them wait out are waited out together."""
+    kinds = ("delay", "drop", "corrupt", "truncate")
+    side_by_side({kind: (lambda kind=kind: _bad_reply(tmp_path / kind, kind)) for kind in kinds})
 
 
 def test_a_lamp_switch_lost_on_the_wire_is_retried_and_the_dark_is_still_dark(tmp_path, emulated):
