@@ -12,7 +12,6 @@ import time
 
 import numpy as np
 import pytest
-from side_by_side import side_by_side
 
 from gonio.campaign import create_campaign
 from gonio.clock import WallClock
@@ -255,29 +254,24 @@ def _az_run(folder, data, on_step=None):
 
 
 @pytest.fixture(scope="module")
-def az_campaigns(tmp_path_factory):
-    """The shipped emulated sample stage's campaign three ways, read by the tests below (none changes
-    them): "together" (its AZ axes started together, ``sync_start = "auto"``, each unit behind its own
-    TCP gateway), "alone" (moved axis by axis, ``"off"``) and "line" (``"auto"``, the four units on one
-    RTU line). Name -> (folder, state, runner, emulator, start line). The three are independent (each its
-    own emulators, ports, clock and folder) and run side by side: the RTU line's campaign is mostly
-    pymodbus's serial client polling in 1 ms sleeps, which the other two's work fills."""
-    root = tmp_path_factory.mktemp("az")
-    data = {"together": _az("auto"), "alone": _az("off"), "line": _az("auto", line=True)}
-    return side_by_side({name: (lambda name=name: (root / name, *_az_run(root / name, data[name])))
-                         for name in data})
+def az_together(tmp_path_factory):
+    """The shipped emulated sample stage's campaign with its AZ axes started together (``sync_start =
+    "auto"``, each unit behind its own TCP gateway): (folder, state, runner, emulator, start line), read
+    by the tests below, none of which changes it."""
+    folder = tmp_path_factory.mktemp("az") / "together"
+    return (folder, *_az_run(folder, _az("auto")))
 
 
-def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_the_same_result(
-        az_campaigns):
+def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_the_same_result(tmp_path,
+                                                                                               az_together):
     """The shipped emulated sample stage (each AZ unit behind its own TCP gateway) starts each pose's
     moving axes with held moves and trigger frames sent on every connection before any reply is read
     (a unit answers its trigger only once every preloaded unit got its own: none waited); its brdf.h5
     equals, bit for bit, the one of the same campaign moved axis by axis (sync_start = "off")."""
-    alone_folder, state, runner, _emu, line = az_campaigns["alone"]
+    state, runner, _emu, line = _az_run(tmp_path / "alone", _az("off"))
     assert state == State.DONE, runner.fault
     assert line.starts == 0  # axis by axis: no trigger ever started a move
-    together_folder, state, runner, emu, line = az_campaigns["together"]
+    together_folder, state, runner, emu, line = az_together
     assert state == State.DONE, runner.fault
     _assert_no_retry_or_fault(together_folder)
     starts = {n: emu.motors[n].starts for n in AZ_AXES}
@@ -291,16 +285,16 @@ def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_
         for t, _i, _wall in made:
             by_instant.setdefault(t, set()).add(n)
     assert max(map(len, by_instant.values())) >= 2  # poses that move several axes start them at one instant
-    alone, together = read_brdf(alone_folder / "brdf.h5"), read_brdf(together_folder / "brdf.h5")
+    alone, together = read_brdf(tmp_path / "alone" / "brdf.h5"), read_brdf(together_folder / "brdf.h5")
     np.testing.assert_array_equal(together.value, alone.value)
     np.testing.assert_array_equal(together.theta_o, alone.theta_o)
 
 
-def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(az_campaigns):
+def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(tmp_path, az_together):
     """The four AZ units on one RTU line: each pose move is ONE group-send trigger query to the parent
     (sample_rotation, unit 1) that every unit executes (those not moving preloaded to stay); the result
     equals the campaign's behind separate gateways (bit for bit)."""
-    line_folder, state, runner, emu, line = az_campaigns["line"]
+    state, runner, emu, line = _az_run(tmp_path / "line", _az("auto", line=True))
     assert state == State.DONE, runner.fault
     bus = emu.emulators["line"]
     triggers = [i for i, f in enumerate(bus.requests) if f[:-2] == bytes([1]) + TRIGGER_PDU]
@@ -309,9 +303,9 @@ def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(a
     for n in AZ_AXES:  # every unit started by those very queries, and by nothing else
         assert [i for _t, i, _w in emu.motors[n].starts] == parent, n
     assert all(emu.motors[n].group_id == -1 for n in AZ_AXES)  # each group left after its start
-    together_folder, state, runner, _emu, _line = az_campaigns["together"]
+    together_folder, state, runner, _emu, _line = az_together
     assert state == State.DONE, runner.fault
-    np.testing.assert_array_equal(read_brdf(line_folder / "brdf.h5").value,
+    np.testing.assert_array_equal(read_brdf(tmp_path / "line" / "brdf.h5").value,
                                   read_brdf(together_folder / "brdf.h5").value)
 
 
