@@ -32,13 +32,20 @@ TWINS = {"emulated-two-arm-dynamixel": "sim", "emulated-sample-stage-modbus": "s
 GONIO = [sys.executable, "-m", "gonio.cli"]
 
 
+#: ``gonio simulate`` of MATERIAL per (config, grid), run once in the process: the simulation is seeded (the
+#: same values each time) and the tests only read it.
+_SIMULATED: dict = {}
+
+
 def _simulated(tmp_path, sim_config: str, grid: str = GRID):
-    cfg = load_config(sim_config)
-    c = create_campaign(tmp_path / "sim", cfg, grid=grid, material=MATERIAL)
-    state, _ = run_campaign(c, build_gantry(cfg, MATERIAL))
-    c.close()
-    assert state == State.DONE
-    return read_brdf(tmp_path / "sim" / "brdf.h5")
+    if (sim_config, grid) not in _SIMULATED:
+        cfg = load_config(sim_config)
+        c = create_campaign(tmp_path / "sim", cfg, grid=grid, material=MATERIAL)
+        state, _ = run_campaign(c, build_gantry(cfg, MATERIAL))
+        c.close()
+        assert state == State.DONE
+        _SIMULATED[sim_config, grid] = read_brdf(tmp_path / "sim" / "brdf.h5")
+    return _SIMULATED[sim_config, grid]
 
 
 def _emulated_run(folder, emu, clock, grid: str = GRID, **run):
