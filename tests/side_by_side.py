@@ -34,3 +34,8 @@ def side_by_side(scenarios: dict[str, Callable[[], object]], limit_s: float = 60
         raise AssertionError(f"scenarios {sorted(errors)} of {len(scenarios)} failed; {name}: "
                              f"{type(errors[name]).__name__}: {errors[name]}") from errors[name]
     return results
+
+
+def each_side_by_side(scenario: Callable[[str], object], names, limit_s: float = 60.0) -> dict[str, object]:
+    """``scenario(name)`` for each of ``names``, side by side (:func:`side_by_side`)."""
+    return side_by_side({name: (lambda name=name: scenario(name)) for name in names}, limit_s)

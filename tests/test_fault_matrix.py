@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import pytest
-from side_by_side import side_by_side
+from side_by_side import each_side_by_side
 
 from gonio import manual
 from gonio.campaign import create_campaign
@@ -111,7 +111,7 @@ def _on_both(scenario: Callable[[str], None]) -> None:
     """``scenario(transport)`` over Modbus TCP and on an RTU line, side by side (each its own emulators,
     ports, clock and folder): what the two wait for (time-outs, the serial client's polls) is waited
     for together. Fails naming the transport that failed."""
-    side_by_side({t: (lambda t=t: scenario(t)) for t in ("tcp", "rtu")})
+    each_side_by_side(scenario, ("tcp", "rtu"))
 
 
 # -- Dynamixel -------------------------------------------------------------------------------------------

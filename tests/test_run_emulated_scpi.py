@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from side_by_side import side_by_side
+from side_by_side import each_side_by_side
 from test_run_emulated import GONIO, MATERIAL, _emulated_run, _fast, _faulted_then_cleared, _rows, _simulated
 
 from gonio.config import load_config, parse_config
@@ -136,8 +136,8 @@ def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path):
     """A reply late, dropped, corrupt or cut short: the step is retried once and the campaign finishes.
     The four are independent (each its own emulators, ports and folder) and run side by side: the
     deadlines three of them wait out are waited out together."""
-    kinds = ("delay", "drop", "corrupt", "truncate")
-    side_by_side({kind: (lambda kind=kind: _bad_reply(tmp_path / kind, kind)) for kind in kinds})
+    each_side_by_side(lambda kind: _bad_reply(tmp_path / kind, kind),
+                      ("delay", "drop", "corrupt", "truncate"))
 
 
 def test_a_lamp_switch_lost_on_the_wire_is_retried_and_the_dark_is_still_dark(tmp_path, emulated):
