@@ -12,7 +12,6 @@ import time
 
 import numpy as np
 import pytest
-from side_by_side import side_by_side
 
 from gonio.campaign import create_campaign
 from gonio.clock import WallClock
@@ -387,19 +386,7 @@ def test_gonio_run_killed_mid_campaign_resumes_when_run_again(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_bus_watchdog_on_the_wall_clock_stops_a_killed_run_and_lets_a_fed_campaign_finish(tmp_path):
-    """The Dynamixel bus watchdog on the wall clock, two scenarios: ``gonio run`` killed mid-move leaves
-    the servos stopped by their watchdogs (:func:`_killed_mid_move`), and a whole campaign with the
-    watchdog armed finishes, fed (:func:`_fed_campaign`). They are independent (each its own emulators,
-    ports and folder) and run side by side, their real-time waits together: the killed run's work is
-    in its own process, and its watching here sleeps."""
-    (tmp_path / "killed").mkdir()
-    (tmp_path / "fed").mkdir()
-    side_by_side({"killed mid-move": lambda: _killed_mid_move(tmp_path / "killed"),
-                  "fed campaign": lambda: _fed_campaign(tmp_path / "fed")}, limit_s=240.0)
-
-
-def _killed_mid_move(tmp_path):
+def test_gonio_run_killed_mid_move_leaves_the_servos_stopped_by_their_bus_watchdog(tmp_path):
     """The shipped Dynamixel config arms each servo's bus watchdog (0.5 s) for its moves: SIGKILL the
     process mid-move and the servo stops by itself within 0.5 s of the last packet, short of its goal."""
     data = load_config("emulated-two-arm-dynamixel").model_dump(mode="json")
@@ -454,7 +441,8 @@ def _killed_mid_move(tmp_path):
 WATCHDOG_GRID = "iso:step=60,theta_max=60"
 
 
-def _fed_campaign(tmp_path):
+@pytest.mark.slow
+def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp_path):
     """The Dynamixel twin on the wall clock with its bus watchdog at 0.2 s (the shipped 0.5 s, shortened
     as a config may: the runner then feeds it every 0.1 s) and the arms' moves slowed so that many last
     several watchdog periods: only the feeding reads keep the servos going. The campaign finishes with no
