@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import pytest
+from side_by_side import each_side_by_side
 
 from gonio import manual
 from gonio.campaign import create_campaign
@@ -104,6 +105,13 @@ def _modbus(rtu: bool = False, waits_out: bool = False, retries: int | None = No
         data["buses"]["tilt"]["url"] = "rtu:///dev/emulated-tilt?baudrate=115200"
     clock = HookClock()
     return EmulatedGantry(parse_config(data), clock=clock, any_port=True, referenced=True), clock
+
+
+def _on_both(scenario: Callable[[str], None]) -> None:
+    """``scenario(transport)`` over Modbus TCP and on an RTU line, side by side (each its own emulators,
+    ports, clock and folder): what the two wait for (time-outs, the serial client's polls) is waited
+    for together. Fails naming the transport that failed."""
+    each_side_by_side(scenario, ("tcp", "rtu"))
 
 
 # -- Dynamixel -------------------------------------------------------------------------------------------
@@ -233,28 +241,31 @@ def test_dxl_a_power_cycle_mid_campaign_faults_naming_the_lost_reference_and_res
 
 
 # -- Modbus -----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("transport", ["tcp", "rtu"])
 @pytest.mark.parametrize("kind", ["late", "duplicate", "reorder", "stale", "drop", "truncate"])
-def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp_path, transport, kind):
+def test_modbus_a_bad_reply_is_discarded_or_retried_and_the_campaign_goes_on(tmp_path, kind):
     """Two bad replies in a row (pymodbus asks once more by itself, retries = 1): late, out of order,
     dropped or cut short they make that read fail (the step retried, journaled); duplicated or stale
     (an earlier answer to the same read, at most a time-out old) they are skipped by transaction id (TCP),
-    or discarded when they are not the request's (RTU), or read as what they are: the axis at rest."""
-    # stale on TCP: skipped by its old transaction id, the request's own reply never comes (a time-out)
-    emu, clock = _modbus(rtu=transport == "rtu",
-                         waits_out=kind in ("late", "reorder", "drop", "truncate", "stale"))
-    with emu:
-        motor = emu.motors["sample_tilt"]
-        first, _, events, _ = _campaign(tmp_path, emu, clock,
-                                        inject=lambda e: motor.faults.add(kind, match=3, times=2))
-        assert first == State.DONE and not _kinds(events, "fault")
-        assert [k for k, _ in motor.faults.applied] == [kind, kind]
-        retries = _kinds(events, "retry")
-        if kind in ("late", "reorder", "drop", "truncate"):
-            assert len(retries) == 1
-            assert retries[0].startswith(f"step {AT_STEP + 1}, attempt 1: sample_tilt: ")
-        else:
-            assert not retries
+    or discarded when they are not the request's (RTU), or read as what they are: the axis at rest.
+    Over TCP and on an RTU line, side by side (:func:`_on_both`)."""
+    def scenario(transport):
+        # stale on TCP: skipped by its old transaction id, the request's own reply never comes (a time-out)
+        emu, clock = _modbus(rtu=transport == "rtu",
+                             waits_out=kind in ("late", "reorder", "drop", "truncate", "stale"))
+        with emu:
+            motor = emu.motors["sample_tilt"]
+            first, _, events, _ = _campaign(tmp_path / transport, emu, clock,
+                                            inject=lambda e: motor.faults.add(kind, match=3, times=2))
+            assert first == State.DONE and not _kinds(events, "fault")
+            assert [k for k, _ in motor.faults.applied] == [kind, kind]
+            retries = _kinds(events, "retry")
+            if kind in ("late", "reorder", "drop", "truncate"):
+                assert len(retries) == 1
+                assert retries[0].startswith(f"step {AT_STEP + 1}, attempt 1: sample_tilt: ")
+            else:
+                assert not retries
+
+    _on_both(scenario)
 
 
 def test_modbus_a_corrupt_rtu_reply_is_retried(tmp_path):
@@ -267,18 +278,23 @@ def test_modbus_a_corrupt_rtu_reply_is_retried(tmp_path):
         assert len(_kinds(events, "retry")) == 1
 
 
-@pytest.mark.parametrize("transport", ["tcp", "rtu"])
-def test_modbus_an_exception_response_busy_is_retried_and_device_failure_faults(tmp_path, transport):
-    emu, clock = _modbus(rtu=transport == "rtu")
-    with emu:
-        motor = emu.motors["sample_tilt"]
-        first, _, events, _ = _campaign(tmp_path / "busy", emu, clock, inject=lambda e: motor.fail_next(6))
-        assert first == State.DONE and "exception response, code 6" in _kinds(events, "retry")[0]
-    emu, clock = _modbus(rtu=transport == "rtu")
-    with emu:
-        motor = emu.motors["sample_tilt"]
-        first, reason, _, _ = _campaign(tmp_path / "fail", emu, clock, inject=lambda e: motor.fail_next(4))
-        assert first == State.FAULTED and "exception response, code 4" in reason
+def test_modbus_an_exception_response_busy_is_retried_and_device_failure_faults(tmp_path):
+    """Over TCP and on an RTU line, side by side (:func:`_on_both`)."""
+    def scenario(transport):
+        emu, clock = _modbus(rtu=transport == "rtu")
+        with emu:
+            motor = emu.motors["sample_tilt"]
+            first, _, events, _ = _campaign(tmp_path / transport / "busy", emu, clock,
+                                            inject=lambda e: motor.fail_next(6))
+            assert first == State.DONE and "exception response, code 6" in _kinds(events, "retry")[0]
+        emu, clock = _modbus(rtu=transport == "rtu")
+        with emu:
+            motor = emu.motors["sample_tilt"]
+            first, reason, _, _ = _campaign(tmp_path / transport / "fail", emu, clock,
+                                            inject=lambda e: motor.fail_next(4))
+            assert first == State.FAULTED and "exception response, code 4" in reason
+
+    _on_both(scenario)
 
 
 def test_modbus_a_controller_alarm_faults_with_its_code_and_an_alarm_reset_resumes(tmp_path):
@@ -297,40 +313,47 @@ def test_modbus_an_axis_stopped_short_faults_and_the_campaign_resumes_when_clear
         assert first == State.FAULTED and "short of its target" in reason, reason
 
 
-@pytest.mark.parametrize("transport", ["tcp", "rtu"])
-def test_modbus_a_controller_that_stops_answering_faults_after_the_retries_and_resumes(tmp_path, transport):
+def test_modbus_a_controller_that_stops_answering_faults_after_the_retries_and_resumes(tmp_path):
     """Every request to the silent controller waits its time-out out: without the bus's own retry of each
-    (the runner's retries are what is tested), each waits one, not two."""
-    emu, clock = _modbus(rtu=transport == "rtu", waits_out=True, retries=0)
-    with emu:
-        motor = emu.motors["sample_tilt"]
-        first, reason, events, _ = _campaign(tmp_path, emu, clock, inject=lambda e: motor.go_silent(),
-                                             fix=lambda e, cfg: motor.go_silent(False))
-        assert first == State.FAULTED and reason.startswith("sample_tilt: ")
-        assert "gave up after 2 retries" in reason
-        # the two retries of the step that faulted (a reply of an earlier step that missed the 0.1 s time-out
-        # on a loaded host is retried too, at its own step: not what this test is about)
-        retries = _kinds(events, "retry")
-        step = retries[-1].split(",")[0]
-        assert [r.split(",")[0] for r in retries].count(step) == 2, retries
-        attempts = [r.split(",")[1].split(":")[0].strip() for r in retries[-2:]]
-        assert attempts == ["attempt 1", "attempt 2"], retries
+    (the runner's retries are what is tested), each waits one, not two. Over TCP and on an RTU line, side
+    by side (:func:`_on_both`)."""
+    def scenario(transport):
+        emu, clock = _modbus(rtu=transport == "rtu", waits_out=True, retries=0)
+        with emu:
+            motor = emu.motors["sample_tilt"]
+            first, reason, events, _ = _campaign(tmp_path / transport, emu, clock,
+                                                 inject=lambda e: motor.go_silent(),
+                                                 fix=lambda e, cfg: motor.go_silent(False))
+            assert first == State.FAULTED and reason.startswith("sample_tilt: ")
+            assert "gave up after 2 retries" in reason
+            # the two retries of the step that faulted (a reply of an earlier step that missed the 0.1 s
+            # time-out on a loaded host is retried too, at its own step: not what this test is about)
+            retries = _kinds(events, "retry")
+            step = retries[-1].split(",")[0]
+            assert [r.split(",")[0] for r in retries].count(step) == 2, retries
+            attempts = [r.split(",")[1].split(":")[0].strip() for r in retries[-2:]]
+            assert attempts == ["attempt 1", "attempt 2"], retries
+
+    _on_both(scenario)
 
 
-@pytest.mark.parametrize("transport", ["tcp", "rtu"])
-def test_modbus_a_cable_pulled_mid_move_faults_or_reconnects_and_the_campaign_resumes(tmp_path, transport):
+def test_modbus_a_cable_pulled_mid_move_faults_or_reconnects_and_the_campaign_resumes(tmp_path):
     """RTU: the pty closes under the driver (every retry finds it gone: a fault; replugged, it resumes).
-    TCP: the gateway drops the connection (pymodbus reconnects: the campaign goes on)."""
-    emu, clock = _modbus(rtu=transport == "rtu")
-    with emu:
-        motor = emu.motors["sample_tilt"]
-        first, reason, events, _ = _campaign(tmp_path, emu, clock,
-                                             mid_move=lambda e: motor.faults.add("disconnect"),
-                                             fix=lambda e, cfg: motor.replug())
-        if transport == "rtu":
-            assert first == State.FAULTED and "connection lost" in reason, reason
-        else:
-            assert first == State.DONE, reason
+    TCP: the gateway drops the connection (pymodbus reconnects: the campaign goes on). Side by side
+    (:func:`_on_both`)."""
+    def scenario(transport):
+        emu, clock = _modbus(rtu=transport == "rtu")
+        with emu:
+            motor = emu.motors["sample_tilt"]
+            first, reason, events, _ = _campaign(tmp_path / transport, emu, clock,
+                                                 mid_move=lambda e: motor.faults.add("disconnect"),
+                                                 fix=lambda e, cfg: motor.replug())
+            if transport == "rtu":
+                assert first == State.FAULTED and "connection lost" in reason, reason
+            else:
+                assert first == State.DONE, reason
+
+    _on_both(scenario)
 
 
 def test_modbus_a_power_cycle_mid_campaign_stops_the_axis_short_and_resumes_when_cleared(tmp_path):

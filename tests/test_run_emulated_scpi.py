@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pytest
+from side_by_side import each_side_by_side
 from test_run_emulated import GONIO, MATERIAL, _emulated_run, _fast, _faulted_then_cleared, _rows, _simulated
 
 from gonio.config import load_config, parse_config
@@ -63,13 +64,19 @@ def _matches(measured, simulated):
 REPLY_TIMEOUT_S = 0.5
 
 
-@pytest.fixture
-def emulated():
+def _emulated():
+    """The SCPI twin's emulators, its instruments' reply deadline REPLY_TIMEOUT_S: (gantry, clock)."""
     data = load_config(TWIN).model_dump(mode="json")
     for bus in ("lamp", "powermeter"):
         data["buses"][bus]["timeout_s"] = REPLY_TIMEOUT_S
     clock = SyncedVirtualClock()
-    with EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
+    return EmulatedGantry(parse_config(data), MATERIAL, clock=clock, any_port=True, referenced=True), clock
+
+
+@pytest.fixture
+def emulated():
+    emu, clock = _emulated()
+    with emu:
         yield emu, clock
 
 
@@ -110,18 +117,27 @@ def _inject(emu, at_step, action):
     return on_step
 
 
-@pytest.mark.parametrize("kind", ["delay", "drop", "corrupt", "truncate"])
-def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path, emulated, kind):
-    emu, clock = emulated
-    # delay: 0.5 s after the reading's 0.6 s deadline (the time-out and the exposure), 0.5 s before its
-    # re-synchronisation gives up (two time-outs more)
-    on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=1.1))
-    (state, runner), _ = _emulated_run(tmp_path / "r", emu, clock, on_step=on_step)
-    assert state == State.DONE, runner.fault
-    assert emu.meter.faults.applied == [(kind, "FETC?")]
-    events, _ = _whole(tmp_path / "r")
+def _bad_reply(folder, kind):
+    """A campaign whose power meter answers one FETC? badly (``kind``): retried once, then it finishes."""
+    emu, clock = _emulated()
+    with emu:
+        # delay: 0.5 s after the reading's 0.6 s deadline (the time-out and the exposure), 0.5 s before its
+        # re-synchronisation gives up (two time-outs more)
+        on_step = _inject(emu, 4, lambda e: e.meter.faults.add(kind, match="FETC?", delay_s=1.1))
+        (state, runner), _ = _emulated_run(folder, emu, clock, on_step=on_step)
+        assert state == State.DONE, runner.fault
+        assert emu.meter.faults.applied == [(kind, "FETC?")]
+    events, _ = _whole(folder)
     retries = [e for e in events if e["kind"] == "retry"]
     assert len(retries) == 1 and retries[0]["step"] == 5 and "detector: 'FETC?'" in retries[0]["message"]
+
+
+def test_a_bad_power_meter_reply_is_retried_and_the_campaign_finishes(tmp_path):
+    """A reply late, dropped, corrupt or cut short: the step is retried once and the campaign finishes.
+    The four are independent (each its own emulators, ports and folder) and run side by side: the
+    deadlines three of them wait out are waited out together."""
+    each_side_by_side(lambda kind: _bad_reply(tmp_path / kind, kind),
+                      ("delay", "drop", "corrupt", "truncate"))
 
 
 def test_a_lamp_switch_lost_on_the_wire_is_retried_and_the_dark_is_still_dark(tmp_path, emulated):
@@ -198,13 +214,14 @@ def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path, capsys)
     from gonio.cli import main
 
     data = _fast(TWIN)
-    for axis in data["axes"].values():  # within each servo's velocity limit, its gear included
-        axis["max_velocity_deg_s"], axis["max_accel_deg_s2"] = 180.0, 2000.0
+    for axis in data["axes"].values():  # within each servo's velocity limit, its gear included; quick
+        # ramps (Profile Acceleration): the moves are not what is tested here
+        axis["max_velocity_deg_s"], axis["max_accel_deg_s2"] = 180.0, 6000.0
         if axis.get("reference") == "hard_stop":  # the ring carriages: 1:1 pinions, so 240 °/s on the
             # ring, and the approach to the stop at that speed
-            axis.update(gear_ratio=1.0, max_velocity_deg_s=240.0, max_accel_deg_s2=4800.0,
-                        reference_velocity_deg_s=240.0)
-    data["axes"]["changer"].update(max_velocity_deg_s=300.0, max_accel_deg_s2=3000.0)  # the XL430's quickest
+            axis.update(gear_ratio=1.0, max_velocity_deg_s=240.0, reference_velocity_deg_s=240.0)
+    # the changer at the XL430's quickest (364 °/s): its four swings of 90° are a third of the campaign
+    data["axes"]["changer"].update(max_velocity_deg_s=350.0, max_accel_deg_s2=20000.0)
     # The light carriage on a ring of ±60° (this campaign's light azimuths lie within ±15°): its reference
     # seeks a stop 60° from where the servo powers up, not 200° (1.2 s less on the wall clock).
     data["axes"]["light_azimuth"].update(min_deg=-60.0, max_deg=60.0, reference_deg=-60.0)

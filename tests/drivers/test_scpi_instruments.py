@@ -6,10 +6,10 @@ replies that are not numbers, and each fault of the serial-instrument fault matr
 from __future__ import annotations
 
 import math
-import threading
 from contextlib import contextmanager
 
 import pytest
+from side_by_side import side_by_side
 
 from gonio.clock import VirtualClock
 from gonio.drivers.serial import InstrumentCommError, InstrumentError, SerialLightSource, SerialPowerMeter
@@ -75,31 +75,6 @@ def running(emu, dev):
 def _meter(port, clock, **kw):
     return SerialPowerMeter("pm", port, "thorlabs-pm100", wavelength_nm=633.0, timeout_s=TIMEOUT_S,
                             clock=clock, **kw)
-
-
-def _side_by_side(scenarios: dict) -> None:
-    """Run independent scenarios (name -> function), each in a thread of its own: those that wait a reply
-    deadline out wait it out together. Fails naming every scenario that failed (the first one's error
-    chained), or one that did not end within a minute."""
-    errors: dict = {}
-
-    def run(name, fn):
-        try:
-            fn()
-        except BaseException as exc:  # reported below, by name
-            errors[name] = exc
-
-    threads = [threading.Thread(target=run, args=item, name=f"scenario {item[0]}", daemon=True)
-               for item in scenarios.items()]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60.0)
-    assert not [t.name for t in threads if t.is_alive()], "a scenario did not end within 60 s"
-    if errors:
-        name = sorted(errors)[0]
-        raise AssertionError(f"scenarios {sorted(errors)} of {len(scenarios)} failed; {name}: "
-                             f"{errors[name]!r}") from errors[name]
 
 
 @pytest.fixture(params=sorted(TRANSPORTS))
@@ -242,7 +217,7 @@ def test_a_bad_reply_is_transient_and_the_next_reading_is_its_own():
                 assert dev.late_replies <= 1
         return run
 
-    _side_by_side({f"{kind}-{transport}": scenario(kind, transport)
+    side_by_side({f"{kind}-{transport}": scenario(kind, transport)
                    for kind in ("drop", "corrupt", "truncate", "delay") for transport in FAULT_TRANSPORTS})
 
 
@@ -283,7 +258,7 @@ def test_a_setter_lost_or_garbled_on_the_wire_is_caught_by_the_error_queue(kind,
                 assert dev.measure(0.1).signal[0] == pytest.approx(WATTS + DARK_W, rel=1e-6)
         return run
 
-    _side_by_side({transport: scenario(transport) for transport in FAULT_TRANSPORTS})
+    side_by_side({transport: scenario(transport) for transport in FAULT_TRANSPORTS})
 
 
 def test_unplugged_mid_reading_reconnects(pm100):
@@ -321,7 +296,7 @@ def test_a_power_cycled_meter_is_configured_again_before_its_next_reading(unplug
         for run in scenarios.values():
             run()
     else:
-        _side_by_side(scenarios)
+        side_by_side(scenarios)
 
 
 # -- the current source --------------------------------------------------------------------------------
