@@ -17,6 +17,13 @@ _ADDRESS = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+$")
 #: The scheduler's HTTP server (the dashboard, where bokeh is installed): loopback, a free port.
 DASHBOARD_ADDRESS = "127.0.0.1:0"
 
+#: What a local cluster's fork server imports once, for every worker it forks: Dask's worker and what a
+#: batch's or a fit's task imports before it computes. Not Dr.Jit (nor what imports it: the simulated
+#: detector and materials, gonio.fit): its import starts a thread pool, which a forked child would lack
+#: (tests/batch/test_batch_cluster.py checks that this list imports no thread).
+PRELOAD = ("distributed", "gonio.batch.run", "gonio.batch.fit", "gonio.lifecycle", "gonio.dataset",
+           "gonio.wiring", "gonio.runner", "h5py")
+
 
 def dashboard_link(client) -> str | None:
     """Where the Dask dashboard is: its address where the scheduler serves one, a note where its HTTP
@@ -62,8 +69,17 @@ def connect(workers: int | None = None, scheduler: str | None = None):
     from distributed import Client, LocalCluster
 
     if scheduler is None:
+        from distributed.utils import get_mp_context
+
         n = workers or len(os.sched_getaffinity(0))
-        with dask.config.set({"distributed.worker.daemon": True}):
+        # Workers forked from a fork server that imported PRELOAD once, not each a fresh interpreter
+        # importing Dask and gonio (0.5-0.8 s of CPU a worker); a forked worker also ends without the
+        # interpreter's finalization, which a closing cluster waits for (0.5-2 s). Where the fork server
+        # runs already (a second cluster in this process), its workers are forked from it as it is.
+        with dask.config.set({"distributed.worker.daemon": True,
+                              "distributed.worker.multiprocessing-method": "forkserver"}):
+            context = get_mp_context()      # Dask's own preload set first, then this one in its place
+            context.set_forkserver_preload(list(PRELOAD))
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                    dashboard_address=DASHBOARD_ADDRESS, silence_logs=40)
         return Client(cluster), cluster, 1

@@ -118,3 +118,23 @@ def test_the_dashboard_link_of_a_real_scheduler():
         assert link == "none (the scheduler lacks bokeh >= 3.1, which the dashboard needs)"
     else:
         assert link.startswith("http://127.0.0.1:") and link.endswith("/status")
+
+
+def test_what_the_fork_server_preloads_imports_no_dr_jit_and_starts_no_thread():
+    """A local cluster's workers are forked from a fork server that imported PRELOAD: a thread running
+    there (Dr.Jit's pool, started by its import) would be missing in every forked worker. Imported in a
+    fresh interpreter with the environment Dask gives a worker process (one BLAS thread)."""
+    import os
+    import subprocess
+    import sys
+
+    import dask
+
+    env = os.environ | {k: str(v) for k, v in dask.config.get("distributed.nanny.pre-spawn-environ").items()}
+    code = ("import os, sys\n"
+            f"for name in {cluster.PRELOAD!r}:\n"
+            "    __import__(name)\n"
+            "print(len(os.listdir('/proc/self/task')), 'drjit' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["1", "False"], r.stdout
