@@ -7,7 +7,8 @@ import os
 import re
 from collections.abc import Callable, Iterable
 
-__all__ = ["WORKER_WAIT_S", "connect", "disconnect", "bounded_map", "dashboard_link"]
+__all__ = ["WORKER_WAIT_S", "PRELOAD", "start_fork_server", "connect", "disconnect", "bounded_map",
+           "dashboard_link"]
 
 #: How long a client of an existing scheduler waits for a first worker to join.
 WORKER_WAIT_S = 30.0
@@ -51,6 +52,26 @@ def dashboard_link(client) -> str | None:
     return "none (the scheduler lacks bokeh >= 3.1, which the dashboard needs)" if "bokeh" in head else link
 
 
+def start_fork_server() -> None:
+    """Starts the process a local cluster's workers are forked from, importing :data:`PRELOAD` once
+    (not each worker a fresh interpreter importing Dask and gonio: 0.5-0.8 s of CPU a worker; a forked
+    worker also ends without the interpreter's finalization, which a closing cluster waits for). Called
+    before a command plans or reads, it imports meanwhile, and :func:`connect` waits for less.
+    Its environment is the one Dask gives a worker process (one BLAS thread, ...: the variables of
+    ``distributed.nanny.pre-spawn-environ`` not set already). Once running, it stays as it is."""
+    import multiprocessing
+    import multiprocessing.forkserver
+
+    import dask
+    import distributed  # noqa: F401 - its settings, pre-spawn-environ among them, join Dask's config
+
+    for key, value in dask.config.get("distributed.nanny.pre-spawn-environ").items():
+        if value is not None:
+            os.environ.setdefault(key, str(value))
+    multiprocessing.get_context("forkserver").set_forkserver_preload(list(PRELOAD))
+    multiprocessing.forkserver.ensure_running()
+
+
 def connect(workers: int | None = None, scheduler: str | None = None):
     """A Dask client: a local cluster of ``workers`` one-thread worker processes on loopback (default:
     one per CPU), or the existing ``scheduler``, whose workers must run this gonio version.
@@ -69,17 +90,10 @@ def connect(workers: int | None = None, scheduler: str | None = None):
     from distributed import Client, LocalCluster
 
     if scheduler is None:
-        from distributed.utils import get_mp_context
-
         n = workers or len(os.sched_getaffinity(0))
-        # Workers forked from a fork server that imported PRELOAD once, not each a fresh interpreter
-        # importing Dask and gonio (0.5-0.8 s of CPU a worker); a forked worker also ends without the
-        # interpreter's finalization, which a closing cluster waits for (0.5-2 s). Where the fork server
-        # runs already (a second cluster in this process), its workers are forked from it as it is.
+        start_fork_server()
         with dask.config.set({"distributed.worker.daemon": True,
                               "distributed.worker.multiprocessing-method": "forkserver"}):
-            context = get_mp_context()      # Dask's own preload set first, then this one in its place
-            context.set_forkserver_preload(list(PRELOAD))
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                    dashboard_address=DASHBOARD_ADDRESS, silence_logs=40)
         return Client(cluster), cluster, 1
