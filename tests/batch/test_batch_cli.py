@@ -67,19 +67,14 @@ def _rows(store: Path) -> dict:
 
 
 @pytest.fixture(scope="module")
-def whole(tmp_path_factory):
+def whole(tmp_path_factory, client):
     """The batch run whole, in this process (one Dask worker thread): what the command must write."""
-    from distributed import Client, LocalCluster
-
     from gonio.batch import read_materials, run_batch
     from gonio.config import load_config
 
     out = tmp_path_factory.mktemp("whole") / "b.zarr"
-    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                           dashboard_address="127.0.0.1:0")
-    with cluster, Client(cluster) as client:
-        run_batch(read_materials(MATERIALS), grid="iso:step=45", seed=2, cfg=load_config(), out=out,
-                  client=client, threads=1)
+    run_batch(read_materials(MATERIALS), grid="iso:step=45", seed=2, cfg=load_config(), out=out,
+              client=client, threads=1)
     ds = open_store(out)
     assert ds.sizes["material"] == 6 and (ds.status.values == DONE).all()
     assert np.isfinite(ds.value.values).all() and (ds.value.values > 0).any()

@@ -120,21 +120,23 @@ def test_the_dashboard_link_of_a_real_scheduler():
         assert link.startswith("http://127.0.0.1:") and link.endswith("/status")
 
 
-def test_what_the_fork_server_preloads_imports_no_dr_jit_and_starts_no_thread():
+def test_local_workers_are_forked_from_a_fork_server_without_dr_jit():
     """A local cluster's workers are forked from a fork server that imported PRELOAD: a thread running
-    there (Dr.Jit's pool, started by its import) would be missing in every forked worker. Imported in a
-    fresh interpreter with the environment Dask gives a worker process (one BLAS thread)."""
-    import os
-    import subprocess
-    import sys
+    there (Dr.Jit's pool, which its import starts) would be missing in every forked worker. A worker of
+    connect(), asked before any task: its parent is the fork server, and Dr.Jit is not imported."""
+    def seen_by_worker():       # sent by value: a local function
+        import os
+        import sys
+        from pathlib import Path
 
-    import dask
+        parent = Path(f"/proc/{os.getppid()}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        return parent, "drjit" in sys.modules
 
-    env = os.environ | {k: str(v) for k, v in dask.config.get("distributed.nanny.pre-spawn-environ").items()}
-    code = ("import os, sys\n"
-            f"for name in {cluster.PRELOAD!r}:\n"
-            "    __import__(name)\n"
-            "print(len(os.listdir('/proc/self/task')), 'drjit' in sys.modules)")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
-    assert r.returncode == 0, r.stderr
-    assert r.stdout.split() == ["1", "False"], r.stdout
+    client, local, threads = cluster.connect(workers=1)
+    try:
+        assert threads == 1 and local is not None
+        seen = client.run(seen_by_worker)
+    finally:
+        cluster.disconnect(client, local)
+    [(parent, drjit)] = seen.values()
+    assert "from multiprocessing.forkserver import main" in parent and not drjit, seen
