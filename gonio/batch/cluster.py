@@ -7,8 +7,8 @@ import os
 import re
 from collections.abc import Callable, Iterable
 
-__all__ = ["WORKER_WAIT_S", "PRELOAD", "start_fork_server", "connect", "disconnect", "bounded_map",
-           "dashboard_link"]
+__all__ = ["WORKER_WAIT_S", "PRELOAD", "PRE_SPAWN_DEFAULTS", "start_fork_server", "connect", "disconnect",
+           "bounded_map", "dashboard_link"]
 
 #: How long a client of an existing scheduler waits for a first worker to join.
 WORKER_WAIT_S = 30.0
@@ -52,20 +52,28 @@ def dashboard_link(client) -> str | None:
     return "none (the scheduler lacks bokeh >= 3.1, which the dashboard needs)" if "bokeh" in head else link
 
 
+#: Dask's defaults of ``distributed.nanny.pre-spawn-environ``, what Dask sets before it starts a worker
+#: process (one BLAS thread, glibc's trim threshold): known before distributed is imported (0.4 s of CPU),
+#: which registers them (tests/batch/test_batch_cluster.py checks they are still Dask's).
+PRE_SPAWN_DEFAULTS = {"MALLOC_TRIM_THRESHOLD_": 65536, "OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
+                      "OPENBLAS_NUM_THREADS": 1}
+
+
 def start_fork_server() -> None:
     """Starts the process a local cluster's workers are forked from, importing :data:`PRELOAD` once
     (not each worker a fresh interpreter importing Dask and gonio: 0.5-0.8 s of CPU a worker; a forked
     worker also ends without the interpreter's finalization, which a closing cluster waits for). Called
-    before a command plans or reads, it imports meanwhile, and :func:`connect` waits for less.
-    Its environment is the one Dask gives a worker process (one BLAS thread, ...: the variables of
-    ``distributed.nanny.pre-spawn-environ`` not set already). Once running, it stays as it is."""
+    before a command imports distributed and plans or reads, it imports meanwhile, and :func:`connect`
+    waits for less. Its environment is the one Dask gives a worker process: the variables of
+    ``distributed.nanny.pre-spawn-environ`` (Dask's defaults, then the user's Dask config) not set
+    already. Once running, it stays as it is."""
     import multiprocessing
     import multiprocessing.forkserver
 
-    import dask
-    import distributed  # noqa: F401 - its settings, pre-spawn-environ among them, join Dask's config
+    import dask  # the user's Dask config (files, DASK_* variables); distributed adds its defaults
 
-    for key, value in dask.config.get("distributed.nanny.pre-spawn-environ").items():
+    environ = PRE_SPAWN_DEFAULTS | dask.config.get("distributed.nanny.pre-spawn-environ", default={})
+    for key, value in environ.items():
         if value is not None:
             os.environ.setdefault(key, str(value))
     multiprocessing.get_context("forkserver").set_forkserver_preload(list(PRELOAD))
@@ -86,12 +94,13 @@ def connect(workers: int | None = None, scheduler: str | None = None):
         A malformed address, no scheduler or no worker there, a worker with another gonio version;
         the message names ``--scheduler``.
     """
+    if scheduler is None:
+        start_fork_server()         # before this process imports distributed: it imports meanwhile
     import dask
     from distributed import Client, LocalCluster
 
     if scheduler is None:
         n = workers or len(os.sched_getaffinity(0))
-        start_fork_server()
         with dask.config.set({"distributed.worker.daemon": True,
                               "distributed.worker.multiprocessing-method": "forkserver"}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",

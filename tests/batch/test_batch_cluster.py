@@ -140,3 +140,12 @@ def test_local_workers_are_forked_from_a_fork_server_without_dr_jit():
         cluster.disconnect(client, local)
     [(parent, drjit)] = seen.values()
     assert "from multiprocessing.forkserver import main" in parent and not drjit, seen
+
+
+def test_the_fork_servers_environment_defaults_are_dasks():
+    """start_fork_server sets the variables Dask sets before it starts a worker process, before
+    distributed (which registers Dask's defaults of them) is imported: the same defaults."""
+    import dask
+    import distributed  # noqa: F401 - registers its configuration's defaults
+
+    assert dask.config.get("distributed.nanny.pre-spawn-environ") == cluster.PRE_SPAWN_DEFAULTS
