@@ -7,7 +7,8 @@ import os
 import re
 from collections.abc import Callable, Iterable
 
-__all__ = ["WORKER_WAIT_S", "connect", "disconnect", "bounded_map", "dashboard_link"]
+__all__ = ["WORKER_WAIT_S", "PRELOAD", "PRE_SPAWN_DEFAULTS", "start_fork_server", "connect", "disconnect",
+           "bounded_map", "dashboard_link"]
 
 #: How long a client of an existing scheduler waits for a first worker to join.
 WORKER_WAIT_S = 30.0
@@ -16,6 +17,13 @@ _ADDRESS = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+$")
 
 #: The scheduler's HTTP server (the dashboard, where bokeh is installed): loopback, a free port.
 DASHBOARD_ADDRESS = "127.0.0.1:0"
+
+#: What a local cluster's fork server imports once, for every worker it forks: Dask's worker and what a
+#: batch's or a fit's task imports before it computes. Not Dr.Jit (nor what imports it: the simulated
+#: detector and materials, gonio.fit): its import starts a thread pool, which a forked child would lack
+#: (tests/batch/test_batch_cluster.py checks that this list imports no thread).
+PRELOAD = ("distributed", "gonio.batch.run", "gonio.batch.fit", "gonio.lifecycle", "gonio.dataset",
+           "gonio.wiring", "gonio.runner", "h5py")
 
 
 def dashboard_link(client) -> str | None:
@@ -44,6 +52,34 @@ def dashboard_link(client) -> str | None:
     return "none (the scheduler lacks bokeh >= 3.1, which the dashboard needs)" if "bokeh" in head else link
 
 
+#: Dask's defaults of ``distributed.nanny.pre-spawn-environ``, what Dask sets before it starts a worker
+#: process (one BLAS thread, glibc's trim threshold): known before distributed is imported (0.4 s of CPU),
+#: which registers them (tests/batch/test_batch_cluster.py checks they are still Dask's).
+PRE_SPAWN_DEFAULTS = {"MALLOC_TRIM_THRESHOLD_": 65536, "OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
+                      "OPENBLAS_NUM_THREADS": 1}
+
+
+def start_fork_server() -> None:
+    """Starts the process a local cluster's workers are forked from, importing :data:`PRELOAD` once
+    (not each worker a fresh interpreter importing Dask and gonio: 0.5-0.8 s of CPU a worker; a forked
+    worker also ends without the interpreter's finalization, which a closing cluster waits for). Called
+    before a command imports distributed and plans or reads, it imports meanwhile, and :func:`connect`
+    waits for less. Its environment is the one Dask gives a worker process: the variables of
+    ``distributed.nanny.pre-spawn-environ`` (Dask's defaults, then the user's Dask config) not set
+    already. Once running, it stays as it is."""
+    import multiprocessing
+    import multiprocessing.forkserver
+
+    import dask  # the user's Dask config (files, DASK_* variables); distributed adds its defaults
+
+    environ = PRE_SPAWN_DEFAULTS | dask.config.get("distributed.nanny.pre-spawn-environ", default={})
+    for key, value in environ.items():
+        if value is not None:
+            os.environ.setdefault(key, str(value))
+    multiprocessing.get_context("forkserver").set_forkserver_preload(list(PRELOAD))
+    multiprocessing.forkserver.ensure_running()
+
+
 def connect(workers: int | None = None, scheduler: str | None = None):
     """A Dask client: a local cluster of ``workers`` one-thread worker processes on loopback (default:
     one per CPU), or the existing ``scheduler``, whose workers must run this gonio version.
@@ -58,12 +94,15 @@ def connect(workers: int | None = None, scheduler: str | None = None):
         A malformed address, no scheduler or no worker there, a worker with another gonio version;
         the message names ``--scheduler``.
     """
+    if scheduler is None:
+        start_fork_server()         # before this process imports distributed: it imports meanwhile
     import dask
     from distributed import Client, LocalCluster
 
     if scheduler is None:
         n = workers or len(os.sched_getaffinity(0))
-        with dask.config.set({"distributed.worker.daemon": True}):
+        with dask.config.set({"distributed.worker.daemon": True,
+                              "distributed.worker.multiprocessing-method": "forkserver"}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                    dashboard_address=DASHBOARD_ADDRESS, silence_logs=40)
         return Client(cluster), cluster, 1

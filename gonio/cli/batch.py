@@ -66,6 +66,10 @@ def cmd_batch(args) -> int:
         raise UsageError(f"--config: the detector of config '{cfg.name}' is '{cfg.detector.driver}'; a batch "
                          "simulates, so it needs a simulated detector (driver 'sim')")
     n = len(materials)
+    if args.scheduler is None:
+        from gonio.batch.cluster import start_fork_server
+
+        start_fork_server()         # the local workers' imports, while this process plans
     from gonio.batch.run import plan_batch
     from gonio.lifecycle import RequestError
 

@@ -77,6 +77,10 @@ def _fit_many(args, source: Path) -> int:
     if args.starts < 1:
         raise UsageError(f"--starts: must be an integer >= 1, got {args.starts}")
     kind, items = sources(source)
+    if args.scheduler is None:
+        from gonio.batch.cluster import start_fork_server
+
+        start_fork_server()         # the local workers' imports, while this process imports Dask
     say = _Out(args.quiet)
     noun = "material" if kind == "store" else "campaign"
     client, cluster, threads = connected(args, say, f"fitting {args.model} to {len(items)} {noun}"

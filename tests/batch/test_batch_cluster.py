@@ -118,3 +118,34 @@ def test_the_dashboard_link_of_a_real_scheduler():
         assert link == "none (the scheduler lacks bokeh >= 3.1, which the dashboard needs)"
     else:
         assert link.startswith("http://127.0.0.1:") and link.endswith("/status")
+
+
+def test_local_workers_are_forked_from_a_fork_server_without_dr_jit():
+    """A local cluster's workers are forked from a fork server that imported PRELOAD: a thread running
+    there (Dr.Jit's pool, which its import starts) would be missing in every forked worker. A worker of
+    connect(), asked before any task: its parent is the fork server, and Dr.Jit is not imported."""
+    def seen_by_worker():       # sent by value: a local function
+        import os
+        import sys
+        from pathlib import Path
+
+        parent = Path(f"/proc/{os.getppid()}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        return parent, "drjit" in sys.modules
+
+    client, local, threads = cluster.connect(workers=1)
+    try:
+        assert threads == 1 and local is not None
+        seen = client.run(seen_by_worker)
+    finally:
+        cluster.disconnect(client, local)
+    [(parent, drjit)] = seen.values()
+    assert "from multiprocessing.forkserver import main" in parent and not drjit, seen
+
+
+def test_the_fork_servers_environment_defaults_are_dasks():
+    """start_fork_server sets the variables Dask sets before it starts a worker process, before
+    distributed (which registers Dask's defaults of them) is imported: the same defaults."""
+    import dask
+    import distributed  # noqa: F401 - registers its configuration's defaults
+
+    assert dask.config.get("distributed.nanny.pre-spawn-environ") == cluster.PRE_SPAWN_DEFAULTS

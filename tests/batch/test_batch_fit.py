@@ -6,8 +6,6 @@ from __future__ import annotations
 import csv
 import io
 import shutil
-import subprocess
-import sys
 
 import pytest
 import zarr
@@ -54,13 +52,16 @@ def test_missing_and_failing_rows_are_rows_of_the_table(store, client, tmp_path)
     assert [t["status"] for t in table] == ["failed", "missing"] and table[0]["material"] == ""
 
 
-def test_gonio_fit_of_a_store_writes_the_csv_table(store, tmp_path):
+def test_gonio_fit_of_a_store_writes_the_csv_table(store, tmp_path, capsys):
+    """``gonio fit STORE`` through main() in this process, on a local cluster of one worker process
+    (docs/batch.md runs the command as a process, on two)."""
+    from gonio.cli import main
+
     out = tmp_path / "fits.csv"
-    cmd = [sys.executable, "-m", "gonio.cli", "fit", str(store), "--model", "lambert", "--starts", "1",
-           "--workers", "1", "--out", str(out)]
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    assert "2 ok, 0 misfit, 0 failed, 0 missing" in r.stderr
+    capsys.readouterr()
+    assert main(["fit", str(store), "--model", "lambert", "--starts", "1", "--workers", "1", "--out",
+                 str(out)]) == 0
+    assert "2 ok, 0 misfit, 0 failed, 0 missing" in capsys.readouterr().err
     table = list(csv.DictReader(out.open()))
     assert [t["source"] for t in table] == ["lambert:albedo=0.3", "lambert:albedo=0.6"]
     assert {"albedo.R", "albedo.R_stddev", "chi2_reduced"} <= set(table[0])
