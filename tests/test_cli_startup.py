@@ -56,16 +56,18 @@ def test_the_probe_sees_what_a_command_imports():
 
 # -- commands that do their work import what their work needs, not every other command's libraries ---
 #: What each command must not import (checked on a finished campaign); the libraries a command does need
-#: (pydantic for a config, h5py for brdf.h5, drjit to simulate) are left out of its row.
+#: (pydantic for a config, h5py for brdf.h5, drjit to simulate) are left out of its row. Off a terminal
+#: (this probe's stderr is a pipe) no command needs rich to write its lines (gonio.cli.common.Out).
 NOT_NEEDED = {
-    "status": ("scipy", "drjit", "matplotlib", "h5py", "pydantic", "gonio.config", "gonio.plan.build",
-               "fastapi", "httpx", "skimage"),
-    "export": ("scipy", "drjit", "matplotlib", "pydantic", "gonio.config", "gonio.plan.build", "fastapi",
-               "skimage"),
-    "plan": ("drjit", "matplotlib", "h5py", "fastapi", "skimage", "gonio.sim.materials", "scipy.spatial"),
+    "status": ("rich", "scipy", "drjit", "matplotlib", "h5py", "pydantic", "gonio.config",
+               "gonio.plan.build", "fastapi", "httpx", "skimage"),
+    "export": ("rich", "scipy", "drjit", "matplotlib", "pydantic", "gonio.config", "gonio.plan.build",
+               "fastapi", "skimage"),
+    "plan": ("rich", "drjit", "matplotlib", "h5py", "fastapi", "skimage", "gonio.sim.materials",
+             "scipy.spatial"),
     # A plan of a few poses finds neighbours without a k-d tree (gonio.motion.nearest).
-    "simulate": ("matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage", "scipy.optimize",
-                 "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app"),
+    "simulate": ("rich", "matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage",
+                 "scipy.optimize", "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app"),
 }
 
 
