@@ -83,8 +83,8 @@ _TERMINAL_ENV = ("TTY_COMPATIBLE", "FORCE_COLOR")
 class Out:
     """Messages to stderr: rich styles on a terminal, never rich markup (paths may hold ``[...]``) nor
     emoji codes (nor ``:name:``). Off a terminal (a pipe, a file, a test) each message is written as rich
-    would write it there (tabs expanded, control codes dropped, no style) without importing rich, whose
-    import costs a command more CPU than most of its work; ``console`` makes rich's on first use."""
+    would write it there (tabs expanded, control codes dropped, no style) without importing rich (0.02 to
+    0.04 s of CPU in every command); ``console`` makes rich's on first use."""
 
     def __init__(self, quiet: bool = False):
         self.quiet = quiet
@@ -116,6 +116,8 @@ class Out:
 
     def __call__(self, message: str, style: str | None = None) -> None:
         if self._plain():
+            if sys.stderr is None:   # no stream at all (pythonw): rich writes nowhere either
+                return
             sys.stderr.write(str(message).expandtabs(8).translate(_CONTROL) + "\n")
             sys.stderr.flush()
             return
