@@ -270,8 +270,13 @@ class Journal:
         for stale in cls.partial_paths(path):
             stale.unlink(missing_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
-        # A rollback journal (not WAL) while building: one file to rename, nothing beside it.
+        # Built as one file to rename, nothing beside it. Nothing of the temporary file has to survive a
+        # crash (a later creation removes it): SQLite syncs nothing while building and keeps its rollback
+        # journal in memory; the file is synced once, complete, before the rename. It is switched to WAL
+        # (what every open sets) before it is closed, so that the first open converts nothing.
         conn = sqlite3.connect(str(tmp), isolation_level=None)
+        conn.execute("PRAGMA synchronous=OFF")
+        conn.execute("PRAGMA journal_mode=MEMORY")
         j = cls(conn, tmp, write_hook)
         try:
             with j._transaction():
@@ -282,6 +287,7 @@ class Journal:
                 for k, v in meta.items():
                     j._write("INSERT INTO meta VALUES (?, ?)", (k, json.dumps(v)))
                 j._write_many("INSERT INTO steps VALUES (?, ?, ?, ?, ?, ?, ?, ?)", _step_rows(steps, 0))
+            conn.execute("PRAGMA journal_mode=WAL")
         finally:
             conn.close()
         fd = os.open(tmp, os.O_RDONLY)

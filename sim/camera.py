@@ -35,6 +35,7 @@ and seed are opaque: new poses and keys reuse the compiled kernel.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, fields
 from functools import lru_cache
 
@@ -157,6 +158,45 @@ def _check_pose(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg) -> tuple[float, 
     return pose
 
 
+def _radiance(s: CameraSettings, material, t, params, o, f, r, u, lc, la, lb, lw, half, scale, key, word):
+    """The mean pixel radiance (Array3f, one lane per pixel, row-major) of :meth:`SimCamera.radiance` from
+    its opaque inputs: camera origin and frame (o, f, r, u), light centre, disc axes and direction (lc, la,
+    lb, lw), the patch's half side, the light's radiance scale and the Philox key and word; ``params``: the
+    material's :meth:`~gonio.sim.materials.Material.dr_parameters` (None: ``eval_dr``)."""
+    Float, UInt32, Array3f = t.Float, t.UInt32, t.Array3f
+    spp, n_pix = s.samples_per_pixel, s.width * s.height
+    pixel = dr.arange(UInt32, n_pix)
+    px, py = Float(pixel % s.width), Float(pixel // s.width)
+
+    def one_sample(j):
+        # Lane (sample j, pixel) draws from the Philox counter (j, pixel, word, 0) under the key.
+        u1, u2, u3, u4 = t.Philox4x32(key, j, pixel, word).next_float32x4()
+        x = (px + u1) * (2.0 / s.width) - 1.0
+        y = 1.0 - (py + u2) * (2.0 / s.height)
+        d = dr.normalize(f + x * r + y * u)
+        p = o + (-o.z / d.z) * d
+        on_patch = (d.z < 0) & (dr.abs(p.x) <= half) & (dr.abs(p.y) <= half)
+        # A uniform point on the light disc (polar mapping: √u3 for uniform area).
+        rad = dr.sqrt(u3)
+        sin_p, cos_p = dr.sincos(2.0 * dr.pi * u4)
+        to_light = lc + (rad * cos_p) * la + (rad * sin_p) * lb - p
+        dist2 = dr.squared_norm(to_light)
+        wi_s = to_light * dr.rsqrt(dist2)
+        wo_s = dr.normalize(o - p)
+        weight = scale * dr.maximum(wi_s.z, 0.0) * dr.maximum(dr.dot(wi_s, lw), 0.0) / dist2
+        if s.vignetting:
+            weight = weight * dr.square(dr.square(dr.dot(d, f)))
+        fr = material.eval_dr(wi_s, wo_s) if params is None else material.eval_with(wi_s, wo_s, params)
+        return dr.select(on_patch, fr * weight, 0.0)
+
+    # One lane per pixel, its samples in a symbolic loop: one kernel, no per-sample buffers.
+    def body(j, acc):
+        return j + 1, acc + one_sample(j)
+
+    _, total = dr.while_loop((UInt32(0), Array3f(0.0)), lambda j, acc: j < spp, body)
+    return total * (1.0 / spp)
+
+
 class SimCamera:
     """A simulated imaging detector (see the module docstring).
 
@@ -182,6 +222,17 @@ class SimCamera:
         self.backend = resolve_backend(backend)
         self._t = array_types(self.backend)
         self._count = 0
+        # The pixel radiance as a frozen Dr.Jit function (drjit.freeze): the first frame traces and
+        # records the kernel, later frames replay it with new inputs (pose, light, key), the same kernel,
+        # so the same values bit for bit, without tracing it again in Python (tools/bench_camera.py).
+        # A material without eval_with (not a gonio Material) is traced on every frame.
+        self._frozen = None
+        if hasattr(material, "eval_with"):
+            t = self._t
+
+            def radiance(params, *inputs):
+                return _radiance(settings, material, t, params, *inputs)
+            self._frozen = (dr.freeze(radiance), threading.Lock())
 
     # -- geometry ---------------------------------------------------------------------------------
     def _camera_frame(self, theta_o_deg, phi_o_deg):
@@ -223,7 +274,6 @@ class SimCamera:
         if source == 0.0:
             return np.zeros((s.height, s.width, 3), np.float32)
         Float, UInt32, UInt64, Array3f = t.Float, t.UInt32, t.UInt64, t.Array3f
-        spp, n_pix = s.samples_per_pixel, s.width * s.height
         origin, fwd, right, up = self._camera_frame(pose[2], pose[3])
         wi = _unit(pose[0], pose[1])
         light_a, light_b = _tangents(pose[0], pose[1])
@@ -233,41 +283,19 @@ class SimCamera:
         def vec(v):
             return Array3f(*(dr.opaque(Float, float(c)) for c in v))
 
-        o, f, r, u = vec(origin), vec(fwd), vec(right), vec(up)
-        lc, la, lb, lw = vec(s.light_distance_m * wi), vec(light_a * light_r), vec(light_b * light_r), vec(wi)
-        half = dr.opaque(Float, 0.5 * s.sample_size_m)
-        scale = dr.opaque(Float, source * math.pi * light_r * light_r)
+        inputs = (vec(origin), vec(fwd), vec(right), vec(up), vec(s.light_distance_m * wi),
+                  vec(light_a * light_r), vec(light_b * light_r), vec(wi),
+                  dr.opaque(Float, 0.5 * s.sample_size_m),
+                  dr.opaque(Float, source * math.pi * light_r * light_r),
+                  dr.opaque(UInt64, seed_state[0]), dr.opaque(UInt32, seed_state[1]))
+        if self._frozen is not None:   # a Material: its parameters are inputs of the frozen kernel
+            with self._frozen[1]:      # a frozen function keeps its recordings in itself: one call at a time
+                value = self._frozen[0](self.material.dr_parameters(Array3f), *inputs)
+                return self._to_numpy(value)
+        return self._to_numpy(_radiance(s, self.material, t, None, *inputs))
 
-        pixel = dr.arange(UInt32, n_pix)
-        px, py = Float(pixel % s.width), Float(pixel // s.width)
-        key, word = dr.opaque(UInt64, seed_state[0]), dr.opaque(UInt32, seed_state[1])
-
-        def one_sample(j):
-            # Lane (sample j, pixel) draws from the Philox counter (j, pixel, word, 0) under the key.
-            u1, u2, u3, u4 = t.Philox4x32(key, j, pixel, word).next_float32x4()
-            x = (px + u1) * (2.0 / s.width) - 1.0
-            y = 1.0 - (py + u2) * (2.0 / s.height)
-            d = dr.normalize(f + x * r + y * u)
-            p = o + (-o.z / d.z) * d
-            on_patch = (d.z < 0) & (dr.abs(p.x) <= half) & (dr.abs(p.y) <= half)
-            # A uniform point on the light disc (polar mapping: √u3 for uniform area).
-            rad = dr.sqrt(u3)
-            sin_p, cos_p = dr.sincos(2.0 * dr.pi * u4)
-            to_light = lc + (rad * cos_p) * la + (rad * sin_p) * lb - p
-            dist2 = dr.squared_norm(to_light)
-            wi_s = to_light * dr.rsqrt(dist2)
-            wo_s = dr.normalize(o - p)
-            weight = scale * dr.maximum(wi_s.z, 0.0) * dr.maximum(dr.dot(wi_s, lw), 0.0) / dist2
-            if s.vignetting:
-                weight = weight * dr.square(dr.square(dr.dot(d, f)))
-            return dr.select(on_patch, self.material.eval_dr(wi_s, wo_s) * weight, 0.0)
-
-        # One lane per pixel, its samples in a symbolic loop: one kernel, no per-sample buffers.
-        def body(j, acc):
-            return j + 1, acc + one_sample(j)
-
-        _, total = dr.while_loop((UInt32(0), Array3f(0.0)), lambda j, acc: j < spp, body)
-        value = total * (1.0 / spp)
+    def _to_numpy(self, value) -> np.ndarray:
+        s = self.settings
         dr.eval(value)
         return np.stack([np.asarray(c.numpy(), dtype=np.float32) for c in (value.x, value.y, value.z)],
                         axis=-1).reshape(s.height, s.width, 3)

@@ -227,6 +227,28 @@ def test_progress_is_plain_lines_when_stderr_is_not_a_terminal(tmp_path, capsys)
     assert "\x1b[" not in err  # no terminal control codes in a log
 
 
+def test_a_message_off_a_terminal_is_what_rich_writes_there_without_emoji_codes(capsys, monkeypatch):
+    """Off a terminal a message is written without rich (gonio.cli.common.Out): as rich's console writes it
+    there (tabs to stops of 8, control codes dropped, no style), except that ``:fire:`` in a path stays
+    as typed (rich made it an emoji), on a terminal too."""
+    import io
+
+    from rich.console import Console
+
+    from gonio.cli.common import Out
+
+    for var in ("TTY_COMPATIBLE", "FORCE_COLOR"):
+        monkeypatch.delenv(var, raising=False)
+    text = "wrote /data/:fire:/brdf.h5\tin 2 s\r\x07, [bold]done[/]"
+    capsys.readouterr()
+    Out()(text, style="red")
+    err = capsys.readouterr().err
+    assert err == "wrote /data/:fire:/brdf.h5      in 2 s, [bold]done[/]\n"
+    rich = Console(file=io.StringIO(), soft_wrap=True, highlight=False, emoji=False)
+    rich.print(text, style="red", markup=False)
+    assert rich.file.getvalue() == err
+
+
 def test_status_reads_a_campaign_while_it_is_not_running(tmp_path, capsys):
     out = tmp_path / "run"
     assert main([*SIM, "--out", str(out)]) == 0

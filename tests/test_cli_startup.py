@@ -56,16 +56,18 @@ def test_the_probe_sees_what_a_command_imports():
 
 # -- commands that do their work import what their work needs, not every other command's libraries ---
 #: What each command must not import (checked on a finished campaign); the libraries a command does need
-#: (pydantic for a config, h5py for brdf.h5, drjit to simulate) are left out of its row.
+#: (pydantic for a config, h5py for brdf.h5, drjit to simulate) are left out of its row. Off a terminal
+#: (this probe's stderr is a pipe) no command needs rich to write its lines (gonio.cli.common.Out).
 NOT_NEEDED = {
-    "status": ("scipy", "drjit", "matplotlib", "h5py", "pydantic", "gonio.config", "gonio.plan.build",
-               "fastapi", "httpx", "skimage"),
-    "export": ("scipy", "drjit", "matplotlib", "pydantic", "gonio.config", "gonio.plan.build", "fastapi",
-               "skimage"),
-    "plan": ("drjit", "matplotlib", "h5py", "fastapi", "skimage", "gonio.sim.materials", "scipy.spatial"),
+    "status": ("rich", "scipy", "drjit", "matplotlib", "h5py", "pydantic", "gonio.config",
+               "gonio.plan.build", "fastapi", "httpx", "skimage"),
+    "export": ("rich", "scipy", "drjit", "matplotlib", "pydantic", "gonio.config", "gonio.plan.build",
+               "fastapi", "skimage", "importlib.metadata"),
+    "plan": ("rich", "drjit", "matplotlib", "h5py", "fastapi", "skimage", "gonio.sim.materials",
+             "scipy.spatial"),
     # A plan of a few poses finds neighbours without a k-d tree (gonio.motion.nearest).
-    "simulate": ("matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage", "scipy.optimize",
-                 "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app"),
+    "simulate": ("rich", "matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage",
+                 "scipy.optimize", "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app"),
 }
 
 
@@ -90,3 +92,28 @@ def test_a_command_imports_only_what_its_work_needs(command, finished, tmp_path)
     assert code == 0
     loaded = sorted(m for m in NOT_NEEDED[command] if m in modules)
     assert loaded == [], f"gonio {command} imported {loaded}"
+
+
+@pytest.mark.parametrize("layout", ["dist-info", "egg-info", "two", "none"])
+def test_the_software_version_is_what_importlib_metadata_reads(layout, tmp_path, monkeypatch):
+    """gonio.software_version reads the first gonio-*.dist-info on sys.path itself (without importing
+    importlib.metadata); whatever the path holds, its answer is importlib.metadata's."""
+    import importlib.metadata
+
+    import gonio
+
+    first = tmp_path / "site"
+    first.mkdir()
+    infos = {"dist-info": ["gonio-9.8.7.dist-info"], "egg-info": ["gonio-9.8.6.egg-info"],
+             "two": ["gonio-9.8.5.dist-info", "Gonio-9.8.4.dist-info"], "none": ["gonio_x-1.0.dist-info"]}
+    for name in infos[layout]:
+        (first / name).mkdir()
+        version = name.split("-")[1].removesuffix(".dist").removesuffix(".egg")
+        meta = f"Metadata-Version: 2.1\nName: gonio\nVersion: {version}\n\nVersion: 0.0\n"
+        (first / name / ("METADATA" if name.endswith("dist-info") else "PKG-INFO")).write_text(meta)
+    monkeypatch.syspath_prepend(str(first))
+    importlib.invalidate_caches()
+    expected = importlib.metadata.version("gonio")
+    assert gonio.software_version() == expected
+    if layout == "dist-info":
+        assert expected == "9.8.7"

@@ -100,7 +100,7 @@ def cmd_batch(args) -> int:
 def _run(args, out: Out, materials, grid, cfg, client, threads, store, planned):
     from gonio.batch import run_batch
 
-    if args.quiet or not out.console.is_terminal:
+    if args.quiet or not out.is_terminal:
         return run_batch(materials, grid=grid, seed=args.seed, cfg=cfg, out=store, client=client,
                          threads=threads, planned=planned)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn

@@ -170,7 +170,7 @@ def _progress(out: _Out, total: int, done0: int, gantry, quiet: bool):
     t0 = time.perf_counter()
     if quiet:
         return None, (lambda runner, step: None)
-    if out.console.is_terminal:
+    if out.is_terminal:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
