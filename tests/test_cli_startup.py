@@ -62,7 +62,7 @@ NOT_NEEDED = {
     "status": ("rich", "scipy", "drjit", "matplotlib", "h5py", "pydantic", "gonio.config",
                "gonio.plan.build", "fastapi", "httpx", "skimage"),
     "export": ("rich", "scipy", "drjit", "matplotlib", "pydantic", "gonio.config", "gonio.plan.build",
-               "fastapi", "skimage", "importlib.metadata"),
+               "fastapi", "skimage"),
     "plan": ("rich", "drjit", "matplotlib", "h5py", "fastapi", "skimage", "gonio.sim.materials",
              "scipy.spatial"),
     # A plan of a few poses finds neighbours without a k-d tree (gonio.motion.nearest).
@@ -92,28 +92,3 @@ def test_a_command_imports_only_what_its_work_needs(command, finished, tmp_path)
     assert code == 0
     loaded = sorted(m for m in NOT_NEEDED[command] if m in modules)
     assert loaded == [], f"gonio {command} imported {loaded}"
-
-
-@pytest.mark.parametrize("layout", ["dist-info", "egg-info", "two", "none"])
-def test_the_software_version_is_what_importlib_metadata_reads(layout, tmp_path, monkeypatch):
-    """gonio.software_version reads the first gonio-*.dist-info on sys.path itself (without importing
-    importlib.metadata); whatever the path holds, its answer is importlib.metadata's."""
-    import importlib.metadata
-
-    import gonio
-
-    first = tmp_path / "site"
-    first.mkdir()
-    infos = {"dist-info": ["gonio-9.8.7.dist-info"], "egg-info": ["gonio-9.8.6.egg-info"],
-             "two": ["gonio-9.8.5.dist-info", "Gonio-9.8.4.dist-info"], "none": ["gonio_x-1.0.dist-info"]}
-    for name in infos[layout]:
-        (first / name).mkdir()
-        version = name.split("-")[1].removesuffix(".dist").removesuffix(".egg")
-        meta = f"Metadata-Version: 2.1\nName: gonio\nVersion: {version}\n\nVersion: 0.0\n"
-        (first / name / ("METADATA" if name.endswith("dist-info") else "PKG-INFO")).write_text(meta)
-    monkeypatch.syspath_prepend(str(first))
-    importlib.invalidate_caches()
-    expected = importlib.metadata.version("gonio")
-    assert gonio.software_version() == expected
-    if layout == "dist-info":
-        assert expected == "9.8.7"
