@@ -48,8 +48,11 @@ def page(browser):
 def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_path):
     from PIL import Image
 
+    # 10 ms of wall time per gantry second (~10 ms a step) until the slice has its points, then 0.1 s (the
+    # ~100 steps left last ~10 s: the page's checks and the pause land before the end). iso:step=15's plan
+    # is kept by the fixture; iso:step=10 (1168 steps) took 1.3 s of CPU to plan.
     r = serve(token=TOKEN, pace=0.01)
-    submit(r.client, grid="iso:step=10", material="ggx:alpha=0.2,metal=gold")
+    submit(r.client, grid="iso:step=15", material="ggx:alpha=0.2,metal=gold")
     page.goto(r.url + "/")
     page.wait_for_selector("#queue tbody tr[data-id='c00001']")
     assert page.is_disabled("#pause") and not page.is_disabled("#halt")    # no token typed yet: HALT is live
@@ -57,6 +60,7 @@ def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_p
     page.wait_for_function("document.querySelector('#conn').textContent === 'live'")
     # The slice fills in as measurements arrive, and the sketch shows the pose.
     page.wait_for_function("parseInt(document.querySelector('#slice-label').textContent.slice(1)) >= 5")
+    r.daemon.queue.gantry.clock.pace = 0.1
     assert page.text_content("#run-id") == "c00001"
     assert "θi" in page.text_content("#pose")
     page.wait_for_function("!document.querySelector('#pause').disabled")
