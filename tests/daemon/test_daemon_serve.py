@@ -16,8 +16,8 @@ import h5py
 import numpy as np
 import pytest
 from daemon_helpers import GONIO, WAIT_S, Serve, wait_for
+from planned import create
 
-from gonio.campaign import create_campaign
 from gonio.config import load_config
 from gonio.lifecycle import run_campaign
 from gonio.sim.materials import load
@@ -176,9 +176,10 @@ def _running_states(folder: Path) -> int:
 
 
 def _reference(tmp_path: Path, material: str, grid: str, seed: int) -> Path:
-    """The uninterrupted run, as ``gonio simulate`` makes it."""
+    """The uninterrupted run, as ``gonio simulate`` makes it (with the process's plan of ``grid``,
+    tests/planned.py, which the daemons of the serve fixture are given too)."""
     cfg = load_config()
-    c = create_campaign(tmp_path / "ref", cfg, grid=grid, material=load(material).spec, seed=seed)
+    c = create(tmp_path / "ref", cfg, grid=grid, material=load(material).spec, seed=seed)
     try:
         state, _ = run_campaign(c, build_gantry(cfg, material, seed=seed))
     finally:
