@@ -50,6 +50,8 @@ MAX_WAITING = 32
 #: Seconds a fresh worker may take to start.
 START_TIMEOUT_S = 60.0
 _POLL_S = 0.05
+#: Seconds :meth:`Planner.stop` lets a worker's start go on when the daemon's process exits next.
+EXIT_GRACE_S = 0.5
 #: Plans the worker keeps for the next request of the same grid (:class:`PlanCache`), and their steps in
 #: all (~80 bytes a step: at most ~80 MB however fine the grids).
 PLANS_KEPT = 8
@@ -244,14 +246,17 @@ class Planner:
         self._thread = threading.Thread(target=self._serve, name="gonio-planner", daemon=True)
         self._thread.start()
 
-    def stop(self) -> None:
+    def stop(self, start_grace_s: float = 0.0) -> None:
         """Stop the worker: the request being planned and every waiting one fail (PlannerFailed). A
-        worker still starting is not waited for (a fresh fork server imports the planner for a second or
-        more; a daemon stopped as it starts waited for that): it is killed as soon as it has started."""
+        worker still starting is waited for at most ``start_grace_s`` (a fresh fork server imports the
+        planner for a second or more; a daemon stopped as it starts waited for that): it is killed as soon
+        as it has started. A process about to exit gives :data:`EXIT_GRACE_S`: the start writes the fork
+        server's new child its data right after asking for it, and a daemon that exited in between (its
+        start's thread held up there) left that child an EOFError's traceback on the daemon's stderr."""
         self._stopping.set()
         self._jobs.put(None)
         if self._thread is not None:
-            self._thread.join(0.0 if self._starting.is_set() else START_TIMEOUT_S)
+            self._thread.join(start_grace_s if self._starting.is_set() else START_TIMEOUT_S)
         self._kill()
 
     def _worker(self):

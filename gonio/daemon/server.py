@@ -36,7 +36,7 @@ from gonio.daemon.auth import check_bind, check_token
 from gonio.daemon.events import StreamLimit
 from gonio.daemon.gantry import GantryOwner
 from gonio.daemon.guard import BODY_TIMEOUT_S, MAX_BODY_BYTES, HostNames
-from gonio.daemon.planner import PLAN_TIMEOUT_S, Planner
+from gonio.daemon.planner import EXIT_GRACE_S, PLAN_TIMEOUT_S, Planner
 from gonio.daemon.queue import CampaignQueue
 from gonio.sim.materials.library import MaterialsFolder
 
@@ -276,7 +276,7 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
         server.run(sockets=[sock])
     finally:
         d.queue.stop("daemon stopping")
-        d.planner.stop()
+        d.planner.stop(start_grace_s=EXIT_GRACE_S)    # the process exits next
         sock.close()
         os.close(fd)
     return 0
