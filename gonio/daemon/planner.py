@@ -50,6 +50,8 @@ MAX_WAITING = 32
 #: Seconds a fresh worker may take to start.
 START_TIMEOUT_S = 60.0
 _POLL_S = 0.05
+#: Seconds :meth:`Planner.stop` lets a worker's start go on when the daemon's process exits next.
+EXIT_GRACE_S = 0.5
 #: Plans the worker keeps for the next request of the same grid (:class:`PlanCache`), and their steps in
 #: all (~80 bytes a step: at most ~80 MB however fine the grids).
 PLANS_KEPT = 8
@@ -144,19 +146,28 @@ class PlanCache:
         if key in self._plans:
             self._plans.move_to_end(key)
         else:
-            self._plans[key] = plan_campaign(grid, cfg)
+            self.keep(grid, cfg, plan_campaign(grid, cfg))
             self.planned += 1
-            while len(self._plans) > 1 and (len(self._plans) > self.size or self._steps() > self.max_steps):
-                self._plans.popitem(last=False)
         return copy.deepcopy(self._plans[key])
+
+    def keep(self, grid: str, cfg, planned) -> None:
+        """Keep ``planned`` (:func:`gonio.campaign.plan_campaign` of ``grid`` on ``cfg``, made elsewhere) as
+        the newest plan."""
+        from gonio.campaign import config_hash
+
+        key = (grid, config_hash(cfg))
+        self._plans[key] = planned
+        self._plans.move_to_end(key)
+        while len(self._plans) > 1 and (len(self._plans) > self.size or self._steps() > self.max_steps):
+            self._plans.popitem(last=False)
 
     def _steps(self) -> int:
         return sum(len(p.plan.step_kind) for p in self._plans.values())
 
 
-def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:
+def _worker_main(conn, cfg, materials_root, idle: bool = True, plans: PlanCache | None = None) -> None:
     """The worker: one request at a time from ``conn``, each answered with one tuple; at idle priority
-    unless ``idle`` is False."""
+    unless ``idle`` is False; planning with ``plans`` (its copy of them) when given."""
     try:   # the runner and the event loop first: planning takes only the CPU time they leave idle
         if idle:
             os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
@@ -165,7 +176,7 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True) -> None:
     from gonio.sim.materials.library import MaterialsFolder
 
     materials = MaterialsFolder(materials_root)
-    plans = PlanCache()
+    plans = PlanCache() if plans is None else plans
     try:
         conn.send(("ready",))
     except (BrokenPipeError, OSError):   # the daemon stopped while this worker started
@@ -204,12 +215,17 @@ class Planner:
         Plan at idle priority (the default: the runner and the event loop first). False plans at the
         daemon's own priority, for a machine whose other work is no more urgent than the planning (a
         test suite's other workers: at idle priority a submission waited for a core to fall idle).
+    plans : PlanCache, optional
+        Plans each worker starts with (a copy of them each; default none): plans made beforehand, e.g.
+        by the other daemons of one process (a test suite's: each planned iso:step=15 afresh, 0.4 s of
+        CPU, where a kept plan is a copy of 10 ms). A worker keeps the plans it makes to itself.
     """
 
     def __init__(self, cfg, materials: MaterialsFolder, *, timeout_s: float = PLAN_TIMEOUT_S,
-                 max_waiting: int = MAX_WAITING, idle: bool = True):
+                 max_waiting: int = MAX_WAITING, idle: bool = True, plans: PlanCache | None = None):
         self.cfg = cfg
         self.idle = idle
+        self.plans = plans
         self.materials = materials
         self.timeout_s = timeout_s
         self.max_waiting = max_waiting
@@ -230,14 +246,17 @@ class Planner:
         self._thread = threading.Thread(target=self._serve, name="gonio-planner", daemon=True)
         self._thread.start()
 
-    def stop(self) -> None:
+    def stop(self, start_grace_s: float = 0.0) -> None:
         """Stop the worker: the request being planned and every waiting one fail (PlannerFailed). A
-        worker still starting is not waited for (a fresh fork server imports the planner for a second or
-        more; a daemon stopped as it starts waited for that): it is killed as soon as it has started."""
+        worker still starting is waited for at most ``start_grace_s`` (a fresh fork server imports the
+        planner for a second or more; a daemon stopped as it starts waited for that): it is killed as soon
+        as it has started. A process about to exit gives :data:`EXIT_GRACE_S`: the start writes the fork
+        server's new child its data right after asking for it, and a daemon that exited in between (its
+        start's thread held up there) left that child an EOFError's traceback on the daemon's stderr."""
         self._stopping.set()
         self._jobs.put(None)
         if self._thread is not None:
-            self._thread.join(0.0 if self._starting.is_set() else START_TIMEOUT_S)
+            self._thread.join(start_grace_s if self._starting.is_set() else START_TIMEOUT_S)
         self._kill()
 
     def _worker(self):
@@ -247,8 +266,8 @@ class Planner:
         self._kill()
         ctx = _context()
         parent, child = ctx.Pipe()
-        proc = ctx.Process(target=_worker_main, args=(child, self.cfg, self.materials.root, self.idle),
-                           daemon=True, name="gonio-planner-worker")
+        proc = ctx.Process(target=_worker_main, daemon=True, name="gonio-planner-worker",
+                           args=(child, self.cfg, self.materials.root, self.idle, self.plans))
         self._starting.set()
         try:
             proc.start()     # blocks while a fresh fork server imports the planner

@@ -36,7 +36,7 @@ from gonio.daemon.auth import check_bind, check_token
 from gonio.daemon.events import StreamLimit
 from gonio.daemon.gantry import GantryOwner
 from gonio.daemon.guard import BODY_TIMEOUT_S, MAX_BODY_BYTES, HostNames
-from gonio.daemon.planner import PLAN_TIMEOUT_S, Planner
+from gonio.daemon.planner import EXIT_GRACE_S, PLAN_TIMEOUT_S, Planner
 from gonio.daemon.queue import CampaignQueue
 from gonio.sim.materials.library import MaterialsFolder
 
@@ -83,11 +83,11 @@ def _lock_data(data: Path) -> int:
 def build_daemon(cfg: GonioConfig, data: Path, *, token: str | None = None, pace: float = 0.0,
                  hold: bool = False, max_streams: int = 16, clock=None, materials: str | Path | None = None,
                  allow_hosts=(), halt_needs_token: bool = False, plan_timeout_s: float = PLAN_TIMEOUT_S,
-                 body_timeout_s: float = BODY_TIMEOUT_S, plan_idle: bool = True) -> Daemon:
+                 body_timeout_s: float = BODY_TIMEOUT_S, plan_idle: bool = True, plans=None) -> Daemon:
     """The daemon's parts (queue and planner not started yet). ``clock``: the time source of a gantry
     with real devices (default the wall clock; tests of emulated devices pass the emulators' clock).
-    ``plan_idle``: the planner's worker at idle priority (:class:`gonio.daemon.planner.Planner`'s
-    ``idle``).
+    ``plan_idle``, ``plans``: the planner's worker at idle priority, the plans it starts with
+    (:class:`gonio.daemon.planner.Planner`'s ``idle`` and ``plans``).
     ValueError (naming the option) for a token too weak, a materials folder that is not one, or a
     malformed ``allow_hosts`` entry."""
     from gonio.campaign import software_version
@@ -99,7 +99,7 @@ def build_daemon(cfg: GonioConfig, data: Path, *, token: str | None = None, pace
     owner = GantryOwner(cfg, pace, clock=clock)
     queue = CampaignQueue(data, cfg, pace=pace, hold=hold, before_run=owner.release, clock=clock,
                           materials=library)
-    planner = Planner(cfg, library, timeout_s=plan_timeout_s, idle=plan_idle)
+    planner = Planner(cfg, library, timeout_s=plan_timeout_s, idle=plan_idle, plans=plans)
     return Daemon(cfg=cfg, queue=queue, gantry=owner, planner=planner, token=token, hosts=hosts,
                   materials=library, halt_needs_token=halt_needs_token, streams=StreamLimit(max_streams),
                   body_timeout_s=body_timeout_s, version=software_version())
@@ -276,7 +276,7 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
         server.run(sockets=[sock])
     finally:
         d.queue.stop("daemon stopping")
-        d.planner.stop()
+        d.planner.stop(start_grace_s=EXIT_GRACE_S)    # the process exits next
         sock.close()
         os.close(fd)
     return 0

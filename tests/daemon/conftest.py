@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from daemon_helpers import STARTED, WAIT_S, http_client
+from daemon_helpers import STARTED, WAIT_S, http_client, shared_plans
 
 from gonio.config import load_config
 from gonio.daemon.server import build_daemon, start_in_thread
@@ -22,6 +22,7 @@ def serve(tmp_path):
         # The planner at the test's own priority (`gonio serve` keeps it idle; tests/daemon/test_daemon_serve
         # and test_daemon_disk run that): at idle priority a submission waited for a core to fall idle.
         kw.setdefault("plan_idle", False)
+        kw.setdefault("plans", shared_plans())   # iso:step=15 and 30, planned once
         d = build_daemon(cfg or load_config(), data or tmp_path / "data", token=token, pace=pace, hold=hold,
                          max_streams=max_streams, clock=clock, **kw)
         r = start_in_thread(d, head_timeout_s=head_timeout_s)

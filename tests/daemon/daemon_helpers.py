@@ -3,6 +3,7 @@ folder has a ``conftest``, so tests import these by this unique name)."""
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import signal
@@ -58,6 +59,28 @@ def unpace(daemon, only: str | None = None) -> None:
     gantry = queue.gantry
     if gantry is not None:
         gantry.clock.pace = 0.0
+
+
+#: The grids most of these tests submit, on the simulated gantry: planned once per process.
+SHARED_GRIDS = ("iso:step=15", "iso:step=30")
+
+
+@functools.cache
+def shared_plans():
+    """A :class:`gonio.daemon.planner.PlanCache` holding :data:`SHARED_GRIDS` on the default config (the
+    process's plans, tests/planned.py), which the tests' in-process daemons hand their planner's worker
+    (a copy each; planning is deterministic): each daemon's worker planned iso:step=15 afresh, 0.4 s of
+    CPU for each of some 40 tests, where a kept plan is a copy of 10 ms. Tests of the planning itself
+    plan grids and configs not kept here."""
+    from planned import planned
+
+    from gonio.config import load_config
+    from gonio.daemon.planner import PlanCache
+
+    plans, cfg = PlanCache(), load_config()
+    for grid in SHARED_GRIDS:
+        plans.keep(grid, cfg, planned(grid, cfg))
+    return plans
 
 
 def http_client(url: str, **kw) -> httpx.Client:

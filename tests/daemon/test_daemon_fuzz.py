@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import schemathesis
+from daemon_helpers import shared_plans
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
 from schemathesis.specs.openapi.checks import content_type_conformance, status_code_conformance
@@ -45,6 +46,7 @@ def _client():
 @pytest.fixture(scope="module", autouse=True)
 def _running_queue():
     _DAEMON.queue.start()
+    _DAEMON.planner.plans = shared_plans()   # the examples' grid, planned once (not at collection)
     _DAEMON.planner.start()
     try:
         yield

@@ -16,8 +16,8 @@ import h5py
 import numpy as np
 import pytest
 from daemon_helpers import GONIO, WAIT_S, Serve, wait_for
+from planned import create
 
-from gonio.campaign import create_campaign
 from gonio.config import load_config
 from gonio.lifecycle import run_campaign
 from gonio.sim.materials import load
@@ -84,11 +84,13 @@ def _serve_here(monkeypatch, capsys, args: list[str], token: str) -> tuple[int, 
     return code, capsys.readouterr().err
 
 
-@pytest.mark.parametrize(("args", "idle"), [((), True), (("--plan-priority", "normal"), False),
-                                            (("--plan-priority", "idle"), True)])
-def test_serve_plans_at_idle_priority_unless_told_otherwise(tmp_path, monkeypatch, args, idle):
-    """What ``--plan-priority`` hands the daemon (the worker's scheduling policy for each value is
-    checked in test_daemon_submit.py); a value not allowed is refused (exit status 2, argparse's)."""
+@pytest.mark.parametrize(("args", "idle", "hold"), [
+    ((), True, False), (("--plan-priority", "normal"), False, False),
+    (("--plan-priority", "idle", "--hold"), True, True)])
+def test_serve_hands_its_plan_priority_and_hold_to_the_daemon(tmp_path, monkeypatch, args, idle, hold):
+    """What ``--plan-priority`` (and ``--hold``) hand the daemon (the worker's scheduling policy for each
+    value is checked in test_daemon_submit.py, what a held start does below); a value not allowed is
+    refused (exit status 2, argparse's)."""
     import logging
 
     import gonio.daemon.server as server
@@ -98,11 +100,11 @@ def test_serve_plans_at_idle_priority_unless_told_otherwise(tmp_path, monkeypatc
     root = logging.getLogger()
     monkeypatch.setattr(root, "handlers", list(root.handlers))
     monkeypatch.setattr(root, "level", root.level)
-    monkeypatch.setattr(server, "serve", lambda cfg, **kw: seen.append(kw["plan_idle"]) or 0)
-    assert main(["serve", "--data", str(tmp_path / "d"), *args]) == 0 and seen == [idle]
+    monkeypatch.setattr(server, "serve", lambda cfg, **kw: seen.append((kw["plan_idle"], kw["hold"])) or 0)
+    assert main(["serve", "--data", str(tmp_path / "d"), *args]) == 0 and seen == [(idle, hold)]
     with pytest.raises(SystemExit) as exc:
         main(["serve", "--data", str(tmp_path / "d"), "--plan-priority", "low"])
-    assert exc.value.code == 2 and seen == [idle]
+    assert exc.value.code == 2 and seen == [(idle, hold)]
 
 
 @pytest.mark.slow
@@ -128,14 +130,15 @@ def test_sigterm_pauses_and_parks_then_the_next_start_resumes_or_holds(tmp_path,
     finally:
         j.close()
     assert 0 < n < total
-    held = Serve(data, "--pace", "0.01", "--hold")
+    # The next starts in this process (what holds or resumes is the queue's start-up, not the process; the
+    # --hold option's way to it is checked below, in-process too; a `gonio serve` costs ~2 s of CPU).
+    held = serve(data=data, pace=0.01, hold=True)
     assert held.client.get("/campaigns/c00001").json()["state"] == "paused"
     assert _done(folder) == n
     held.client.post("/campaigns/c00001/resume").raise_for_status()   # held until an operator resumes
     wait_for(lambda: _done(folder) >= n + 2, "two more steps")
-    assert held.stop(signal.SIGTERM) == 0
-    # Stopped by SIGTERM while running: the next start (this process's: what resumes is the queue's
-    # start-up, not the process) resumes it by itself.
+    held.stop()    # the daemon's stop, as its SIGTERM handler asks it
+    # Stopped while running: the next start resumes it by itself.
     s = serve(data=data)
     wait_for(lambda: s.client.get("/campaigns/c00001").json()["state"] == "done", "the campaign to finish")
     runs, unclean = _runs(folder)
@@ -173,9 +176,10 @@ def _running_states(folder: Path) -> int:
 
 
 def _reference(tmp_path: Path, material: str, grid: str, seed: int) -> Path:
-    """The uninterrupted run, as ``gonio simulate`` makes it."""
+    """The uninterrupted run, as ``gonio simulate`` makes it (with the process's plan of ``grid``,
+    tests/planned.py, which the daemons of the serve fixture are given too)."""
     cfg = load_config()
-    c = create_campaign(tmp_path / "ref", cfg, grid=grid, material=load(material).spec, seed=seed)
+    c = create(tmp_path / "ref", cfg, grid=grid, material=load(material).spec, seed=seed)
     try:
         state, _ = run_campaign(c, build_gantry(cfg, material, seed=seed))
     finally:

@@ -186,6 +186,23 @@ def test_the_planner_plans_a_grid_once_and_each_campaign_gets_a_plan_of_its_own(
     assert small.planned == 3
 
 
+def test_a_daemon_given_plans_starts_its_planner_with_them(serve, tmp_path):
+    """The plans a daemon is given (``plans``: those of the other daemons of a process, the tests') are
+    the worker's first: a grid kept there is not planned again. Seen by a plan kept under another grid's
+    name (iso:step=45's under iso:step=30: a grid a daemon would never plan so)."""
+    from gonio.campaign import plan_campaign
+    from gonio.config import load_config
+    from gonio.daemon.planner import PlanCache
+
+    cfg, plans = load_config(), PlanCache()
+    coarse = plan_campaign("iso:step=45", cfg)
+    plans.keep("iso:step=30", cfg, coarse)
+    given = serve(plans=plans)
+    assert submit(given.client, grid="iso:step=30")["steps"] == coarse.steps != 30
+    fresh = serve(plans=None, data=tmp_path / "fresh")
+    assert submit(fresh.client, grid="iso:step=30")["steps"] == 30       # planned by its worker
+
+
 def test_a_planner_stopped_while_its_worker_starts_does_not_wait_for_it(monkeypatch):
     """A fresh fork server imports the planner for a second or more before the worker runs; a daemon
     stopped meanwhile (a SIGTERM as it starts) waited for that. stop() now returns while the worker is

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from daemon_helpers import TOKEN, WAIT_S, submit, wait_state
+from daemon_helpers import TOKEN, WAIT_S, submit, wait_for, wait_state
 
 CHROMIUM = "/usr/bin/chromium"
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -48,10 +48,16 @@ def page(browser):
 def test_the_web_view_follows_a_campaign_and_its_buttons_work(serve, page, tmp_path):
     from PIL import Image
 
+    # 10 ms of wall time per gantry second (~10 ms a step) until the daemon has measured the slice's first
+    # five in-plane points (by step 51 of 310), then 50 ms (the ~250 steps left last ~12 s: the page's
+    # checks and the pause land before the end, however far the page lags). iso:step=15's plan is kept by
+    # the fixture; iso:step=10 (1168 steps) took 1.3 s of CPU to plan and ~1 s of pacing more.
     r = serve(token=TOKEN, pace=0.01)
-    submit(r.client, grid="iso:step=10", material="ggx:alpha=0.2,metal=gold")
+    submit(r.client, grid="iso:step=15", material="ggx:alpha=0.2,metal=gold")
     page.goto(r.url + "/")
     page.wait_for_selector("#queue tbody tr[data-id='c00001']")
+    wait_for(lambda: r.client.get("/campaigns/c00001").json()["steps_done"] >= 60, "60 steps measured")
+    r.daemon.queue.gantry.clock.pace = 0.05
     assert page.is_disabled("#pause") and not page.is_disabled("#halt")    # no token typed yet: HALT is live
     page.fill("#token", TOKEN)
     page.wait_for_function("document.querySelector('#conn').textContent === 'live'")
