@@ -175,6 +175,12 @@ def test_pair_time_matrix_matches_every_pair_and_its_prim_the_branch_mst(rng):
         np.testing.assert_allclose(table, want, rtol=1e-12, atol=0)
         # The bound takes its MST from the table's Prim where it has the table: the same tree weight.
         assert table[_prim(table)].sum() == pytest.approx(branch_mst_edge_times(b, metric).sum(), rel=1e-12)
+    # The Lagrangian's Prim of penalised rows made one at a time: the tree of the penalised table.
+    pi = rng.normal(0.0, 0.5, table.shape[0])
+    penalised = table + pi[:, None]
+    penalised += pi[None, :]
+    for got, want in zip(_prim(table, pi), _prim(penalised), strict=True):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_lagrangian_raises_the_sample_stage_bound_where_the_degree_bound_is_loose():
