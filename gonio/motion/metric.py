@@ -91,7 +91,16 @@ class MoveMetric:
         if not self.uniform:
             return u
         # A move shorter than v²/a (u < 1) never reaches cruise speed: the triangle profile.
-        return self._ratio * np.where(u < 1.0, 2.0 * np.sqrt(np.abs(u)), u + 1.0)
+        if u.ndim == 0:
+            return self._ratio * np.where(u < 1.0, 2.0 * np.sqrt(np.abs(u)), u + 1.0)
+        # The same operations in one array (a table of pair times is millions of keys: each temporary
+        # of that size costs as much as the arithmetic).
+        t = np.abs(u)
+        np.sqrt(t, out=t)
+        t *= 2.0
+        np.add(u, 1.0, out=t, where=~(u < 1.0))
+        t *= self._ratio
+        return t
 
     def time_beyond(self, chebyshev) -> np.ndarray:
         """A lower bound in s on the time of any move whose scaled Chebyshev distance (positions times

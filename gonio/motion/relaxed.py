@@ -58,6 +58,10 @@ LAGRANGE_PATIENCE = 25
 _PRIM_LISTS_MAX = 32
 # Pair-time entries (N × chunk × W² × axes) computed at once when building the table.
 _CHUNK_ENTRIES = 2e5
+# Keys of one branch pair computed at once (a block of rows of the table, in cache).
+_KEY_BLOCK_ENTRIES = 2e4
+# Poses from which the Lagrangian's Prim makes its penalised rows one at a time (:func:`_prim`).
+_PENALISED_ROWS_MIN = 600
 
 # Poses left out (free or thinned) beyond which R' ranges over every value up to R.
 _MAX_DROPS = 256
@@ -97,32 +101,85 @@ def pair_time_matrix(branches, metric: MoveMetric) -> np.ndarray:
     b = np.asarray(branches, dtype=np.float64)
     n, w, n_axes = b.shape
     out = np.empty((n, n))
-    rows = max(1, int(_CHUNK_ENTRIES // max(n * w * w, 1)))
     if metric.uniform:
-        # The least key over branch pairs (weighted Chebyshev, one axis at a time), then its time.
-        axes = np.ascontiguousarray(np.moveaxis(b * metric.scale, 2, 0))  # (n_axes, N, W)
-        for lo in range(0, n, rows):  # the upper triangle, mirrored below (pair times are symmetric)
-            d = np.abs(axes[0, lo:lo + rows, :, None, None] - axes[0][None, None, lo:])
-            for k in range(1, n_axes):
-                np.maximum(d, np.abs(axes[k, lo:lo + rows, :, None, None] - axes[k][None, None, lo:]), out=d)
-            out[lo:lo + rows, lo:] = d.min(axis=(1, 3))
-        below = np.tril_indices(n, -1)
-        out[below] = out.T[below]
+        # The least key over branch pairs (weighted Chebyshev, one axis at a time), then its time. A
+        # pose's repeated branches (pose_branches fills its invalid ones with a copy) change no least
+        # key: the poses are grouped by how many distinct branches they have, and each block of two
+        # groups measures only those (the two-arm gantry's merl:stride=8 poses have 2.2 of 5 on average,
+        # a fifth of the pairs; the sample stage's 6.1 of 9). The same keys to the last bit.
+        scaled = b * metric.scale
+        distinct, count = _distinct_first(scaled)
+        groups = [np.flatnonzero(count == c) for c in np.unique(count)]
+        for gi, rows_g in enumerate(groups):
+            a = np.ascontiguousarray(np.moveaxis(distinct[rows_g, :count[rows_g[0]]], 2, 0))
+            for cols_g in groups[gi:]:
+                c = np.ascontiguousarray(np.moveaxis(distinct[cols_g, :count[cols_g[0]]], 2, 0))
+                block = _key_block(a, c, cols_g is rows_g)
+                out[np.ix_(rows_g, cols_g)] = block
+                if cols_g is not rows_g:
+                    out[np.ix_(cols_g, rows_g)] = block.T
         out = metric.time_from_key(out)
     else:
+        rows = max(1, int(_CHUNK_ENTRIES // max(n * w * w, 1)))
         for lo in range(0, n, rows):
             out[lo:lo + rows] = pair_times(b[lo:lo + rows], b, metric)
     np.fill_diagonal(out, np.inf)
     return out
 
 
-def _prim(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _distinct_first(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each pose's branches (N, W, n) with its distinct ones first (in their order), and their count (N,)."""
+    same = (points[:, :, None, :] == points[:, None, :, :]).all(axis=-1)        # (N, W, W)
+    repeat = np.tril(same, -1).any(axis=2)     # branch b equals an earlier branch of its pose
+    first = np.argsort(repeat, axis=1, kind="stable")
+    return np.take_along_axis(points, first[..., None], axis=1), points.shape[1] - repeat.sum(axis=1)
+
+
+def _key_block(a: np.ndarray, c: np.ndarray, triangle: bool) -> np.ndarray:
+    """Least weighted-Chebyshev key (M, K) between any branch of the poses ``a`` (n_axes, M, V) and any
+    of ``c`` (n_axes, K, U); ``triangle`` (a and c the same poses): the upper triangle, mirrored below
+    (keys are symmetric). One branch pair at a time over a block of rows, so that every operation runs
+    along a contiguous row of poses (broadcasting the branch axes instead ran numpy's inner loops over
+    U <= 9 elements)."""
+    n_axes, m, v = a.shape
+    k_, u = c.shape[1], c.shape[2]
+    c = np.ascontiguousarray(np.moveaxis(c, 2, 1))      # (n_axes, U, K)
+    out = np.full((m, k_), np.inf)
+    rows = max(1, int(_KEY_BLOCK_ENTRIES // max(k_, 1)))
+    d, t = np.empty(rows * k_), np.empty(rows * k_)
+    for lo in range(0, m, rows):
+        hi, first = min(lo + rows, m), (lo if triangle else 0)
+        block = out[lo:hi, first:]
+        dd, tt = d[:block.size].reshape(block.shape), t[:block.size].reshape(block.shape)
+        for i in range(v):
+            for j in range(u):
+                np.subtract(a[0, lo:hi, i, None], c[0, j, first:], out=dd)
+                np.abs(dd, out=dd)
+                for k in range(1, n_axes):
+                    np.subtract(a[k, lo:hi, i, None], c[k, j, first:], out=tt)
+                    np.abs(tt, out=tt)
+                    np.maximum(dd, tt, out=dd)
+                np.minimum(block, dd, out=block)
+    if triangle:
+        below = np.tril_indices(m, -1)
+        out[below] = out.T[below]
+    return out
+
+
+def _prim(weights: np.ndarray, pi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A minimum spanning tree of the complete graph with these (N, N) weights (diagonal ignored):
-    (child, parent) index arrays of its N - 1 edges."""
+    (child, parent) index arrays of its N - 1 edges.
+
+    With penalties ``pi`` (N,): the tree of ``weights[i, j] + pi[i] + pi[j]`` (added in that order, so
+    the same weights to the last digit), each row made as the tree takes its pose instead of the whole
+    table first: Prim reads every row once, and a table of a thousand poses or more is otherwise
+    written and read back from memory (about 15 % of a Lagrangian step at 1,748 poses; below
+    :data:`_PENALISED_ROWS_MIN` poses the table stays in cache and the whole-table sums are quicker)."""
     n = weights.shape[0]
-    if n <= _PRIM_LISTS_MAX:
+    if n <= _PRIM_LISTS_MAX and pi is None:
         return _prim_lists(weights)
-    best = weights[0].copy()
+    row = np.empty(n)
+    best = weights[0].copy() if pi is None else np.add(weights[0], pi[0]) + pi
     parent = np.zeros(n, dtype=np.int64)
     left = np.ones(n, dtype=bool)   # not in the tree yet
     left[0] = False
@@ -134,7 +191,11 @@ def _prim(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         child[step] = j
         left[j] = False
         best[j] = np.inf
-        row = weights[j]
+        if pi is None:
+            row = weights[j]
+        else:
+            np.add(weights[j], pi[j], out=row)
+            row += pi
         np.less(row, best, out=closer)
         closer &= left
         np.copyto(best, row, where=closer)
@@ -173,8 +234,11 @@ def _relaxation(pair, to_ref, pi, runs: int, scratch=None):
     in it, and the parts :func:`lagrangian_motion` needs for other run counts. ``scratch``: an array
     like ``pair`` to hold the penalised times (a new one each step costs as much as a Prim)."""
     n = pair.shape[0]
-    weights = np.add(pair, pi[:, None], out=scratch)
-    child, parent = _prim(np.add(weights, pi[None, :], out=weights))
+    if n >= _PENALISED_ROWS_MIN:
+        child, parent = _prim(pair, pi)
+    else:
+        weights = np.add(pair, pi[:, None], out=scratch)
+        child, parent = _prim(np.add(weights, pi[None, :], out=weights))
     w = pair[child, parent] + pi[child] + pi[parent]
     order = np.argsort(w, kind="stable")
     kept = order[:n - runs]
@@ -212,7 +276,7 @@ def lagrangian_penalties(pair, to_ref, runs: int, steps: int = LAGRANGE_STEPS) -
     previous = np.zeros(n)
     length = None
     since = 0   # steps since the value last rose by more than a part in 10⁹
-    scratch = np.empty_like(pair)
+    scratch = np.empty_like(pair) if n < _PENALISED_ROWS_MIN else None
     for k in range(int(steps)):
         value, degree, _, _ = _relaxation(pair, to_ref, pi, runs, scratch)
         since = 0 if value > best_value + 1e-9 * abs(best_value if np.isfinite(best_value) else value) \

@@ -197,7 +197,8 @@ class Plan:
 
 
 def build_plan(grid: str, cfg: GonioConfig, kin=None, *, poses: GridPoses | None = None,
-               _tour_seed: int | None = None, _bound: dict | None = None) -> Plan:
+               _tour_seed: int | None = None, _bound: dict | None = None,
+               _orders: list | None = None) -> Plan:
     """Plan a campaign over ``grid`` on the gantry ``cfg`` describes.
 
     Parameters
@@ -260,7 +261,8 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None, *, poses: GridPoses | None
     inputs = OrderInputs(spec=spec, kin=kin, angles=tuple(angles), loops=loops, start=ref_first, home=home,
                          metric=metric, run_length=min(cfg.reference.poses_per_run(n), CUT_RUN_LENGTH),
                          seeds=np.vstack([home, reachable]))
-    candidates = ORDERS[order].load()(inputs)
+    # The candidates of the same poses are the same again: a seed's plan takes its caller's.
+    candidates = ORDERS[order].load()(inputs) if _orders is None else _orders
     if callable(candidates):
         candidates = [candidates]
     if isinstance(candidates, np.ndarray):
@@ -268,9 +270,9 @@ def build_plan(grid: str, cfg: GonioConfig, kin=None, *, poses: GridPoses | None
     elif _tour_seed is None and len(candidates) > 1:
         # Several candidate orders: each planned through, the quickest kept (the lower bound holds for
         # every order of the same poses, so it is computed once).
-        plans = [build_plan(grid, cfg, kin, poses=given, _tour_seed=0, _bound=_bound)]
+        plans = [build_plan(grid, cfg, kin, poses=given, _tour_seed=0, _bound=_bound, _orders=candidates)]
         bound = plans[0].timing["lower_bound"]
-        plans += [build_plan(grid, cfg, kin, poses=given, _tour_seed=i, _bound=bound)
+        plans += [build_plan(grid, cfg, kin, poses=given, _tour_seed=i, _bound=bound, _orders=candidates)
                   for i in range(1, len(candidates))]
         return min(plans, key=lambda p: p.estimated_s)
     else:

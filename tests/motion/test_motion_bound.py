@@ -162,14 +162,25 @@ def test_pair_time_matrix_matches_every_pair_and_its_prim_the_branch_mst(rng):
     from gonio.motion.relaxed import _prim, branch_mst_edge_times, pair_time_matrix, pair_times
 
     branches = rng.uniform(-180, 180, (230, 5, 4))  # several row blocks
-    for metric in (UNIFORM, MIXED):
-        want = pair_times(branches, branches, metric)
+    # Poses with 1 to 5 distinct branches, the rest copies of earlier ones (as pose_branches fills the
+    # invalid ones): the table measures each group of poses on its distinct branches alone.
+    repeats = branches.copy()
+    for i, distinct in enumerate(rng.integers(1, 6, 230)):
+        repeats[i, distinct:] = repeats[i, rng.integers(0, distinct, 5 - distinct)]
+        repeats[i] = repeats[i, rng.permutation(5)]
+    for metric, b in ((UNIFORM, branches), (MIXED, branches), (UNIFORM, repeats)):
+        want = pair_times(b, b, metric)
         np.fill_diagonal(want, np.inf)
-        table = pair_time_matrix(branches, metric)
+        table = pair_time_matrix(b, metric)
         np.testing.assert_allclose(table, want, rtol=1e-12, atol=0)
         # The bound takes its MST from the table's Prim where it has the table: the same tree weight.
-        assert table[_prim(table)].sum() == pytest.approx(branch_mst_edge_times(branches, metric).sum(),
-                                                          rel=1e-12)
+        assert table[_prim(table)].sum() == pytest.approx(branch_mst_edge_times(b, metric).sum(), rel=1e-12)
+    # The Lagrangian's Prim of penalised rows made one at a time: the tree of the penalised table.
+    pi = rng.normal(0.0, 0.5, table.shape[0])
+    penalised = table + pi[:, None]
+    penalised += pi[None, :]
+    for got, want in zip(_prim(table, pi), _prim(penalised), strict=True):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_lagrangian_raises_the_sample_stage_bound_where_the_degree_bound_is_loose():

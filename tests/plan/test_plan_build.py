@@ -177,22 +177,33 @@ def test_a_tour_is_ordered_on_the_seeded_branches_that_lie_closest_and_the_quick
     on them alone is clearly slower."""
     import gonio.plan.build as build
 
-    seeds, sets = build._tour_seeds, []
+    seeds, sets, plan, inner = build._tour_seeds, [], build.build_plan, {}
 
     def counted(*args):
         out = seeds(*args)
         sets.append(len(out))
         return out
 
-    build._tour_seeds = counted
+    def seeded(*args, **kwargs):   # the plan of each seed, as the tour's own planning made it
+        p = plan(*args, **kwargs)
+        if kwargs.get("_tour_seed") is not None:
+            inner[kwargs["_tour_seed"]] = p
+        return p
+
+    build._tour_seeds, build.build_plan = counted, seeded
     try:
         tour = build_plan("iso:step=15,order=tour", cfg)
     finally:
-        build._tour_seeds = seeds
+        build._tour_seeds, build.build_plan = seeds, plan
     trials = [build_plan("iso:step=15,order=tour", cfg, _tour_seed=i)
               for i in range(min(sets[0], build.TOUR_SEED_TRIALS))]
     assert tour.estimated_s == min(p.estimated_s for p in trials)
     assert all(p.lower_bound_s == tour.lower_bound_s for p in trials)
+    # Each seed's plan within the tour's planning is the one planned alone for that seed.
+    assert sorted(inner) == list(range(len(trials))) if len(trials) > 1 else not inner
+    for i, p in inner.items():
+        np.testing.assert_array_equal(p.axes_deg, trials[i].axes_deg)
+        assert p.estimated_s == trials[i].estimated_s
     # several sets within the margin on the sample stage; on the two-arm gantry the next is 2.3 % apart
     assert sets[0] >= 2 if cfg.kinematics.design == "sample-stage" else sets[0] == 1
     # The seed trials against ordering on the branches nearest home (the former way).
