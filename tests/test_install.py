@@ -12,6 +12,7 @@ import sysconfig
 from pathlib import Path
 
 import pytest
+from built_once import built_once
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.slow
@@ -25,7 +26,12 @@ def _run(argv, **kw):
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
-    base = tmp_path_factory.mktemp("install")
+    """(the new environment, the folder of the build): built once per run (tests/built_once.py), whichever
+    worker's tests ask first; the tests only read it."""
+    return built_once(tmp_path_factory, "install", _build_and_install)
+
+
+def _build_and_install(base: Path) -> tuple[Path, Path]:
     wheels = base / "wheels"
     # Built from a clean copy of the sources: setuptools reuses a build/ folder, whose stale files from an
     # earlier build (modules since moved, packages the list no longer names) would hide what the wheel lacks.
@@ -53,12 +59,12 @@ def installed(tmp_path_factory):
     (site / "deps.pth").write_text("\n".join(dict.fromkeys(deps)) + "\n")
     _run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-deps", "--no-index",
           str(wheel)])
-    return venv, base / "elsewhere"
+    return venv, base
 
 
 @pytest.fixture(scope="module")
 def wheel_build(installed):
-    base = installed[1].parent
+    base = installed[1]
     (wheel,) = (base / "wheels").glob("gonio-*.whl")
     return wheel, (base / "build.log").read_text()
 
@@ -132,11 +138,10 @@ def _source_modules() -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def in_the_wheel(installed):
-    """The new environment run outside the source tree: (venv, cwd, env, what :data:`_IN_THE_WHEEL`
-    printed for :data:`COMMANDS` and every module of the source tree)."""
-    venv, cwd = installed
-    cwd.mkdir(exist_ok=True)
+def in_the_wheel(installed, tmp_path_factory):
+    """The new environment run outside the source tree, from a folder of this worker's own: (venv, cwd, env,
+    what :data:`_IN_THE_WHEEL` printed for :data:`COMMANDS` and every module of the source tree)."""
+    venv, cwd = installed[0], tmp_path_factory.mktemp("elsewhere")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     r = _run([str(venv / "bin" / "python"), "-c", _IN_THE_WHEEL, json.dumps(COMMANDS),
               json.dumps(_source_modules())], cwd=cwd, env=env)
