@@ -68,6 +68,10 @@ NOT_NEEDED = {
     # A plan of a few poses finds neighbours without a k-d tree (gonio.motion.nearest).
     "simulate": ("rich", "matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage",
                  "scipy.optimize", "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app"),
+    # gonio run on a simulated gantry: what simulate needs, none of the hardware drivers' libraries.
+    "run": ("rich", "matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage", "scipy.optimize",
+            "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app", "pymodbus", "serial",
+            "dynamixel_sdk"),
 }
 
 
@@ -87,7 +91,9 @@ def test_a_command_imports_only_what_its_work_needs(command, finished, tmp_path)
             "export": ["export", str(finished), "--format", "csv", "--out", str(tmp_path / "c.csv")],
             "plan": ["plan", "--grid", "iso:step=45"],
             "simulate": ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet", "--out",
-                         str(tmp_path / "s")]}[command]
+                         str(tmp_path / "s")],
+            "run": ["run", "--config", "sim", "--material", "lambert:albedo=0.5", "--sample", "felt",
+                    "--grid", "iso:step=45", "--quiet", "--out", str(tmp_path / "r")]}[command]
     code, modules = _loaded(*argv)
     assert code == 0
     loaded = sorted(m for m in NOT_NEEDED[command] if m in modules)
