@@ -135,6 +135,10 @@ class Campaign:
     journal: Journal
     cfg: GonioConfig
     lock: CampaignLock | None = None
+    #: The fly plan its journal's steps were made from, where this process planned it
+    #: (:func:`create_campaign`); None: rebuilt from the journal when needed
+    #: (:func:`gonio.fly.plans.rebuild_fly_plan`).
+    fly: FlyPlan | None = None
 
     @property
     def meta(self) -> dict:
@@ -244,7 +248,7 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
     except BaseException:
         lock.release()
         raise
-    return Campaign(folder, journal, cfg, lock)
+    return Campaign(folder, journal, cfg, lock, fly=planned.fly)
 
 
 def open_campaign(folder: str | Path, *, write_hook=None, readonly: bool = False) -> Campaign:

@@ -220,7 +220,9 @@ def run_campaign(c: Campaign, gantry: Gantry,
     of a latched fault.
     """
     runner = Runner(gantry, c.journal, c.cfg, on_step=on_step)
-    units = unit_source(c.kind)(runner)
+    # A fly campaign created in this process runs the fly plan it was made from; a reopened one's is
+    # rebuilt from its journal and checked against its steps.
+    units = unit_source(c.kind)(runner) if c.fly is None else unit_source(c.kind)(runner, c.fly)
     if on_runner is not None:
         on_runner(runner)
     gantry.connect()

@@ -68,6 +68,10 @@ NOT_NEEDED = {
     # A plan of a few poses finds neighbours without a k-d tree (gonio.motion.nearest).
     "simulate": ("rich", "matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage",
                  "scipy.optimize", "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app"),
+    # gonio run on a simulated gantry: what simulate needs, none of the hardware drivers' libraries.
+    "run": ("rich", "matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage", "scipy.optimize",
+            "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app", "pymodbus", "serial",
+            "dynamixel_sdk"),
 }
 
 
@@ -87,8 +91,30 @@ def test_a_command_imports_only_what_its_work_needs(command, finished, tmp_path)
             "export": ["export", str(finished), "--format", "csv", "--out", str(tmp_path / "c.csv")],
             "plan": ["plan", "--grid", "iso:step=45"],
             "simulate": ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet", "--out",
-                         str(tmp_path / "s")]}[command]
+                         str(tmp_path / "s")],
+            "run": ["run", "--config", "sim", "--material", "lambert:albedo=0.5", "--sample", "felt",
+                    "--grid", "iso:step=45", "--quiet", "--out", str(tmp_path / "r")]}[command]
     code, modules = _loaded(*argv)
     assert code == 0
     loaded = sorted(m for m in NOT_NEEDED[command] if m in modules)
     assert loaded == [], f"gonio {command} imported {loaded}"
+
+
+def test_a_fly_campaign_is_planned_once_and_rebuilt_once_on_resume(tmp_path, monkeypatch):
+    """A fly campaign created by this process runs the fly plan it was created from (the planner runs
+    once, not again to rebuild it from the journal just written); a resumed one rebuilds its plan from
+    the journal once (and checks it against the journal's steps)."""
+    import gonio.fly.plans as plans
+    from gonio.cli import main
+
+    built = []
+    real = plans.build_plan
+    monkeypatch.setattr(plans, "build_plan", lambda *a, **k: built.append(a[0]) or real(*a, **k))
+    out = tmp_path / "fly"
+    argv = ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45,order=fly", "--quiet", "--out", str(out)]
+    assert main(argv) == 0
+    assert built == ["iso:step=45,order=fly"]
+    (out / "brdf.h5").unlink()    # finished but for its brdf.h5: the same command resumes it
+    built.clear()
+    assert main(argv) == 0
+    assert len(built) == 1 and (out / "brdf.h5").exists()

@@ -60,6 +60,10 @@ DEFAULT_COMMANDS = (
     "plot {campaign} --kind polar --out {new}.png",
     "batch lambert:albedo=0.5 --grid iso:step=45 --workers 1 --quiet --out {new}.zarr",
     "run --config {emulated} --grid iso:step=45 --sample felt --quiet --out {new}",
+    # order=fly as the kill tests' `gonio run` children start it (a simulated gantry renders the sweeps)
+    "run --config sim --material lambert:albedo=0.5 --sample felt --grid iso:step=30,order=fly --quiet "
+    "--out {new}",
+    "simulate lambert:albedo=0.5 --grid iso:step=30,order=fly --out {new} --quiet",
     "emulate --config emulated-sample-stage-modbus --any-port --write-config {new}.toml",
     "serve --data {new} --port 0",
 )

@@ -79,9 +79,11 @@ def check_fly_gantry(gantry: Gantry, cfg: GonioConfig, fp: FlyPlan) -> None:
                          "order=fly needs a photodiode, power meter or spectrometer")
 
 
-def fly_units(engine) -> list[Unit]:
+def fly_units(engine, fp: FlyPlan | None = None) -> list[Unit]:
     """The units of the fly campaign the ``engine`` (:class:`gonio.runner.Runner`) runs: one per
-    checkpoint and one per line, in campaign order.
+    checkpoint and one per line, in campaign order. ``fp``: the fly plan the journal's steps were made
+    from, where the caller has it (:attr:`gonio.campaign.Campaign.fly`: planned and created in this
+    process); None: rebuilt from the journal and checked against its steps.
 
     Raises
     ------
@@ -90,7 +92,8 @@ def fly_units(engine) -> list[Unit]:
         gantry cannot fly it (:func:`check_fly_gantry`).
     """
     journal = engine.journal
-    fp = rebuild_fly_plan(journal.meta(), engine.cfg, journal.steps(), journal.path.parent)
+    if fp is None:
+        fp = rebuild_fly_plan(journal.meta(), engine.cfg, journal.steps(), journal.path.parent)
     check_fly_gantry(engine.gantry, engine.cfg, fp)
     renders = engine.executor.abilities.renders_fly
     if renders is not None:
