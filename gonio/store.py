@@ -154,6 +154,11 @@ def _json_default(value):
     return str(value)
 
 
+#: ``json.dumps(extra, default=_json_default, sort_keys=True)``, its encoder made once (one per reading
+#: would cost more than a small extra's encoding).
+_EXTRA_JSON = json.JSONEncoder(default=_json_default, sort_keys=True)
+
+
 def _blob(x) -> bytes:
     return np.ascontiguousarray(x, dtype="<f8").tobytes()
 
@@ -399,9 +404,10 @@ class Journal:
         frame = extra.pop("frame", None)
         if frame is not None and not isinstance(frame, str):
             frame_file, digest = self._write_frame(m.step, m.attempts, frame)
-        extra_json = json.dumps(extra, default=_json_default, sort_keys=True) if extra else None
+        extra_json = _EXTRA_JSON.encode(extra) if extra else None
         values = (m.step, m.kind, m.pose, json.dumps(np.asarray(m.commanded_deg, float).tolist()),
-                  json.dumps(np.asarray(m.actual_deg, float).tolist()), *(float(a) for a in m.angles_deg),
+                  json.dumps(np.asarray(m.actual_deg, float).tolist()),
+                  *np.asarray(m.angles_deg, float).tolist(),
                   float(m.clock_s), float(m.campaign_s), time.time(), float(m.exposure_s), int(m.frames),
                   _blob(signal), _blob(stderr), int(m.attempts),
                   json.dumps(list(signal.shape)), extra_json, frame_file, digest)

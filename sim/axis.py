@@ -26,6 +26,7 @@ never interrupts a move in progress.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from functools import cached_property
@@ -276,7 +277,7 @@ class SimAxis:
 
     def _quantize(self, x: float) -> float:
         res = self.cfg.sim.resolution_deg
-        return float(np.round(x / res) * res) if res > 0 else float(x)
+        return _round_half_even(x / res) * res if res > 0 else float(x)
 
     def _settle_point(self, x: float) -> float:
         """The encoder count nearest ``x`` that lies inside the limits (``x`` itself when ideal)."""
@@ -284,10 +285,17 @@ class SimAxis:
         if res <= 0:
             return float(x)
         lo, hi = self.limits_deg
-        k = np.round(x / res)
+        k = _round_half_even(x / res)
         # Limits need not fall on a count: step one count inward rather than settle past a limit.
         if k * res > hi:
             k -= 1
         if k * res < lo:
             k += 1
         return float(k * res)
+
+
+def _round_half_even(x: float) -> float:
+    """``np.round`` of one float (halves to even, the sign of a zero kept), in plain Python: an axis is
+    read several times a step."""
+    x = float(x)
+    return math.copysign(float(round(x)), x) if math.isfinite(x) else x
