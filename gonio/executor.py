@@ -152,7 +152,9 @@ class MotionExecutor:
         else:
             actual = self.positions()
         there = self._arrived
-        if there is not None and np.all(np.abs(actual - there) <= self.rc.position_tolerance_deg):
+        tol = self.rc.position_tolerance_deg
+        if there is not None and all(abs(x - t) <= tol for x, t in zip(actual.tolist(), there.tolist(),
+                                                                       strict=True)):
             return there.copy()
         return actual
 

@@ -22,6 +22,7 @@ runs a fly campaign.
 from __future__ import annotations
 
 import argparse
+import gc
 import hashlib
 import os
 import statistics
@@ -105,29 +106,31 @@ def _child(root: Path, grid: str, repeats: int, config: str | None) -> None:
     cfg = load_config(config)
     request = Request(grid, material="ggx:alpha=0.1,metal=gold", seed=3)
     material = check_request(cfg, request)
-    planned = plan_request(cfg, request)
+    planned = plan_request(cfg, request, material)
     runs, digest = [], ""
     with tempfile.TemporaryDirectory() as d:
         for r in range(repeats + 1):
             c, _ = open_or_create(Path(d) / str(r), cfg, request, spec=material.spec, plan=lambda: planned)
             gantry = campaign_gantry(c, material)
-            det, spent = gantry.detector, [0.0]
+            det, spent = gantry.detector, [0.0, 0.0]
 
             def timed(fn, spent=spent):
                 def call(*args, **kw):
-                    t = time.process_time()
+                    t, u = time.process_time(), time.thread_time()
                     try:
                         return fn(*args, **kw)
                     finally:
                         spent[0] += time.process_time() - t
+                        spent[1] += time.thread_time() - u
                 return call
 
             for name in ("measure", "take", "develop"):
                 if hasattr(det, name):
                     setattr(det, name, timed(getattr(det, name)))
-            t = time.process_time()
+            gc.collect()
+            t, u = time.process_time(), time.thread_time()
             state, _ = run_campaign(c, gantry)
-            cpu = time.process_time() - t
+            cpu, own = time.process_time() - t, time.thread_time() - u
             assert state == "done", state
             n = c.journal.step_count()
             digest = hashlib.sha256(b"".join(m.signal.tobytes() + m.stderr.tobytes()
@@ -136,8 +139,8 @@ def _child(root: Path, grid: str, repeats: int, config: str | None) -> None:
             digest += f",journal={_journal_digest(c.folder / 'campaign.sqlite')}"
             digest += f",brdf={_brdf_digest(c.folder / 'brdf.h5')}"
             if r:
-                runs.append((cpu / n, spent[0] / n))
-    print(f"{statistics.median(x for x, _ in runs)} {statistics.median(y for _, y in runs)} {n} {digest}")
+                runs.append((cpu / n, spent[0] / n, (own - spent[1]) / n))
+    print(*(statistics.median(run[k] for run in runs) for k in range(3)), n, digest)
 
 
 def main() -> None:
@@ -161,16 +164,18 @@ def main() -> None:
             out = subprocess.run([sys.executable, __file__, str(root), "--grid", a.grid, "--repeats",
                                   str(a.repeats), "--child", str(root), *config], capture_output=True,
                                  text=True, check=True).stdout.split()
-            got[k].append((float(out[0]), float(out[1]), int(out[2]), out[3]))
+            got[k].append((float(out[0]), float(out[1]), float(out[2]), int(out[3]), out[4]))
     print(f"gonio simulate ggx:alpha=0.1,metal=gold --grid {a.grid} --seed 3"
-          f"{' --config ' + a.config if a.config else ''}, {got['this'][0][2]} steps; "
+          f"{' --config ' + a.config if a.config else ''}, {got['this'][0][3]} steps; "
           f"medians of {a.rounds} x {a.repeats} (load average at the end {os.getloadavg()[0]:.2f}):")
     for k, root in trees.items():
         whole = statistics.median(g[0] for g in got[k])
         det = statistics.median(g[1] for g in got[k])
-        print(f"  {k} ({root}): whole run {1e3 * whole:.3f} ms CPU per step, detector {1e3 * det:.3f} ms; "
-              f"readings {got[k][0][3]}")
-    print(f"  readings identical: {got['other'][0][3] == got['this'][0][3]}")
+        rest = statistics.median(g[2] for g in got[k])
+        print(f"  {k} ({root}): whole run {1e3 * whole:.3f} ms CPU per step, detector {1e3 * det:.3f} ms, "
+              f"outside the detector {1e3 * (whole - det):.3f} ms ({1e3 * rest:.3f} ms in the campaign's "
+              f"thread); {got[k][0][4]}")
+    print(f"  readings, journal and brdf.h5 identical: {got['other'][0][4] == got['this'][0][4]}")
 
 
 if __name__ == "__main__":
