@@ -39,6 +39,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -168,6 +169,12 @@ def _float_list_json(values) -> str:
     if array.ndim == 1 and all(-math.inf < x < math.inf for x in floats):
         return "[" + ", ".join(map(float.__repr__, floats)) + "]"
     return json.dumps(floats)
+
+
+@lru_cache(maxsize=64)
+def _shape_json(shape: tuple) -> str:
+    """``json.dumps`` of a reading's shape (a detector reports one shape: written once per journal)."""
+    return json.dumps(list(shape))
 
 
 def _blob(x) -> bytes:
@@ -420,7 +427,7 @@ class Journal:
                   *np.asarray(m.angles_deg, float).tolist(),
                   float(m.clock_s), float(m.campaign_s), time.time(), float(m.exposure_s), int(m.frames),
                   _blob(signal), _blob(stderr), int(m.attempts),
-                  json.dumps(list(signal.shape)), extra_json, frame_file, digest)
+                  _shape_json(signal.shape), extra_json, frame_file, digest)
         return values
 
     def commit_measurements(self, ms: list[Measurement]) -> None:
@@ -588,7 +595,10 @@ class Journal:
         missing = np.setdiff1d(np.arange(self.step_count()), done)
         return int(missing[0]) if missing.size else self.step_count()
 
-    def measurements(self) -> list[Measurement]:
+    def measurements(self, *, extra: bool = True) -> list[Measurement]:
+        """Every committed measurement in step order; ``extra=False`` leaves each reading's extra out
+        (an empty dict: a caller that reads only the readings, as calibration does, spares parsing it)."""
+        keep_extra = extra
         out = []
         names = [c for c in _MEASUREMENT_COLUMNS if c != "wall_s"]
         select = names + [self._v3(c) for c in _V3_COLUMNS]
@@ -606,7 +616,7 @@ class Journal:
                 actual_deg=np.array(loads(actual)), angles_deg=np.array([ti, pi_, to, po], float),
                 clock_s=clock_s, campaign_s=campaign_s, exposure_s=exposure_s, frames=frames,
                 signal=_unblob(signal, shape), stderr=_unblob(stderr, shape), attempts=attempts,
-                extra={} if extra is None else loads(extra), frame_file=frame_file,
+                extra=loads(extra) if keep_extra and extra is not None else {}, frame_file=frame_file,
                 frame_sha256=frame_sha256))
         return out
 

@@ -186,7 +186,7 @@ class SimAxis:
         self._require_connected()
         target = float(target_deg)
         lo, hi = self.limits_deg
-        if not np.isfinite(target) or not lo <= target <= hi:
+        if not math.isfinite(target) or not lo <= target <= hi:
             raise ValueError(
                 f"axis '{self.name}': target {target:.1f}° is outside the limit [{lo:g}°, {hi:g}°]"
             )
