@@ -92,7 +92,7 @@ class Cut(Exception):
         self.rest = rest
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class _Taken:
     """A step read up to its reading: where and when, and what the detector returned (a Reading, or a
     take to develop)."""

@@ -39,6 +39,7 @@ from gonio.protocols import Clock, DeviceFault
 
 __all__ = ["SimAxis", "FAULT_KINDS"]
 
+_INF = float("inf")
 #: The fault kinds :meth:`SimAxis.fail_next` accepts.
 FAULT_KINDS = ("timeout", "hardware", "stall")
 
@@ -62,7 +63,7 @@ class _Move:
 
     def position(self, t_s: float) -> float:
         tau = min(max(t_s - self.t0_s, 0.0), self.duration_s)
-        if tau == self.duration_s and self.stall_s == float("inf"):
+        if tau == self.duration_s and self.stall_s == _INF:
             # Arrived: the target itself, not start + (target − start), which can miss it by an ulp.
             return self.target_deg
         return float(position_at(tau, self.start_deg, self.target_deg, self.v_max, self.a_max))
