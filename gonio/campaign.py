@@ -323,7 +323,7 @@ def finish_campaign(c: Campaign) -> Path:
     # The values come from the journal's rows; a frame file lost or altered since is recorded, not hidden.
     for step, problem in c.journal.check_frames():
         c.journal.log_event("fault", step=step, message=f"frame: {problem}")
-    measurements = c.journal.measurements()
+    measurements = c.journal.measurements(extra=False)   # calibration reads the readings alone
     rho, per_channel = reference_rho(c.cfg.reference, c.journal.detector())
     cal = calibrate(measurements, rho)
     exposure = {m.step: m.exposure_s for m in measurements}

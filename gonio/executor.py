@@ -85,6 +85,7 @@ class MotionExecutor:
         self._axes = [gantry.axes[n] for n in kin.axis_names]
         self._vmax = np.asarray(kin.velocity_deg_s, float)
         self._amax = np.asarray(kin.accel_deg_s2, float)
+        self._vmax_list, self._amax_list = self._vmax.tolist(), self._amax.tolist()
         self._halt = threading.Event()
         # Held while axes are being commanded: a halt waits for a batch of commands to be sent, then
         # stops every axis; no batch starts once the halt flag is set.
@@ -151,7 +152,9 @@ class MotionExecutor:
         else:
             actual = self.positions()
         there = self._arrived
-        if there is not None and np.all(np.abs(actual - there) <= self.rc.position_tolerance_deg):
+        tol = self.rc.position_tolerance_deg
+        if there is not None and all(abs(x - t) <= tol for x, t in zip(actual.tolist(), there.tolist(),
+                                                                       strict=True)):
             return there.copy()
         return actual
 
@@ -198,24 +201,28 @@ class MotionExecutor:
 
     def _move_leg(self, start: np.ndarray, target: np.ndarray) -> None:
         self.send_move(start, target)
-        expected = float(np.max(move_time(target - start, self._vmax, self._amax), initial=0.0))
+        # The slowest axis's profile, in plain floats (the same value numpy gives; one move per step)
+        expected = max((move_time(t - s, v, a) for s, t, v, a in
+                        zip(start.tolist(), target.tolist(), self._vmax_list, self._amax_list, strict=True)),
+                       default=0.0)
         self.arrive(start, target, expected)
 
     def send_move(self, start: np.ndarray, target: np.ndarray) -> None:
         """Command the axes whose ``target`` differs from ``start`` (one write per bus where the gantry
         batches), without waiting (the caller then calls :meth:`arrive`). Unchecked: for a move whose
         whole path its caller certified (a fly turnaround's change, while the sweeping axis runs out)."""
-        moved = np.asarray(target) != np.asarray(start)
+        target = np.asarray(target, dtype=float).tolist()
+        moved = [t != s for t, s in zip(target, np.asarray(start, dtype=float).tolist(), strict=True)]
         names = self.kinematics.axis_names
         batched = self.abilities.batched
 
         def send():
             if batched is not None:  # one write per bus
-                batched.move_axes({n: float(t) for n, t, m in zip(names, target, moved, strict=True) if m})
+                batched.move_axes({n: t for n, t, m in zip(names, target, moved, strict=True) if m})
             else:
                 for axis, t, m in zip(self._axes, target, moved, strict=True):
                     if m:
-                        axis.move_to(float(t))
+                        axis.move_to(t)
 
         self.command(send)
 
@@ -240,9 +247,11 @@ class MotionExecutor:
         self.check_halt()
         if actual is None:
             actual = self.positions()
-        err = np.abs(actual - target)
-        bad = np.flatnonzero(err > rc.position_tolerance_deg)
-        if bad.size:
+        tol = rc.position_tolerance_deg
+        if any(abs(x - t) > tol for x, t in zip(np.asarray(actual, dtype=float).tolist(),
+                                                 np.asarray(target, dtype=float).tolist(), strict=True)):
+            err = np.abs(actual - target)
+            bad = np.flatnonzero(err > tol)
             i = int(bad[0])
             name = self._axes[i].name
             lo, hi = sorted((start[i], target[i]))
@@ -262,17 +271,20 @@ class MotionExecutor:
         needs to hear."""
         poll = self.rc.poll_s
         clock = self.gantry.clock
+        now, sleep_until, halted = clock.now, clock.sleep_until, self._halt.is_set   # looked up once
         keep_alive = self.abilities.keep_alive
-        start = clock.now()
+        start = now()
         end = start + seconds  # the instant the slowest axis arrives, computed as the axis computes it
         k = 0
-        while clock.now() < end:
-            self.check_halt()
+        while now() < end:
+            if halted():
+                raise Halted
             k += 1
-            clock.sleep_until(min(start + k * poll, end))
+            sleep_until(min(start + k * poll, end))
             if keep_alive is not None:
                 keep_alive.keep_alive()
-        self.check_halt()
+        if halted():
+            raise Halted
 
     def stop(self) -> None:
         """Stop every axis, then wait (bounded) until all are still, so nothing is commanded mid-brake."""

@@ -32,12 +32,14 @@ Schema 2 journals are upgraded to 3 when opened for writing and read as they are
 from __future__ import annotations
 
 import json
+import math
 import os
 import sqlite3
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -152,6 +154,27 @@ def _json_default(value):
     # Anything else a driver put there (a Path, an enum, ...) is kept as its text, never lost silently
     # and never a reason to lose the reading.
     return str(value)
+
+
+#: ``json.dumps(extra, default=_json_default, sort_keys=True)``, its encoder made once (one per reading
+#: would cost more than a small extra's encoding).
+_EXTRA_JSON = json.JSONEncoder(default=_json_default, sort_keys=True)
+
+
+def _float_list_json(values) -> str:
+    """``json.dumps`` of ``values`` as a list of floats (axis positions): finite floats joined by their
+    repr, as json writes them, without its encoder's per-call cost; NaN and inf through json itself."""
+    array = np.asarray(values, float)
+    floats = array.tolist()
+    if array.ndim == 1 and all(-math.inf < x < math.inf for x in floats):
+        return "[" + ", ".join(map(float.__repr__, floats)) + "]"
+    return json.dumps(floats)
+
+
+@lru_cache(maxsize=64)
+def _shape_json(shape: tuple) -> str:
+    """``json.dumps`` of a reading's shape (a detector reports one shape: written once per journal)."""
+    return json.dumps(list(shape))
 
 
 def _blob(x) -> bytes:
@@ -399,12 +422,12 @@ class Journal:
         frame = extra.pop("frame", None)
         if frame is not None and not isinstance(frame, str):
             frame_file, digest = self._write_frame(m.step, m.attempts, frame)
-        extra_json = json.dumps(extra, default=_json_default, sort_keys=True) if extra else None
-        values = (m.step, m.kind, m.pose, json.dumps(np.asarray(m.commanded_deg, float).tolist()),
-                  json.dumps(np.asarray(m.actual_deg, float).tolist()), *(float(a) for a in m.angles_deg),
+        extra_json = _EXTRA_JSON.encode(extra) if extra else None
+        values = (m.step, m.kind, m.pose, _float_list_json(m.commanded_deg), _float_list_json(m.actual_deg),
+                  *np.asarray(m.angles_deg, float).tolist(),
                   float(m.clock_s), float(m.campaign_s), time.time(), float(m.exposure_s), int(m.frames),
                   _blob(signal), _blob(stderr), int(m.attempts),
-                  json.dumps(list(signal.shape)), extra_json, frame_file, digest)
+                  _shape_json(signal.shape), extra_json, frame_file, digest)
         return values
 
     def commit_measurements(self, ms: list[Measurement]) -> None:
@@ -572,23 +595,29 @@ class Journal:
         missing = np.setdiff1d(np.arange(self.step_count()), done)
         return int(missing[0]) if missing.size else self.step_count()
 
-    def measurements(self) -> list[Measurement]:
+    def measurements(self, *, extra: bool = True) -> list[Measurement]:
+        """Every committed measurement in step order; ``extra=False`` leaves each reading's extra out
+        (an empty dict: a caller that reads only the readings, as calibration does, spares parsing it)."""
+        keep_extra = extra
         out = []
         names = [c for c in _MEASUREMENT_COLUMNS if c != "wall_s"]
         select = names + [self._v3(c) for c in _V3_COLUMNS]
-        for r in self._query(f"SELECT {', '.join(select)} FROM measurements ORDER BY step"):
-            d = dict(zip(names + list(_V3_COLUMNS), r, strict=True))
-            shape = None if d["shape"] is None else tuple(json.loads(d["shape"]))
+        shapes: dict[str, tuple] = {}   # the few shape texts a journal holds, each parsed once
+        loads = json.loads
+        for (step, kind, pose, commanded, actual, ti, pi_, to, po, clock_s, campaign_s, exposure_s, frames,
+             signal, stderr, attempts, shape, extra, frame_file, frame_sha256) in self._query(
+                f"SELECT {', '.join(select)} FROM measurements ORDER BY step"):
+            if shape is not None:
+                if shape not in shapes:
+                    shapes[shape] = tuple(loads(shape))
+                shape = shapes[shape]
             out.append(Measurement(
-                step=d["step"], kind=d["kind"], pose=d["pose"],
-                commanded_deg=np.array(json.loads(d["commanded_deg"])),
-                actual_deg=np.array(json.loads(d["actual_deg"])),
-                angles_deg=np.array([d[k] for k in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")],
-                                    float),
-                clock_s=d["clock_s"], campaign_s=d["campaign_s"], exposure_s=d["exposure_s"],
-                frames=d["frames"], signal=_unblob(d["signal"], shape), stderr=_unblob(d["stderr"], shape),
-                attempts=d["attempts"], extra={} if d["extra"] is None else json.loads(d["extra"]),
-                frame_file=d["frame_file"], frame_sha256=d["frame_sha256"]))
+                step=step, kind=kind, pose=pose, commanded_deg=np.array(loads(commanded)),
+                actual_deg=np.array(loads(actual)), angles_deg=np.array([ti, pi_, to, po], float),
+                clock_s=clock_s, campaign_s=campaign_s, exposure_s=exposure_s, frames=frames,
+                signal=_unblob(signal, shape), stderr=_unblob(stderr, shape), attempts=attempts,
+                extra=loads(extra) if keep_extra and extra is not None else {}, frame_file=frame_file,
+                frame_sha256=frame_sha256))
         return out
 
     def measurement_rows(self, start_step: int = 0, limit: int = 1000) -> list[dict]:

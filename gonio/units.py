@@ -92,7 +92,7 @@ class Cut(Exception):
         self.rest = rest
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class _Taken:
     """A step read up to its reading: where and when, and what the detector returned (a Reading, or a
     take to develop)."""
@@ -102,16 +102,17 @@ class _Taken:
     pose: int
     commanded: np.ndarray
     actual: np.ndarray
-    angles: np.ndarray
     clock_s: float
     campaign_s: float
     attempt: int
     reading: object
 
-    def measurement(self, reading: Reading) -> Measurement:
+    def measurement(self, reading: Reading, angles: np.ndarray) -> Measurement:
+        """Its measurement, with ``reading`` and the directions ``angles`` (θi, φi, θo, φo in degrees) of
+        its actual positions (:func:`_angles`)."""
         return Measurement(
             step=self.step, kind=self.kind, pose=self.pose, commanded_deg=self.commanded,
-            actual_deg=self.actual, angles_deg=self.angles, clock_s=self.clock_s, campaign_s=self.campaign_s,
+            actual_deg=self.actual, angles_deg=angles, clock_s=self.clock_s, campaign_s=self.campaign_s,
             exposure_s=reading.exposure_s, frames=reading.frames, signal=reading.signal,
             stderr=reading.stderr, attempts=self.attempt, extra=reading.extra)
 
@@ -155,7 +156,7 @@ class StepReader:
         """The reading of ``step`` (attempt from 1); a DeviceFault where a device failed (transient ones
         are retried by the engine)."""
         taken = self._take(step, attempt, self.gantry.detector.measure)
-        return taken.measurement(taken.reading)
+        return taken.measurement(taken.reading, _angles(self.executor.kinematics, [taken])[0])
 
     def take(self, step: int, attempt: int, detector: ReadsInBatches) -> _Taken:
         """:meth:`read` up to the reading, which ``detector`` takes to develop later."""
@@ -187,9 +188,7 @@ class StepReader:
                 reading = measure(det.exposure_s, det.frames, key=key)
             self._check_lit(step)
         actual = ex.positions()
-        ti, pi_, to, po = ex.kinematics.forward(actual[None, :])
-        angles = np.degrees([ti[0], pi_[0], to[0], po[0]])
-        return _Taken(step, kind, int(s["pose"][step]), np.asarray(commanded, float), actual, angles,
+        return _Taken(step, kind, int(s["pose"][step]), np.asarray(commanded, float), actual,
                       g.clock.now(), self.campaign_s(), attempt, reading)
 
     def _check_lit(self, step: int) -> None:
@@ -252,14 +251,21 @@ def _chunk(engine, detector: ReadsInBatches, first: int, end: int, reached: list
                 if s == first or isinstance(err, Halted):
                     raise    # a halt commits nothing more: the chunk is measured again on resuming
                 rest = _chunk(engine, detector, s, end, reached)
-                raise Cut(_developed(detector, taken), err, rest) from None
+                raise Cut(_developed(engine, detector, taken), err, rest) from None
             engine.executor.note_rest(taken[-1].actual)
         reached[0] = first + len(taken)
-        return _developed(detector, taken)
+        return _developed(engine, detector, taken)
 
     return Unit(first, end - first, measure)
 
 
-def _developed(detector: ReadsInBatches, taken: list[_Taken]) -> list[Measurement]:
+def _angles(kinematics, taken: list[_Taken]) -> np.ndarray:
+    """(θi, φi, θo, φo) in degrees (K, 4) of the steps' actual positions: forward kinematics of a chunk
+    in one call (each row the same floats as a call of its own)."""
+    return np.degrees(np.stack(kinematics.forward(np.array([t.actual for t in taken])), axis=1))
+
+
+def _developed(engine, detector: ReadsInBatches, taken: list[_Taken]) -> list[Measurement]:
     readings = detector.develop([t.reading for t in taken])
-    return [t.measurement(r) for t, r in zip(taken, readings, strict=True)]
+    angles = _angles(engine.executor.kinematics, taken) if taken else ()
+    return [t.measurement(r, a) for t, r, a in zip(taken, readings, angles, strict=True)]

@@ -26,6 +26,7 @@ never interrupts a move in progress.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from functools import cached_property
@@ -38,6 +39,7 @@ from gonio.protocols import Clock, DeviceFault
 
 __all__ = ["SimAxis", "FAULT_KINDS"]
 
+_INF = float("inf")
 #: The fault kinds :meth:`SimAxis.fail_next` accepts.
 FAULT_KINDS = ("timeout", "hardware", "stall")
 
@@ -61,7 +63,7 @@ class _Move:
 
     def position(self, t_s: float) -> float:
         tau = min(max(t_s - self.t0_s, 0.0), self.duration_s)
-        if tau == self.duration_s and self.stall_s == float("inf"):
+        if tau == self.duration_s and self.stall_s == _INF:
             # Arrived: the target itself, not start + (target − start), which can miss it by an ulp.
             return self.target_deg
         return float(position_at(tau, self.start_deg, self.target_deg, self.v_max, self.a_max))
@@ -185,7 +187,7 @@ class SimAxis:
         self._require_connected()
         target = float(target_deg)
         lo, hi = self.limits_deg
-        if not np.isfinite(target) or not lo <= target <= hi:
+        if not math.isfinite(target) or not lo <= target <= hi:
             raise ValueError(
                 f"axis '{self.name}': target {target:.1f}° is outside the limit [{lo:g}°, {hi:g}°]"
             )
@@ -276,7 +278,7 @@ class SimAxis:
 
     def _quantize(self, x: float) -> float:
         res = self.cfg.sim.resolution_deg
-        return float(np.round(x / res) * res) if res > 0 else float(x)
+        return _round_half_even(x / res) * res if res > 0 else float(x)
 
     def _settle_point(self, x: float) -> float:
         """The encoder count nearest ``x`` that lies inside the limits (``x`` itself when ideal)."""
@@ -284,10 +286,17 @@ class SimAxis:
         if res <= 0:
             return float(x)
         lo, hi = self.limits_deg
-        k = np.round(x / res)
+        k = _round_half_even(x / res)
         # Limits need not fall on a count: step one count inward rather than settle past a limit.
         if k * res > hi:
             k -= 1
         if k * res < lo:
             k += 1
         return float(k * res)
+
+
+def _round_half_even(x: float) -> float:
+    """``np.round`` of one float (halves to even, the sign of a zero kept), in plain Python: an axis is
+    read several times a step."""
+    x = float(x)
+    return math.copysign(float(round(x)), x) if math.isfinite(x) else x

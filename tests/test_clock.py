@@ -35,3 +35,22 @@ def test_sleep_until_lands_exactly_and_never_goes_back():
     assert c.now() == t
     w = WallClock()
     w.sleep_until(w.now() - 1.0)  # in the past: returns at once
+
+
+def test_a_virtual_clock_that_watches_its_sleeps_sees_sleep_until_too():
+    """sleep_until skips sleep() only where sleep() is VirtualClock's own: a subclass that overrides
+    it (a paced clock, a test's hook) sees every advance, and an infinite one is refused either way."""
+    seen = []
+
+    class Watched(VirtualClock):
+        def sleep(self, seconds):
+            seen.append(seconds)
+            super().sleep(seconds)
+
+    c = Watched(start=1.0)
+    c.sleep_until(1.5)
+    c.sleep_until(1.25)   # in the past: no sleep
+    assert seen == [0.5] and c.now() == 1.5
+    for clock in (VirtualClock(), Watched()):
+        with pytest.raises(ValueError, match="finite"):
+            clock.sleep_until(float("inf"))

@@ -226,6 +226,11 @@ def test_readings_keep_their_shape_and_extra(tmp_path):
     assert np.array_equal(m.stderr, signal / 10)
     assert m.extra == {"target": "sample", "key": [2, 1], "stderr_sensor": [0.5, 0.25], "n": 7}
     assert j.detector() == desc and desc["shape"] == [4, 5, 3] and desc["wavelengths_nm"] is None
+    # Without the extra (what calibration reads): the same measurement, its extra alone left out
+    (bare,) = j.measurements(extra=False)
+    assert bare.extra == {} and np.array_equal(bare.signal, m.signal)
+    assert np.array_equal(bare.stderr, m.stderr)
+    assert bare.step == m.step and bare.campaign_s == m.campaign_s and bare.signal.shape == (4, 5, 3)
     j.close()
 
 

@@ -180,7 +180,7 @@ def journal_samples(journal, cfg) -> Samples:
     """The samples of every committed pose reading, calibrated (:func:`gonio.calibrate.calibrate`) at
     their planned poses (θi, θo, Δφ = φo − φi, and φi)."""
     rho, _ = reference_rho(cfg.reference, journal.detector())
-    cal = calibrate(journal.measurements(), rho)
+    cal = calibrate(journal.measurements(extra=False), rho)
     steps = journal.steps()
     ti, pi_, to, po = (np.radians(steps[f"{a}_deg"][cal.steps])
                        for a in ("theta_i", "phi_i", "theta_o", "phi_o"))

@@ -94,18 +94,24 @@ def difference_range(start_j, end_j, start_k, end_k, v_j, a_j, v_k, a_k) -> tupl
     return diff.min(axis=-1), diff.max(axis=-1)
 
 
-def _scalar_state(t, s, e, v, a):
-    """(position, velocity) at t of one trapezoid, plain floats."""
+def _scalar_profile(s, e, v, a):
+    """(s, e, sign, d, v_peak, t_acc, total) of one trapezoid, plain floats: what :func:`_scalar_state`
+    evaluates at each instant, computed once per move (the same operations as :func:`_scalar_breaks`)."""
     delta = e - s
     d = abs(delta)
-    if d == 0.0:
-        return s, 0.0
     v_peak = min(v, math.sqrt(d * a))
     t_acc = v_peak / a
     total = 2.0 * math.sqrt(d / a) if d < v * v / a else d / v + v / a
+    return s, e, (1.0 if delta > 0 else -1.0), d, v_peak, t_acc, total, a
+
+
+def _profile_state(t, p):
+    """:func:`_scalar_state` at ``t`` of a profile from :func:`_scalar_profile`: the same floats."""
+    s, e, sign, d, v_peak, t_acc, total, a = p
+    if d == 0.0:
+        return s, 0.0
     if t >= total:
         return e, 0.0
-    sign = 1.0 if delta > 0 else -1.0
     if t <= t_acc:
         return s + sign * 0.5 * a * t * t, sign * a * t
     if t <= total - t_acc:
@@ -114,25 +120,20 @@ def _scalar_state(t, s, e, v, a):
     return s + sign * min(d - 0.5 * a * r * r, d), sign * a * r
 
 
-def _scalar_breaks(s, e, v, a):
-    d = abs(e - s)
-    v_peak = min(v, math.sqrt(d * a))
-    t_acc = v_peak / a
-    total = 2.0 * math.sqrt(d / a) if d < v * v / a else d / v + v / a
-    return (t_acc, total - t_acc, total)
-
-
 def difference_range_scalar(sj, ej, sk, ek, v_j, a_j, v_k, a_k) -> tuple[float, float]:
     """:func:`difference_range` of one move in plain floats (no numpy overhead, for the runner)."""
-    knots = sorted((0.0,) + _scalar_breaks(sj, ej, v_j, a_j) + _scalar_breaks(sk, ek, v_k, a_k))
-    states = [(_scalar_state(t, sj, ej, v_j, a_j), _scalar_state(t, sk, ek, v_k, a_k)) for t in knots]
-    values = [pj - pk for (pj, _), (pk, _) in states]
+    if sj == ej and sk == ek:   # neither axis moves (a step that keeps the carriages): one value
+        return sj - sk, sj - sk
+    pj, pk = _scalar_profile(sj, ej, v_j, a_j), _scalar_profile(sk, ek, v_k, a_k)
+    knots = sorted((0.0, pj[5], pj[6] - pj[5], pj[6], pk[5], pk[6] - pk[5], pk[6]))
+    states = [(_profile_state(t, pj), _profile_state(t, pk)) for t in knots]
+    values = [xj - xk for (xj, _), (xk, _) in states]
     rels = [uj - uk for (_, uj), (_, uk) in states]
     for i in range(len(knots) - 1):
         g0, g1 = rels[i], rels[i + 1]
         if g0 * g1 < 0.0:
             t = knots[i] + g0 / (g0 - g1) * (knots[i + 1] - knots[i])
-            values.append(_scalar_state(t, sj, ej, v_j, a_j)[0] - _scalar_state(t, sk, ek, v_k, a_k)[0])
+            values.append(_profile_state(t, pj)[0] - _profile_state(t, pk)[0])
     return min(values), max(values)
 
 

@@ -114,9 +114,11 @@ def safe_path(kin, start_deg, target_deg, start_tol_deg: float = 0.0) -> np.ndar
     target = check_targets(kin, target_deg).reshape(-1)
     if len(start) != target.size:
         raise ValueError(f"start_deg: expected {target.size} axes, got {len(start)}")
-    floor = _start_floor(kin, start, start_tol_deg)
     clear, margin = kin.sweep_clear_one(start, target.tolist())
-    if clear or (floor is not None and margin >= floor and kin.within_limits(np.array([start]))[0]):
+    if clear:
+        return target.reshape(1, -1).copy()
+    floor = _start_floor(kin, start, start_tol_deg)   # only a move that is not clear asks
+    if floor is not None and margin >= floor and kin.within_limits(np.array([start]))[0]:
         return target.reshape(1, -1).copy()
     return _detour(kin, np.array(start), target, floor)
 
