@@ -132,7 +132,7 @@ def test_a_modbus_state_read_is_one_request_where_the_profile_allows_it(profile,
     emu = ModbusMotorEmulator(profile, clock=SyncedVirtualClock())
     url = (f"tcp://{':'.join(map(str, emu.start_tcp()))}" if transport == "tcp"
            else f"rtu://{emu.start_rtu()}?baudrate=115200")
-    axis = ModbusAxis("m", make_client(url, timeout_s=0.5, retries=0), profile, limits_deg=(-180.0, 180.0),
+    axis = ModbusAxis("m", make_client(url, timeout_s=2.0, retries=0), profile, limits_deg=(-180.0, 180.0),
                       velocity_deg_s=90.0, accel_deg_s2=180.0, clock=emu.clock)
     try:
         axis.connect()
