@@ -96,6 +96,17 @@ def test_home_is_refused_on_an_unreferenced_gantry_with_nothing_written(fast_twi
     assert emu.axes_deg() == truth
 
 
+def _assert_referenced_at_the_true_angles(emu, path: str, capsys) -> None:
+    """`gonio gantry status` reads every axis at its true angle (the emulators' shafts) within 0.5°, each
+    referenced (or needing no reference)."""
+    assert main(["gantry", "status", "--config", path, "--json"]) == 0
+    after = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
+    truth = emu.axes_deg()
+    for name, a in after.items():
+        assert a["position_deg"] == pytest.approx(truth[name], abs=0.5), name
+        assert a["referenced"] in (True, None)
+
+
 def test_reference_finds_the_true_angles_then_home_drives_there_and_the_carriages_keep_apart(fast_twin,
                                                                                            capsys):
     """The detector carriage really stands at 180° and reads 0°; after `gonio gantry reference` every axis
@@ -111,12 +122,7 @@ def test_reference_finds_the_true_angles_then_home_drives_there_and_the_carriage
     assert main(["gantry", "reference", "--config", path]) == 0
     out = capsys.readouterr().out
     assert "light_azimuth: referenced (hard_stop" in out and "detector_azimuth: referenced" in out
-    assert main(["gantry", "status", "--config", path, "--json"]) == 0
-    after = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
-    truth = emu.axes_deg()
-    for name, a in after.items():
-        assert a["position_deg"] == pytest.approx(truth[name], abs=0.5), name
-        assert a["referenced"] in (True, None)
+    _assert_referenced_at_the_true_angles(emu, path, capsys)
     assert main(["gantry", "home", "--config", path]) == 0
     assert len(gaps) > 100   # looked at throughout
     home = emu.axes_deg()
@@ -144,12 +150,7 @@ def test_a_reference_held_up_past_the_bus_watchdog_starts_the_approach_again(fas
     out = capsys.readouterr().out
     assert "bus watchdog fired" in out and "the approach starts again (1 of 3)" in out, out
     assert any(s.watchdog_fired_at is not None for s in emu.servos.values())
-    assert main(["gantry", "status", "--config", path, "--json"]) == 0
-    after = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
-    truth = emu.axes_deg()
-    for name, a in after.items():
-        assert a["position_deg"] == pytest.approx(truth[name], abs=0.5), name
-        assert a["referenced"] in (True, None)
+    _assert_referenced_at_the_true_angles(emu, path, capsys)
 
 
 def _virtual_twin(**kw):
