@@ -36,6 +36,9 @@ __all__ = ["unreferenced", "refusal", "reference_axes", "references", "journal_r
 
 #: Seconds an approach that slowed down must then stand still to count as stalled against its stop.
 STALL_S = 0.3
+#: Times an approach interrupted by a transient fault (no reply, a bus watchdog that fired while the
+#: host was held up) starts again before the reference gives up.
+RESUMES = 3
 
 
 #: The ability protocol each reference method needs of its axis.
@@ -138,58 +141,26 @@ def _hard_stop(gantry, cfg, name: str, out) -> float:
     out(f"{name}: seeking its stop at {a.reference_at_deg:g}° ({'+' if toward > 0 else '-'} direction, "
         f"{speed:g}°/s, at most {a.reference_current_a:g} A)"
         + (f", {', '.join(p.name for p in partners)} along" if partners else ""))
-    axis.seek_start(toward, speed, accel, a.reference_current_a, travel)
-    partners_stopped = False
-    try:
-        for p in partners:
-            p.follow_start(toward, speed, accel, travel)
-        limit = travel / speed + 2.0 * speed / accel + 5.0
-        start = clock.now()
-        slowed: tuple[float, float] | None = None  # (clock, position) when the approach slowed down
-        last: tuple[float, float, float] | None = None     # (clock, position, half the read's duration)
-        v_seen = False
-        while True:
-            clock.sleep(rc.poll_s)
-            asked = clock.now()
-            state = axis.seek_state()
-            answered = clock.now()
-            # The position was read somewhere between the request and the reply: a slow round trip (a
-            # loaded host) must not make the travel between two looks seem shorter than it was.
-            now, half = 0.5 * (asked + answered), 0.5 * (answered - asked)
+    limit = travel / speed + 2.0 * speed / accel + 5.0
+    for resumed in range(RESUMES + 1):
+        try:
+            partners_stopped = _approach(axis, partners, clock, rc, name, toward, speed, accel,
+                                         a.reference_current_a, travel, limit)
+            break
+        except DeviceFault as exc:
             for p in partners:
-                p.seek_state()  # also feeds its watchdog
-            # Slowed, once past the acceleration: less than a quarter of the approach's travel since the
-            # last look (over the least time that can have passed between the two reads), or (where the
-            # servo reports its velocity: it was seen at speed) its velocity under a quarter of the
-            # approach's, which shows the stop a look earlier.
-            v_seen = v_seen or abs(state.velocity_deg_s) >= 0.5 * speed
-            moved = None if last is None else abs(state.position_deg - last[1])
-            crept = (moved is not None and last[0] - start >= speed / accel
-                     and moved < 0.25 * speed * (now - last[0] - half - last[2]))
-            braked = v_seen and now - start >= speed / accel and abs(state.velocity_deg_s) < 0.25 * speed
-            if slowed is None and (crept or braked):
-                # At the first sign of the stop the followers stop: the carriages' distance changes
-                # by no more than one look of travel.
-                for p in partners:
-                    p.follow_stop()
-                partners_stopped = True
-                slowed = (now, state.position_deg)
-            last = (now, state.position_deg, half)
-            if slowed is not None:
-                if abs(state.position_deg - slowed[1]) > max(0.5, 0.25 * speed * STALL_S):
-                    raise DeviceFault(name, f"the approach slowed at {slowed[1]:.2f}° (unreferenced) and "
-                                      "then moved on: no stop there (a tight spot?); nothing is referenced: "
-                                      "check the mechanics and run it again")
-                if now - slowed[0] >= STALL_S:
-                    break
-            if now - start > limit:
-                raise DeviceFault(name, f"found no stop within {limit:.0f} s ({travel:.0f}° at "
-                                  f"{speed:g}°/s): is reference_deg/reference_direction right?")
-    except BaseException:
-        for p in partners:
-            _quietly(p.follow_stop)
-        _quietly(axis.seek_abort)
-        raise
+                _quietly(p.follow_stop)
+            _quietly(axis.seek_abort)
+            if not exc.transient or resumed == RESUMES:
+                raise
+            # A reply lost or late, a watchdog that fired while this host was held up: nothing is known
+            # of the stop yet, so the approach starts again from where the axes stand.
+            out(f"{exc}; the approach starts again ({resumed + 1} of {RESUMES})")
+        except BaseException:
+            for p in partners:
+                _quietly(p.follow_stop)
+            _quietly(axis.seek_abort)
+            raise
     if not partners_stopped:
         for p in partners:
             p.follow_stop()
@@ -198,6 +169,58 @@ def _hard_stop(gantry, cfg, name: str, out) -> float:
     except BaseException:
         _quietly(axis.seek_abort)
         raise
+
+
+def _approach(axis, partners, clock, rc, name: str, toward: int, speed: float, accel: float,
+              current_a: float, travel: float, limit: float) -> bool:
+    """One approach of ``axis`` to its stop, ``partners`` along, until it stalls there; returns whether
+    the partners were stopped on the way. A fault leaves the axes moving (the caller stops them)."""
+    axis.seek_start(toward, speed, accel, current_a, travel)
+    partners_stopped = False
+    for p in partners:
+        p.follow_start(toward, speed, accel, travel)
+    start = clock.now()
+    slowed: tuple[float, float] | None = None  # (clock, position) when the approach slowed down
+    last: tuple[float, float, float] | None = None     # (clock, position, half the read's duration)
+    v_seen = False
+    while True:
+        clock.sleep(rc.poll_s)
+        asked = clock.now()
+        state = axis.seek_state()
+        answered = clock.now()
+        # The position was read somewhere between the request and the reply: a slow round trip (a
+        # loaded host) must not make the travel between two looks seem shorter than it was.
+        now, half = 0.5 * (asked + answered), 0.5 * (answered - asked)
+        for p in partners:
+            p.seek_state()  # also feeds its watchdog
+        # Slowed, once past the acceleration: less than a quarter of the approach's travel since the
+        # last look (over the least time that can have passed between the two reads), or (where the
+        # servo reports its velocity: it was seen at speed) its velocity under a quarter of the
+        # approach's, which shows the stop a look earlier.
+        v_seen = v_seen or abs(state.velocity_deg_s) >= 0.5 * speed
+        moved = None if last is None else abs(state.position_deg - last[1])
+        crept = (moved is not None and last[0] - start >= speed / accel
+                 and moved < 0.25 * speed * (now - last[0] - half - last[2]))
+        braked = v_seen and now - start >= speed / accel and abs(state.velocity_deg_s) < 0.25 * speed
+        if slowed is None and (crept or braked):
+            # At the first sign of the stop the followers stop: the carriages' distance changes
+            # by no more than one look of travel.
+            for p in partners:
+                p.follow_stop()
+            partners_stopped = True
+            slowed = (now, state.position_deg)
+        last = (now, state.position_deg, half)
+        if slowed is not None:
+            if abs(state.position_deg - slowed[1]) > max(0.5, 0.25 * speed * STALL_S):
+                raise DeviceFault(name, f"the approach slowed at {slowed[1]:.2f}° (unreferenced) and "
+                                  "then moved on: no stop there (a tight spot?); nothing is referenced: "
+                                  "check the mechanics and run it again")
+            if now - slowed[0] >= STALL_S:
+                break
+        if now - start > limit:
+            raise DeviceFault(name, f"found no stop within {limit:.0f} s ({travel:.0f}° at "
+                              f"{speed:g}°/s): is reference_deg/reference_direction right?")
+    return partners_stopped
 
 
 def _quietly(fn) -> None:

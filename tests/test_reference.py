@@ -59,12 +59,13 @@ class WatchedClock(SyncedVirtualClock):
 
 
 @pytest.fixture
-def fast_twin(tmp_path, monkeypatch):
+def fast_twin(tmp_path, monkeypatch, request):
     """The two-arm twin with quicker moves (2:1 ring pinions, so 120 °/s on the ring is within the servos'
     velocity limit, and the approach at that speed): its emulators, powered up as hardware does (a
     carriage's angle known modulo 180°), the config file that reaches them, and their clock (a
     :class:`WatchedClock`), which is the CLI's wall clock here: the commands run in this process and do
-    not wait for the motion (gonio gantry reference on the wall clock: test_run_emulated_scpi)."""
+    not wait for the motion (gonio gantry reference on the wall clock: test_run_emulated_scpi). The bus
+    watchdogs are off unless the test asks for a period (indirect parametrization)."""
     data = load_config(TWIN).model_dump(mode="json")
     for name, axis in data["axes"].items():
         if axis.get("reference") == "hard_stop":
@@ -74,7 +75,7 @@ def fast_twin(tmp_path, monkeypatch):
             axis.update(max_velocity_deg_s=120.0, max_accel_deg_s2=2400.0)
     data["runner"].update(poll_s=0.005)
     for axis in data["axes"].values():
-        axis["watchdog_s"] = 0.0
+        axis["watchdog_s"] = getattr(request, "param", 0.0)
     clock = WatchedClock()
     with EmulatedGantry(parse_config(data), clock=clock, any_port=True) as emu:
         path = tmp_path / "gantry.toml"
@@ -95,6 +96,17 @@ def test_home_is_refused_on_an_unreferenced_gantry_with_nothing_written(fast_twi
     assert emu.axes_deg() == truth
 
 
+def _assert_referenced_at_the_true_angles(emu, path: str, capsys) -> None:
+    """`gonio gantry status` reads every axis at its true angle (the emulators' shafts) within 0.5°, each
+    referenced (or needing no reference)."""
+    assert main(["gantry", "status", "--config", path, "--json"]) == 0
+    after = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
+    truth = emu.axes_deg()
+    for name, a in after.items():
+        assert a["position_deg"] == pytest.approx(truth[name], abs=0.5), name
+        assert a["referenced"] in (True, None)
+
+
 def test_reference_finds_the_true_angles_then_home_drives_there_and_the_carriages_keep_apart(fast_twin,
                                                                                            capsys):
     """The detector carriage really stands at 180° and reads 0°; after `gonio gantry reference` every axis
@@ -110,18 +122,35 @@ def test_reference_finds_the_true_angles_then_home_drives_there_and_the_carriage
     assert main(["gantry", "reference", "--config", path]) == 0
     out = capsys.readouterr().out
     assert "light_azimuth: referenced (hard_stop" in out and "detector_azimuth: referenced" in out
-    assert main(["gantry", "status", "--config", path, "--json"]) == 0
-    after = {a["axis"]: a for a in json.loads(capsys.readouterr().out)["axes"]}
-    truth = emu.axes_deg()
-    for name, a in after.items():
-        assert a["position_deg"] == pytest.approx(truth[name], abs=0.5), name
-        assert a["referenced"] in (True, None)
+    _assert_referenced_at_the_true_angles(emu, path, capsys)
     assert main(["gantry", "home", "--config", path]) == 0
     assert len(gaps) > 100   # looked at throughout
     home = emu.axes_deg()
     assert home["light_azimuth"] == pytest.approx(0.0, abs=0.1)
     assert home["detector_azimuth"] == pytest.approx(180.0, abs=0.1)
     assert min(gaps) >= load_config(TWIN).kinematics.arm_collision_deg, min(gaps)
+
+
+@pytest.mark.parametrize("fast_twin", [0.5], indirect=True)   # the shipped bus watchdog
+def test_a_reference_held_up_past_the_bus_watchdog_starts_the_approach_again(fast_twin, capsys):
+    """Mid-approach this host is held up for 1 s (a loaded machine): both carriages' bus watchdogs (0.5 s)
+    fire and stop them short of the stop. That is not the stop: the reference says what happened, clears
+    the watchdogs, approaches again and finds the true angles (before, the stopped servo passed for one
+    stalled against its stop and the goal written then was refused: goal locked by the watchdog)."""
+    emu, path, clock = fast_twin
+    sleeps = []
+
+    def held_up():
+        sleeps.append(clock.now())
+        if len(sleeps) == 40:   # 0.2 s into the approach: the carriages at speed, far from the stop
+            SyncedVirtualClock.sleep(clock, 1.0)
+
+    clock.watch = held_up
+    assert main(["gantry", "reference", "--config", path]) == 0
+    out = capsys.readouterr().out
+    assert "bus watchdog fired" in out and "the approach starts again (1 of 3)" in out, out
+    assert any(s.watchdog_fired_at is not None for s in emu.servos.values())
+    _assert_referenced_at_the_true_angles(emu, path, capsys)
 
 
 def _virtual_twin(**kw):

@@ -500,10 +500,13 @@ class DynamixelAxis:
         self._writable("reference")
         t, b, i = self.table, self.bus, self.dxl_id
         with b.lock:
+            if self._armed:  # a watchdog that fired locks the goal and profile until it is written 0
+                b.write(i, t["bus_watchdog"], 0)
+                self._armed = False
             b.write(i, t["profile_acceleration"], self._accel_units(accel_deg_s2))
             b.write(i, t["profile_velocity"], self._velocity_units(velocity_deg_s))
             self._profile_dirty = True
-            if self.watchdog_units and not self._armed:
+            if self.watchdog_units:
                 b.write(i, t["bus_watchdog"], self.watchdog_units)
                 self._armed = True
             goal = self._fresh_ticks() + round(toward * self.direction * travel_deg * self.ticks_per_deg)
@@ -520,11 +523,18 @@ class DynamixelAxis:
         self.guard.reset()
 
     def seek_state(self) -> AxisState:
-        """Position (raw frame, °), moving flag and velocity during an approach (feeds the watchdog)."""
+        """Position (raw frame, °), moving flag and velocity during an approach (feeds the watchdog).
+
+        A fired bus watchdog (gonio silent longer than ``watchdog_s``: the servo stopped by itself, its
+        goal locked) raises the transient fault of :meth:`watchdog_fired`, never a state: a servo the
+        watchdog stopped would look like one against its stop."""
         block = self.bus.read_block(self.dxl_id, BLOCK_START, BLOCK_LEN, self._room["block"])
         if self._check_alert():
             raise self._hardware_error()
-        return self._state(block)
+        state = self._state(block)
+        if block[0] == 0xFF:  # Bus Watchdog reads -1
+            raise self.watchdog_fired(state)
+        return state
 
     def seek_end(self, reference_deg: float, within_turns: float = 0.25) -> float:
         """The axis rests against its stop at ``reference_deg``: stop pushing, back to extended position

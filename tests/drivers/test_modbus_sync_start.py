@@ -60,7 +60,7 @@ def line(clock):
     for u in units:
         u.assume_referenced()
     bus = ModbusBusEmulator(units)
-    client = make_client(f"rtu://{bus.start_rtu()}?baudrate=115200", timeout_s=0.5, retries=0)
+    client = make_client(f"rtu://{bus.start_rtu()}?baudrate=115200", timeout_s=2.0, retries=0)
     axes = [_axis(f"ax{i}", client, i, clock) for i in (1, 2, 3)]
     try:
         for a in axes:
@@ -216,7 +216,7 @@ def test_group_start_refused_where_the_manual_gives_none(clock):
 
 
 @contextlib.contextmanager
-def _gateways(clock, n: int = 3, *, timeout_s: float = 0.5, line=None):
+def _gateways(clock, n: int = 3, *, timeout_s: float = 2.0, line=None):
     """``n`` AZ units (unit 1 each), each behind its own TCP gateway, and a connected axis on each
     (ax1..axN): (units, axes); every unit watched on ``line`` (a StartLine) when given."""
     units = [ModbusMotorEmulator(AZ, clock=clock, device_id=1) for _ in range(n)]
