@@ -164,7 +164,7 @@ def run_group(group: tuple[str, ...], folder: Path) -> list[str | None]:
 
 # -- early start ---------------------------------------------------------------------------------------
 
-_early: list[threading.Thread] = []
+_early: dict[tuple[str, ...], threading.Thread] = {}
 
 
 def early_folder(group: tuple[str, ...]) -> Path | None:
@@ -208,7 +208,7 @@ def start_early(group: tuple[str, ...]) -> bool:
 
     t = threading.Thread(target=run, name=f"early {group_id(group)}")
     t.start()
-    _early.append(t)
+    _early[group] = t
     return True
 
 
@@ -232,7 +232,10 @@ def early_outcome(group: tuple[str, ...]) -> list[str | None] | None:
     return outcome
 
 
-def join_early() -> None:
-    """Waits for the pages this worker started early (it must not leave while they run)."""
-    while _early:
-        _early.pop().join()
+def join_early(group: tuple[str, ...] | None = None) -> None:
+    """Waits for the pages this worker started early (it must not leave while they run): ``group``'s
+    alone, or every group's."""
+    for g in [group] if group is not None else list(_early):
+        t = _early.pop(g, None)
+        if t is not None:
+            t.join()

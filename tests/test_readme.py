@@ -83,7 +83,7 @@ def test_a_group_started_early_is_run_once_and_its_test_reads_what_failed(tmp_pa
     group = ("README.md", "docs/x.md")
     assert pages.start_early(group) and not pages.start_early(group)   # the second worker does not
     assert pages.early_outcome(group) == [None, "docs/x.md: boom"]    # waits for the first's thread
-    pages.join_early()
+    pages.join_early(group)      # this group's thread only: the worker's real early pages run on
     assert runs == [group]
     # a starter that died before its pages ended (its lock released, no outcome) is a failure, said
     folder = pages.early_folder(("docs/y.md",))
