@@ -167,12 +167,12 @@ class PlanCache:
 
 def _worker_main(conn, cfg, materials_root, idle: bool = True, plans: PlanCache | None = None) -> None:
     """The worker: one request at a time from ``conn``, each answered with one tuple; at idle priority
-    unless ``idle`` is False; planning with ``plans`` (its copy of them) when given."""
-    try:   # the runner and the event loop first: planning takes only the CPU time they leave idle
-        if idle:
-            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    except (AttributeError, OSError):
-        os.nice(19)
+    unless ``idle`` is False; planning with ``plans`` (its copy of them) when given.
+
+    The start, up to its "ready", runs at the daemon's priority: a daemon stopped while this worker
+    started (it does not wait for a start) leaves it to find that out, and at idle priority on a busy
+    machine it waited for an idle core to do so, holding the daemon's stdout and stderr open meanwhile (a
+    caller reading them to their end waited as long)."""
     from gonio.sim.materials.library import MaterialsFolder
 
     materials = MaterialsFolder(materials_root)
@@ -181,6 +181,11 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True, plans: PlanCache 
         conn.send(("ready",))
     except (BrokenPipeError, OSError):   # the daemon stopped while this worker started
         return
+    try:   # the runner and the event loop first: planning takes only the CPU time they leave idle
+        if idle:
+            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        os.nice(19)
     while True:
         try:
             req, folder = conn.recv()
