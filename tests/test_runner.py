@@ -288,11 +288,12 @@ def test_a_halt_is_journaled_once_even_if_the_run_ends_and_closes_its_journal_be
     a closed database", no halt event). Whichever thread comes first journals it, once, before the
     halted state."""
     c, g, clock, r = _halt_setup(tmp_path, cfg)
-    closed, errors = threading.Event(), []
+    closed, halting, errors = threading.Event(), threading.Event(), []
     stop_axes = r.executor.halt
 
     def halt_then_fall_behind():
         err = stop_axes()
+        halting.set()
         assert closed.wait(timeout=10)      # the run ends and the journal closes before we go on
         return err
 
@@ -308,6 +309,9 @@ def test_a_halt_is_journaled_once_even_if_the_run_ends_and_closes_its_journal_be
     def hook(now):
         if now > 5.0 and requester.ident is None:
             requester.start()
+            # the engine goes on once the axes are told to stop: without this wait a quick engine could
+            # finish the campaign before the requester's thread ran at all (seen once on a loaded host)
+            assert halting.wait(timeout=10)
 
     clock.hook = hook
     assert r.run() == State.HALTED
