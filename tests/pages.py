@@ -97,7 +97,9 @@ def script(page: str, activated: bool) -> str:
             ready = options.get("ready")
             assert ready, f"{page}:{line}: a second-terminal block says what it prints when ready"
             log = f"second-terminal-{k}.log"
-            lines += [f"( {body} ) > {log} 2>&1 &", "background+=($!)",
+            # The log exists before tail follows it: tail -F polls once a second for a file missing
+            # when it starts (1-2 s late if the background subshell has not opened it yet).
+            lines += [f": > {log}", f"( {body} ) >> {log} 2>&1 &", "background+=($!)",
                       # wait (bounded) until it prints its ready line, or fail showing what it printed
                       f"if ! timeout 120 grep -q -m1 -F {shlex.quote(ready)} <(tail -n +1 -F {log}); then "
                       f"cat {log} >&2; exit 1; fi"]
