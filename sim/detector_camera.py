@@ -33,7 +33,15 @@ import math
 
 import numpy as np
 
-from gonio.frames import Frame, FrameError, auto_exposure, check_frame, merge_brackets, region_mean
+from gonio.frames import (
+    Frame,
+    FrameError,
+    auto_exposure,
+    check_frame,
+    erode_disk,
+    merge_brackets,
+    region_mean,
+)
 from gonio.jit import resolve_backend
 from gonio.protocols import Clock, DeviceFault, Reading
 from gonio.sim.camera import CameraSettings, SimCamera
@@ -143,12 +151,7 @@ class CameraDetector:
     def region(self, theta_o_deg: float, phi_o_deg: float) -> np.ndarray:
         """The sample region (H, W) seen from (θo, φo): the patch's pixels, eroded by ``erode_px``."""
         mask = self._cameras["sample"].sample_mask(theta_o_deg, phi_o_deg)
-        erode = self.cfg.sim.camera.erode_px
-        if erode > 0:
-            from skimage import morphology  # on first use: its import costs more than this module's
-
-            mask = morphology.erosion(mask, morphology.disk(erode))
-        return mask
+        return erode_disk(mask, self.cfg.sim.camera.erode_px)
 
     # -- internals ----------------------------------------------------------------------------------
     def _frame(self, pose, exposure_s: float, step: int, attempt: int, entry: int, f: int,

@@ -68,6 +68,10 @@ NOT_NEEDED = {
     # A plan of a few poses finds neighbours without a k-d tree (gonio.motion.nearest).
     "simulate": ("rich", "matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage",
                  "scipy.optimize", "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app"),
+    # The simulated camera erodes its sample region without scikit-image's morphology (and the
+    # scipy.spatial that imports): gonio.frames.erode_disk.
+    "simulate --detector camera": ("matplotlib", "fastapi", "skimage", "scipy.spatial", "scipy.ndimage",
+                                   "gonio.export", "gonio.fit", "gonio.daemon.app"),
     # gonio run on a simulated gantry: what simulate needs, none of the hardware drivers' libraries.
     "run": ("rich", "matplotlib", "fastapi", "uvicorn", "httpx", "skimage", "scipy.ndimage", "scipy.optimize",
             "scipy.spatial", "gonio.export", "gonio.fit", "gonio.daemon.app", "pymodbus", "serial",
@@ -92,12 +96,16 @@ def test_a_command_imports_only_what_its_work_needs(command, finished, tmp_path)
             "plan": ["plan", "--grid", "iso:step=45"],
             "simulate": ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--quiet", "--out",
                          str(tmp_path / "s")],
+            "simulate --detector camera": ["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45",
+                                           "--detector", "camera", "--quiet", "--out", str(tmp_path / "cam")],
             "run": ["run", "--config", "sim", "--material", "lambert:albedo=0.5", "--sample", "felt",
                     "--grid", "iso:step=45", "--quiet", "--out", str(tmp_path / "r")]}[command]
     code, modules = _loaded(*argv)
     assert code == 0
     loaded = sorted(m for m in NOT_NEEDED[command] if m in modules)
     assert loaded == [], f"gonio {command} imported {loaded}"
+    if command == "simulate --detector camera":
+        assert "gonio.frames" in modules and (tmp_path / "cam" / "brdf.h5").is_file()   # it ran the camera
 
 
 def test_a_fly_campaign_is_planned_once_and_rebuilt_once_on_resume(tmp_path, monkeypatch):

@@ -47,6 +47,26 @@ def _glossy_camera(**sensor):
     return SimCamera(s, load("ggx:alpha=0.15,metal=gold"), seed=4, backend="llvm")
 
 
+def test_erode_disk_is_scikit_image_erosion_by_a_disk():
+    """frames.erode_disk (the simulated camera's region, without scikit-image's morphology and the
+    scipy.spatial it imports) against skimage.morphology.erosion(mask, disk(r)), pixel for pixel: random
+    masks full and sparse, touching the frame's border, radii from 0 to beyond the frame's size."""
+    from skimage import morphology
+
+    rng = np.random.default_rng(3)
+    for shape in [(1, 1), (1, 7), (5, 6), (40, 33)]:
+        for radius in range(0, 8):
+            for p in (0.5, 0.9, 1.0):
+                mask = rng.random(shape) < p
+                expected = morphology.erosion(mask, morphology.disk(radius))
+                assert np.array_equal(frames.erode_disk(mask, radius), expected), (shape, radius, p)
+    patch = np.zeros((20, 20), dtype=bool)
+    patch[5:15, 4:16] = True
+    assert np.count_nonzero(frames.erode_disk(patch, 2)) == 6 * 8     # 2 px off each side
+    with pytest.raises(ValueError, match="radius"):
+        frames.erode_disk(patch, -1)
+
+
 def test_bracket_merge_agrees_with_a_single_unsaturated_exposure():
     sensor = dict(black_level=0.002, read_sigma=2e-4, shot_counts_per_unit=2e5, saturation=1.0)
     cam = _glossy_camera(**sensor)
