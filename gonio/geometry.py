@@ -203,13 +203,26 @@ def merl_bin_centres(i_theta_h, i_theta_d, i_phi_d) -> tuple[np.ndarray, np.ndar
 def merl_centre_angles() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(θi, φi, θo, φo) of the centre of every MERL bin (φh = 0), radians, in the table's flat order: the
     :func:`vec_to_sph` of :func:`from_half_diff_grid` of :func:`merl_bin_centres` of every bin (what a MERL
-    export evaluates). Computed once per process (1,458,000 pairs, about 0.7 s; 47 MB kept); the arrays are
-    read-only."""
-    wi, wo = (w.reshape(-1, 3) for w in from_half_diff_grid(*merl_bin_centres(*map(np.arange, MERL_SHAPE))))
-    angles = (*vec_to_sph(wi), *vec_to_sph(wo))
+    export evaluates). Computed once per process (1,458,000 pairs; 47 MB kept); the arrays are read-only.
+
+    Computed a few θh rows at a time (the same operations on each element, so the same numbers bit for
+    bit): the whole table's ωi and ωo and their temporaries (35 MB each) were pages the kernel zeroed
+    afresh for every array, more system time than the arithmetic took."""
+    theta_h, theta_d, phi_d = merl_bin_centres(*map(np.arange, MERL_SHAPE))
+    nh, per_row = MERL_SHAPE[0], MERL_SHAPE[1] * MERL_SHAPE[2]
+    angles = tuple(np.empty(nh * per_row) for _ in range(4))
+    for lo in range(0, nh, _MERL_ROWS):
+        hi = min(lo + _MERL_ROWS, nh)
+        wi, wo = (w.reshape(-1, 3) for w in from_half_diff_grid(theta_h[lo:hi], theta_d, phi_d))
+        for out, part in zip(angles, (*vec_to_sph(wi), *vec_to_sph(wo)), strict=True):
+            out[lo * per_row:hi * per_row] = part
     for a in angles:
         a.flags.writeable = False
     return angles
+
+
+#: θh rows of the MERL table per block of :func:`merl_centre_angles`: 97,200 pairs, a few MB per temporary.
+_MERL_ROWS = 6
 
 
 def _key_less(a, b):

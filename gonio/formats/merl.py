@@ -94,10 +94,13 @@ def write_merl(path: str | Path, fr: np.ndarray) -> Path:
     fr = np.asarray(fr, dtype=np.float64)
     if fr.shape != (3, MERL_BINS):
         raise ValueError(f"merl: table must have shape (3, {MERL_BINS}) (R, G, B × bins), got {fr.shape}")
-    stored = fr / np.asarray(MERL_SCALE)[:, None]
-    stored = np.where(np.isfinite(stored) & (stored >= 0.0), stored, -1.0)
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(np.asarray(MERL_SHAPE, dtype="<i4").tobytes())
-        fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
+        # One channel at a time, written from the array itself: the whole table scaled, masked, made
+        # contiguous and turned into bytes was four 35 MB arrays of fresh pages.
+        for channel, scale in zip(fr, MERL_SCALE, strict=True):
+            stored = channel / scale
+            stored = np.where(np.isfinite(stored) & (stored >= 0.0), stored, -1.0).astype("<f8", copy=False)
+            fh.write(memoryview(np.ascontiguousarray(stored)))
     return path
