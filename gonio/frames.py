@@ -129,7 +129,8 @@ def find_sample_region(pixels, *, erode_px: int = 2, name: str = "frame") -> np.
     sizes = np.bincount(labels.ravel())
     sizes[0] = 0
     region = ndimage.binary_fill_holes(labels == int(np.argmax(sizes)))
-    region = erode_disk(region, int(erode_px))
+    if erode_px > 0:
+        region = erode_disk(region, int(erode_px))
     if not region.any():
         raise FrameError(f"{name}: the sample region is empty after eroding {erode_px} px")
     return region
