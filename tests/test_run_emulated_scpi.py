@@ -12,7 +12,16 @@ import time
 import numpy as np
 import pytest
 from side_by_side import each_side_by_side
-from test_run_emulated import GONIO, MATERIAL, _emulated_run, _fast, _faulted_then_cleared, _rows, _simulated
+from test_run_emulated import (
+    CHANGER_SWING_DEG,
+    GONIO,
+    MATERIAL,
+    _emulated_run,
+    _fast,
+    _faulted_then_cleared,
+    _rows,
+    _simulated,
+)
 
 from gonio.config import load_config, parse_config
 from gonio.dataset import read_brdf
@@ -220,8 +229,10 @@ def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path, capsys)
         if axis.get("reference") == "hard_stop":  # the ring carriages: 1:1 pinions, so 240 °/s on the
             # ring, and the approach to the stop at that speed
             axis.update(gear_ratio=1.0, max_velocity_deg_s=240.0, reference_velocity_deg_s=240.0)
-    # the changer at the XL430's quickest (364 °/s): its four swings of 90° are a third of the campaign
+    # the changer at the XL430's quickest (364 °/s), the white standard 20° from the sample: its swings
+    # of 90° were a third of the campaign
     data["axes"]["changer"].update(max_velocity_deg_s=350.0, max_accel_deg_s2=20000.0)
+    data["target"]["reference_deg"] = CHANGER_SWING_DEG
     # The light carriage on a ring of ±60° (this campaign's light azimuths lie within ±15°): its reference
     # seeks a stop 60° from where the servo powers up, not 200° (1.2 s less on the wall clock).
     data["axes"]["light_azimuth"].update(min_deg=-60.0, max_deg=60.0, reference_deg=-60.0)

@@ -391,13 +391,14 @@ def _killed_mid_sweep(tmp_path, twin, profile):
         # direct: the run up to the first sweep is short. The kill does not depend on the pace: the
         # photodiode is frozen mid-sweep before it (below).
         axis["max_accel_deg_s2"] = 3000.0
-        if name == "changer":   # its two swings of 90° before the first sweep: 0.28 s each, not 0.4 s
+        if name == "changer":   # its two swings before the first sweep: 0.08 s each (20°), not 0.4 s
             axis.update(max_velocity_deg_s=350.0, max_accel_deg_s2=20000.0)
         elif stage or "azimuth" in name:
             axis["gear_ratio"] = 2.0
             axis["max_velocity_deg_s"] = 130.0
         else:
             axis["max_velocity_deg_s"] = 150.0
+    data["target"]["reference_deg"] = 20.0   # the white standard 20° from the sample, not 90°
     data["runner"].update(settle_s=0.0, poll_s=0.02)
     data["detector"]["exposure_s"] = 0.02
     data["detector"]["profile"] = profile   # read on request, or from its stream
