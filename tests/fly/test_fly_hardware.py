@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from built_once import built_once
 from emulated_clock import WallThenVirtual, gonio_on
 from fly_compare import matches_stop_and_go as _matches_stop_and_go
 from fly_compare import measurements as _measurements
@@ -57,8 +58,10 @@ def _fly(folder, emu, clock, *, on_runner=None, detector_hook=None, clear_fault=
 
 @pytest.fixture(scope="module")
 def stop_and_go(tmp_path_factory):
-    """The stop-and-go simulation of the same material and grid (the twin's simulated gantry)."""
-    return simulate_stop_and_go(tmp_path_factory.mktemp("sim"), "sim", GRID, MATERIAL)
+    """The stop-and-go simulation of the same material and grid (the twin's simulated gantry), once per
+    run (tests/built_once.py): the tests only read it."""
+    return built_once(tmp_path_factory, "fly-stop-and-go",
+                      lambda folder: simulate_stop_and_go(folder, "sim", GRID, MATERIAL))
 
 
 @pytest.fixture(scope="module")
@@ -66,10 +69,14 @@ def flown(tmp_path_factory):
     """An uninterrupted fly campaign on the emulated Dynamixel gantry: (folder, the servos' watchdog and
     profile registers after it, the axes' profiles, the campaign's meta, what the executor sent). Its
     moves are watched, not changed (on the synced virtual clock the watching takes no gantry time):
-    every ``send_move`` as (servos moving then, the axes its target changes), every ``goto`` target."""
+    every ``send_move`` as (servos moving then, the axes its target changes), every ``goto`` target.
+    Built once per run (tests/built_once.py): the tests only read it."""
+    return built_once(tmp_path_factory, "fly-flown", _flown)
+
+
+def _flown(folder):
     from gonio.executor import MotionExecutor
 
-    folder = tmp_path_factory.mktemp("fly")
     clock = SyncedVirtualClock()
     sent, gotos = [], []
     with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu, \
