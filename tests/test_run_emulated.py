@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from built_once import built_once
 
 from gonio.campaign import create_campaign
 from gonio.clock import WallClock
@@ -263,10 +264,15 @@ def _az_run(folder, data, on_step=None):
 @pytest.fixture(scope="module")
 def az_together(tmp_path_factory):
     """The shipped emulated sample stage's campaign with its AZ axes started together (``sync_start =
-    "auto"``, each unit behind its own TCP gateway): (folder, state, runner, emulator, start line), read
-    by the tests below, none of which changes it."""
-    folder = tmp_path_factory.mktemp("az") / "together"
-    return (folder, *_az_run(folder, _az("auto")))
+    "auto"``, each unit behind its own TCP gateway): (folder, state, fault, each AZ unit's (starts,
+    requests), the start line's (starts, late)), read by the tests below, none of which changes it; built
+    once per run (tests/built_once.py)."""
+    def build(parent):
+        folder = parent / "together"
+        state, runner, emu, line = _az_run(folder, _az("auto"))
+        units = {n: (list(emu.motors[n].starts), list(emu.motors[n].requests)) for n in AZ_AXES}
+        return folder, state, runner.fault, units, (line.starts, line.late)
+    return built_once(tmp_path_factory, "az-together", build)
 
 
 def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_the_same_result(tmp_path,
@@ -278,13 +284,13 @@ def test_modbus_axes_behind_separate_gateways_start_each_pose_back_to_back_with_
     state, runner, _emu, line = _az_run(tmp_path / "alone", _az("off"))
     assert state == State.DONE, runner.fault
     assert line.starts == 0  # axis by axis: no trigger ever started a move
-    together_folder, state, runner, emu, line = az_together
-    assert state == State.DONE, runner.fault
+    together_folder, state, fault, units, (line_starts, line_late) = az_together
+    assert state == State.DONE, fault
     _assert_no_retry_or_fault(together_folder)
-    starts = {n: emu.motors[n].starts for n in AZ_AXES}
-    assert line.starts == sum(map(len, starts.values())) > 20 and line.late == 0
+    starts = {n: made for n, (made, _requests) in units.items()}
+    assert line_starts == sum(map(len, starts.values())) > 20 and line_late == 0
     for n, made in starts.items():
-        requests = emu.motors[n].requests
+        requests = units[n][1]
         for _t, i, _wall in made:  # each move: started by a bare trigger frame, right after its preload
             assert requests[i][7:] == TRIGGER_PDU and requests[i - 1][7:10] == bytes([0x10, 0x00, 0x58]), n
     by_instant: dict[float, set] = {}
@@ -310,8 +316,8 @@ def test_modbus_axes_on_one_rtu_line_start_each_pose_move_with_one_group_query(t
     for n in AZ_AXES:  # every unit started by those very queries, and by nothing else
         assert [i for _t, i, _w in emu.motors[n].starts] == parent, n
     assert all(emu.motors[n].group_id == -1 for n in AZ_AXES)  # each group left after its start
-    together_folder, state, runner, _emu, _line = az_together
-    assert state == State.DONE, runner.fault
+    together_folder, state, fault, _units, _line = az_together
+    assert state == State.DONE, fault
     np.testing.assert_array_equal(read_brdf(tmp_path / "line" / "brdf.h5").value,
                                   read_brdf(together_folder / "brdf.h5").value)
 
