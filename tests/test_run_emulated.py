@@ -5,6 +5,7 @@ reconnect and go on."""
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -33,19 +34,23 @@ TWINS = {"emulated-two-arm-dynamixel": "sim", "emulated-sample-stage-modbus": "s
 GONIO = [sys.executable, "-m", "gonio.cli"]
 
 
-#: ``gonio simulate`` of MATERIAL per (config, grid), run once in the process: the simulation is seeded (the
-#: same values each time) and the tests only read it.
+#: ``gonio simulate`` of MATERIAL per (config, grid), run once in the process, and once per run under
+#: pytest-xdist (tests/built_once.py): the simulation is seeded (the same values each time) and the tests
+#: only read it.
 _SIMULATED: dict = {}
 
 
-def _simulated(tmp_path, sim_config: str, grid: str = GRID):
+def _simulated(tmp_path_factory, sim_config: str, grid: str = GRID):
     if (sim_config, grid) not in _SIMULATED:
-        cfg = load_config(sim_config)
-        c = create_campaign(tmp_path / "sim", cfg, grid=grid, material=MATERIAL)
-        state, _ = run_campaign(c, build_gantry(cfg, MATERIAL))
-        c.close()
-        assert state == State.DONE
-        _SIMULATED[sim_config, grid] = read_brdf(tmp_path / "sim" / "brdf.h5")
+        def build(folder):
+            cfg = load_config(sim_config)
+            c = create_campaign(folder / "sim", cfg, grid=grid, material=MATERIAL)
+            state, _ = run_campaign(c, build_gantry(cfg, MATERIAL))
+            c.close()
+            assert state == State.DONE
+            return read_brdf(folder / "sim" / "brdf.h5")
+        name = "simulated-" + re.sub(r"[^A-Za-z0-9]+", "-", f"{sim_config}-{grid}")
+        _SIMULATED[sim_config, grid] = built_once(tmp_path_factory, name, build)
     return _SIMULATED[sim_config, grid]
 
 
@@ -87,7 +92,7 @@ def _matches(measured, simulated, channel_mean: bool):
 
 
 @pytest.mark.parametrize("twin", sorted(TWINS))
-def test_a_campaign_through_the_drivers_matches_the_simulation(tmp_path, twin):
+def test_a_campaign_through_the_drivers_matches_the_simulation(tmp_path, tmp_path_factory, twin):
     clock = SyncedVirtualClock()
     with EmulatedGantry(load_config(twin), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         (state, runner), _ = _emulated_run(tmp_path / "emu", emu, clock)
@@ -103,7 +108,7 @@ def test_a_campaign_through_the_drivers_matches_the_simulation(tmp_path, twin):
             _assert_no_retry_or_fault(tmp_path / "emu")
     measured = read_brdf(tmp_path / "emu" / "brdf.h5")
     assert measured.value.shape[1] == (1 if "dynamixel" in twin else 3)
-    _matches(measured, _simulated(tmp_path, TWINS[twin]), channel_mean="dynamixel" in twin)
+    _matches(measured, _simulated(tmp_path_factory, TWINS[twin]), channel_mean="dynamixel" in twin)
 
 
 def test_the_emulated_white_standard_is_the_one_the_config_describes(tmp_path):
@@ -351,7 +356,7 @@ def _fast(twin: str) -> dict:
 
 
 @pytest.mark.slow
-def test_gonio_run_killed_mid_campaign_resumes_when_run_again(tmp_path):
+def test_gonio_run_killed_mid_campaign_resumes_when_run_again(tmp_path, tmp_path_factory):
     """kill -9 of ``gonio run`` (a process on the wall clock) after 8 steps; the same command run again
     resumes and the result matches the simulation. It runs again in this process with the emulators'
     clock gone virtual at the kill (:class:`WallThenVirtual`): the resume is tested, not the motion."""
@@ -388,7 +393,7 @@ def test_gonio_run_killed_mid_campaign_resumes_when_run_again(tmp_path):
         assert code == 0, err
         assert "resuming" in err
     measured = read_brdf(out / "brdf.h5")
-    _matches(measured, _simulated(tmp_path, "sample-stage"), channel_mean=False)
+    _matches(measured, _simulated(tmp_path_factory, "sample-stage"), channel_mean=False)
 
 
 @pytest.mark.slow
@@ -453,7 +458,7 @@ CHANGER_SWING_DEG = 20.0
 
 
 @pytest.mark.slow
-def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp_path):
+def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp_path, tmp_path_factory):
     """The Dynamixel twin on the wall clock with its bus watchdog at 0.2 s (the shipped 0.5 s, shortened
     as a config may: the runner then feeds it every 0.1 s) and the arms' moves slowed so that many last
     several watchdog periods: only the feeding reads keep the servos going. The campaign finishes with no
@@ -489,7 +494,7 @@ def test_a_whole_campaign_on_the_wall_clock_with_the_watchdog_armed_finishes(tmp
         assert sum(t > 2 * watchdog_s for t in lasted) >= 5, sorted(lasted)[-5:]
         assert all(s.watchdog_fired_at is None and s.value(98) == 0 for s in emu.servos.values())
         _assert_no_retry_or_fault(tmp_path / "emu")
-    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path, "sim", WATCHDOG_GRID),
+    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path_factory, "sim", WATCHDOG_GRID),
              channel_mean=True)
 
 

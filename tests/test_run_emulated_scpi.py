@@ -89,7 +89,9 @@ def emulated():
         yield emu, clock
 
 
-def test_a_campaign_through_the_two_scpi_profiles_reads_darks_at_the_lamp_off_level(tmp_path, emulated):
+def test_a_campaign_through_the_two_scpi_profiles_reads_darks_at_the_lamp_off_level(tmp_path,
+                                                                                   tmp_path_factory,
+                                                                                   emulated):
     emu, clock = emulated
     cfg = emu.config()
     assert cfg.buses["lamp"].port.startswith("TCPIP0::127.0.0.1::")
@@ -108,7 +110,7 @@ def test_a_campaign_through_the_two_scpi_profiles_reads_darks_at_the_lamp_off_le
     # every reading at 633 nm, 33 x 3 ms averaged; the lamp off at the end
     assert {(w, c) for w, c, _ in emu.meter.measurements} == {(633.0, 33)}
     assert not emu.lamp.output and emu.lamp.current_a == 1.5
-    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path, "sim"))
+    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path_factory, "sim"))
 
 
 def _power_cycle(instrument, unplug: bool) -> None:
@@ -190,6 +192,7 @@ def test_a_power_meter_unplugged_mid_reading_faults_and_resumes_once_replugged(t
 
 
 def test_a_lamp_power_cycled_mid_campaign_is_switched_on_again_and_the_step_measured_again(tmp_path,
+                                                                                         tmp_path_factory,
                                                                                          emulated):
     """The source comes back from a power cycle with its output off and 0 A: the lit reading after it
     would be a dark one. The runner finds the output off after the reading, switches the lamp on again
@@ -203,7 +206,7 @@ def test_a_lamp_power_cycled_mid_campaign_is_switched_on_again_and_the_step_meas
     assert len(retries) == 1
     assert "light: output found off after the reading of step 3" in retries[0]["message"]
     assert emu.lamp.current_a == 1.5
-    _matches(read_brdf(tmp_path / "c" / "brdf.h5"), _simulated(tmp_path, "sim"))
+    _matches(read_brdf(tmp_path / "c" / "brdf.h5"), _simulated(tmp_path_factory, "sim"))
 
 
 def test_a_power_meter_power_cycled_mid_campaign_is_configured_again(tmp_path, emulated):
