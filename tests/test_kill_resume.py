@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -24,6 +25,7 @@ import h5py
 import numpy as np
 import planned
 import pytest
+from built_once import built_once
 from journal_crash import Crash, crash_at_write
 
 from gonio.cli import main
@@ -318,18 +320,22 @@ ADAPTIVE_CASES = [("ggx:alpha=0.15,metal=gold", ADAPTIVE_GRID, 45),
 @pytest.fixture(scope="module")
 def shared_reference(tmp_path_factory):
     """``shared_reference(material, grid)``: the default config and the uninterrupted run of
-    ``gonio simulate material --grid grid`` (seed 3) on it, made once for this module: (config, (folder,
-    :class:`Writes`)). Only read by the tests that compare with it (an adaptive campaign's costs seconds)."""
-    root = tmp_path_factory.mktemp("reference")
-    config = _config(root)
+    ``gonio simulate material --grid grid`` (seed 3) on it, made once for this module, and once per run
+    under pytest-xdist (tests/built_once.py): (config, (folder, :class:`Writes`)). Only read by the tests
+    that compare with it (an adaptive campaign's costs seconds)."""
     made = {}
+
+    def build(material, grid, folder):
+        config, ref = _config(folder), folder / "ref"
+        with pytest.MonkeyPatch.context() as m:
+            return config, (ref, _uninterrupted(m, _argv(material, grid, ref, config)))
 
     def reference(material, grid):
         if (material, grid) not in made:
-            ref = root / f"ref{len(made)}"
-            with pytest.MonkeyPatch.context() as m:
-                made[material, grid] = (ref, _uninterrupted(m, _argv(material, grid, ref, config)))
-        return config, made[material, grid]
+            name = "kill-reference-" + re.sub(r"[^A-Za-z0-9]+", "-", f"{material}-{grid}")
+            made[material, grid] = built_once(tmp_path_factory, name,
+                                              lambda folder: build(material, grid, folder))
+        return made[material, grid]
     return reference
 
 

@@ -12,7 +12,16 @@ import time
 import numpy as np
 import pytest
 from side_by_side import each_side_by_side
-from test_run_emulated import GONIO, MATERIAL, _emulated_run, _fast, _faulted_then_cleared, _rows, _simulated
+from test_run_emulated import (
+    CHANGER_SWING_DEG,
+    GONIO,
+    MATERIAL,
+    _emulated_run,
+    _fast,
+    _faulted_then_cleared,
+    _rows,
+    _simulated,
+)
 
 from gonio.config import load_config, parse_config
 from gonio.dataset import read_brdf
@@ -80,7 +89,9 @@ def emulated():
         yield emu, clock
 
 
-def test_a_campaign_through_the_two_scpi_profiles_reads_darks_at_the_lamp_off_level(tmp_path, emulated):
+def test_a_campaign_through_the_two_scpi_profiles_reads_darks_at_the_lamp_off_level(tmp_path,
+                                                                                   tmp_path_factory,
+                                                                                   emulated):
     emu, clock = emulated
     cfg = emu.config()
     assert cfg.buses["lamp"].port.startswith("TCPIP0::127.0.0.1::")
@@ -99,7 +110,7 @@ def test_a_campaign_through_the_two_scpi_profiles_reads_darks_at_the_lamp_off_le
     # every reading at 633 nm, 33 x 3 ms averaged; the lamp off at the end
     assert {(w, c) for w, c, _ in emu.meter.measurements} == {(633.0, 33)}
     assert not emu.lamp.output and emu.lamp.current_a == 1.5
-    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path, "sim"))
+    _matches(read_brdf(tmp_path / "emu" / "brdf.h5"), _simulated(tmp_path_factory, "sim"))
 
 
 def _power_cycle(instrument, unplug: bool) -> None:
@@ -181,6 +192,7 @@ def test_a_power_meter_unplugged_mid_reading_faults_and_resumes_once_replugged(t
 
 
 def test_a_lamp_power_cycled_mid_campaign_is_switched_on_again_and_the_step_measured_again(tmp_path,
+                                                                                         tmp_path_factory,
                                                                                          emulated):
     """The source comes back from a power cycle with its output off and 0 A: the lit reading after it
     would be a dark one. The runner finds the output off after the reading, switches the lamp on again
@@ -194,7 +206,7 @@ def test_a_lamp_power_cycled_mid_campaign_is_switched_on_again_and_the_step_meas
     assert len(retries) == 1
     assert "light: output found off after the reading of step 3" in retries[0]["message"]
     assert emu.lamp.current_a == 1.5
-    _matches(read_brdf(tmp_path / "c" / "brdf.h5"), _simulated(tmp_path, "sim"))
+    _matches(read_brdf(tmp_path / "c" / "brdf.h5"), _simulated(tmp_path_factory, "sim"))
 
 
 def test_a_power_meter_power_cycled_mid_campaign_is_configured_again(tmp_path, emulated):
@@ -220,8 +232,10 @@ def test_gonio_emulate_and_gonio_run_through_the_scpi_profiles(tmp_path, capsys)
         if axis.get("reference") == "hard_stop":  # the ring carriages: 1:1 pinions, so 240 °/s on the
             # ring, and the approach to the stop at that speed
             axis.update(gear_ratio=1.0, max_velocity_deg_s=240.0, reference_velocity_deg_s=240.0)
-    # the changer at the XL430's quickest (364 °/s): its four swings of 90° are a third of the campaign
+    # the changer at the XL430's quickest (364 °/s), the white standard 20° from the sample: its swings
+    # of 90° were a third of the campaign
     data["axes"]["changer"].update(max_velocity_deg_s=350.0, max_accel_deg_s2=20000.0)
+    data["target"]["reference_deg"] = CHANGER_SWING_DEG
     # The light carriage on a ring of ±60° (this campaign's light azimuths lie within ±15°): its reference
     # seeks a stop 60° from where the servo powers up, not 200° (1.2 s less on the wall clock).
     data["axes"]["light_azimuth"].update(min_deg=-60.0, max_deg=60.0, reference_deg=-60.0)

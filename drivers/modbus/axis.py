@@ -282,6 +282,37 @@ class ModbusAxis:
         """Register ``name`` of the profile written with ``value`` (answered)."""
         self._write(name, value)
 
+    def write_value_read_back(self, name: str, value: int) -> int:
+        """Register ``name`` of the profile written with ``value`` and read back (decoded): one Read/Write
+        Multiple Registers (function 23, the write done before the read) where the profile has
+        ``write_read``, else a write and a read (both answered)."""
+        reg = self.profile[name]
+        regs = self._write_read(f"write {name}", reg.address, reg.encode(value, self.profile.word_order),
+                                reg.address, reg.count)
+        if regs is None:
+            self._write(name, value)
+            return self._read_value(name)
+        return reg.decode(regs, self.profile.word_order)
+
+    def _write_read(self, what: str, address: int, words: list[int], read_address: int,
+                    count: int) -> list[int] | None:
+        """``words`` written at ``address``, then ``count`` registers read at ``read_address``, in one
+        function 23 request: the registers read, or None where the profile has no ``write_read`` or the
+        unit refused function 23 (exception 1: it wrote nothing; 23 is never asked of it again)."""
+        if not self.profile.write_read or self.write_read_refused:
+            return None
+        try:
+            r = self._call(f"{what} and read {count} at {read_address:#06x} (function 23)",
+                           lambda: self.client.readwrite_registers(
+                               read_address=read_address, read_count=count, write_address=address,
+                               values=words, device_id=self.device_id), (23, count))
+        except ModbusExceptionError as err:
+            if err.code != 1:
+                raise
+            self.write_read_refused = True
+            return None
+        return list(r.registers)
+
     def write_words(self, address: int, words: list[int], *, what: str, device_id: int | None = None) -> None:
         """One Write Multiple Registers of ``words`` at ``address`` to unit ``device_id`` (default this
         axis's) on this axis's link; a broadcast (unit 0) is sent and not answered."""
@@ -373,26 +404,14 @@ class ModbusAxis:
         p = self.profile
         words = self._block_words(steps, self.velocity_value, self.accel_value)
         what = f"write move block at {p.block_start:#06x}"
-        r = None
-        if p.write_read and not self.write_read_refused:
-            # Function 23 writes the block, then reads (the Modbus spec orders the write first): the
-            # start check's first look rides on the write's own request, seeing exactly what a read
-            # sent right after it would. The check itself is unchanged. (The span was tried at
-            # connect, so a span the unit refuses is not asked here.)
-            lo, count = self.state_block or (p["status"].address, p["status"].count)
-            try:
-                r = self._call(f"{what} and read {count} at {lo:#06x} (function 23)",
-                               lambda: self.client.readwrite_registers(
-                                   read_address=lo, read_count=count, write_address=p.block_start,
-                                   values=words, device_id=self.device_id), (23, count))
-            except ModbusExceptionError as err:
-                if err.code != 1:
-                    raise
-                # Illegal function: the unit does not do function 23 and wrote nothing; write with
-                # function 16 (and never ask 23 again).
-                self.write_read_refused = True
-        if r is not None:
-            status, at = self._state_of(r.registers, lo)
+        # Function 23 writes the block, then reads (the Modbus spec orders the write first): the start
+        # check's first look rides on the write's own request, seeing exactly what a read sent right
+        # after it would. The check itself is unchanged. (The span was tried at connect, so a span the
+        # unit refuses is not asked here.)
+        lo, count = self.state_block or (p["status"].address, p["status"].count)
+        regs = self._write_read(what, p.block_start, words, lo, count)
+        if regs is not None:
+            status, at = self._state_of(regs, lo)
         else:
             self._call(what, lambda: self.client.write_registers(p.block_start, words,
                                                                  device_id=self.device_id), (16, None))

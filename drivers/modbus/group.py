@@ -6,9 +6,11 @@ write of trigger 1 alone starts the move with them), each write answered by its 
 start, one of three ways (``mode``):
 
 - ``"group"`` (Oriental Motor's group send, units on one line): after the preloads, each child's group
-  register is set to the parent's address (the first axis; its own stays -1) and read back; ONE Write
-  Multiple Registers of the trigger to the parent's address is executed by every child and answered by
-  the parent alone; then every child leaves the group (-1 again). The group is held only for the start:
+  register is set to the parent's address (the first axis; its own stays -1) and read back (one
+  function 23 request each where the profile has ``write_read``); ONE Write Multiple Registers of the
+  trigger to the parent's address is executed by every child and answered by the parent alone; then the
+  parent's group register is written -1, which every child executes too, and each child's is read back
+  (-1 again; one that missed it is written itself). The group is held only for the start:
   while it stands, every Write Multiple Registers to the parent (a move, a stop) is executed by every
   child too, which a gantry's stop-and-go moves of the parent must never be. (The unit also drops it at
   power-off. Should gonio die between the join and the leave, the children stay grouped until the next
@@ -136,24 +138,33 @@ class ModbusStartGroup:
 
     def join(self) -> None:
         """Group mode: each child's group register set to the parent's address, the parent's to -1
-        (individual); each write answered and read back. :meth:`start` joins and leaves by itself."""
-        self._group(self.parent.device_id)
-
-    def leave(self) -> None:
-        """Group mode: every unit individual again (-1), each write answered and read back."""
-        self._group(-1)
-
-    def _group(self, parent_id: int) -> None:
+        (individual); each write answered and read back (in one request where the profile has
+        ``write_read``). :meth:`start` joins and leaves by itself."""
         if self.mode != "group":
             return
         parent = self.parent
         for a in self.axes.values():
+            want = -1 if a is parent else parent.device_id
+            self._checked(a, want, a.write_value_read_back(a.profile.sync_start.group_register, want))
+
+    def leave(self) -> None:
+        """Group mode: every unit individual again (-1). The parent's write (answered) is a Write Multiple
+        Registers to the parent, which every child executes too: the whole group leaves at once. Each
+        child's register is then read; one that does not read -1 (it missed the query) is written itself
+        and read back."""
+        if self.mode != "group":
+            return
+        parent = self.parent
+        parent.write_value(parent.profile.sync_start.group_register, -1)
+        for a in self.axes.values():
             reg = a.profile.sync_start.group_register
-            want = -1 if a is parent else parent_id
-            a.write_value(reg, want)
-            got = a.read_value(reg)
-            if got != want:
-                raise ModbusCommError(a.name, f"group register reads {got} after writing {want}")
+            if a is not parent and a.read_value(reg) != -1:
+                self._checked(a, -1, a.write_value_read_back(reg, -1))
+
+    @staticmethod
+    def _checked(axis, want: int, got: int) -> None:
+        if got != want:
+            raise ModbusCommError(axis.name, f"group register reads {got} after writing {want}")
 
     def start(self, moves: Mapping[str, tuple[float, float | None, float | None]]) -> dict[str, int]:
         """Start ``moves`` (axis name -> (target °, speed °/s or None, acceleration °/s² or None))

@@ -84,20 +84,28 @@ def test_group_send_is_one_query_to_the_parent_executed_by_every_child(line, clo
     # Three preloads (block at 0x0058, trigger 0), each to its own unit, while no unit is in a group.
     for i, raw in enumerate(requests[:3], start=1):
         assert raw[:2] == bytes([i, 0x10]) and raw[2:4] == b"\x00\x58" and raw[-6:-2] == b"\0\0\0\0"
-    # The group joined: each unit's Group register (0x0030) written (parent -1, children 1), read back.
-    joins = [r for r in requests[3:9] if r[1] == 0x10]
-    assert [(r[0], r[2:4], r[7:11]) for r in joins] == [
-        (1, b"\x00\x30", b"\xff\xff\xff\xff"), (2, b"\x00\x30", b"\0\0\0\1"), (3, b"\x00\x30", b"\0\0\0\1")]
+    # The group joined: each unit's Group register (0x0030) written (parent -1, children 1) and read back
+    # in one Read/Write Multiple Registers (function 23: read 2 at 0x0030, write 2 at 0x0030), each
+    # answered with the value written.
+    joins = requests[3:6]
+    assert [(r[0], r[1], r[2:4], r[4:6], r[6:8], r[8:10], r[11:15]) for r in joins] == [
+        (u, 0x17, b"\x00\x30", b"\x00\x02", b"\x00\x30", b"\x00\x02", v)
+        for u, v in ((1, b"\xff\xff\xff\xff"), (2, b"\0\0\0\1"), (3, b"\0\0\0\1"))]
+    assert [r[3:7] for r in replies[3:6]] == [b"\xff\xff\xff\xff", b"\0\0\0\1", b"\0\0\0\1"]
     # Then ONE start: the trigger to the parent, its CRC the serial line's.
-    start = requests[9]
+    start = requests[6]
     assert start == _rtu_frame(1, TRIGGER_PDU)
     assert int.from_bytes(start[-2:], "little") == crc16_modbus(start[:-2])
     # Only the parent answered it (the reply that follows the query, from unit 1, echoing address and
     # count), and nobody else answered anything it was not asked: one reply per request addressed.
-    assert replies[9] == _rtu_frame(1, bytes([0x10, 0x00, 0x66, 0x00, 0x02]))
+    assert replies[6] == _rtu_frame(1, bytes([0x10, 0x00, 0x66, 0x00, 0x02]))
     assert len(replies) == len(requests)
+    # The group left: -1 written to the parent's Group register (a Write Multiple Registers to the parent,
+    # which every child executes too), then each child's read (-1 already: nothing more written).
+    assert requests[7] == _rtu_frame(1, bytes([0x10, 0x00, 0x30, 0x00, 0x02, 0x04, 0xFF, 0xFF, 0xFF, 0xFF]))
+    assert requests[8:10] == [_rtu_frame(u, bytes([0x03, 0x00, 0x30, 0x00, 0x02])) for u in (2, 3)]
     # Every unit started on that one query (its index on the line), each with its own profile.
-    index = n_req + 9
+    index = n_req + 6
     assert [u.starts[-1][1] for u in units] == [index] * 3
     assert len({u.starts[-1][0] for u in units}) == 1
     for u, (name, (deg, v, a)) in zip(units, MOVES.items(), strict=True):
@@ -126,6 +134,32 @@ def test_while_grouped_a_write_to_the_parent_is_every_childs_and_the_group_is_vo
     assert units[2].group_id == -1
     group.leave()
     assert [u.group_id for u in units] == [-1, -1, -1]
+
+
+def test_a_child_that_missed_the_parents_leave_is_written_itself(line, monkeypatch):
+    """The leave's write to the parent reaches a child that does not execute it (a frame it did not take):
+    its Group register still reads the parent's address, so it is written -1 itself and read back."""
+    bus, units, axes = line
+    group = ModbusStartGroup(axes, "group")
+    group.join()
+    monkeypatch.setattr(units[2], "execute_silently", lambda address, values: None)
+    n = len(bus.requests)
+    group.leave()
+    assert [u.group_id for u in units] == [-1, -1, -1]
+    assert [(r[0], r[1]) for r in bus.requests[n:]] == [(1, 0x10), (2, 0x03), (3, 0x03), (3, 0x17)]
+
+
+def test_a_unit_without_function_23_joins_by_a_write_and_a_read(line):
+    """A unit that answers function 23 with exception 1 (illegal function: it wrote nothing) joins by a
+    Write Multiple Registers and a read, from then on."""
+    bus, units, axes = line
+    units[1].fail_next(1)
+    group = ModbusStartGroup(axes, "group")
+    n = len(bus.requests)
+    group.join()
+    assert [u.group_id for u in units] == [-1, 1, 1]
+    assert [(r[0], r[1]) for r in bus.requests[n:]] == [(1, 0x17), (2, 0x17), (2, 0x10), (2, 0x03), (3, 0x17)]
+    assert axes[1].write_read_refused and not axes[0].write_read_refused
 
 
 def test_a_child_that_dropped_out_of_the_group_ignores_the_query_and_is_named(line, clock, monkeypatch):

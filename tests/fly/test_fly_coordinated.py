@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from built_once import built_once
 from fly_compare import matches_stop_and_go, measurements, simulate_stop_and_go
 
 from gonio.campaign import create_campaign
@@ -31,14 +32,20 @@ STAGE = "emulated-sample-stage-dynamixel"
 
 @pytest.fixture(scope="module")
 def stage_stop_and_go(tmp_path_factory):
-    """The stop-and-go simulation of the same material and grid on the simulated sample stage."""
-    return simulate_stop_and_go(tmp_path_factory.mktemp("sim-stage"), "sample-stage", GRID, MATERIAL)
+    """The stop-and-go simulation of the same material and grid on the simulated sample stage, once per
+    run (tests/built_once.py): the tests only read it."""
+    return built_once(tmp_path_factory, "fly-stage-stop-and-go",
+                      lambda folder: simulate_stop_and_go(folder, "sample-stage", GRID, MATERIAL))
 
 
 @pytest.fixture(scope="module")
 def stage_flown(tmp_path_factory):
-    """The fly campaign on the emulated sample stage: (folder, meta, fly plan, packets on the bus)."""
-    folder = tmp_path_factory.mktemp("fly-stage")
+    """The fly campaign on the emulated sample stage: (folder, meta, fly plan, packets on the bus), once
+    per run (tests/built_once.py): the tests only read it."""
+    return built_once(tmp_path_factory, "fly-stage", _stage_flown)
+
+
+def _stage_flown(folder):
     clock = SyncedVirtualClock()
     with EmulatedGantry(load_config(STAGE), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         cfg = emu.config()

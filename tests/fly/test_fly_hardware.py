@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from built_once import built_once
 from emulated_clock import WallThenVirtual, gonio_on
 from fly_compare import matches_stop_and_go as _matches_stop_and_go
 from fly_compare import measurements as _measurements
@@ -57,8 +58,10 @@ def _fly(folder, emu, clock, *, on_runner=None, detector_hook=None, clear_fault=
 
 @pytest.fixture(scope="module")
 def stop_and_go(tmp_path_factory):
-    """The stop-and-go simulation of the same material and grid (the twin's simulated gantry)."""
-    return simulate_stop_and_go(tmp_path_factory.mktemp("sim"), "sim", GRID, MATERIAL)
+    """The stop-and-go simulation of the same material and grid (the twin's simulated gantry), once per
+    run (tests/built_once.py): the tests only read it."""
+    return built_once(tmp_path_factory, "fly-stop-and-go",
+                      lambda folder: simulate_stop_and_go(folder, "sim", GRID, MATERIAL))
 
 
 @pytest.fixture(scope="module")
@@ -66,10 +69,14 @@ def flown(tmp_path_factory):
     """An uninterrupted fly campaign on the emulated Dynamixel gantry: (folder, the servos' watchdog and
     profile registers after it, the axes' profiles, the campaign's meta, what the executor sent). Its
     moves are watched, not changed (on the synced virtual clock the watching takes no gantry time):
-    every ``send_move`` as (servos moving then, the axes its target changes), every ``goto`` target."""
+    every ``send_move`` as (servos moving then, the axes its target changes), every ``goto`` target.
+    Built once per run (tests/built_once.py): the tests only read it."""
+    return built_once(tmp_path_factory, "fly-flown", _flown)
+
+
+def _flown(folder):
     from gonio.executor import MotionExecutor
 
-    folder = tmp_path_factory.mktemp("fly")
     clock = SyncedVirtualClock()
     sent, gotos = [], []
     with EmulatedGantry(load_config(TWIN), MATERIAL, clock=clock, any_port=True, referenced=True) as emu, \
@@ -391,13 +398,14 @@ def _killed_mid_sweep(tmp_path, twin, profile):
         # direct: the run up to the first sweep is short. The kill does not depend on the pace: the
         # photodiode is frozen mid-sweep before it (below).
         axis["max_accel_deg_s2"] = 3000.0
-        if name == "changer":   # its two swings of 90° before the first sweep: 0.28 s each, not 0.4 s
+        if name == "changer":   # its two swings before the first sweep: 0.08 s each (20°), not 0.4 s
             axis.update(max_velocity_deg_s=350.0, max_accel_deg_s2=20000.0)
         elif stage or "azimuth" in name:
             axis["gear_ratio"] = 2.0
             axis["max_velocity_deg_s"] = 130.0
         else:
             axis["max_velocity_deg_s"] = 150.0
+    data["target"]["reference_deg"] = 20.0   # the white standard 20° from the sample, not 90°
     data["runner"].update(settle_s=0.0, poll_s=0.02)
     data["detector"]["exposure_s"] = 0.02
     data["detector"]["profile"] = profile   # read on request, or from its stream

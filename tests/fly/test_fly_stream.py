@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from built_once import built_once
 from test_fly_hardware import (  # the fly hardware tests' helpers and their stop-and-go reference
     MATERIAL,
     TWIN,
@@ -56,7 +57,12 @@ def _on_stream_start(hook):
 
 @pytest.fixture(scope="module")
 def streamed(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("fly-stream")
+    """The streamed fly campaign: (folder, meta, the meter's commands), once per run (tests/built_once.py):
+    the tests only read it."""
+    return built_once(tmp_path_factory, "fly-stream", _streamed)
+
+
+def _streamed(folder):
     clock = SyncedVirtualClock()
     with EmulatedGantry(_streaming_config(), MATERIAL, clock=clock, any_port=True, referenced=True) as emu:
         state, runner, meta = _fly(folder, emu, clock)
