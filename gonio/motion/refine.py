@@ -24,7 +24,7 @@ import functools
 
 import numpy as np
 
-from gonio.motion.exact import exact_order
+from gonio.motion.exact import exact_order, least_through
 from gonio.motion.metric import MoveMetric
 
 __all__ = ["walk_costs", "best_walk", "candidate_orders", "refine_order", "refine_windows"]
@@ -82,8 +82,7 @@ def _priced(tables, orders) -> np.ndarray:
     orders = np.asarray(orders, dtype=np.int64)
     cost = first[orders[:, 0]]  # (B, W)
     for step in range(1, orders.shape[1]):
-        t = pair[orders[:, step - 1], orders[:, step]]  # (B, W, W)
-        cost = np.min(cost[:, :, None] + t, axis=1)
+        cost = least_through(cost, pair[orders[:, step - 1], orders[:, step]])
     return np.min(cost + last[orders[:, -1]], axis=1)
 
 
@@ -185,8 +184,7 @@ def _neighbour_costs(tables, order) -> np.ndarray:
     for s in range(1, n):
         rows = active[s]
         if rows.size:
-            t = pair[cands[rows, s - 1], cands[rows, s]]
-            cost[rows] = np.min(cost[rows][:, :, None] + t, axis=1)
+            cost[rows] = least_through(cost[rows], pair[cands[rows, s - 1], cands[rows, s]])
     # Moves ending at the last pose, or at the one before it, are priced forwards to the end already.
     ends = np.where((until == n - 1)[:, None], last[cands[:, -1]], back[until])
     costs = np.min(cost + ends, axis=1)

@@ -181,24 +181,34 @@ def _prim(weights: np.ndarray, pi: np.ndarray | None = None) -> tuple[np.ndarray
     row = np.empty(n)
     best = weights[0].copy() if pi is None else np.add(weights[0], pi[0]) + pi
     parent = np.zeros(n, dtype=np.int64)
-    left = np.ones(n, dtype=bool)   # not in the tree yet
-    left[0] = False
     best[0] = np.inf
     child = np.empty(n - 1, dtype=np.int64)
     closer = np.empty(n, dtype=bool)
+    if pi is None:
+        left = np.ones(n, dtype=bool)   # not in the tree yet
+        left[0] = False
+    else:
+        # The penalties with +inf at the poses in the tree: their penalised entries are then +inf,
+        # never closer than their best (+inf), so no mask of the poses left is needed; the others
+        # are the same sums as without it.
+        outside = pi.copy()
+        outside[0] = np.inf
     for step in range(n - 1):
         j = int(best.argmin())
         child[step] = j
-        left[j] = False
         best[j] = np.inf
         if pi is None:
+            left[j] = False
             row = weights[j]
+            np.less(row, best, out=closer)
+            closer &= left
+            np.copyto(best, row, where=closer)
         else:
+            outside[j] = np.inf
             np.add(weights[j], pi[j], out=row)
-            row += pi
-        np.less(row, best, out=closer)
-        closer &= left
-        np.copyto(best, row, where=closer)
+            row += outside
+            np.less(row, best, out=closer)
+            np.minimum(best, row, out=best)   # row where closer; the poses in the tree stay +inf
         np.copyto(parent, j, where=closer)
     return child, parent[child]
 
