@@ -172,10 +172,10 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True, plans: PlanCache 
     The start, up to its "ready", runs at the daemon's priority: a daemon stopped while this worker
     started (it does not wait for a start) leaves it to find that out, and at idle priority on a busy
     machine it waited for an idle core to do so, holding the daemon's stdout and stderr open meanwhile (a
-    caller reading them to their end waited as long)."""
-    from gonio.sim.materials.library import MaterialsFolder
-
-    materials = MaterialsFolder(materials_root)
+    caller reading them to their end waited as long). The materials (and Dr.Jit with them, ~0.1 s of CPU)
+    are imported with the first request: the worker of a daemon stopped before anything was submitted
+    never pays for them (in a test suite's daemons, 36 of 86), and every start is that much shorter."""
+    materials = None
     plans = PlanCache() if plans is None else plans
     try:
         conn.send(("ready",))
@@ -192,6 +192,10 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True, plans: PlanCache 
         except (EOFError, OSError):   # the daemon is gone
             return
         try:
+            if materials is None:
+                from gonio.sim.materials.library import MaterialsFolder
+
+                materials = MaterialsFolder(materials_root)
             reply = ("ok", prepare_campaign(cfg, req, materials, Path(folder), plan=plans))
         except FieldError as err:
             reply = ("field", err.field, str(err))
