@@ -244,6 +244,7 @@ class Planner:
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
         self._starting = threading.Event()   # a worker is being started
+        self._first_start = threading.Event()   # the first worker has started, or failed to
         self._proc = None
         self._conn = None
         self.busy = False          # a request is being planned now
@@ -267,6 +268,13 @@ class Planner:
         if self._thread is not None:
             self._thread.join(start_grace_s if self._starting.is_set() else START_TIMEOUT_S)
         self._kill()
+
+    def wait_started(self, timeout_s: float = START_TIMEOUT_S) -> bool:
+        """Wait (at most ``timeout_s``) until the first worker has started, or failed to (logged); whether it
+        did either. ``gonio serve`` waits for it before it says it listens: a stop that came during the
+        start (its fork server still importing the planner) waited :data:`EXIT_GRACE_S` for it, and that
+        fork server held the daemon's stdout and stderr open until its imports were done."""
+        return self._first_start.wait(timeout_s)
 
     def _worker(self):
         """The worker's connection, started (and waited for) when there is none."""
@@ -347,6 +355,8 @@ class Planner:
             self._worker()          # ready before the first request comes
         except PlannerFailed as err:
             log.error("%s", err)
+        finally:
+            self._first_start.set()
         while True:
             job = self._jobs.get()
             if job is None:
