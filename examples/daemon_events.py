@@ -24,6 +24,9 @@ REQUEST = {"material": "ggx:alpha=0.2,metal=gold", "grid": "iso:step=30", "seed"
 @contextlib.contextmanager
 def own_daemon(data: Path):
     """A daemon served from a thread of this process on a free loopback port (stopped on exit)."""
+    from gonio.daemon.planner import start_fork_server
+
+    start_fork_server()   # the planner's worker process imports the planner while this one imports the rest
     from gonio.config import load_config
     from gonio.daemon.server import build_daemon, start_in_thread
 

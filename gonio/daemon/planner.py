@@ -172,10 +172,10 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True, plans: PlanCache 
     The start, up to its "ready", runs at the daemon's priority: a daemon stopped while this worker
     started (it does not wait for a start) leaves it to find that out, and at idle priority on a busy
     machine it waited for an idle core to do so, holding the daemon's stdout and stderr open meanwhile (a
-    caller reading them to their end waited as long)."""
-    from gonio.sim.materials.library import MaterialsFolder
-
-    materials = MaterialsFolder(materials_root)
+    caller reading them to their end waited as long). The materials (and Dr.Jit with them, ~0.1 s of CPU)
+    are imported with the first request: the worker of a daemon stopped before anything was submitted
+    never pays for them (in a test suite's daemons, 36 of 86), and every start is that much shorter."""
+    materials = None
     plans = PlanCache() if plans is None else plans
     try:
         conn.send(("ready",))
@@ -192,6 +192,10 @@ def _worker_main(conn, cfg, materials_root, idle: bool = True, plans: PlanCache 
         except (EOFError, OSError):   # the daemon is gone
             return
         try:
+            if materials is None:
+                from gonio.sim.materials.library import MaterialsFolder
+
+                materials = MaterialsFolder(materials_root)
             reply = ("ok", prepare_campaign(cfg, req, materials, Path(folder), plan=plans))
         except FieldError as err:
             reply = ("field", err.field, str(err))
@@ -240,6 +244,7 @@ class Planner:
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
         self._starting = threading.Event()   # a worker is being started
+        self._first_start = threading.Event()   # the first worker has started, or failed to
         self._proc = None
         self._conn = None
         self.busy = False          # a request is being planned now
@@ -263,6 +268,13 @@ class Planner:
         if self._thread is not None:
             self._thread.join(start_grace_s if self._starting.is_set() else START_TIMEOUT_S)
         self._kill()
+
+    def wait_started(self, timeout_s: float = START_TIMEOUT_S) -> bool:
+        """Wait (at most ``timeout_s``) until the first worker has started, or failed to (logged); whether it
+        did either. ``gonio serve`` waits for it before it says it listens: a stop that came during the
+        start (its fork server still importing the planner) waited :data:`EXIT_GRACE_S` for it, and that
+        fork server held the daemon's stdout and stderr open until its imports were done."""
+        return self._first_start.wait(timeout_s)
 
     def _worker(self):
         """The worker's connection, started (and waited for) when there is none."""
@@ -343,6 +355,8 @@ class Planner:
             self._worker()          # ready before the first request comes
         except PlannerFailed as err:
             log.error("%s", err)
+        finally:
+            self._first_start.set()
         while True:
             job = self._jobs.get()
             if job is None:

@@ -266,6 +266,9 @@ def serve(cfg: GonioConfig, *, data: Path, host: str = "127.0.0.1", port: int = 
     try:
         d.queue.start()
         d.planner.start()
+        # Listening (the socket is bound: connections wait in its backlog) is said once the planner's
+        # worker has started, so that a submission is planned at once and a stop never waits for a start.
+        d.planner.wait_started()
         url = f"http://{'[' + host + ']' if ':' in host else host}:{bound}"
         announce(f"gonio serve: listening on {url} (data {data}, gantry '{cfg.name}', "
                  f"{'token required for writes' if d.token else 'no token: loopback only'}, "

@@ -1,9 +1,10 @@
-"""Daemons served in-process on 127.0.0.1 (any free port), each stopped at the end of its test."""
+"""Daemons served in-process on 127.0.0.1 (any free port), each stopped at the end of its test; one
+headless Chromium for the tests that drive a browser."""
 
 from __future__ import annotations
 
 import pytest
-from daemon_helpers import STARTED, WAIT_S, http_client, shared_plans
+from daemon_helpers import CHROMIUM, STARTED, WAIT_S, http_client, shared_plans
 
 from gonio.config import load_config
 from gonio.daemon.server import build_daemon, start_in_thread
@@ -48,3 +49,27 @@ def _no_daemon_left_behind():
             s.p.kill()
             s.p.wait(WAIT_S)
         s._f.close()
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """One Chromium (Debian's, driven by Playwright) for every test here that drives one (the web view's
+    and the cross-origin attacks'): a launch costs ~1.5 s of CPU, and each module launched its own. Each
+    test's pages have browser contexts of their own (cookies, storage, cache).
+
+    Every *.test name resolves to 127.0.0.1 (as a rebinding attacker's DNS makes it), and Chromium's Local
+    Network Access checks are off: Firefox and Safari have none, and they do not stop a page served from
+    the LAN, so the daemon must refuse on its own (test_daemon_origin). The web view's pages are the
+    daemon's own, on 127.0.0.1: neither setting touches them."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=[
+            "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+            "--disable-component-update", "--no-first-run", "--host-resolver-rules=MAP *.test 127.0.0.1",
+            "--disable-features=LocalNetworkAccessChecks,BlockInsecurePrivateNetworkRequests,"
+            "PrivateNetworkAccessRespectPreflightResults"])
+        try:
+            yield b
+        finally:
+            b.close()

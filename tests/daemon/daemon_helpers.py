@@ -19,6 +19,8 @@ import pytest
 WAIT_S = 60.0
 TOKEN = "s3cret-token-of-the-lab"
 GONIO = [sys.executable, "-m", "gonio.cli"]
+#: The browser of the tests that drive one (Debian's chromium; those tests are skipped without it).
+CHROMIUM = "/usr/bin/chromium"
 #: ``gonio serve`` processes started by Serve and not yet reaped (conftest stops them after each test).
 STARTED: list = []
 

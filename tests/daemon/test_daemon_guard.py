@@ -9,6 +9,7 @@ import time
 
 import pytest
 from daemon_helpers import WAIT_S, http_client
+from side_by_side import side_by_side
 
 from gonio.daemon.guard import HostNames, parse_allow_host
 
@@ -93,26 +94,30 @@ def test_a_body_that_never_arrives_is_answered_408_and_its_connection_closed(ser
 def test_a_head_that_trickles_in_is_cut_off(serve):
     r = serve(head_timeout_s=0.5)
     host, port = r.url.removeprefix("http://").rsplit(":", 1)
-    t0 = time.monotonic()
-    with socket.create_connection((host, int(port)), timeout=WAIT_S) as s:
-        s.sendall(b"GET /health HTTP/1.1\r\n")
-        closed = None
-        for _ in range(50):                 # a header line every 0.1 s, never the blank line
-            try:
-                s.sendall(b"X-Slow: 1\r\n")
-                if s.recv(1, socket.MSG_DONTWAIT) == b"":
-                    closed = time.monotonic() - t0
-                    break
-            except BlockingIOError:
-                pass
-            except OSError:
-                closed = time.monotonic() - t0
-                break
-            time.sleep(0.1)
+
+    def trickle():
+        t0 = time.monotonic()
+        with socket.create_connection((host, int(port)), timeout=WAIT_S) as s:
+            s.sendall(b"GET /health HTTP/1.1\r\n")
+            for _ in range(50):                 # a header line every 0.1 s, never the blank line
+                try:
+                    s.sendall(b"X-Slow: 1\r\n")
+                    if s.recv(1, socket.MSG_DONTWAIT) == b"":
+                        return time.monotonic() - t0
+                except BlockingIOError:
+                    pass
+                except OSError:
+                    return time.monotonic() - t0
+                time.sleep(0.1)
+        return None
+
+    # A connection that says nothing is closed too (its wait beside the trickle's: each its own connection).
+    got = side_by_side({"trickle": trickle, "silent": lambda: _raw(r.url, b"")})
+    closed = got["trickle"]
     assert closed is not None and 0.4 < closed < 3.0, closed
-    # A connection that says nothing is closed too, and one that asks in time is answered.
-    out, took = _raw(r.url, b"")
+    out, took = got["silent"]
     assert out == b"" and took < 3.0
+    # One that asks in time is answered.
     out, _ = _raw(r.url, f"GET /health HTTP/1.1\r\nHost: {host}:{port}\r\nConnection: close\r\n\r\n".encode())
     assert out.startswith(b"HTTP/1.1 200")
 

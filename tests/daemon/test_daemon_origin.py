@@ -8,33 +8,15 @@ from __future__ import annotations
 
 import json
 
-import pytest
 from daemon_helpers import TOKEN, WAIT_S, submit, unpace, wait_for, wait_state
-from test_daemon_web import CHROMIUM, FLAGS, pytestmark  # noqa: F401  (the skip when chromium is absent)
+from test_daemon_web import pytestmark  # noqa: F401  (the skip when chromium is absent)
 
 from gonio.store import JOURNAL_NAME, Journal
 
 ATTACKS = ["/gantry/halt", "/campaigns/c00001/pause", "/campaigns/c00001/resume", "/campaigns/c00001/abort",
            "/campaigns"]
-
-
-@pytest.fixture(scope="module")
-def browser():
-    """Chromium with every *.test name resolving to 127.0.0.1 (as a rebinding attacker's DNS makes it),
-    and without its Local Network Access checks: Firefox and Safari have none, and they do not stop a
-    page served from the LAN. The daemon must refuse on its own. One for this module's tests (a launch
-    costs ~1.5 s of CPU); each page has a browser context of its own."""
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=[
-            *FLAGS, "--host-resolver-rules=MAP *.test 127.0.0.1",
-            "--disable-features=LocalNetworkAccessChecks,BlockInsecurePrivateNetworkRequests,"
-            "PrivateNetworkAccessRespectPreflightResults"])
-        try:
-            yield b
-        finally:
-            b.close()
+#: The encodings an HTML form can POST without a CORS preflight (multipart/form-data aside).
+ENCTYPES = ["text/plain", "application/x-www-form-urlencoded"]
 
 
 def _events(r) -> list[str]:
@@ -64,31 +46,37 @@ def test_cross_site_forms_and_no_cors_fetches_are_refused_while_a_campaign_runs(
     before = _events(r)
     port = r.url.rsplit(":", 1)[1]
     daemon = f"http://127.0.0.1:{port}"
-    # Another site (attacker.test), and the same site on another port (127.0.0.1:1).
+    # Another site (attacker.test), and the same site on another port (127.0.0.1:1). Each page sends every
+    # attack at once (two forms and a no-cors fetch for each path): each form into a frame of its own (a
+    # submission into a frame still loading the last answer was sometimes never sent).
     for origin in ("http://attacker.test/", f"http://127.0.0.1:{int(port) % 60000 + 1}/"):
         page, seen = _page_at(browser, origin, '<html><body></body></html>')
-        for path in ATTACKS:
-            for enctype in ("text/plain", "application/x-www-form-urlencoded"):
-                with page.expect_response(f"{daemon}{path}") as resp:
-                    # A frame of its own for each form: a submission into a frame still
-                    # loading the last answer was sometimes never sent.
-                    page.evaluate("""([url, enctype]) => {
-                        const sink = document.createElement('iframe');
-                        sink.name = 'sink' + Math.random(); document.body.appendChild(sink);
-                        const f = document.createElement('form');
-                        f.method = 'POST'; f.action = url; f.enctype = enctype; f.target = sink.name;
-                        const i = document.createElement('input');
-                        i.name = '{"grid": "iso:step=30", "material": "lambert:albedo=0.5", "x';
-                        i.value = '"}';
-                        f.appendChild(i); document.body.appendChild(f); f.submit(); }""",
-                                  [f"{daemon}{path}", enctype])
-                assert resp.value.status == 403, (origin, path, enctype)
-            page.evaluate("""async (url) => { await fetch(url, {method: 'POST', mode: 'no-cors',
-                body: JSON.stringify({grid: 'iso:step=30', material: 'lambert:albedo=0.5'}),
-                headers: {'Content-Type': 'text/plain'}}); }""", f"{daemon}{path}")
-            wait_for(lambda path=path, seen=seen: any(
-                m == "POST" and u == f"{daemon}{path}" and s == 403 for m, u, s in seen),
-                f"the no-cors fetch of {path} to be answered")
+        page.evaluate("""([urls, enctypes]) => {
+            for (const url of urls) {
+                for (const enctype of enctypes) {
+                    const sink = document.createElement('iframe');
+                    sink.name = 'sink' + Math.random(); document.body.appendChild(sink);
+                    const f = document.createElement('form');
+                    f.method = 'POST'; f.action = url; f.enctype = enctype; f.target = sink.name;
+                    const i = document.createElement('input');
+                    i.name = '{"grid": "iso:step=30", "material": "lambert:albedo=0.5", "x';
+                    i.value = '"}';
+                    f.appendChild(i); document.body.appendChild(f); f.submit();
+                }
+                fetch(url, {method: 'POST', mode: 'no-cors',
+                    body: JSON.stringify({grid: 'iso:step=30', material: 'lambert:albedo=0.5'}),
+                    headers: {'Content-Type': 'text/plain'}});
+            } }""", [[f"{daemon}{path}" for path in ATTACKS], ENCTYPES])
+
+        def answered(page=page, seen=seen):
+            page.evaluate("0")   # Playwright hands its pending events (the responses) over in its calls
+            posts = [u for m, u, s in seen if m == "POST"]
+            return all(posts.count(f"{daemon}{path}") >= len(ENCTYPES) + 1 for path in ATTACKS)
+
+        wait_for(answered, f"the attacks from {origin} to be answered")
+        for path in ATTACKS:   # each form (one per enctype) and the fetch: refused, none let through
+            statuses = [s for m, u, s in seen if m == "POST" and u == f"{daemon}{path}"]
+            assert statuses == [403] * (len(ENCTYPES) + 1), (origin, path, seen)
         posts = [s for m, u, s in seen if m == "POST" and u.startswith(daemon)]
         assert posts and set(posts) == {403}, seen
         page.close()
