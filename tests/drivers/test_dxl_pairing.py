@@ -11,11 +11,14 @@ import pytest
 
 from gonio.drivers.dynamixel import XM430, DynamixelAxis, DynamixelBus, DynamixelCommError, DynamixelGroup
 from gonio.sim.emulators.dxl_packet import Inst, PacketReader
+from gonio.sim.emulators.gantry import EMULATOR_LATENCY_MS
 
 
 @pytest.fixture
 def bus(dxl_emu):
-    b = DynamixelBus(dxl_emu.port, name="dxl0", retries=0)
+    # No retries, so a reply the emulator's thread is late with on a loaded host fails the read: it is
+    # allowed the emulated gantry's reply time (a late fault is released by the next request, not a timer)
+    b = DynamixelBus(dxl_emu.port, name="dxl0", retries=0, latency_timer_ms=EMULATOR_LATENCY_MS)
     b.connect()
     try:
         yield b
