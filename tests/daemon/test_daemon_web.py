@@ -86,8 +86,19 @@ def test_the_web_view_says_what_it_shows_in_sr_and_nothing_overlaps(serve, page,
     wait_state(r.client, "c00001", "done")
     bad = []
     page.on("response", lambda resp: resp.status >= 400 and bad.append((resp.status, resp.url)))
+    # every state the card shows, from the page's start: the event stream replays the finished campaign's
+    # history (its 'running' first) after the card has read 'done' from the list
+    page.add_init_script("""window.runStates = [];
+        document.addEventListener('DOMContentLoaded', () => {
+          const el = document.getElementById('run-state');
+          new MutationObserver(() => window.runStates.push(el.textContent))
+            .observe(el, {childList: true, characterData: true, subtree: true});
+        });""")
     page.goto(r.url + "/")
     page.wait_for_function("document.querySelector('#run-state').textContent === 'done'")
+    page.wait_for_function("document.querySelector('#conn').textContent === 'finished: done'")  # replayed
+    states = page.evaluate("window.runStates")
+    assert "done" in states and set(states[states.index("done"):]) == {"done"}, states
     # every in-plane reading replayed (the label counts them), and the reference's reflectance known
     page.wait_for_function("document.querySelector('#slice').dataset.fmax > 0 && "
                            "document.querySelector('#slice-label').textContent.includes('f_r in sr⁻¹)')")

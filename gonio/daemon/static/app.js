@@ -100,7 +100,12 @@ function follow(id) {
   es.onopen = () => { $("conn").textContent = "live"; };
   es.onerror = () => { $("conn").textContent = "reconnecting…"; };
   es.addEventListener("measurement", (ev) => onMeasurement(JSON.parse(ev.data)));
-  es.addEventListener("state", (ev) => { const d = JSON.parse(ev.data); $("run-state").textContent = d.state; });
+  // The stream replays a campaign's states from the start: done or aborted is final, and a replayed
+  // 'running' must not show a finished campaign running again.
+  es.addEventListener("state", (ev) => {
+    const d = JSON.parse(ev.data);
+    if (!TERMINAL.has($("run-state").textContent)) $("run-state").textContent = d.state;
+  });
   es.addEventListener("fault", (ev) => say("fault: " + JSON.parse(ev.data).message));
   es.addEventListener("end", (ev) => { $("conn").textContent = "finished: " + JSON.parse(ev.data).state; es.close(); refresh(); });
 }
