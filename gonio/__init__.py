@@ -5,7 +5,12 @@ Importing :mod:`gonio` imports nothing else: each module pulls in what it needs.
 
 from __future__ import annotations
 
-__all__ = ["software_version"]
+__all__ = ["SEED_MAX", "software_version"]
+
+#: The largest seed of simulated devices' random numbers: a campaign's seed is stored as a 64-bit signed
+#: integer (brdf.h5's ``seed`` attribute, a batch store's ``seed`` coordinate), so every entry point (the
+#: CLI's ``--seed``, the daemon's requests, :func:`gonio.campaign.create_campaign`) refuses more.
+SEED_MAX = 2**63 - 1
 
 
 def software_version() -> str:

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gonio import software_version
+from gonio import SEED_MAX, software_version
 from gonio.plan.grids import grid_kind, parse_grid
 from gonio.plan.schedule import step_table
 from gonio.store import JOURNAL_NAME, Journal, JournalError
@@ -213,8 +213,8 @@ def create_campaign(folder: str | Path, cfg: GonioConfig, *, grid: str, material
     ``lower_bound_s`` those of the fly plan, ``stop_and_go_estimated_s`` beside them and ``fly`` its
     summary, and its steps are the fly plan's readings in order (:func:`gonio.plan.fly.fly_step_table`).
     """
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"seed: must be an integer >= 0, got {seed!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed <= SEED_MAX:
+        raise ValueError(f"seed: must be an integer in [0, {SEED_MAX}], got {seed!r}")
     folder = Path(folder)
     if planned is None:
         planned = Planned(STOP_AND_GO, plan) if plan is not None else plan_campaign(grid, cfg)

@@ -165,7 +165,20 @@ def test_bad_seed_is_refused_before_anything_is_written(tmp_path, capsys):
         main([*SIM, "--out", str(tmp_path / "run"), "--seed", "-3"])
     assert exit_.value.code == 2
     err = capsys.readouterr().err
-    assert "--seed" in err and "integer >= 0" in err and "Traceback" not in err
+    assert "--seed" in err and "integer in [0, 9223372036854775807]" in err and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_seed_past_64_bits_is_refused_before_anything_is_written(tmp_path, capsys):
+    """brdf.h5 stores the seed as a signed 64-bit integer; one more once ran the whole campaign, then failed
+    writing brdf.h5 with h5py's traceback and a half-made folder."""
+    for seed in (str(2**63), "99999999999999999999999"):
+        with pytest.raises(SystemExit) as exit_:
+            main([*SIM, "--out", str(tmp_path / "run"), "--seed", seed])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert f"argument --seed: must be an integer in [0, {2**63 - 1}], got {seed}" in err
+        assert "Traceback" not in err and not (tmp_path / "run").exists()
     assert not (tmp_path / "run").exists()
 
 

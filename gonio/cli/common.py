@@ -10,6 +10,8 @@ import sys
 import threading
 from pathlib import Path
 
+from gonio import SEED_MAX
+
 
 class UsageError(ValueError):
     """A mistake in the command line: printed as one line, exit code 2."""
@@ -65,12 +67,13 @@ class Eta:
 
 
 def seed_type(text: str) -> int:
+    rule = f"must be an integer in [0, {SEED_MAX}]"
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {value}")
+        raise argparse.ArgumentTypeError(f"{rule}, got {text!r}") from None
+    if not 0 <= value <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"{rule}, got {value}")
     return value
 
 

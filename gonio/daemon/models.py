@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from gonio import SEED_MAX
+
 __all__ = ["CampaignRequest", "DetectorOptions", "MoveRequest", "CampaignStatus", "CampaignList",
            "GantryStatus", "Health", "Accepted"]
 
@@ -29,7 +31,7 @@ class CampaignRequest(_Strict):
     sample: str | None = Field(None, min_length=1, max_length=200, pattern=_NAME,
                                description="name of the sample measured (real detector)")
     grid: str = Field(max_length=200, pattern=_NAME, examples=["iso:step=15"], description="GRID")
-    seed: int = Field(0, ge=0, le=2**63 - 1, description="seed of the simulated devices' random numbers")
+    seed: int = Field(0, ge=0, le=SEED_MAX, description="seed of the simulated devices' random numbers")
     detector: DetectorOptions | None = None
 
 

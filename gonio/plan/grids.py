@@ -498,7 +498,8 @@ def check_pose_bound(spec: GridSpec, theta_max_deg: float, limit: int = MAX_POSE
     if n > limit:
         opt = "stride" if spec.stride is not None else "step"
         at_most = "" if spec.stride is None else "up to "
-        raise ValueError(f"grid '{spec.kind}': {at_most}{n:,} poses exceed the {limit:,} {holder}; use a "
+        count = f"{n:,}" if n < 10**18 else f"more than 10^{len(str(n)) - 1}"   # one line, not 300 digits
+        raise ValueError(f"grid '{spec.kind}': {at_most}{count} poses exceed the {limit:,} {holder}; use a "
                          f"larger '{opt}' or a smaller 'theta_max'")
 
 

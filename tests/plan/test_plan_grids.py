@@ -203,6 +203,9 @@ def test_too_large_a_grid_is_refused_before_it_is_built():
     # Refused from its parameters alone: 4e16 poses, no array of them (it took 70 s and 2.4 GB).
     with pytest.raises(ValueError, match="41,472,000,432,000,001 poses exceed the"):
         enumerate_grid(parse_grid("full:step=0.01"), 80)
+    # A step of 1e-300 degrees: a count of about 1e900, said in one short line (it once printed every digit).
+    with pytest.raises(ValueError, match=r"'iso': more than 10\^9[0-9][0-9] poses exceed the 3,000,000"):
+        enumerate_grid(parse_grid("iso:step=1e-300"), 80)
 
 
 @pytest.mark.parametrize("grid", ["iso:step=15", "iso:step=10,mirror=true", "iso:step=30,reciprocity=false",
