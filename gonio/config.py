@@ -41,6 +41,7 @@ from gonio.device_config import (
     Strict,
     driver_name,
 )
+from gonio.files import NamedFileError, read_named_file
 from gonio.registries import AXIS_DRIVERS, BUS_DRIVERS, DETECTOR_DRIVERS, LIGHT_DRIVERS, SIM_DETECTORS
 from gonio.registry import PluginError
 
@@ -407,6 +408,11 @@ def packaged_configs() -> dict[str, Path]:
     return {p.stem: p for p in sorted(CONFIG_DIR.glob("*.toml"))}
 
 
+#: The largest config file read (the shipped ones are 1-10 kB): a name that points at a device or at
+#: some other huge file is refused, not read.
+CONFIG_MAX_BYTES = 1 << 20
+
+
 def resolve_config(path_or_name: str | Path | None = None) -> Path:
     """The config file meant by a path, or by the name of a shipped config (``sample-stage``)."""
     if path_or_name is None:
@@ -426,13 +432,9 @@ def load_config(path: str | Path | None = None) -> GonioConfig:
     two-arm gantry."""
     path = resolve_config(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such config file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a folder, not a config file") from None
-    except PermissionError:
-        raise ConfigError(f"{path}: permission denied") from None
+        data = tomllib.loads(read_named_file(path, CONFIG_MAX_BYTES, "config file").decode("utf-8"))
+    except NamedFileError as err:
+        raise ConfigError(f"{path}: {err}") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a text file") from None
     except tomllib.TOMLDecodeError as err:

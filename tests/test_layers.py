@@ -128,7 +128,7 @@ def test_no_module_uses_another_modules_private_names():
 #: module prefix -> layer (the longest prefix that matches decides).
 LAYERS = {
     "gonio": 0, "gonio.geometry": 0, "gonio.clock": 0, "gonio.protocols": 0, "gonio.registry": 0,
-    "gonio.registries": 0, "gonio.jit": 0, "gonio.formats": 0, "gonio.configs": 0,
+    "gonio.registries": 0, "gonio.jit": 0, "gonio.formats": 0, "gonio.configs": 0, "gonio.files": 0,
     "gonio.config": 1, "gonio.device_config": 1,
     "gonio.drivers": 1, "gonio.sim.materials": 1, "gonio.sim.light": 1, "gonio.colour": 1, "gonio.frames": 1,
     "gonio.kinematics": 2, "gonio.motion": 2, "gonio.plan": 2,

@@ -25,12 +25,16 @@ import math
 import re
 from pathlib import Path
 
+from gonio.files import NamedFileError, read_named_file
+
 __all__ = ["MAX_MATERIALS", "MAX_SPAN", "expand", "read_materials"]
 
 #: The most materials one batch holds.
 MAX_MATERIALS = 100_000
 #: The most values one ``A..BxN`` span gives.
 MAX_SPAN = 10_000
+#: The largest MATERIALS file read: MAX_MATERIALS lines of a few hundred characters.
+MATERIALS_MAX_BYTES = 64 << 20
 
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _RANGE = re.compile(rf"^({_NUMBER})\.\.({_NUMBER})x(\d+)$")
@@ -90,8 +94,8 @@ def read_materials(arg: str) -> list[str]:
     path = Path(arg)
     if path.is_file():
         try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
+            text = read_named_file(path, MATERIALS_MAX_BYTES, "MATERIALS file").decode("utf-8")
+        except (NamedFileError, UnicodeDecodeError) as e:
             raise ValueError(f"MATERIALS: {path}: cannot be read as UTF-8 text ({e})") from None
         lines = [(f"{path}:{n}", line) for n, line in enumerate(text.splitlines(), 1)
                  if line.strip() and not line.lstrip().startswith("#")]

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gonio.files import NamedFileError, read_named_file
 from gonio.geometry import MERL_SHAPE
 
 from . import atomic_path
@@ -50,14 +51,9 @@ def read_merl(path: str | Path) -> np.ndarray:
     """
     path = os.fspath(path)
     try:
-        size = os.path.getsize(path)
-        if size != MERL_FILE_BYTES:
-            raise ValueError(f"merl: file {path!r} has {size} bytes; a MERL table has {MERL_FILE_BYTES} "
-                             f"(12-byte header, 3 × {MERL_BINS} float64)")
-        with open(path, "rb") as fh:
-            data = fh.read(MERL_FILE_BYTES + 1)
-    except OSError as exc:
-        raise ValueError(f"merl: cannot read file {path!r}: {exc.strerror or exc}") from exc
+        data = read_named_file(path, MERL_FILE_BYTES, "MERL table")
+    except NamedFileError as exc:
+        raise ValueError(f"merl: cannot read file {path!r}: {exc}") from None
     return parse_merl(data, path)
 
 

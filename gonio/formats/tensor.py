@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gonio.files import NamedFileError, read_named_file
+
 from . import atomic_path
 
 __all__ = ["read_tensor", "parse_tensor", "write_tensor", "DTYPE_CODES"]
@@ -82,6 +84,11 @@ def write_tensor(path: str | Path, fields: dict[str, np.ndarray]) -> Path:
     return path
 
 
+#: The largest tensor file read: RGL's measured .bsdf files are 1-100 MB; a name that points at a device or
+#: at some other huge file is refused, not read into memory.
+TENSOR_MAX_BYTES = 1 << 30
+
+
 def read_tensor(path: str | Path) -> dict[str, np.ndarray]:
     """Read every field of a tensor file (:func:`parse_tensor` of its bytes).
 
@@ -92,9 +99,9 @@ def read_tensor(path: str | Path) -> dict[str, np.ndarray]:
     """
     path = Path(path)
     try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"tensor file {str(path)!r}: cannot read: {exc.strerror or exc}") from exc
+        data = read_named_file(path, TENSOR_MAX_BYTES, "tensor file")
+    except NamedFileError as exc:
+        raise ValueError(f"tensor file {str(path)!r}: cannot read: {exc}") from None
     return parse_tensor(data, str(path))
 
 
