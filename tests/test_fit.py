@@ -241,15 +241,20 @@ def test_without_its_journal_a_brdf_h5_is_fitted_as_independent_samples(tmp_path
 # imports colour-science, 2.5 s).
 @pytest.mark.parametrize("reference", [{"reflectance": [0.99, 0.96, 0.9]}, {"response": 0.97}],
                          ids=["reflectance", "response"])
-def test_a_white_standard_given_per_channel_is_shared_by_the_samples_it_calibrates(tmp_path, reference):
+def test_a_white_standard_given_per_channel_is_shared_by_the_samples_it_calibrates(tmp_path, reference,
+                                                                                   capsys):
     """`gonio fit` re-ran the calibration with the standard's albedo alone, which did not reproduce a
     brdf.h5 calibrated per channel: the fit fell back to independent samples without a word and stated
-    the albedo's uncertainty ~2x too small. It calibrates again with what the campaign divided by."""
+    the albedo's uncertainty ~2x too small. It calibrates again with what the campaign divided by, and
+    says whether shared errors were found."""
     folder = _campaign(tmp_path / "c", "lambert:albedo=0.5", "iso:step=30", _noisy_config(**reference), 3)
-    assert main(["fit", str(folder), "--model", "lambert", "--out", str(tmp_path / "fit.json"),
-                 "--quiet"]) == 0
+    assert main(["fit", str(folder), "--model", "lambert", "--out", str(tmp_path / "fit.json")]) == 0
     shared = json.loads((tmp_path / "fit.json").read_text())
-    assert shared["residual"]["shared_errors"] > 0
+    n = shared["residual"]["shared_errors"]
+    assert n > 0 and f"errors the samples share: those of {n} dark and white-reference readings" in \
+        capsys.readouterr().err
+    assert main(["fit", str(folder / "brdf.h5"), "--model", "lambert"]) == 0
+    assert "samples taken as independent: no campaign journal" in capsys.readouterr().err
     alone = fit(folder / "brdf.h5", "lambert")
     for name, p in alone.parameters.items():
         assert p["value"] == pytest.approx(shared["parameters"][name]["value"])
