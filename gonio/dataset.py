@@ -34,9 +34,10 @@ variable                        dimensions        units     what
 Attributes (on the file and on the group, so that a reader of either sees them): ``format``
 ("gonio-brdf"), ``format_version`` (2), ``units`` ("sr^-1"), ``cosine`` ("none"), ``angles_units``
 ("degrees"), ``frame`` and ``angle_convention`` (docs/conventions.md), ``channels``, ``color_space``,
-``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo`` (and
-``reference_reflectance``, ρ_ref · response per channel, where the standard was given per channel, as a
-spectrum or with an angular response), ``seed``,
+``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo`` (the
+config's albedo of the white standard) and, where the standard was given per channel, as a spectrum or
+with an angular response, ``reference_reflectance`` (ρ_ref · response per channel: what the calibration
+divided by, in place of ``reference_albedo``), ``seed``,
 ``software_version``, ``config_sha256`` and ``config`` (JSON: the config snapshot the campaign was
 planned with), ``created_unix``/``created_utc`` (campaign creation), ``written_unix``, and either
 ``material`` (the simulated material's spec; ``source`` = "simulated") or ``sample`` (a real sample's
