@@ -254,7 +254,7 @@ def test_a_white_standard_given_per_channel_is_shared_by_the_samples_it_calibrat
     assert n > 0 and f"errors the samples share: those of {n} dark and white-reference readings" in \
         capsys.readouterr().err
     assert main(["fit", str(folder / "brdf.h5"), "--model", "lambert"]) == 0
-    assert "samples taken as independent: no campaign journal" in capsys.readouterr().err
+    assert "samples taken as independent: the errors they share through the dark" in capsys.readouterr().err
     alone = fit(folder / "brdf.h5", "lambert")
     for name, p in alone.parameters.items():
         assert p["value"] == pytest.approx(shared["parameters"][name]["value"])

@@ -56,9 +56,10 @@ def cmd_fit(args) -> int:
               file=sys.stderr)
         if result.loss == "chi2":   # the only loss whose uncertainties take shared errors in
             print(f"  errors the samples share: those of {res['shared_errors']} dark and white-reference "
-                  "readings" if res["shared_errors"] else "  samples taken as independent: no campaign "
-                  "journal beside the data calibrates to them, so the errors of the dark and white-reference "
-                  "readings they share are left out", file=sys.stderr)
+                  "readings" if res["shared_errors"] else "  samples taken as independent: the errors "
+                  "they share through the dark and white-reference readings are left out (found only in a "
+                  "campaign folder whose journal calibrates to these values; not for bands fitted as RGB)",
+                  file=sys.stderr)
     return 0
 
 
