@@ -34,9 +34,10 @@ variable                        dimensions        units     what
 Attributes (on the file and on the group, so that a reader of either sees them): ``format``
 ("gonio-brdf"), ``format_version`` (2), ``units`` ("sr^-1"), ``cosine`` ("none"), ``angles_units``
 ("degrees"), ``frame`` and ``angle_convention`` (docs/conventions.md), ``channels``, ``color_space``,
-``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo`` (and
-``reference_reflectance``, ρ_ref · response per channel, where the standard was given per channel, as a
-spectrum or with an angular response), ``seed``,
+``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo`` (the
+config's albedo of the white standard) and, where the standard was given per channel, as a spectrum or
+with an angular response, ``reference_reflectance`` (ρ_ref · response per channel: what the calibration
+divided by, in place of ``reference_albedo``), ``seed``,
 ``software_version``, ``config_sha256`` and ``config`` (JSON: the config snapshot the campaign was
 planned with), ``created_unix``/``created_utc`` (campaign creation), ``written_unix``, and either
 ``material`` (the simulated material's spec; ``source`` = "simulated") or ``sample`` (a real sample's
@@ -59,7 +60,7 @@ import numpy as np
 from gonio.geometry import HALF_PI, MERL_SHAPE, sph_to_vec, to_half_diff, to_isotropic
 
 __all__ = ["BRDF_NAME", "FORMAT_VERSION", "SampledBRDF", "write_brdf", "read_brdf", "campaign_dataset",
-           "grid_indices", "FRAME", "ANGLE_CONVENTION"]
+           "calibration_reference", "grid_indices", "FRAME", "ANGLE_CONVENTION"]
 
 BRDF_NAME = "brdf.h5"
 FORMAT_VERSION = 2
@@ -117,6 +118,17 @@ def color_space(channels) -> str:
     """The colour space of a channel list: linear Rec. 709 for R, G, B (the house's RGB, also what the
     Radiance export's luminance weights assume), the detector's own bands otherwise."""
     return _RGB_SPACE if tuple(channels) == ("R", "G", "B") else "detector bands (see the gantry config)"
+
+
+def calibration_reference(attrs: dict):
+    """The white standard's reflectance a brdf.h5 was calibrated with, from its attributes ``attrs``:
+    ``reference_reflectance`` (ρ_ref · response, one per channel) where the file has it, else
+    ``reference_albedo`` (one number); None where it has neither (a file not written by a campaign).
+    :func:`gonio.calibrate.calibrate` of the campaign's journal with it gives the file's values."""
+    if attrs.get("reference_reflectance") is not None:
+        return np.asarray(attrs["reference_reflectance"], dtype=np.float64)
+    albedo = attrs.get("reference_albedo")
+    return None if albedo is None else float(albedo)
 
 
 def grid_indices(grid: str, planned_deg: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]] | None:

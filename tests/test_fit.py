@@ -11,8 +11,10 @@ import pytest
 from gonio.campaign import create_campaign
 from gonio.cli import main
 from gonio.config import load_config, parse_config
+from gonio.dataset import read_brdf
 from gonio.fit import FitData, fit, parse_model
 from gonio.fit.models import FIT_MODELS, MATERIAL_MODELS
+from gonio.fit.shared import shared_errors
 from gonio.fit.solve import Problem
 from gonio.geometry import sph_to_vec
 from gonio.jit import array_types
@@ -194,10 +196,12 @@ def test_energy_conserving_fit_at_the_limit_gives_a_loadable_material():
 
 
 # -- uncertainties ------------------------------------------------------------------------------------
-def _noisy_config():
+def _noisy_config(**reference):
+    """Shot, read and dark noise; ``reference``: the white standard's settings (``[reference]``)."""
     data = load_config().model_dump()
     data["detector"]["sim"]["noise"] = {"shot_counts_per_unit": 50.0, "read_sigma": 0.05, "dark_offset": 2.0}
     data["light"]["sim"]["radiance"] = 1e6
+    data["reference"].update(reference)
     return parse_config(data)
 
 
@@ -230,6 +234,58 @@ def test_without_its_journal_a_brdf_h5_is_fitted_as_independent_samples(tmp_path
     assert independent["value"] == pytest.approx(shared["value"])
     # A shared white reference cannot be averaged away: the honest interval is the wider one.
     assert shared["stddev"] > 1.5 * independent["stddev"]
+
+
+# A white standard given per channel: its reflectance per channel, or an albedo with the standard's own
+# angular response (a spectral table comes to a reflectance per channel too; reading it as linear sRGB
+# imports colour-science, 2.5 s).
+@pytest.mark.parametrize("reference", [{"reflectance": [0.99, 0.96, 0.9]}, {"response": 0.97}],
+                         ids=["reflectance", "response"])
+def test_a_white_standard_given_per_channel_is_shared_by_the_samples_it_calibrates(tmp_path, reference,
+                                                                                   capsys):
+    """`gonio fit` re-ran the calibration with the standard's albedo alone, which did not reproduce a
+    brdf.h5 calibrated per channel: the fit fell back to independent samples without a word and stated
+    the albedo's uncertainty ~2x too small. It calibrates again with what the campaign divided by, and
+    says whether shared errors were found."""
+    folder = _campaign(tmp_path / "c", "lambert:albedo=0.5", "iso:step=30", _noisy_config(**reference), 3)
+    assert main(["fit", str(folder), "--model", "lambert", "--out", str(tmp_path / "fit.json")]) == 0
+    shared = json.loads((tmp_path / "fit.json").read_text())
+    n = shared["residual"]["shared_errors"]
+    assert n > 0 and f"errors the samples share: those of {n} dark and white-reference readings" in \
+        capsys.readouterr().err
+    assert main(["fit", str(folder / "brdf.h5"), "--model", "lambert"]) == 0
+    assert "samples taken as independent: the errors they share through the dark" in capsys.readouterr().err
+    alone = fit(folder / "brdf.h5", "lambert")
+    for name, p in alone.parameters.items():
+        assert p["value"] == pytest.approx(shared["parameters"][name]["value"])
+        assert shared["parameters"][name]["stddev"] > 1.5 * p["stddev"]
+    # without brdf.h5's word on the standard, the journal's config snapshot says the same; a standard
+    # that does not fit the readings is not what brdf.h5 was calibrated with
+    value = read_brdf(folder / "brdf.h5").value
+    assert shared_errors(folder, value).shape[-1] == shared["residual"]["shared_errors"]
+    assert shared_errors(folder, value, 0.99) is None and shared_errors(folder, value, [0.9, 0.9]) is None
+
+
+def test_with_a_white_standard_per_channel_the_albedos_stddev_is_its_spread_across_seeds(tmp_path):
+    """Lambertian campaigns under sensor noise, calibrated with a standard per channel: the fitted albedo
+    of each channel scatters across seeds by the stddev the fit states (rms ratio 1.18 here; 0.89-1.15
+    per channel over 40 seeds), which samples taken as independent understate by ~2x (2.5 here: the
+    white reference's error moves every sample together)."""
+    cfg = _noisy_config(reflectance=[0.99, 0.96, 0.9])
+    seeds = 12
+    values, shared, independent = [], [], []
+    for seed in range(seeds):
+        folder = _campaign(tmp_path / f"s{seed}", "lambert:albedo=0.5", "iso:step=30", cfg, seed)
+        r, alone = fit(folder, "lambert", starts=1), fit(folder / "brdf.h5", "lambert", starts=1)
+        assert r.residual["shared_errors"] > 0
+        values.append([p["value"] for p in r.parameters.values()])
+        shared.append([p["stddev"] for p in r.parameters.values()])
+        independent.append([p["stddev"] for p in alone.parameters.values()])
+    values = np.array(values)
+    # deviations from the mean of the seeds understate the spread by (n - 1) / n in variance
+    spread = (values - values.mean(axis=0)) * np.sqrt(seeds / (seeds - 1))
+    rms = [float(np.sqrt(np.mean((spread / np.array(s)) ** 2))) for s in (shared, independent)]
+    assert 0.75 <= rms[0] <= 1.33 and rms[1] > 1.8, rms
 
 
 # -- a wrong model ------------------------------------------------------------------------------------

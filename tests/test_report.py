@@ -45,11 +45,12 @@ def _run(folder, material, grid, cfg=None, seed=1, before=None):
     return folder
 
 
-def _often_referenced(every: int = 8):
+def _often_referenced(every: int = 8, **reference):
     """The sim gantry with a dark and a white reference every ``every`` poses (as well as every 300 s):
-    enough of each on a small grid for the report's scatter checks."""
+    enough of each on a small grid for the report's scatter checks; ``reference``: more of the white
+    standard's settings."""
     data = load_config().model_dump()
-    data["reference"]["every"] = every
+    data["reference"].update(every=every, **reference)
     return parse_config(data)
 
 
@@ -91,10 +92,11 @@ def copper(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
-    """lambert:albedo=0.8 on iso:step=30 with references every 8 poses: the one to tamper with (each test
-    tampers with a copy); built once per run."""
+    """lambert:albedo=0.8 on iso:step=30 with references every 8 poses, the white standard given per
+    channel: the one to tamper with (each test tampers with a copy); built once per run."""
     return built_once(tmp_path_factory, "report-lambert", lambda parent: _run(
-        parent / "lambert", "lambert:albedo=0.8", "iso:step=30", _often_referenced()))
+        parent / "lambert", "lambert:albedo=0.8", "iso:step=30",
+        _often_referenced(reflectance=[0.99, 0.97, 0.95])))
 
 
 # -- a good campaign -----------------------------------------------------------------------------------
@@ -113,7 +115,9 @@ def test_the_report_has_every_section_and_says_what_the_campaign_was(copper):
     assert abs(facts["campaign_s"] / facts["estimated_s"] - 1) < 0.1
     assert _verdict(rep, "campaign")[0] == "note"  # a retry is worth a look, not a flag
     assert "1 retries" in _verdict(rep, "campaign")[2]
-    assert f"<b>{facts['reference_albedo']:g}</b>" in page  # the reference albedo is stated
+    assert facts["reference_reflectance"] is None  # the standard's albedo alone calibrated it
+    albedo = facts["reference_albedo"]
+    assert f"Reference albedo (hemispherical reflectance of the white standard): <b>{albedo:g}</b>" in page
     # nothing is wrong with this campaign's data
     assert rep.flags == {"reference": False, "dark": False, "reciprocity": False, "albedo": False,
                          "invalid": False, "noise": False}
@@ -266,6 +270,9 @@ def test_cli_writes_the_report_and_prints_its_verdicts(small, tmp_path, capsys):
     assert str(out) in printed and "OK" in printed and "lambert" in printed
     page = out.read_text(encoding="utf-8")
     assert page.startswith("<!DOCTYPE html>") and "lambert+ggx" in page
+    # what the calibration divided by: the standard per channel, not the config's albedo it left unused
+    assert "what the calibration divides by): <b>R 0.99, G 0.97, B 0.95</b>." in page
+    assert "Reference albedo" not in page
     assert list(tmp_path.iterdir()) == [out]  # no temporary file left beside it
 
 

@@ -54,6 +54,12 @@ def cmd_fit(args) -> int:
               f"{res['rms_relative']:.3g}; structure {res['structure']:.2f}"
               f"{'; MISFIT: the model leaves a structured residual' if res['misfit'] else ''}",
               file=sys.stderr)
+        if result.loss == "chi2":   # the only loss whose uncertainties take shared errors in
+            print(f"  errors the samples share: those of {res['shared_errors']} dark and white-reference "
+                  "readings" if res["shared_errors"] else "  samples taken as independent: the errors "
+                  "they share through the dark and white-reference readings are left out (found only in a "
+                  "campaign folder whose journal calibrates to these values; not for bands fitted as RGB)",
+                  file=sys.stderr)
     return 0
 
 

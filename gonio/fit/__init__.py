@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.dataset import BRDF_NAME, SampledBRDF, read_brdf
+from gonio.dataset import BRDF_NAME, SampledBRDF, calibration_reference, read_brdf
 from gonio.fit.models import FIT_MODELS, FitModel, parse_model
 from gonio.fit.shared import shared_errors
 from gonio.fit.solve import LOSSES, FitData, Problem, covariance, residual_statistics, solve
@@ -195,8 +195,8 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
         raise ValueError(f"model {m.text!r}: every parameter is held fixed; nothing to fit")
     problem = Problem(m, data, loss, backend)
     if problem.loss == "chi2" and isinstance(source, str | Path) and Path(source).is_dir():
-        albedo = attrs.get("reference_albedo")   # what brdf.h5 was calibrated with, when it says
-        problem.set_shared(shared_errors(source, data.value, None if albedo is None else float(albedo)))
+        # the standard brdf.h5 was calibrated with (per channel where it was so given), when it says
+        problem.set_shared(shared_errors(source, data.value, calibration_reference(attrs)))
     best = solve(problem, starts=starts, jac=jac)
     x = best["x"]
     residual = problem.residuals(x)

@@ -19,18 +19,19 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.calibrate import calibrate_with_shifts
+from gonio.calibrate import CalibrationError, calibrate_with_shifts, reference_rho
 
 __all__ = ["shared_errors"]
 
 
-def shared_errors(folder, value: np.ndarray, albedo: float | None = None) -> np.ndarray | None:
+def shared_errors(folder, value: np.ndarray, rho=None) -> np.ndarray | None:
     """U of shape (N, C, M): the change of each sample's f_r for a one-σ error of each of the M dark
     and reference readings of the campaign in ``folder``, in the sample order of its brdf.h5.
 
-    ``albedo``: the white standard's albedo the brdf.h5 was calibrated with (its ``reference_albedo``
-    attribute); None: read from the journal's config snapshot (which costs the import of gonio.config,
-    0.15-0.2 s of a ``gonio fit``).
+    ``rho``: the white standard's reflectance the brdf.h5 was calibrated with, one number or one per
+    channel (:func:`gonio.dataset.calibration_reference` of its attributes); None: what the campaign
+    calibrates with, :func:`gonio.calibrate.reference_rho` of the journal's config snapshot and
+    detector (which costs the import of gonio.config, 0.15-0.2 s of a ``gonio fit``).
 
     Returns None when the folder has no journal or its calibration does not reproduce ``value`` (the
     brdf.h5 was made otherwise), so that the caller falls back to independent samples.
@@ -42,16 +43,20 @@ def shared_errors(folder, value: np.ndarray, albedo: float | None = None) -> np.
     except Exception:  # no journal, another format: nothing to say about shared errors
         return None
     try:
-        if albedo is None:
+        if rho is None:
             try:   # the white standard the campaign was planned with (its config snapshot)
                 from gonio.config import parse_config
 
                 snapshot = journal.meta()["config"]
-                albedo = parse_config(snapshot, f"{folder} (config snapshot)").reference.albedo
+                reference = parse_config(snapshot, f"{folder} (config snapshot)").reference
+                rho = reference_rho(reference, journal.detector())[0]
             except Exception:  # a snapshot this gonio cannot read: nothing to say about shared errors
                 return None
         measurements = journal.measurements()
     finally:
         journal.close()
-    shifts = calibrate_with_shifts(measurements, albedo, expect=value)[1]
+    try:
+        shifts = calibrate_with_shifts(measurements, rho, expect=value)[1]
+    except CalibrationError:  # a standard that does not fit these readings: not what brdf.h5 came from
+        return None
     return shifts if shifts is not None and shifts.shape[-1] else None

@@ -7,7 +7,8 @@ page with a short summary of verdict lines at the top, then sections:
   poses they saved, steps, campaign time against the plan's estimate, faults and retries from the
   journal's events;
 - **calibration**: the white-reference and dark readings over campaign time (drift, and readings the
-  calibration's linear interpolation cannot absorb), the reference albedo;
+  calibration's linear interpolation cannot absorb), the reference albedo (the standard's reflectance
+  per channel where the campaign was calibrated with one);
 - **data checks** (:mod:`gonio.report.checks`): reciprocity of the pairs measured both ways, directional
   albedo against θi (energy conservation), negative and NaN samples, and the scatter of repeated
   readings against the stddev they state;
@@ -50,6 +51,9 @@ class Report:
 
     Attributes
     ----------
+    facts : dict
+        :func:`gonio.report.journal.campaign_facts`, and ``reference_reflectance``: brdf.h5's white
+        standard per channel (None where it was calibrated with the albedo alone).
     verdicts : list of (level, topic, text)
         The summary lines; level is ``ok``, ``flag``, ``note`` or ``info``.
     flags : dict of str to bool
@@ -119,6 +123,8 @@ def build_report(folder, models: list[str] | str | None = None, *, starts: int =
     folder = _check_folder(Path(folder))
     facts, measurements = journal.campaign_facts(folder)
     data: SampledBRDF = read_brdf(folder / BRDF_NAME)
+    # the white standard per channel, where the campaign calibrated so (brdf.h5 records what it divided by)
+    facts["reference_reflectance"] = data.attrs.get("reference_reflectance")
     if facts["steps"]["total"] != facts["measured"]:
         raise ValueError(f"{folder}: the campaign is incomplete ({facts['measured']}/"
                          f"{facts['steps']['total']} steps measured)")

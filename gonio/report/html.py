@@ -146,19 +146,38 @@ def _section_adaptive(rep) -> str:
         "largest (with a motion cost: per second of gantry time to reach it).")
 
 
+def _channel_words(channels, values, fmt) -> str:
+    """Each channel's value (``fmt`` of it), or for a spectrometer's many bands the range across them."""
+    if len(channels) <= 4:
+        return ", ".join(f"{c} {fmt(v)}" for c, v in zip(channels, values, strict=True))
+    lo, hi = int(np.argmin(values)), int(np.argmax(values))
+    return f"from {fmt(values[lo])} ({channels[lo]}) to {fmt(values[hi])} ({channels[hi]}) across the " \
+           f"{len(channels)} bands"
+
+
 def _drift_words(channels, drift) -> str:
     """Each channel's drift, or for a spectrometer's many bands the range across them."""
-    if len(channels) <= 4:
-        return ", ".join(f"{c} {100 * d:+.2f} %" for c, d in zip(channels, drift, strict=True))
-    lo, hi = int(np.argmin(drift)), int(np.argmax(drift))
-    return (f"from {100 * drift[lo]:+.2f} % ({channels[lo]}) to {100 * drift[hi]:+.2f} % ({channels[hi]}) "
-            f"across the {len(channels)} bands (figures: {len(shown_channels(channels))} of them)")
+    words = _channel_words(channels, drift, lambda d: f"{100 * d:+.2f} %")
+    return words if len(channels) <= 4 else f"{words} (figures: {len(shown_channels(channels))} of them)"
+
+
+def _reference_words(facts) -> str:
+    """What the calibration divided by: the white standard's albedo, or where the config gave it per
+    channel (a reflectance per channel, a spectrum, an angular response) those values."""
+    rho = facts.get("reference_reflectance")
+    if rho is None:
+        return ("Reference albedo (hemispherical reflectance of the white standard): "
+                f"<b>{facts['reference_albedo']:g}</b>.")
+    rho = np.asarray(rho, dtype=np.float64)
+    said = f"{rho[0]:g} in every channel" if np.all(rho == rho[0]) else \
+        _channel_words(facts["channels"], rho, lambda r: f"{r:g}")
+    return ("Reference reflectance per channel (the white standard's reflectance times its angular response "
+            f"where it is read, what the calibration divides by): <b>{said}</b>.")
 
 
 def _section_calibration(rep) -> str:
     ref, dark, ch = rep.reference, rep.dark, rep.facts["channels"]
-    html = (f"<p>Reference albedo (hemispherical reflectance of the white standard): "
-            f"<b>{rep.facts['reference_albedo']:g}</b>. {len(ref.step)} white-reference and "
+    html = (f"<p>{_reference_words(rep.facts)} {len(ref.step)} white-reference and "
             f"{len(dark.step)} dark readings. Drift of the white reference from the first to the last good "
             "reading: " + _drift_words(ch, ref.drift) + ".</p>")
     html += _img(rep.figures["calibration"], "white-reference and dark readings over campaign time",
