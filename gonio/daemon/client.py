@@ -121,6 +121,12 @@ class Client:
         self.url = (url or os.environ.get("GONIO_URL") or DEFAULT_URL).rstrip("/")
         if not self.url.startswith(("http://", "https://")):
             raise ClientError(f"--url: {self.url!r} is not an http:// or https:// URL", code=2)
+        try:
+            host = httpx.URL(self.url).host
+        except httpx.InvalidURL as err:   # "http://[::1", "http://host:port"
+            raise ClientError(f"--url: {self.url!r} is not a valid URL ({err})", code=2) from None
+        if not host:
+            raise ClientError(f"--url: {self.url!r} names no host (e.g. http://127.0.0.1:8765)", code=2)
         token = token if token is not None else os.environ.get("GONIO_TOKEN")
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         # An http:// daemon never speaks TLS (redirects are not followed): no certificate store to load

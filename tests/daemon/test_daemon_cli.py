@@ -82,6 +82,12 @@ def test_one_clear_line_when_there_is_no_daemon_or_it_refuses(serve, env, capsys
     assert "no such campaign" in capsys.readouterr().err
     assert main(["queue", "--url", "ftp://x"]) == 2
     capsys.readouterr()
+    # Malformed URLs: httpx's InvalidURL came out as a traceback.
+    for url, says in [("http://[::1", "is not a valid URL (Invalid port: ':1')"),
+                      ("http://host:port", "is not a valid URL"), ("https://:80", "names no host")]:
+        assert main(["queue", "--url", url]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(f"gonio queue: --url: {url!r} {says}") and "\n" not in err, err
     assert main(["status", "c00001", "--url", "http://127.0.0.1:9"]) == 3
     assert capsys.readouterr().err.strip().startswith("gonio status: no gonio daemon at http://127.0.0.1:9")
 
