@@ -91,6 +91,10 @@ def _ticks(emu):
     (["--axes", "0,0,3,0"], "no collision-free path"),
     (["--theta-i", "30", "--phi-i", "0", "--theta-o", "31", "--phi-o", "0"], "occlusion"),
     (["--theta-i", "85", "--phi-i", "0", "--theta-o", "30", "--phi-o", "180"], "beyond_theta_max"),
+    # NaN said in the degrees it was given (it read "NaN or inf is not an angle; give finite radians")
+    (["--theta-i", "nan", "--phi-i", "0", "--theta-o", "30", "--phi-o", "180"],
+     "--theta-i: must be a finite number of degrees, got nan"),
+    (["--axes", "0,nan,0,0"], "--axes: axis light_tilt: must be a finite number of degrees, got nan"),
 ])
 def test_gantry_move_refuses_before_anything_moves(emulated_virtual, capsys, args, message):
     emu, path = emulated_virtual
@@ -99,6 +103,14 @@ def test_gantry_move_refuses_before_anything_moves(emulated_virtual, capsys, arg
     assert message in capsys.readouterr().err
     assert _ticks(emu) == before
     assert all(not s._moving() for s in emu.servos.values())
+
+
+def test_gantry_jog_by_an_infinite_step_is_refused_in_degrees(emulated_virtual, capsys):
+    emu, path = emulated_virtual
+    before = _ticks(emu)
+    assert main(["gantry", "jog", "--config", path, "--axis", "light_tilt", "--by", "inf"]) == 2
+    assert "--by: must be a finite number of degrees, got inf" in capsys.readouterr().err
+    assert _ticks(emu) == before
 
 
 def test_gantry_move_and_status(emulated, capsys):

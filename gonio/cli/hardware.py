@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import sys
@@ -80,8 +81,16 @@ def cmd_gantry(args) -> int:
         elif any(a is None for a in angles):
             raise UsageError("gonio gantry move: give --theta-i, --phi-i, --theta-o and --phi-o (degrees), "
                              "or --axes")
+        given = zip(kin.axis_names, axes_arg, strict=True) if axes_arg is not None else \
+            zip(("--theta-i", "--phi-i", "--theta-o", "--phi-o"), angles, strict=True)
+        for name, value in given:   # NaN and inf: said here in degrees, as given
+            if not math.isfinite(value):
+                raise UsageError(f"{'--axes: axis ' if axes_arg is not None else ''}{name}: must be a finite "
+                                 f"number of degrees, got {value}")
     if args.action == "jog" and (args.axis not in kin.axis_names or args.by is None):
         raise UsageError(f"gonio gantry jog: give --axis (one of {', '.join(kin.axis_names)}) and --by DEG")
+    if args.action == "jog" and not math.isfinite(args.by):
+        raise UsageError(f"--by: must be a finite number of degrees, got {args.by}")
     if args.action == "reference" and args.axis is not None:
         from gonio.protocols import Referencing
 
