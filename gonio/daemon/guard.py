@@ -184,17 +184,34 @@ def _no_constant(name: str):
     raise ValueError(name)
 
 
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _unique_keys(pairs: list) -> dict:
+    seen = {}
+    for key, value in pairs:
+        if key in seen:
+            raise _DuplicateKey(key)
+        seen[key] = value
+    return seen
+
+
 def _json_problem(body: bytes) -> str | None:
-    """Why a JSON body is refused before a route parses it (not UTF-8, not JSON, NaN or ±Infinity,
-    nested past sense), or None."""
+    """Why a JSON body is refused before a route parses it (not UTF-8, not JSON, NaN or ±Infinity, a key
+    given twice in one object, nested past sense), or None."""
     try:
-        json.loads(body.decode("utf-8"), parse_constant=_no_constant)
+        json.loads(body.decode("utf-8"), parse_constant=_no_constant, object_pairs_hook=_unique_keys)
     except UnicodeDecodeError:
         return "body: not UTF-8 text"
     except RecursionError:
         return "body: JSON nested too deeply"
     except json.JSONDecodeError as err:
         return f"body: not JSON ({err})"
+    except _DuplicateKey as err:
+        # RFC 8259 leaves a repeated name to the reader: one reader (a proxy, a log) may see the first
+        # value where the daemon would act on the last.
+        return f"body: key {str(err)!r} is given twice in one object; give each once"
     except ValueError as err:
         return (f"body: {err} is not a JSON number (RFC 8259 has no NaN or Infinity); every number must be "
                 "finite")

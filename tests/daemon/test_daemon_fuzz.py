@@ -85,6 +85,27 @@ def test_nan_and_infinity_are_refused_with_422(path, body):
     assert sorted((_DATA / "data" / "campaigns").iterdir()) == before
 
 
+@pytest.mark.parametrize("path, body, key", [
+    ("/campaigns", '{"material": "lambert:albedo=0.5", "grid": "iso:step=30", '
+                   '"material": "merl:/etc/passwd"}', "material"),
+    ("/campaigns", '{"material": "lambert:albedo=0.5", "grid": "iso:step=30", '
+                   '"detector": {"exposure_s": 0.1, "exposure_s": 10}}', "exposure_s"),
+    ("/gantry/move", '{"theta_i_deg": 10, "phi_i_deg": 0, "theta_o_deg": 30, "phi_o_deg": 180, '
+                     '"theta_i_deg": 80}', "theta_i_deg"),
+])
+def test_a_key_given_twice_is_refused_with_422(path, body, key):
+    """Which of two values a reader takes is up to the reader (RFC 8259): a proxy or a log that reads the
+    first must not see a request other than the one the daemon acts on."""
+    before = sorted((_DATA / "data" / "campaigns").iterdir())
+    with _client() as c:
+        r = c.post(path, content=body, headers={"Content-Type": "application/json"})
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"][0]
+    assert detail["loc"] == ["body"]
+    assert detail["msg"] == f"body: key {key!r} is given twice in one object; give each once"
+    assert sorted((_DATA / "data" / "campaigns").iterdir()) == before
+
+
 def test_a_validation_error_never_echoes_what_it_cannot_serialize():
     """pydantic's 422 echoes the input; a float it refuses (an exponent past float64) must not make it
     a 500."""
