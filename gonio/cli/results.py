@@ -58,7 +58,7 @@ def cmd_fit(args) -> int:
             print(f"  errors the samples share: those of {res['shared_errors']} dark and white-reference "
                   "readings" if res["shared_errors"] else "  samples taken as independent: the errors "
                   "they share through the dark and white-reference readings are left out (found only in a "
-                  "campaign folder whose journal calibrates to these values; not for bands fitted as RGB)",
+                  "campaign folder whose journal calibrates to these values)",
                   file=sys.stderr)
     return 0
 

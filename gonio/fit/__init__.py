@@ -51,8 +51,15 @@ def parse_channels(text: str | None, available=RGB) -> tuple[int, ...]:
 
 def load_samples(source) -> tuple[FitData, dict]:
     """The measured samples of a campaign folder, ``brdf.h5`` or SampledBRDF, and their attributes."""
+    data, attrs, _ = _load(source)
+    return data, attrs
+
+
+def _load(source) -> tuple[FitData, dict, tuple | None]:
+    """:func:`load_samples`, and for a spectrometer's samples (fitted as RGB) the bands they were
+    converted from: (values (N, B), stddev (N, B) or None, weights (B, 3)); None for RGB samples."""
     if isinstance(source, FitData):
-        return source, {}
+        return source, {}, None
     if not isinstance(source, SampledBRDF):
         path = Path(source)
         h5 = path / BRDF_NAME if path.is_dir() else path
@@ -63,25 +70,26 @@ def load_samples(source) -> tuple[FitData, dict]:
     r = {k: np.radians(np.asarray(getattr(source, k), dtype=np.float64).ravel())
          for k in ("theta_i", "phi_i", "theta_o", "phi_o")}
     attrs = dict(source.attrs)
-    value, stddev = _as_rgb(np.asarray(source.value, np.float64), source.stddev, attrs)
+    value, stddev, bands = _as_rgb(np.asarray(source.value, np.float64), source.stddev, attrs)
     data = FitData(sph_to_vec(r["theta_i"], r["phi_i"]), sph_to_vec(r["theta_o"], r["phi_o"]), value, stddev)
-    return data, attrs
+    return data, attrs, bands
 
 
 def _as_rgb(value, stddev, attrs):
     """The models are fitted in R, G, B: a spectrometer's bands (``wavelengths_nm``) are converted to
     linear sRGB under D65 (:func:`gonio.colour.bands_to_rgb`, linear in the bands), their variances
-    carried through the same weights squared (bands taken as independent). RGB data pass unchanged."""
+    carried through the same weights squared (bands taken as independent). RGB data pass unchanged.
+    Returns (value, stddev, bands) as :func:`_load`."""
     wl = attrs.get("wavelengths_nm")
     if wl is None or value.shape[1] != len(wl):
-        return value, stddev
+        return value, stddev, None
     from gonio.colour import bands_to_rgb
 
     weights = bands_to_rgb(np.eye(len(wl)), np.asarray(wl, np.float64))   # (B, 3): row b = RGB of band b
     rgb = value @ weights
-    sd = None if stddev is None else np.sqrt(np.asarray(stddev, np.float64) ** 2 @ weights ** 2)
+    sd = None if stddev is None else np.asarray(stddev, np.float64)
     attrs["fitted_from"] = f"{len(wl)} spectral bands as linear sRGB under D65"
-    return rgb, sd
+    return rgb, None if sd is None else np.sqrt(sd ** 2 @ weights ** 2), (value, sd, weights)
 
 
 @dataclass
@@ -188,7 +196,7 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
     ValueError
         Unknown model or channel, a source that is not a finished campaign, too few samples.
     """
-    data, attrs = load_samples(source)
+    data, attrs, bands = _load(source)
     chan = parse_channels(channels, RGB[:data.value.shape[1]])
     m = parse_model(model, chan)
     if not m.variables:
@@ -196,7 +204,14 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
     problem = Problem(m, data, loss, backend)
     if problem.loss == "chi2" and isinstance(source, str | Path) and Path(source).is_dir():
         # the standard brdf.h5 was calibrated with (per channel where it was so given), when it says
-        problem.set_shared(shared_errors(source, data.value, calibration_reference(attrs)))
+        rho = calibration_reference(attrs)
+        if bands is None:
+            problem.set_shared(shared_errors(source, data.value, rho))
+        elif bands[1] is not None:
+            # a dark or reference reading's bands are read each with its own error, as the samples' are
+            # (whose RGB stddev takes them as independent): one shared error per band and reading,
+            # through the band's RGB weights
+            problem.set_shared(shared_errors(source, bands[0], rho), weights=bands[2])
     best = solve(problem, starts=starts, jac=jac)
     x = best["x"]
     residual = problem.residuals(x)

@@ -97,7 +97,7 @@ class Problem:
         if loss == "chi2" and not usable:
             raise ValueError("loss 'chi2' needs a stddev > 0 for most samples of every channel; use 'cos'")
         self.loss = loss
-        self.keep, self.shared = keep, None
+        self.keep, self.shared, self.shared_weights = keep, None, None
         self.wi, self.wo = data.wi[keep], data.wo[keep]
         self.value = data.value[keep][:, chans]
         self.floored = 0
@@ -155,11 +155,20 @@ class Problem:
             dr.eval(cols)
         return np.stack([np.concatenate([g.numpy() for g in col]) for col in cols], axis=1)
 
-    def set_shared(self, u: np.ndarray | None) -> None:
-        """Errors shared between samples, U (N, C, M) of :func:`gonio.fit.shared.shared_errors` for all
-        N samples and channels of the data; used by :func:`covariance` with the ``chi2`` loss."""
-        if u is not None and self.loss == "chi2":
+    def set_shared(self, u: np.ndarray | None, weights: np.ndarray | None = None) -> None:
+        """Errors shared between samples, used by :func:`covariance` with the ``chi2`` loss: U (N, C, M)
+        of :func:`gonio.fit.shared.shared_errors` for all N samples and channels of the data; or, for
+        channels converted from B measured ones (a spectrometer's bands fitted as RGB), U (N, B, M) of
+        the measured channels and ``weights`` (B, C), channel c = Σ_b weights[b, c] · band b, each
+        band's error its own (its own column per reading, never materialized as (N, C, M·B))."""
+        if u is None or self.loss != "chi2":
+            return
+        if weights is None:
             self.shared = u[self.keep][:, list(self.model.channels), :]
+            self.shared_weights = np.eye(len(self.model.channels))
+        else:
+            self.shared = u[self.keep]
+            self.shared_weights = np.asarray(weights, dtype=np.float64)[:, list(self.model.channels)]
 
     def bounds(self):
         return ([v.lo for v in self.model.variables], [v.hi for v in self.model.variables])
@@ -267,7 +276,9 @@ def covariance(problem: Problem, x: np.ndarray, residual: np.ndarray) -> tuple[n
 
     With shared errors U (``problem.shared``, ``chi2`` only) the samples' covariance is
     C = diag(σ² − ΣU²) + U Uᵀ per channel, and the covariance of the weighted fit is the sandwich
-    A⁻¹ Jᵀ W C W J A⁻¹ with A = Jᵀ W J, W = diag(1/σ²) (J: unweighted model Jacobian).
+    A⁻¹ Jᵀ W C W J A⁻¹ with A = Jᵀ W J, W = diag(1/σ²) (J: unweighted model Jacobian). Channels
+    converted from measured ones (:meth:`Problem.set_shared`'s ``weights``) take one column per
+    measured channel and reading, U_b · weights[b, c]; their U Uᵀ is summed band by band.
     """
     jac = problem.jacobian(x)
     n, p = jac.shape
@@ -278,15 +289,20 @@ def covariance(problem: Problem, x: np.ndarray, residual: np.ndarray) -> tuple[n
     a_inv = np.linalg.pinv(jac.T @ jac)
     if problem.shared is None:
         return a_inv * s2, s2
-    n_s, c, _ = problem.shared.shape
+    n_s = problem.shared.shape[0]
     meat = np.zeros((p, p))
-    for k in range(c):
+    for k in range(problem.shared_weights.shape[1]):
         rows = slice(k * n_s, (k + 1) * n_s)
         jk, w = jac[rows], problem.weight[:, k]
-        uw = problem.shared[:, k, :] * w[:, None]           # weighted shared errors (N, M)
-        independent = np.clip(1.0 - np.sum(uw * uw, axis=1), 1e-6, None)
-        b = jk.T @ uw
-        meat += (jk * independent[:, None]).T @ jk + b @ b.T
+        shared_sq = np.zeros(n_s)
+        for band in np.flatnonzero(problem.shared_weights[:, k]):
+            # weighted shared errors (N, M) of this band's readings in channel k
+            uw = problem.shared[:, band, :] * (problem.shared_weights[band, k] * w)[:, None]
+            shared_sq += np.sum(uw * uw, axis=1)
+            b = jk.T @ uw
+            meat += b @ b.T
+        independent = np.clip(1.0 - shared_sq, 1e-6, None)
+        meat += (jk * independent[:, None]).T @ jk
     return a_inv @ meat @ a_inv * s2, s2
 
 
