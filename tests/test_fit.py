@@ -266,27 +266,33 @@ def test_a_white_standard_given_per_channel_is_shared_by_the_samples_it_calibrat
     assert shared_errors(folder, value, 0.99) is None and shared_errors(folder, value, [0.9, 0.9]) is None
 
 
-def test_with_a_white_standard_per_channel_the_albedos_stddev_is_its_spread_across_seeds(tmp_path):
-    """Lambertian campaigns under sensor noise, calibrated with a standard per channel: the fitted albedo
-    of each channel scatters across seeds by the stddev the fit states (rms ratio 1.18 here; 0.89-1.15
-    per channel over 40 seeds), which samples taken as independent understate by ~2x (2.5 here: the
-    white reference's error moves every sample together)."""
-    cfg = _noisy_config(reflectance=[0.99, 0.96, 0.9])
-    seeds = 12
+def _albedo_spread_over_stddev(tmp_path, cfg, seeds: int, readings: int | None = None) -> list[float]:
+    """Lambertian campaigns (albedo 0.5, iso:step=30) of ``seeds`` seeds under ``cfg``: the rms ratio of
+    the fitted albedo's spread across seeds to the stddev the fit states, with the shared errors and with
+    the samples taken as independent (brdf.h5 alone); each campaign's fit finds ``readings`` shared
+    errors (any number > 0 where None)."""
     values, shared, independent = [], [], []
     for seed in range(seeds):
         folder = _campaign(tmp_path / f"s{seed}", "lambert:albedo=0.5", "iso:step=30", cfg, seed)
         r, alone = fit(folder, "lambert", starts=1), fit(folder / "brdf.h5", "lambert", starts=1)
-        assert r.residual["shared_errors"] > 0
+        found = r.residual["shared_errors"]
+        assert (found > 0 if readings is None else found == readings) and alone.residual["shared_errors"] == 0
         values.append([p["value"] for p in r.parameters.values()])
         shared.append([p["stddev"] for p in r.parameters.values()])
         independent.append([p["stddev"] for p in alone.parameters.values()])
     values = np.array(values)
     # deviations from the mean of the seeds understate the spread by (n - 1) / n in variance
     spread = (values - values.mean(axis=0)) * np.sqrt(seeds / (seeds - 1))
-    rms = [float(np.sqrt(np.mean((spread / np.array(s)) ** 2))) for s in (shared, independent)]
-    assert 0.75 <= rms[0] <= 1.33 and rms[1] > 1.8, rms
+    return [float(np.sqrt(np.mean((spread / np.array(s)) ** 2))) for s in (shared, independent)]
 
+
+def test_with_a_white_standard_per_channel_the_albedos_stddev_is_its_spread_across_seeds(tmp_path):
+    """Lambertian campaigns under sensor noise, calibrated with a standard per channel: the fitted albedo
+    of each channel scatters across seeds by the stddev the fit states (rms ratio 1.18 here; 0.89-1.15
+    per channel over 40 seeds), which samples taken as independent understate by ~2x (2.5 here: the
+    white reference's error moves every sample together)."""
+    rms = _albedo_spread_over_stddev(tmp_path, _noisy_config(reflectance=[0.99, 0.96, 0.9]), 12)
+    assert 0.75 <= rms[0] <= 1.33 and rms[1] > 1.8, rms
 
 
 def test_a_spectrometers_albedo_stddev_is_its_spread_across_seeds(tmp_path):
@@ -296,18 +302,7 @@ def test_a_spectrometers_albedo_stddev_is_its_spread_across_seeds(tmp_path):
     where samples taken as independent understate it by ~2x (1.83x here; 1.92x over 30 seeds). Taking
     each reading's bands as one error, moved together, overstated it 2.4x (rms ratio 0.42)."""
     cfg = with_sim_detector(_noisy_config(), "spectrometer")
-    seeds = 10
-    values, shared, independent = [], [], []
-    for seed in range(seeds):
-        folder = _campaign(tmp_path / f"s{seed}", "lambert:albedo=0.5", "iso:step=30", cfg, seed)
-        r, alone = fit(folder, "lambert", starts=1), fit(folder / "brdf.h5", "lambert", starts=1)
-        assert r.residual["shared_errors"] == 4 and alone.residual["shared_errors"] == 0   # 2 darks, 2 whites
-        values.append([p["value"] for p in r.parameters.values()])
-        shared.append([p["stddev"] for p in r.parameters.values()])
-        independent.append([p["stddev"] for p in alone.parameters.values()])
-    values = np.array(values)
-    spread = (values - values.mean(axis=0)) * np.sqrt(seeds / (seeds - 1))
-    rms = [float(np.sqrt(np.mean((spread / np.array(s)) ** 2))) for s in (shared, independent)]
+    rms = _albedo_spread_over_stddev(tmp_path, cfg, 10, readings=4)   # 2 darks and 2 whites
     assert 0.6 <= rms[0] <= 1.3 and rms[1] > 1.4, rms
 
 # -- a wrong model ------------------------------------------------------------------------------------
