@@ -31,6 +31,7 @@ Schema 2 journals are upgraded to 3 when opened for writing and read as they are
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -47,7 +48,7 @@ import numpy as np
 from gonio.protocols import detector_descriptor
 
 __all__ = ["Journal", "JournalError", "Measurement", "SCHEMA_VERSION", "JOURNAL_NAME", "FRAMES_DIR",
-           "detector_descriptor"]
+           "detector_descriptor", "is_disk_full"]
 
 SCHEMA_VERSION = 3
 JOURNAL_NAME = "campaign.sqlite"
@@ -122,6 +123,20 @@ _UPGRADES: dict[int, Callable[[sqlite3.Connection], None]] = {1: _upgrade_1_to_2
 
 class JournalError(RuntimeError):
     pass
+
+
+def is_disk_full(err: BaseException | None) -> bool:
+    """True when ``err`` (or what caused it) is a full disk or a spent quota, from the OS (ENOSPC,
+    EDQUOT) or SQLite (SQLITE_FULL: "database or disk is full")."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+            return True
+        if isinstance(err, sqlite3.Error) and getattr(err, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
+            return True
+        err = err.__cause__ or err.__context__
+    return False
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@
 import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -419,3 +420,51 @@ def test_a_campaign_another_process_runs_is_refused_naming_its_pid(tmp_path, cap
     finally:
         lock.release()
     assert main(argv) == 0
+
+
+def _disk_full_at(monkeypatch, creating: list[int], running: list[int]):
+    """Journal writes fail as SQLite's do on a full disk: the n-th write statement of the journal's
+    creation for n in ``creating``, and the n-th of the journals opened to run for n in ``running``."""
+    from gonio.store import Journal
+
+    def hook(count: list, writes: list):
+        def fail(_n):
+            count[0] += 1
+            if count[0] in writes:
+                err = sqlite3.OperationalError("database or disk is full")
+                err.sqlite_errorcode = sqlite3.SQLITE_FULL
+                raise err
+        return fail
+
+    create, open_ = Journal.create.__func__, Journal.open.__func__
+    created, opened = hook([0], creating), hook([0], running)
+    monkeypatch.setattr(Journal, "create", classmethod(lambda cls, path, meta, steps, write_hook=None:
+                                                       create(cls, path, meta, steps, write_hook=created)))
+    monkeypatch.setattr(Journal, "open", classmethod(lambda cls, path, write_hook=None, readonly=False:
+                                                     open_(cls, path, write_hook=None if readonly else opened,
+                                                           readonly=readonly)))
+
+
+@pytest.mark.parametrize("creating, running, says", [
+    ([1], [], "the disk is full (database or disk is full); nothing was written"),
+    # full from the run's 5th write on (of 12): the fault cannot be latched either
+    ([], list(range(5, 10_000)),
+     "the disk is full (database or disk is full); the journal in {out} keeps every committed step: "
+     "free some space, then run the same command to resume"),
+    # one write fails; the journal latches the fault with the bytes left
+    ([], [5], "the disk is full (database or disk is full); the journal in {out} keeps every committed step: "
+              "free some space, then run the same command with --clear-fault to resume"),
+])
+def test_a_full_disk_is_one_line_and_the_same_command_resumes(tmp_path, capsys, monkeypatch, creating,
+                                                              running, says):
+    """SQLite's "database or disk is full" at the journal's creation or mid-campaign came out as three
+    chained tracebacks. Once space is freed the command the line names finishes the campaign."""
+    out = tmp_path / "run"
+    with monkeypatch.context() as m:
+        _disk_full_at(m, creating, running)
+        assert main([*SIM, "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"gonio simulate: {says.format(out=out)}" and "Traceback" not in "".join(err)
+    resume = [*SIM, "--out", str(out)] + (["--clear-fault"] if "--clear-fault" in says else [])
+    assert main(resume) == 0
+    assert (out / "brdf.h5").exists()

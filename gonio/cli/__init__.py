@@ -80,6 +80,37 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return UsageError, JournalError, ValueError, OSError
 
 
+def _kept(args, then: str) -> str:
+    """What a command that stopped early leaves in its --out: a journal to resume, or nothing."""
+    out = getattr(args, "out", None)
+    if out and Path(out, "campaign.sqlite").exists():
+        return f"; the journal in {out} keeps every committed step: {then} to resume"
+    return "; nothing was written"
+
+
+def _latched(out) -> bool:
+    """Whether the journal in ``out`` latched the run's fault (it could, with the last free bytes)."""
+    from gonio.store import JOURNAL_NAME, Journal
+
+    if not out or not Path(out, JOURNAL_NAME).exists():
+        return False
+    try:
+        journal = Journal.open(Path(out, JOURNAL_NAME), readonly=True)
+    except Exception:   # unreadable: the resume will say what it finds
+        return False
+    try:
+        return journal.latched_fault() is not None
+    finally:
+        journal.close()
+
+
+def _innermost(err: BaseException) -> str:
+    """The first cause's words (SQLite's "database or disk is full", the OS's "No space left on device")."""
+    while (err.__cause__ or err.__context__) is not None:
+        err = err.__cause__ or err.__context__
+    return user_error(err)
+
+
 def main(argv: list[str] | None = None) -> int:
     from gonio.registry import PluginError
 
@@ -94,17 +125,25 @@ def main(argv: list[str] | None = None) -> int:
     install_startup_handlers()
     try:
         return args.func(args)
-    except _user_errors() as err:
+    except Interrupted as err:
+        print(f"gonio {args.command}: interrupted ({err}){_kept(args, 'run the same command')}",
+              file=sys.stderr)
+        return 130
+    except Exception as err:
         if args.debug:
+            raise
+        from gonio.store import is_disk_full
+
+        if is_disk_full(err):   # an environment's failure, not the input's: exit 1
+            then = "free some space, then run the same command" + \
+                (" with --clear-fault" if _latched(getattr(args, "out", None)) else "")
+            print(f"gonio {args.command}: the disk is full ({_innermost(err)}){_kept(args, then)}",
+                  file=sys.stderr)
+            return 1
+        if not isinstance(err, _user_errors()):
             raise
         print(f"gonio {args.command}: {user_error(err)}", file=sys.stderr)
         return 2
-    except Interrupted as err:
-        out = getattr(args, "out", None)
-        where = f"; the journal in {out} keeps every committed step: run the same command to resume" \
-            if out and Path(out, "campaign.sqlite").exists() else "; nothing was written"
-        print(f"gonio {args.command}: interrupted ({err}){where}", file=sys.stderr)
-        return 130
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous[0])

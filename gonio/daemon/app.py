@@ -49,11 +49,11 @@ from gonio.daemon.models import (
 )
 from gonio.daemon.planner import ClientGone, Planner, PlannerBusy, PlannerFailed
 from gonio.daemon.queue import CampaignQueue
-from gonio.daemon.records import ID_PATTERN, Conflict, FieldError, NotFound, is_disk_full, precheck_request
+from gonio.daemon.records import ID_PATTERN, Conflict, FieldError, NotFound, precheck_request
 from gonio.dataset import BRDF_NAME
 from gonio.protocols import DeviceFault
 from gonio.sim.materials.library import MaterialsFolder
-from gonio.store import JournalError
+from gonio.store import JournalError, is_disk_full
 
 __all__ = ["Daemon", "create_app", "asgi"]
 

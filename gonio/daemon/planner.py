@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gonio.daemon.records import DiskFull, FieldError, is_disk_full, prepare_campaign
+from gonio.daemon.records import DiskFull, FieldError, prepare_campaign
+from gonio.store import is_disk_full
 
 if TYPE_CHECKING:   # the worker imports it (and Dr.Jit with it) after its fork
     from gonio.sim.materials.library import MaterialsFolder

@@ -55,13 +55,12 @@ from gonio.daemon.records import (
     FieldError,
     NotFound,
     Record,
-    is_disk_full,
 )
 from gonio.daemon.states import CampaignView, campaign_state
 from gonio.dataset import BRDF_NAME
 from gonio.runner import Runner, State
 from gonio.sim.materials.library import MaterialsFolder
-from gonio.store import JOURNAL_NAME, Journal, JournalError
+from gonio.store import JOURNAL_NAME, Journal, JournalError, is_disk_full
 
 __all__ = ["CampaignQueue", "FieldError", "Conflict", "NotFound", "DiskFull", "INCOMING"]
 

@@ -10,10 +10,8 @@ parameters, a measured material's name), then :func:`prepare_campaign` in the pl
 
 from __future__ import annotations
 
-import errno
 import json
 import os
-import sqlite3
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,7 +20,7 @@ if TYPE_CHECKING:  # type hints only: the caller holds the config
     from gonio.config import GonioConfig
 
 __all__ = ["Record", "FieldError", "Conflict", "NotFound", "DiskFull", "validate_request", "precheck_request",
-           "prepare_campaign", "is_disk_full", "ID_PATTERN", "RECORD_NAME", "MAX_STEPS"]
+           "prepare_campaign", "ID_PATTERN", "RECORD_NAME", "MAX_STEPS"]
 
 RECORD_NAME = "daemon.json"
 ID_PATTERN = r"^c[0-9]{5}$"
@@ -48,20 +46,6 @@ class NotFound(LookupError):
 
 class DiskFull(OSError):
     """The data folder's disk is full (or the quota spent): nothing was written (507)."""
-
-
-def is_disk_full(err: BaseException | None) -> bool:
-    """True when ``err`` (or what caused it) is a full disk or a spent quota, from the OS or SQLite."""
-    seen = set()
-    while err is not None and id(err) not in seen:
-        seen.add(id(err))
-        if isinstance(err, DiskFull) or (isinstance(err, OSError) and err.errno in (errno.ENOSPC,
-                                                                                    errno.EDQUOT)):
-            return True
-        if isinstance(err, sqlite3.Error) and getattr(err, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
-            return True
-        err = err.__cause__ or err.__context__
-    return False
 
 
 @dataclass
