@@ -48,7 +48,7 @@ import numpy as np
 from gonio.protocols import detector_descriptor
 
 __all__ = ["Journal", "JournalError", "Measurement", "SCHEMA_VERSION", "JOURNAL_NAME", "FRAMES_DIR",
-           "detector_descriptor", "is_disk_full"]
+           "detector_descriptor", "is_disk_full", "disk_full_error"]
 
 SCHEMA_VERSION = 3
 JOURNAL_NAME = "campaign.sqlite"
@@ -128,15 +128,21 @@ class JournalError(RuntimeError):
 def is_disk_full(err: BaseException | None) -> bool:
     """True when ``err`` (or what caused it) is a full disk or a spent quota, from the OS (ENOSPC,
     EDQUOT) or SQLite (SQLITE_FULL: "database or disk is full")."""
+    return disk_full_error(err) is not None
+
+
+def disk_full_error(err: BaseException | None) -> BaseException | None:
+    """The error in ``err``'s chain (itself, its cause or context, ...) that says the disk is full, or
+    None (see :func:`is_disk_full`)."""
     seen = set()
     while err is not None and id(err) not in seen:
         seen.add(id(err))
         if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
-            return True
+            return err
         if isinstance(err, sqlite3.Error) and getattr(err, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
-            return True
+            return err
         err = err.__cause__ or err.__context__
-    return False
+    return None
 
 
 @dataclass(frozen=True)

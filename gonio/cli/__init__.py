@@ -104,13 +104,6 @@ def _latched(out) -> bool:
         journal.close()
 
 
-def _innermost(err: BaseException) -> str:
-    """The first cause's words (SQLite's "database or disk is full", the OS's "No space left on device")."""
-    while (err.__cause__ or err.__context__) is not None:
-        err = err.__cause__ or err.__context__
-    return user_error(err)
-
-
 def main(argv: list[str] | None = None) -> int:
     from gonio.registry import PluginError
 
@@ -132,13 +125,13 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as err:
         if args.debug:
             raise
-        from gonio.store import is_disk_full
+        from gonio.store import disk_full_error
 
-        if is_disk_full(err):   # an environment's failure, not the input's: exit 1
+        if (full := disk_full_error(err)) is not None:   # an environment's failure, not the input's: exit 1
             then = "free some space, then run the same command" + \
                 (" with --clear-fault" if _latched(getattr(args, "out", None)) else "")
-            print(f"gonio {args.command}: the disk is full ({_innermost(err)}){_kept(args, then)}",
-                  file=sys.stderr)
+            words = full.strerror if isinstance(full, OSError) and full.strerror else str(full)
+            print(f"gonio {args.command}: the disk is full ({words}){_kept(args, then)}", file=sys.stderr)
             return 1
         if not isinstance(err, _user_errors()):
             raise
