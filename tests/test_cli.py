@@ -46,6 +46,68 @@ def test_bad_input_is_one_clear_line(argv, message, capsys, tmp_path):
     assert not (tmp_path / "X").exists()  # nothing half-made
 
 
+@pytest.mark.parametrize("argv", [
+    ["plan", "--grid", "iso:stp=30"],
+    ["simulate", "lambert:albedo=0.5", "--grid", "iso:stp=30", "--out", "X"],
+    ["run", "--config", "sim", "--material", "lambert:albedo=0.5", "--sample", "s", "--grid", "iso:stp=30",
+     "--out", "X"],
+])
+def test_a_mistake_in_the_grid_names_the_grid_argument(argv, capsys, tmp_path):
+    """A grid typo's line names --grid, as a material's names MATERIAL and a path's --out (it named the
+    grid's kind only: 'gonio plan: grid 'iso': unknown option 'stp'')."""
+    argv = [str(tmp_path / a) if a == "X" else a for a in argv]
+    assert main(argv) == 2
+    _one_clear_line(capsys, f"gonio {argv[0]}: --grid: grid 'iso': unknown option 'stp'; allowed: step")
+    assert not (tmp_path / "X").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45"],
+     "gonio simulate: the following arguments are required: --out; `gonio simulate --help`"),
+    (["plot", "X", "--out", "p.png"], "gonio plot: the following arguments are required: --kind"),
+    (["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", "X", "--sed", "3"],
+     "gonio simulate: unrecognized arguments: --sed 3; `gonio simulate --help` shows every argument"),
+    (["export", "X", "--format", "bsdf", "--out", "x.bsdf", "--forse"], "gonio export: unrecognized"),
+    (["simulat"], "gonio: argument COMMAND: invalid choice: 'simulat'"),
+])
+def test_a_mistake_in_the_command_line_is_one_line_naming_the_argument(argv, message, capsys, tmp_path):
+    """argparse's own refusals (a required option missing, an unknown one, a bad choice) are one line,
+    exit code 2, as every other user error: they were argparse's usage block and an error line, and an
+    unknown option was refused by `gonio`, not by the command it was given to."""
+    argv = [str(tmp_path / a) if a == "X" else a for a in argv]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    _one_clear_line(capsys, message)
+    assert not (tmp_path / "X").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["gantry", "move", "--config", "sim", "--theta-i", "30"],
+     "gonio gantry: move: give --theta-i, --phi-i, --theta-o and --phi-o"),
+    (["gantry", "jog", "--config", "sim"], "gonio gantry: jog: give --axis (one of light_azimuth"),
+])
+def test_a_manual_move_short_of_its_arguments_is_one_line_said_once(argv, message, capsys):
+    """It read `gonio gantry: gonio gantry move: give ...`."""
+    assert main(argv) == 2
+    assert _one_clear_line(capsys, message).count("gonio") == 1
+
+
+def test_plan_help_spells_each_grid_kind_as_the_parser_takes_it():
+    """`gonio plan --help` showed `adaptive:budget=S`, which the parser refuses (poses or budget_s)."""
+    import re
+
+    from gonio.cli.parsers import grid_help
+    from gonio.plan import parse_grid
+    from gonio.registries import GRID_KINDS
+
+    examples = re.findall(r"^  ([a-z]+):(\w+)=([A-Z])\b", grid_help(), re.M)
+    assert sorted(k for k, _, _ in examples) == sorted(k.name for k in GRID_KINDS.entries())
+    values = {"S": "30", "K": "4", "N": "60", "T": "600"}
+    for kind, option, letter in examples:
+        assert parse_grid(f"{kind}:{option}={values[letter]}").kind == kind
+
+
 def test_unknown_config_key_names_the_file_and_key(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text(open("config/sim.toml").read().replace("[light]", "[light]\nwattage = 3"))
@@ -224,6 +286,7 @@ def test_progress_is_plain_lines_when_stderr_is_not_a_terminal(tmp_path, capsys)
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.startswith("measuring: ")]
     assert lines and "steps (100 %)" in lines[-1]
+    assert lines[-1].endswith("ETA 0:00:00")   # it said "ETA ?" where the run was too short for a pace
     assert "\x1b[" not in err  # no terminal control codes in a log
 
 

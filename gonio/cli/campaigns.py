@@ -19,6 +19,7 @@ from gonio.cli.common import (
     Eta,
     UsageError,
     creatable_folder,
+    grid_arg,
     planning,
     refuse_emulated_placeholders,
 )
@@ -37,12 +38,13 @@ PLAIN_PROGRESS_EVERY_S = 5.0
 # -- gonio plan -----------------------------------------------------------------------------------
 def cmd_plan(args) -> int:
     from gonio.config import load_config
-    from gonio.plan import build_plan, format_plan, parse_grid, plan_summary
+    from gonio.plan import build_plan, format_plan, plan_summary
     from gonio.plan.grids import grid_kind
 
+    grid = grid_arg(args.grid)
     cfg = load_config(args.config)
     show = sys.stdout.isatty() and not args.json    # a spinner only where a person watches the report
-    if grid_kind(parse_grid(args.grid).kind).campaign == "adaptive":
+    if grid_kind(grid.kind).campaign == "adaptive":
         return _plan_adaptive(args, cfg, show)
     with planning(_Out(), args.grid, show):
         plan = build_plan(args.grid, cfg)
@@ -52,7 +54,7 @@ def cmd_plan(args) -> int:
 
             # A fly campaign sweeps the serpentine's lines (order=fly), whatever order auto chose here.
             lines = plan if plan.order == "serpentine" else build_plan(
-                parse_grid(args.grid).spelled(order="fly"), cfg)
+                grid.spelled(order="fly"), cfg)
             fly = fly_plan(lines, cfg)
     if args.json:
         print(json.dumps(plan_summary(plan, fly), indent=2))
@@ -211,11 +213,10 @@ def cmd_simulate(args) -> int:
 def _simulate(args) -> int:
     from gonio.config import load_config
     from gonio.lifecycle import Request, RequestError, check_request
-    from gonio.plan import parse_grid
 
     # Everything the user typed is validated before anything is written.
+    grid_arg(args.grid)
     request = Request(args.grid, material=args.material, seed=args.seed)
-    parse_grid(args.grid)
     exports = _export_formats(args.export)
     cfg = load_config(args.config)
     if args.detector is not None:
@@ -459,10 +460,9 @@ class GantryUnreachable(RuntimeError):
 def cmd_run(args) -> int:
     from gonio.config import load_config
     from gonio.lifecycle import Request, RequestError, check_request, plan_request
-    from gonio.plan import parse_grid
     from gonio.store import JOURNAL_NAME
 
-    fly = parse_grid(args.grid).order == "fly"
+    fly = grid_arg(args.grid).order == "fly"
     cfg = load_config(args.config)
     refuse_emulated_placeholders(cfg, args.config)
     if not args.sample.strip():

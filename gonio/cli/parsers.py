@@ -230,10 +230,11 @@ def grid_help(width: int = 100) -> str:
 
     from gonio.registries import GRID_KINDS, GRID_OPTIONS, ORDERS
 
+    #: How each kind's size is spelled (``"budget"``: poses or budget_s, as its options say).
+    sizes = {"step": "step=S", "stride": "stride=K", "budget": "poses=N (or budget_s=T)"}
     lines = ["GRID is KIND:OPTION=VALUE,... with KIND one of:"]
     for kind in GRID_KINDS.entries():
-        size = kind.extra["size"]
-        lines += textwrap.wrap(f"{kind.name}:{size}={'K' if size == 'stride' else 'S'}  {kind.summary}; "
+        lines += textwrap.wrap(f"{kind.name}:{sizes[kind.extra['size']]}  {kind.summary}; "
                                f"options: {', '.join(kind.extra['options'])}", width,
                                initial_indent="  ", subsequent_indent="      ")
     lines.append("options:")
