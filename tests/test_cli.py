@@ -86,9 +86,10 @@ def test_a_mistake_in_the_command_line_is_one_line_naming_the_argument(argv, mes
     (["gantry", "move", "--config", "sim", "--theta-i", "30"],
      "gonio gantry: move: give --theta-i, --phi-i, --theta-o and --phi-o"),
     (["gantry", "jog", "--config", "sim"], "gonio gantry: jog: give --axis (one of light_azimuth"),
+    (["config", "show"], "gonio config: show: give NAME, a shipped config (one of: emulated-"),
 ])
-def test_a_manual_move_short_of_its_arguments_is_one_line_said_once(argv, message, capsys):
-    """It read `gonio gantry: gonio gantry move: give ...`."""
+def test_a_subcommand_short_of_its_arguments_is_one_line_said_once(argv, message, capsys):
+    """It read `gonio gantry: gonio gantry move: give ...` (and `gonio config: gonio config show: ...`)."""
     assert main(argv) == 2
     assert _one_clear_line(capsys, message).count("gonio") == 1
 

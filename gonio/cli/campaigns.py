@@ -118,7 +118,7 @@ def cmd_config(args) -> int:
             print(f"{name:<{width}}{cfg.kinematics.design:<14}{cfg.name}")
         return 0
     if not args.name:
-        raise UsageError("gonio config show: give NAME (one of: "
+        raise UsageError("show: give NAME, a shipped config (one of: "
                          f"{', '.join(packaged_configs())}) or a path")
     path = resolve_config(args.name)
     load_config(path)  # validated before it is shown
