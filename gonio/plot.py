@@ -302,7 +302,7 @@ def _draw_polar(b, data, s, title, report):
     ax.set_thetagrids(range(-90, 91, 30), [f"{abs(a)}°" for a in range(-90, 91, 30)])
     ax.set_rlabel_position(-90)
     ax.tick_params(axis="y", labelsize=7)
-    ax.set_title(f"radius: f_r{' (log)' if log else ''}; angle: θo from the normal\n"
+    ax.set_title(f"radius: {_ylabel(b)}{', log scale' if log else ''}\nangle: θo from the normal,  "
                  "← light side  |  specular side →", fontsize=8.5)
     cx.set_xlim(-90, 90)
     cx.set_xticks(range(-90, 91, 30))
