@@ -406,7 +406,8 @@ def _draw_reciprocity(b, data, s, title, report):
                      f"{100 * beyond2:.1f} % beyond ±2σ\n(0.27 % and 4.6 % where the pairs agree within "
                      "their stated σ)", fontsize=9)
         report.notes.append(f"{z.size} measured pairs, each counted once; {100 * beyond3:.1f} % differ from "
-                            f"their reciprocal by more than 3 sigma, {100 * beyond2:.1f} % by more than 2")
+                            f"their reciprocal by more than 3 sigma, {100 * beyond2:.1f} % by more than "
+                            "2 sigma")
     hx.set_xlabel("z = (f(ωi,ωo) − f(ωo,ωi)) / √(σ₁² + σ₂²)   (clipped to ±6)")
     hx.set_ylabel("pairs")
     fig.suptitle(f"{title}\nHelmholtz reciprocity residual (luminance Y)", fontsize=10)
