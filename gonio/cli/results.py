@@ -33,8 +33,15 @@ def cmd_fit(args) -> int:
         raise UsageError(f"{source}: not a finished campaign (no {BRDF_NAME}; it is written once every "
                          "step is measured: finish the campaign with the command that started it)")
     out = _writable_out(args.out, force=args.force) if args.out is not None else None
-    channels = parse_channels(args.channels)
-    parse_model(args.model, channels)  # a bad MODEL is reported before any data is read
+    # a bad --channels or MODEL is reported, naming its flag, before any data is read
+    try:
+        channels = parse_channels(args.channels)
+    except ValueError as err:
+        raise UsageError(f"--channels: {str(err).removeprefix('channels: ')}") from None
+    try:
+        parse_model(args.model, channels)
+    except ValueError as err:
+        raise UsageError(f"--model: {err}") from None
     if args.starts < 1:
         raise UsageError(f"--starts: must be an integer >= 1, got {args.starts}")
     with using_backend(args.backend):
