@@ -71,7 +71,8 @@ def add_campaign_parsers(sub, fmt) -> None:
     sr = sub.add_parser("run", formatter_class=fmt,
                         help="run a whole campaign on the configured (real, emulated or mixed) gantry")
     sr.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
-    sr.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
+    sr.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10 (every kind and option: "
+                    "gonio plan --help)")
     sr.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
     sr.add_argument("--sample", required=True, help="name of the sample measured")
     sr.add_argument("--material", default=None,
