@@ -323,6 +323,10 @@ def test_status_reads_a_campaign_while_it_is_not_running(tmp_path, capsys):
     assert st["latched_fault"] is None and st["estimated_remaining_s"] == 0.0
     assert main(["status", str(tmp_path)]) == 2
     _one_clear_line(capsys, "not a campaign folder")
+    assert main(["status", str(out / "brdf.h5")]) == 2   # a file: it said "no such folder"
+    _one_clear_line(capsys, f"{out / 'brdf.h5'}: a file, not a campaign folder")
+    assert main(["status", str(tmp_path / "nothing")]) == 2
+    _one_clear_line(capsys, "nothing: no such folder")
 
 
 @pytest.mark.slow
