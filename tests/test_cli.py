@@ -313,6 +313,16 @@ def test_a_message_off_a_terminal_is_what_rich_writes_there_without_emoji_codes(
     assert rich.file.getvalue() == err
 
 
+def test_a_fit_too_small_to_judge_its_residual_structure_says_so(tmp_path, capsys):
+    """On 5 samples each residual has a (θh, θd) bin to itself: the fit printed `structure nan`."""
+    out = tmp_path / "run"
+    assert main([*SIM, "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["fit", str(out), "--model", "lambert"]) == 0
+    err = capsys.readouterr().err
+    assert "nan" not in err and "structure not judged (no two residuals share a (θh, θd) bin" in err
+
+
 def test_status_reads_a_campaign_while_it_is_not_running(tmp_path, capsys):
     out = tmp_path / "run"
     assert main([*SIM, "--out", str(out)]) == 0

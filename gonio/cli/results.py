@@ -56,9 +56,11 @@ def cmd_fit(args) -> int:
         for name, v in result.parameters.items():
             flag = "  (at bound)" if v["at_bound"] else ""
             print(f"  {name} = {v['value']:.6g} ± {v['stddev']:.2g}{flag}", file=sys.stderr)
+        structure = (f"structure {res['structure']:.2f}" if np.isfinite(res["structure"]) else
+                     "structure not judged (no two residuals share a (θh, θd) bin: too few samples)")
         print(f"  loss ({result.loss}) {res['loss']:.6g} over {res['residuals']} residuals, "
               f"{res['dof']} degrees of freedom; per dof {res['chi2_reduced']:.3g}; relative "
-              f"{res['rms_relative']:.3g}; structure {res['structure']:.2f}"
+              f"{res['rms_relative']:.3g}; {structure}"
               f"{'; MISFIT: the model leaves a structured residual' if res['misfit'] else ''}",
               file=sys.stderr)
     return 0
