@@ -4,8 +4,9 @@
 ``abort``, ``halt`` and ``fetch`` talk to it (:mod:`gonio.daemon.client`). ``gonio queue [ID]`` shows
 the daemon's queue, or one campaign of it, as ``gonio status ID`` does (``gonio status DIR`` reads a
 campaign folder directly). Each returns an exit status and prints one line on failure:
-1 refused or failed, 2 a usage mistake, 3 no daemon (or lost it), 4 the campaign was (or may have been)
-accepted but the command lost sight of it: do not submit it again (``gonio queue``, ``gonio watch ID``).
+1 refused or failed, 2 a usage mistake (the daemon's 422 too: a field it finds invalid), 3 no daemon (or
+lost it), 4 the campaign was (or may have been) accepted but the command lost sight of it: do not submit
+it again (``gonio queue``, ``gonio watch ID``).
 """
 
 from __future__ import annotations
@@ -201,11 +202,12 @@ def cmd_control(args) -> int:
 
 
 def cmd_fetch(args) -> int:
+    from gonio.cli.common import writable_out
+
     out = Path(args.out)
     if out.is_dir():
         raise ValueError(f"--out: {out} is a folder; give a file name, e.g. {out / (args.id + '-brdf.h5')}")
-    if not (out.parent if str(out.parent) else Path(".")).is_dir():
-        raise ValueError(f"--out: folder {out.parent} does not exist")
+    out = writable_out(args.out, force=args.force)   # an existing file is replaced only with --force
 
     def body(c) -> int:
         n = c.fetch(args.id, out)
@@ -284,3 +286,4 @@ def add_parsers(sub, fmt, seed_type) -> None:
     client_parser("halt", "emergency stop: every axis stops now, mid-move too", cmd_control, False)
     p = client_parser("fetch", "download a finished campaign's brdf.h5", cmd_fetch)
     p.add_argument("--out", required=True, metavar="FILE", help="where to write it")
+    p.add_argument("--force", action="store_true", help="replace --out if it exists")
