@@ -195,7 +195,8 @@ def cmd_control(args) -> int:
             r = c.action(args.id, "resume", clear_fault="true")
         else:
             r = c.action(args.id, args.command)
-        print(f"{r['id'] or 'gantry'}: {r['state']}: {r['message']}")
+        # the state once: "c00002: pausing: the step in flight finishes, ..." (not "pausing: pausing: ...")
+        print(f"{r['id'] or 'gantry'}: {r['state']}: {r['message'].removeprefix(r['state'] + ': ')}")
         return 0
 
     return _run(args, body)

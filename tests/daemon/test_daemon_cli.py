@@ -56,7 +56,10 @@ def test_pause_resume_abort_halt_from_the_command_line(serve, env, capsys):
     env(r.url)
     submit(r.client, grid="iso:step=15")
     wait_for(lambda: r.client.get("/campaigns/c00001").json()["steps_done"] >= 1, "a committed step")
+    capsys.readouterr()
     assert main(["pause", "c00001"]) == 0
+    said = capsys.readouterr().out   # the state once: it read "c00001: pausing: pausing: the step ..."
+    assert said.startswith("c00001: ") and said.count("pausing") == 1 and "the step in flight" in said
     wait_state(r.client, "c00001", "paused")
     assert main(["resume", "c00001"]) == 0
     wait_state(r.client, "c00001", ("running", "done", "finishing"))
