@@ -80,8 +80,8 @@ def _plan_adaptive(args, cfg, show: bool) -> int:
     print(f"\nadaptive     pilot: {a['pilot_poses']:,} poses ({pilot_text(a)}), estimated "
           f"{_hms(a['pilot_s'])} ({a['pilot_s']:.1f} s) of gantry time\n"
           f"             budget: {budget_text(a)}, pilot included; then rounds of poses placed where the "
-          f"samples so far are least trustworthy, each {100 * a['growth']:.0f} % of the samples so far (at least "
-          f"{a['min_round']}), planned from the journal as it measures")
+          f"samples so far are least trustworthy, each {100 * a['growth']:.0f} % of the samples so far (at "
+          f"least {a['min_round']}), planned from the journal as it measures")
     return 0
 
 
