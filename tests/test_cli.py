@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -29,6 +30,8 @@ def test_plan_report_names_every_stage(capsys):
     text = capsys.readouterr().out
     for word in ("reciprocity", "mirror", "occlusion", "lower bound"):
         assert word in text
+    # one exposure per sweeping axis: it read "exposure 250 ms, 333 ms", as if a reading took both
+    assert re.search(r"readings \(exposure \d+ ms or \d+ ms, blur up to", text), text
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -96,8 +99,6 @@ def test_a_subcommand_short_of_its_arguments_is_one_line_said_once(argv, message
 
 def test_plan_help_spells_each_grid_kind_as_the_parser_takes_it():
     """`gonio plan --help` showed `adaptive:budget=S`, which the parser refuses (poses or budget_s)."""
-    import re
-
     from gonio.cli.parsers import grid_help
     from gonio.plan import parse_grid
     from gonio.registries import GRID_KINDS
