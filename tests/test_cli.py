@@ -184,6 +184,18 @@ def test_out_that_is_a_file_is_refused(tmp_path, capsys):
     assert f.read_text() == "x"
 
 
+def test_a_folder_holding_a_brdf_h5_of_no_campaign_is_refused_and_the_file_kept(tmp_path, capsys):
+    """A new campaign there replaced the file silently when it ended (a brdf.h5 copied or fetched into
+    the folder, its journal left elsewhere)."""
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "brdf.h5").write_bytes(b"someone's data")
+    assert main([*SIM, "--out", str(folder)]) == 2
+    _one_clear_line(capsys, f"--out: {folder} holds a brdf.h5 of no campaign (no campaign.sqlite beside it)")
+    assert sorted(p.name for p in folder.iterdir()) == ["brdf.h5"]
+    assert (folder / "brdf.h5").read_bytes() == b"someone's data"
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_folder_is_refused(tmp_path, capsys):
     ro = tmp_path / "ro"

@@ -164,6 +164,13 @@ def _check_out(text: str) -> Path:
     out = Path(_not_empty(text, "folder"))
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} is a file, not a folder; give a folder for the campaign")
+    from gonio.dataset import BRDF_NAME
+    from gonio.store import JOURNAL_NAME
+
+    if (out / BRDF_NAME).exists() and not (out / JOURNAL_NAME).exists():
+        # a new campaign there would replace that file when it ends
+        raise UsageError(f"--out: {out} holds a {BRDF_NAME} of no campaign (no {JOURNAL_NAME} beside it); "
+                         "choose another folder, or move the file away")
     return creatable_folder(out)
 
 
