@@ -252,8 +252,8 @@ class Parser(argparse.ArgumentParser):
         return namespace
 
     def _innermost(self, namespace) -> argparse.ArgumentParser:
-        for action in self._actions:
-            if isinstance(action, argparse._SubParsersAction):
+        for action in self._actions:   # the subcommands' action: its choices map names to parsers
+            if isinstance(action.choices, dict):
                 chosen = action.choices.get(getattr(namespace, action.dest, None))
                 if isinstance(chosen, Parser):
                     return chosen._innermost(namespace)
