@@ -184,6 +184,14 @@ def test_out_that_is_a_file_is_refused(tmp_path, capsys):
     assert f.read_text() == "x"
 
 
+def test_simulate_on_a_gantry_with_a_real_detector_points_to_gonio_run(tmp_path, capsys):
+    """It said "name the sample ('sample'), not a material": gonio simulate takes no sample."""
+    assert main([*SIM, "--out", str(tmp_path / "run"), "--config", "two-arm-dynamixel"]) == 2
+    _one_clear_line(capsys, "--config: gantry 'two-arm-dynamixel' has a real detector",
+                    "`gonio run ... --sample NAME`")
+    assert not (tmp_path / "run").exists()
+
+
 def test_a_folder_holding_a_brdf_h5_of_no_campaign_is_refused_and_the_file_kept(tmp_path, capsys):
     """A new campaign there replaced the file silently when it ended (a brdf.h5 copied or fetched into
     the folder, its journal left elsewhere)."""

@@ -230,6 +230,9 @@ def _simulate(args) -> int:
         from gonio.config import with_sim_detector
 
         cfg = with_sim_detector(cfg, args.detector)
+    if cfg.detector.driver != "sim":   # the request's own line speaks of a 'sample' simulate does not take
+        raise UsageError(f"--config: gantry '{cfg.name}' has a real detector, which renders no MATERIAL; "
+                         "a sample is measured on it with `gonio run ... --sample NAME` (docs/measure.md)")
     try:
         material = check_request(cfg, request)
     except RequestError as err:
