@@ -41,6 +41,9 @@ def cmd_serve(args) -> int:
 
     cfg = load_config(args.config)
     refuse_emulated_placeholders(cfg, args.config)
+    if Path(args.data).exists() and not Path(args.data).is_dir():   # it said "gonio serve: FILE: File exists"
+        raise ValueError(f"--data: {args.data} is a file, not a folder; give the folder that holds (or will "
+                         "hold) the daemon's campaigns")
     pace = check_pace(args.pace)
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port: must be within [0, 65535], got {args.port}")
