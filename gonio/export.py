@@ -386,7 +386,8 @@ def _radiance_files(job: ExportJob, out: Path) -> ExportReport:
             return bands_to_XYZ(v, bands)[..., 1]
     else:
         weights = np.asarray(LUMINANCE_WEIGHTS) if len(brdf.channels) == 3 else None
-        note = f"CIE-Y = {LUMINANCE_WEIGHTS} . (R, G, B)"
+        note = (f"CIE-Y = {LUMINANCE_WEIGHTS} . (R, G, B)" if weights is not None else
+                f"the channel {brdf.channels[0]!r} as measured (no colour weighting)")
 
         def luminance(v):
             return v @ weights if weights is not None else v[:, 0]

@@ -253,7 +253,8 @@ def status(folder: str | Path) -> dict:
     """
     folder = Path(folder)
     if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: no such folder")
+        raise FileNotFoundError(f"{folder}: " + ("a file, not a campaign folder" if folder.exists()
+                                                 else "no such folder"))
     if not (folder / JOURNAL_NAME).is_file():
         raise FileNotFoundError(f"{folder}: not a campaign folder (no {JOURNAL_NAME})")
     j = Journal.open(folder / JOURNAL_NAME, readonly=True)

@@ -302,7 +302,7 @@ def _draw_polar(b, data, s, title, report):
     ax.set_thetagrids(range(-90, 91, 30), [f"{abs(a)}°" for a in range(-90, 91, 30)])
     ax.set_rlabel_position(-90)
     ax.tick_params(axis="y", labelsize=7)
-    ax.set_title(f"radius: f_r{' (log)' if log else ''}; angle: θo from the normal\n"
+    ax.set_title(f"radius: {_ylabel(b)}{', log scale' if log else ''}\nangle: θo from the normal,  "
                  "← light side  |  specular side →", fontsize=8.5)
     cx.set_xlim(-90, 90)
     cx.set_xticks(range(-90, 91, 30))
@@ -406,7 +406,8 @@ def _draw_reciprocity(b, data, s, title, report):
                      f"{100 * beyond2:.1f} % beyond ±2σ\n(0.27 % and 4.6 % where the pairs agree within "
                      "their stated σ)", fontsize=9)
         report.notes.append(f"{z.size} measured pairs, each counted once; {100 * beyond3:.1f} % differ from "
-                            f"their reciprocal by more than 3 sigma, {100 * beyond2:.1f} % by more than 2")
+                            f"their reciprocal by more than 3 sigma, {100 * beyond2:.1f} % by more than "
+                            "2 sigma")
     hx.set_xlabel("z = (f(ωi,ωo) − f(ωo,ωi)) / √(σ₁² + σ₂²)   (clipped to ±6)")
     hx.set_ylabel("pairs")
     fig.suptitle(f"{title}\nHelmholtz reciprocity residual (luminance Y)", fontsize=10)

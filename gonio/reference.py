@@ -121,7 +121,8 @@ def reference_axes(gantry, cfg, names: list[str] | None = None, *,
         else:  # origin
             axis.reference_origin(cfg.runner.move_timeout_s, cfg.runner.poll_s)
             found[name] = 0.0
-        out(f"{name}: referenced ({method}" + (f", {found[name]:+.2f}° from {a.reference_at_deg:g}°)"
+        off = round(found[name], 2) + 0.0   # + 0.0: a found stop 0.001° short reads +0.00, not -0.00
+        out(f"{name}: referenced ({method}" + (f", {off:+.2f}° from {a.reference_at_deg:g}°)"
                                                if method != "origin" else ")"))
     return found
 

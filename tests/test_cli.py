@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import signal
 import sqlite3
 import subprocess
@@ -30,6 +31,8 @@ def test_plan_report_names_every_stage(capsys):
     text = capsys.readouterr().out
     for word in ("reciprocity", "mirror", "occlusion", "lower bound"):
         assert word in text
+    # one exposure per sweeping axis: it read "exposure 250 ms, 333 ms", as if a reading took both
+    assert re.search(r"readings \(exposure \d+ ms or \d+ ms, blur up to", text), text
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -45,6 +48,67 @@ def test_bad_input_is_one_clear_line(argv, message, capsys, tmp_path):
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
     assert not (tmp_path / "X").exists()  # nothing half-made
+
+
+@pytest.mark.parametrize("argv", [
+    ["plan", "--grid", "iso:stp=30"],
+    ["simulate", "lambert:albedo=0.5", "--grid", "iso:stp=30", "--out", "X"],
+    ["run", "--config", "sim", "--material", "lambert:albedo=0.5", "--sample", "s", "--grid", "iso:stp=30",
+     "--out", "X"],
+])
+def test_a_mistake_in_the_grid_names_the_grid_argument(argv, capsys, tmp_path):
+    """A grid typo's line names --grid, as a material's names MATERIAL and a path's --out (it named the
+    grid's kind only: 'gonio plan: grid 'iso': unknown option 'stp'')."""
+    argv = [str(tmp_path / a) if a == "X" else a for a in argv]
+    assert main(argv) == 2
+    _one_clear_line(capsys, f"gonio {argv[0]}: --grid: grid 'iso': unknown option 'stp'; allowed: step")
+    assert not (tmp_path / "X").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45"],
+     "gonio simulate: the following arguments are required: --out; `gonio simulate --help`"),
+    (["plot", "X", "--out", "p.png"], "gonio plot: the following arguments are required: --kind"),
+    (["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45", "--out", "X", "--sed", "3"],
+     "gonio simulate: unrecognized arguments: --sed 3; `gonio simulate --help` shows every argument"),
+    (["export", "X", "--format", "bsdf", "--out", "x.bsdf", "--forse"], "gonio export: unrecognized"),
+    (["simulat"], "gonio: argument COMMAND: invalid choice: 'simulat'"),
+])
+def test_a_mistake_in_the_command_line_is_one_line_naming_the_argument(argv, message, capsys, tmp_path):
+    """argparse's own refusals (a required option missing, an unknown one, a bad choice) are one line,
+    exit code 2, as every other user error: they were argparse's usage block and an error line, and an
+    unknown option was refused by `gonio`, not by the command it was given to."""
+    argv = [str(tmp_path / a) if a == "X" else a for a in argv]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    _one_clear_line(capsys, message)
+    assert not (tmp_path / "X").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["gantry", "move", "--config", "sim", "--theta-i", "30"],
+     "gonio gantry: move: give --theta-i, --phi-i, --theta-o and --phi-o"),
+    (["gantry", "jog", "--config", "sim"], "gonio gantry: jog: give --axis (one of light_azimuth"),
+    (["config", "show"], "gonio config: show: give NAME, a shipped config (one of: emulated-"),
+])
+def test_a_subcommand_short_of_its_arguments_is_one_line_said_once(argv, message, capsys):
+    """It read `gonio gantry: gonio gantry move: give ...` (and `gonio config: gonio config show: ...`)."""
+    assert main(argv) == 2
+    assert _one_clear_line(capsys, message).count("gonio") == 1
+
+
+def test_plan_help_spells_each_grid_kind_as_the_parser_takes_it():
+    """`gonio plan --help` showed `adaptive:budget=S`, which the parser refuses (poses or budget_s)."""
+    from gonio.cli.parsers import grid_help
+    from gonio.plan import parse_grid
+    from gonio.registries import GRID_KINDS
+
+    examples = re.findall(r"^  ([a-z]+):(\w+)=([A-Z])\b", grid_help(), re.M)
+    assert sorted(k for k, _, _ in examples) == sorted(k.name for k in GRID_KINDS.entries())
+    values = {"S": "30", "K": "4", "N": "60", "T": "600"}
+    for kind, option, letter in examples:
+        assert parse_grid(f"{kind}:{option}={values[letter]}").kind == kind
 
 
 def test_unknown_config_key_names_the_file_and_key(tmp_path, capsys):
@@ -119,6 +183,26 @@ def test_out_that_is_a_file_is_refused(tmp_path, capsys):
     assert main([*SIM, "--out", str(f)]) == 2
     _one_clear_line(capsys, "--out", str(f), "is a file")
     assert f.read_text() == "x"
+
+
+def test_simulate_on_a_gantry_with_a_real_detector_points_to_gonio_run(tmp_path, capsys):
+    """It said "name the sample ('sample'), not a material": gonio simulate takes no sample."""
+    assert main([*SIM, "--out", str(tmp_path / "run"), "--config", "two-arm-dynamixel"]) == 2
+    _one_clear_line(capsys, "--config: gantry 'two-arm-dynamixel' has a real detector",
+                    "`gonio run ... --sample NAME`")
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_folder_holding_a_brdf_h5_of_no_campaign_is_refused_and_the_file_kept(tmp_path, capsys):
+    """A new campaign there replaced the file silently when it ended (a brdf.h5 copied or fetched into
+    the folder, its journal left elsewhere)."""
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "brdf.h5").write_bytes(b"someone's data")
+    assert main([*SIM, "--out", str(folder)]) == 2
+    _one_clear_line(capsys, f"--out: {folder} holds a brdf.h5 of no campaign (no campaign.sqlite beside it)")
+    assert sorted(p.name for p in folder.iterdir()) == ["brdf.h5"]
+    assert (folder / "brdf.h5").read_bytes() == b"someone's data"
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
@@ -238,6 +322,7 @@ def test_progress_is_plain_lines_when_stderr_is_not_a_terminal(tmp_path, capsys)
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.startswith("measuring: ")]
     assert lines and "steps (100 %)" in lines[-1]
+    assert lines[-1].endswith("ETA 0:00:00")   # it said "ETA ?" where the run was too short for a pace
     assert "\x1b[" not in err  # no terminal control codes in a log
 
 
@@ -263,6 +348,16 @@ def test_a_message_off_a_terminal_is_what_rich_writes_there_without_emoji_codes(
     assert rich.file.getvalue() == err
 
 
+def test_a_fit_too_small_to_judge_its_residual_structure_says_so(tmp_path, capsys):
+    """On 5 samples each residual has a (θh, θd) bin to itself: the fit printed `structure nan`."""
+    out = tmp_path / "run"
+    assert main([*SIM, "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["fit", str(out), "--model", "lambert"]) == 0
+    err = capsys.readouterr().err
+    assert "nan" not in err and "structure not judged (no two residuals share a (θh, θd) bin" in err
+
+
 def test_status_reads_a_campaign_while_it_is_not_running(tmp_path, capsys):
     out = tmp_path / "run"
     assert main([*SIM, "--out", str(out)]) == 0
@@ -273,6 +368,10 @@ def test_status_reads_a_campaign_while_it_is_not_running(tmp_path, capsys):
     assert st["latched_fault"] is None and st["estimated_remaining_s"] == 0.0
     assert main(["status", str(tmp_path)]) == 2
     _one_clear_line(capsys, "not a campaign folder")
+    assert main(["status", str(out / "brdf.h5")]) == 2   # a file: it said "no such folder"
+    _one_clear_line(capsys, f"{out / 'brdf.h5'}: a file, not a campaign folder")
+    assert main(["status", str(tmp_path / "nothing")]) == 2
+    _one_clear_line(capsys, "nothing: no such folder")
 
 
 @pytest.mark.slow

@@ -65,11 +65,14 @@ def test_plain_progress_lines_give_no_eta_from_the_first_step(tmp_path, capsys):
     # stderr not a terminal: this process's, captured (tests/test_cli.py runs the console script as a
     # process of its own).
     capsys.readouterr()
-    assert main([*SIMULATE, str(tmp_path / "run")]) == 0
+    # iso:step=20: more steps than the simulated detector's first chunk (iso:step=45's 9 are one chunk)
+    assert main(["simulate", "lambert:albedo=0.5", "--grid", "iso:step=20", "--out",
+                 str(tmp_path / "run")]) == 0
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.startswith("measuring: ")]
     # The first committed unit (the simulated detector's chunk of steps): no pace yet, so no ETA.
-    assert lines[0].startswith("measuring: ") and lines[0].endswith("ETA ?")
+    assert len(lines) >= 2 and lines[0].endswith("ETA ?")
+    assert "(100 %)" in lines[-1] and lines[-1].endswith("ETA 0:00:00")   # done: nothing left, said so
     assert "planning" not in err
 
 

@@ -57,6 +57,20 @@ def test_radiance_files_hold_the_luminance(data, tmp_path):
     assert np.abs(one["value"] - y).sum() / y.sum() < 0.02
 
 
+def test_radiance_of_a_one_channel_campaign_says_it_is_that_channel(tmp_path):
+    """A photodiode's campaign (one channel, 'power') is written as it was measured; its report said
+    `CIE-Y = (0.2126, 0.7152, 0.0722) . (R, G, B)`, weights it has no channels for."""
+    from gonio.dataset import SampledBRDF
+
+    d = sampled("lambert:albedo=0.5", "iso:step=30")
+    one = SampledBRDF(d.theta_i, d.phi_i, d.theta_o, d.phi_o, d.value[:, :1], d.stddev[:, :1],
+                      attrs={**d.attrs, "channels": ["power"]})
+    rep = export(one, "radiance", tmp_path / "rad")
+    assert rep.notes[0] == "the channel 'power' as measured (no colour weighting)"
+    back = read_pabopto(sorted((tmp_path / "rad").glob("*.pabopto.dat"))[2])
+    np.testing.assert_allclose(back["value"][back["theta_o_deg"] < 60], 0.5 / np.pi, rtol=1e-3)
+
+
 def test_bsdf_round_trip_through_our_layout_reader(data, tmp_path):
     from gonio.formats.rgl import eval_measured
 

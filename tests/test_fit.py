@@ -359,8 +359,8 @@ def test_cli_fit_prints_the_material_and_writes_the_json(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, says", [
-    (["--model", "blinn"], "model 'blinn': unknown model 'blinn'; allowed: lambert"),
-    (["--model", "ggx", "--channels", "R,X"], "channels: expected a comma-separated subset of R,G,B"),
+    (["--model", "blinn"], "gonio fit: --model: model 'blinn': unknown model 'blinn'; allowed: lambert"),
+    (["--model", "ggx", "--channels", "R,X"], "gonio fit: --channels: expected a comma-separated subset"),
     (["--model", "ggx", "--out", "{tmp}"], "--out: {tmp} is a folder"),
     (["--model", "ggx", "--out", "{tmp}/no/such/fit.json"], "--out: folder {tmp}/no/such does not exist"),
 ])

@@ -149,6 +149,7 @@ def test_the_reciprocity_plot_counts_each_measured_pair_once(campaign, tmp_path)
     assert 250 < len(both) < len(data.value) / 2
     (note,) = [n for n in rep.notes if "measured pairs" in n]
     count, beyond3 = re.match(r"(\d+) measured pairs, each counted once; ([\d.]+) %", note).groups()
+    assert note.endswith(" % by more than 2 sigma")   # it ended "by more than 2", the unit missing
     assert int(count) == len(both)
     from gonio.brdf import open_brdf
     from gonio.report.checks import reciprocity_pairs

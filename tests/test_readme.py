@@ -51,6 +51,27 @@ def test_the_readme_runs_make_demo_and_explains_gonio_emulate():
         assert (ROOT / link).exists(), link
 
 
+def test_every_source_file_and_folder_the_pages_name_is_in_the_repository():
+    """docs/simulation.md sent a reader to `gonio/sim/materials/catalog.py`: the installed package's path,
+    not the repository's (`sim/` is mapped into gonio, docs/layout.md)."""
+    named = re.compile(r"`((?:gonio|sim|drivers|tests|tools|config|examples)/[\w./-]*(?:\.\w+|/))`")
+    missing = [f"{page}: {path}" for page in PAGES
+               for path in named.findall((ROOT / page).read_text(encoding="utf-8"))
+               if not (ROOT / path).exists()]
+    assert missing == []
+
+
+def test_the_shipped_configs_table_of_docs_measure_names_every_shipped_config():
+    """`gonio config list` showed emulated-two-arm-scpi, which the table a newcomer reads did not."""
+    from gonio.config import packaged_configs
+
+    page = (ROOT / "docs" / "measure.md").read_text(encoding="utf-8")
+    table = page[page.index("| shipped config | what |"):]
+    first_cells = [row.split("|")[1] for row in table[:table.index("\n\n")].splitlines()[2:]]
+    listed = {name for cell in first_cells for name in re.findall(r"`([\w-]+)`", cell)}
+    assert listed == set(packaged_configs())
+
+
 def test_the_brdf_h5_table_of_docs_export_lists_every_variable_of_the_file(tmp_path, capsys):
     """The layout table of docs/export.md against a brdf.h5 the code writes (it was in no document)."""
     import h5py

@@ -122,6 +122,7 @@ def test_reference_finds_the_true_angles_then_home_drives_there_and_the_carriage
     assert main(["gantry", "reference", "--config", path]) == 0
     out = capsys.readouterr().out
     assert "light_azimuth: referenced (hard_stop" in out and "detector_azimuth: referenced" in out
+    assert "-0.00°" not in out   # a stop found a hair short of its place read "-0.00° from -200°"
     _assert_referenced_at_the_true_angles(emu, path, capsys)
     assert main(["gantry", "home", "--config", path]) == 0
     assert len(gaps) > 100   # looked at throughout

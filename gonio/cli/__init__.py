@@ -22,6 +22,7 @@ from pathlib import Path
 from gonio.cli.common import (
     DefaultsFormatter,
     Interrupted,
+    Parser,
     UsageError,
     in_main_thread,
     install_startup_handlers,
@@ -55,8 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     from gonio.daemon.commands import add_parsers as add_daemon_parsers
 
     fmt = DefaultsFormatter
-    p = argparse.ArgumentParser(prog="gonio", formatter_class=fmt,
-                                description="Control and acquisition for gonio-reflectometers.")
+    p = Parser(prog="gonio", formatter_class=fmt,
+               description="Control and acquisition for gonio-reflectometers.")
     p.add_argument("--version", action=_Version, help="show the version and exit")
     p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from gonio.cli.common import Interrupted, Out, UsageError, creatable_folder
+from gonio.cli.common import Interrupted, Out, UsageError, creatable_folder, grid_arg
 
 
 def connected(args, out: Out, what: str):
@@ -46,15 +46,11 @@ def _check_out(text: str) -> Path:
 def cmd_batch(args) -> int:
     from gonio.batch import read_materials
     from gonio.config import load_config
-    from gonio.plan import parse_grid
 
     out = Out(args.quiet)
     store = _check_out(args.out)
     materials = read_materials(args.materials)
-    try:
-        grid = parse_grid(args.grid)
-    except ValueError as e:
-        raise UsageError(f"--grid: {e}") from None
+    grid = grid_arg(args.grid)
     if grid.budget_s is not None:
         raise UsageError("--grid: a batch stores one sample count for every material; an adaptive grid "
                          "with budget_s measures as many as the time holds: give poses=N instead")

@@ -19,6 +19,7 @@ from gonio.cli.common import (
     Eta,
     UsageError,
     creatable_folder,
+    grid_arg,
     planning,
     refuse_emulated_placeholders,
 )
@@ -37,12 +38,13 @@ PLAIN_PROGRESS_EVERY_S = 5.0
 # -- gonio plan -----------------------------------------------------------------------------------
 def cmd_plan(args) -> int:
     from gonio.config import load_config
-    from gonio.plan import build_plan, format_plan, parse_grid, plan_summary
+    from gonio.plan import build_plan, format_plan, plan_summary
     from gonio.plan.grids import grid_kind
 
+    grid = grid_arg(args.grid)
     cfg = load_config(args.config)
     show = sys.stdout.isatty() and not args.json    # a spinner only where a person watches the report
-    if grid_kind(parse_grid(args.grid).kind).campaign == "adaptive":
+    if grid_kind(grid.kind).campaign == "adaptive":
         return _plan_adaptive(args, cfg, show)
     with planning(_Out(), args.grid, show):
         plan = build_plan(args.grid, cfg)
@@ -52,7 +54,7 @@ def cmd_plan(args) -> int:
 
             # A fly campaign sweeps the serpentine's lines (order=fly), whatever order auto chose here.
             lines = plan if plan.order == "serpentine" else build_plan(
-                parse_grid(args.grid).spelled(order="fly"), cfg)
+                grid.spelled(order="fly"), cfg)
             fly = fly_plan(lines, cfg)
     if args.json:
         print(json.dumps(plan_summary(plan, fly), indent=2))
@@ -78,8 +80,8 @@ def _plan_adaptive(args, cfg, show: bool) -> int:
     print(f"\nadaptive     pilot: {a['pilot_poses']:,} poses ({pilot_text(a)}), estimated "
           f"{_hms(a['pilot_s'])} ({a['pilot_s']:.1f} s) of gantry time\n"
           f"             budget: {budget_text(a)}, pilot included; then rounds of poses placed where the "
-          f"samples so far are least trustworthy, each {a['growth']:.0%} of the samples so far (at least "
-          f"{a['min_round']}), planned from the journal as it measures")
+          f"samples so far are least trustworthy, each {100 * a['growth']:.0f} % of the samples so far (at "
+          f"least {a['min_round']}), planned from the journal as it measures")
     return 0
 
 
@@ -116,7 +118,7 @@ def cmd_config(args) -> int:
             print(f"{name:<{width}}{cfg.kinematics.design:<14}{cfg.name}")
         return 0
     if not args.name:
-        raise UsageError("gonio config show: give NAME (one of: "
+        raise UsageError("show: give NAME, a shipped config (one of: "
                          f"{', '.join(packaged_configs())}) or a path")
     path = resolve_config(args.name)
     load_config(path)  # validated before it is shown
@@ -162,6 +164,13 @@ def _check_out(text: str) -> Path:
     out = Path(_not_empty(text, "folder"))
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} is a file, not a folder; give a folder for the campaign")
+    from gonio.dataset import BRDF_NAME
+    from gonio.store import JOURNAL_NAME
+
+    if (out / BRDF_NAME).exists() and not (out / JOURNAL_NAME).exists():
+        # a new campaign there would replace that file when it ends
+        raise UsageError(f"--out: {out} holds a {BRDF_NAME} of no campaign (no {JOURNAL_NAME} beside it); "
+                         "choose another folder, or move the file away")
     return creatable_folder(out)
 
 
@@ -211,17 +220,19 @@ def cmd_simulate(args) -> int:
 def _simulate(args) -> int:
     from gonio.config import load_config
     from gonio.lifecycle import Request, RequestError, check_request
-    from gonio.plan import parse_grid
 
     # Everything the user typed is validated before anything is written.
+    grid_arg(args.grid)
     request = Request(args.grid, material=args.material, seed=args.seed)
-    parse_grid(args.grid)
     exports = _export_formats(args.export)
     cfg = load_config(args.config)
     if args.detector is not None:
         from gonio.config import with_sim_detector
 
         cfg = with_sim_detector(cfg, args.detector)
+    if cfg.detector.driver != "sim":   # the request's own line speaks of a 'sample' simulate does not take
+        raise UsageError(f"--config: gantry '{cfg.name}' has a real detector, which renders no MATERIAL; "
+                         "a sample is measured on it with `gonio run ... --sample NAME` (docs/measure.md)")
     try:
         material = check_request(cfg, request)
     except RequestError as err:
@@ -459,10 +470,9 @@ class GantryUnreachable(RuntimeError):
 def cmd_run(args) -> int:
     from gonio.config import load_config
     from gonio.lifecycle import Request, RequestError, check_request, plan_request
-    from gonio.plan import parse_grid
     from gonio.store import JOURNAL_NAME
 
-    fly = parse_grid(args.grid).order == "fly"
+    fly = grid_arg(args.grid).order == "fly"
     cfg = load_config(args.config)
     refuse_emulated_placeholders(cfg, args.config)
     if not args.sample.strip():

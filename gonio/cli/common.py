@@ -43,6 +43,8 @@ class Eta:
     True
     >>> round(eta.update(11, 32.0), 1)        # 10 steps in 2 s: 89 steps left take 17.8 s
     17.8
+    >>> Eta(total=100).update(100, 0.5)       # every step measured: nothing left, whatever the pace
+    0.0
     """
 
     MIN_STEPS = 5
@@ -53,6 +55,8 @@ class Eta:
         self._first: tuple[int, float] | None = None
 
     def update(self, done: int, now: float) -> float | None:
+        if done >= self.total:
+            return 0.0
         if self._first is None:
             self._first = (done, now)
             return None
@@ -75,6 +79,16 @@ def seed_type(text: str) -> int:
     if not 0 <= value <= SEED_MAX:
         raise argparse.ArgumentTypeError(f"{rule}, got {value}")
     return value
+
+
+def grid_arg(text: str):
+    """``--grid`` parsed (:func:`gonio.plan.parse_grid`); a mistake in it is one line naming --grid."""
+    from gonio.plan import parse_grid
+
+    try:
+        return parse_grid(text)
+    except ValueError as err:
+        raise UsageError(f"--grid: {err}") from None
 
 
 #: What rich removes from printed text (its ``strip_control_codes``: BEL, BS, VT, FF, CR).
@@ -223,6 +237,32 @@ def refuse_emulated_placeholders(cfg, config: str | None) -> None:
 
 
 # -- the parser -----------------------------------------------------------------------------------
+class Parser(argparse.ArgumentParser):
+    """argparse's parser, with a mistake in the command line (a missing ``--out``, an unknown option, a
+    bad choice) as every other user error is: one line on stderr naming the argument, exit code 2.
+    argparse printed its usage block above the line; ``--help`` shows it. Subcommands' parsers are of
+    this class too (``add_subparsers`` makes them of its parser's class)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: {message}; `{self.prog} --help` shows every argument\n")
+
+    def parse_args(self, args=None, namespace=None):
+        """As argparse's, with arguments no parser took refused by the subcommand they were given to
+        (``gonio simulate: unrecognized arguments: --sed 3``), not by ``gonio``."""
+        namespace, extra = self.parse_known_args(args, namespace)
+        if extra:
+            self._innermost(namespace).error(f"unrecognized arguments: {' '.join(extra)}")
+        return namespace
+
+    def _innermost(self, namespace) -> argparse.ArgumentParser:
+        for action in self._actions:   # the subcommands' action: its choices map names to parsers
+            if isinstance(action.choices, dict):
+                chosen = action.choices.get(getattr(namespace, action.dest, None))
+                if isinstance(chosen, Parser):
+                    return chosen._innermost(namespace)
+        return self
+
+
 class DefaultsFormatter(argparse.HelpFormatter):
     """Help that shows each option's default where it has a meaningful one (not for flags, required
     options, or where the text already says it)."""

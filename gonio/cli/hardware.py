@@ -69,7 +69,7 @@ def cmd_gantry(args) -> int:
     axes_arg = None
     if args.action == "move":
         if args.axes is not None and any(a is not None for a in angles):
-            raise UsageError("gonio gantry move: give either --axes or the four angles, not both")
+            raise UsageError("move: give either --axes or the four angles, not both")
         if args.axes is not None:
             try:
                 axes_arg = [float(x) for x in args.axes.split(",")]
@@ -79,7 +79,7 @@ def cmd_gantry(args) -> int:
                 raise UsageError(f"--axes: {len(axes_arg)} values for the {len(kin.axis_names)} axes "
                                  f"{', '.join(kin.axis_names)}")
         elif any(a is None for a in angles):
-            raise UsageError("gonio gantry move: give --theta-i, --phi-i, --theta-o and --phi-o (degrees), "
+            raise UsageError("move: give --theta-i, --phi-i, --theta-o and --phi-o (degrees), "
                              "or --axes")
         given = zip(kin.axis_names, axes_arg, strict=True) if axes_arg is not None else \
             zip(("--theta-i", "--phi-i", "--theta-o", "--phi-o"), angles, strict=True)
@@ -88,7 +88,7 @@ def cmd_gantry(args) -> int:
                 raise UsageError(f"{'--axes: axis ' if axes_arg is not None else ''}{name}: must be a finite "
                                  f"number of degrees, got {value}")
     if args.action == "jog" and (args.axis not in kin.axis_names or args.by is None):
-        raise UsageError(f"gonio gantry jog: give --axis (one of {', '.join(kin.axis_names)}) and --by DEG")
+        raise UsageError(f"jog: give --axis (one of {', '.join(kin.axis_names)}) and --by DEG")
     if args.action == "jog" and not math.isfinite(args.by):
         raise UsageError(f"--by: must be a finite number of degrees, got {args.by}")
     if args.action == "reference" and args.axis is not None:

@@ -71,7 +71,8 @@ def add_campaign_parsers(sub, fmt) -> None:
     sr = sub.add_parser("run", formatter_class=fmt,
                         help="run a whole campaign on the configured (real, emulated or mixed) gantry")
     sr.add_argument("--config", required=True, help="gantry config: a TOML file or a shipped config's name")
-    sr.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10")
+    sr.add_argument("--grid", required=True, help="GRID, e.g. iso:step=10 (every kind and option: "
+                    "gonio plan --help)")
     sr.add_argument("--out", required=True, help="campaign folder (an unfinished campaign there is resumed)")
     sr.add_argument("--sample", required=True, help="name of the sample measured")
     sr.add_argument("--material", default=None,
@@ -230,10 +231,11 @@ def grid_help(width: int = 100) -> str:
 
     from gonio.registries import GRID_KINDS, GRID_OPTIONS, ORDERS
 
+    #: How each kind's size is spelled (``"budget"``: poses or budget_s, as its options say).
+    sizes = {"step": "step=S", "stride": "stride=K", "budget": "poses=N (or budget_s=T)"}
     lines = ["GRID is KIND:OPTION=VALUE,... with KIND one of:"]
     for kind in GRID_KINDS.entries():
-        size = kind.extra["size"]
-        lines += textwrap.wrap(f"{kind.name}:{size}={'K' if size == 'stride' else 'S'}  {kind.summary}; "
+        lines += textwrap.wrap(f"{kind.name}:{sizes[kind.extra['size']]}  {kind.summary}; "
                                f"options: {', '.join(kind.extra['options'])}", width,
                                initial_indent="  ", subsequent_indent="      ")
     lines.append("options:")

@@ -33,8 +33,15 @@ def cmd_fit(args) -> int:
         raise UsageError(f"{source}: not a finished campaign (no {BRDF_NAME}; it is written once every "
                          "step is measured: finish the campaign with the command that started it)")
     out = _writable_out(args.out, force=args.force) if args.out is not None else None
-    channels = parse_channels(args.channels)
-    parse_model(args.model, channels)  # a bad MODEL is reported before any data is read
+    # a bad --channels or MODEL is reported, naming its flag, before any data is read
+    try:
+        channels = parse_channels(args.channels)
+    except ValueError as err:
+        raise UsageError(f"--channels: {str(err).removeprefix('channels: ')}") from None
+    try:
+        parse_model(args.model, channels)
+    except ValueError as err:
+        raise UsageError(f"--model: {err}") from None
     if args.starts < 1:
         raise UsageError(f"--starts: must be an integer >= 1, got {args.starts}")
     with using_backend(args.backend):
@@ -49,9 +56,11 @@ def cmd_fit(args) -> int:
         for name, v in result.parameters.items():
             flag = "  (at bound)" if v["at_bound"] else ""
             print(f"  {name} = {v['value']:.6g} ± {v['stddev']:.2g}{flag}", file=sys.stderr)
+        structure = (f"structure {res['structure']:.2f}" if np.isfinite(res["structure"]) else
+                     "structure not judged (no two residuals share a (θh, θd) bin: too few samples)")
         print(f"  loss ({result.loss}) {res['loss']:.6g} over {res['residuals']} residuals, "
               f"{res['dof']} degrees of freedom; per dof {res['chi2_reduced']:.3g}; relative "
-              f"{res['rms_relative']:.3g}; structure {res['structure']:.2f}"
+              f"{res['rms_relative']:.3g}; {structure}"
               f"{'; MISFIT: the model leaves a structured residual' if res['misfit'] else ''}",
               file=sys.stderr)
         if result.loss == "chi2":   # the only loss whose uncertainties take shared errors in

@@ -20,9 +20,12 @@ from pathlib import Path
 
 import httpx
 
-__all__ = ["Client", "ClientError", "DEFAULT_URL", "iter_sse", "NO_DAEMON", "ACCEPTED_UNKNOWN"]
+__all__ = ["Client", "ClientError", "DEFAULT_URL", "iter_sse", "BAD_REQUEST", "NO_DAEMON", "ACCEPTED_UNKNOWN"]
 
 DEFAULT_URL = "http://127.0.0.1:8765"
+#: Exit status: the daemon found a field of the request invalid (422, naming it): a mistake in the command
+#: line, as every other command's exit status 2.
+BAD_REQUEST = 2
 #: Exit status: no daemon answered (nothing was sent, or a read that changes nothing went unanswered).
 NO_DAEMON = 3
 #: Exit status: the daemon accepted the campaign, or may have: do not submit it again, look at the queue.
@@ -37,8 +40,9 @@ FIND_POLL_S = 1.0
 
 
 class ClientError(RuntimeError):
-    """One line for the user; ``code`` is the exit status (1: refused or failed, 3: no daemon, 4: the
-    campaign was or may have been accepted). ``sent``: the request may have reached the daemon."""
+    """One line for the user; ``code`` is the exit status (1: refused or failed, 2: a field of the request
+    is invalid, 3: no daemon, 4: the campaign was or may have been accepted). ``sent``: the request may
+    have reached the daemon."""
 
     def __init__(self, message: str, code: int = 1, sent: bool = True):
         super().__init__(message)
@@ -150,7 +154,8 @@ class Client:
         if r.status_code == 401:
             raise ClientError(f"the daemon at {self.url} refused: it needs its token (set GONIO_TOKEN)")
         if r.status_code >= 400:
-            raise ClientError(f"the daemon refused ({r.status_code}): {_reason(r)}")
+            raise ClientError(f"the daemon refused ({r.status_code}): {_reason(r)}",
+                              code=BAD_REQUEST if r.status_code == 422 else 1)
         return r
 
     def get(self, path: str, **kw):

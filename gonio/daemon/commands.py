@@ -4,8 +4,9 @@
 ``abort``, ``halt`` and ``fetch`` talk to it (:mod:`gonio.daemon.client`). ``gonio queue [ID]`` shows
 the daemon's queue, or one campaign of it, as ``gonio status ID`` does (``gonio status DIR`` reads a
 campaign folder directly). Each returns an exit status and prints one line on failure:
-1 refused or failed, 2 a usage mistake, 3 no daemon (or lost it), 4 the campaign was (or may have been)
-accepted but the command lost sight of it: do not submit it again (``gonio queue``, ``gonio watch ID``).
+1 refused or failed, 2 a usage mistake (the daemon's 422 too: a field it finds invalid), 3 no daemon (or
+lost it), 4 the campaign was (or may have been) accepted but the command lost sight of it: do not submit
+it again (``gonio queue``, ``gonio watch ID``).
 """
 
 from __future__ import annotations
@@ -40,6 +41,9 @@ def cmd_serve(args) -> int:
 
     cfg = load_config(args.config)
     refuse_emulated_placeholders(cfg, args.config)
+    if Path(args.data).exists() and not Path(args.data).is_dir():   # it said "gonio serve: FILE: File exists"
+        raise ValueError(f"--data: {args.data} is a file, not a folder; give the folder that holds (or will "
+                         "hold) the daemon's campaigns")
     pace = check_pace(args.pace)
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port: must be within [0, 65535], got {args.port}")
@@ -194,18 +198,20 @@ def cmd_control(args) -> int:
             r = c.action(args.id, "resume", clear_fault="true")
         else:
             r = c.action(args.id, args.command)
-        print(f"{r['id'] or 'gantry'}: {r['state']}: {r['message']}")
+        # the state once: "c00002: pausing: the step in flight finishes, ..." (not "pausing: pausing: ...")
+        print(f"{r['id'] or 'gantry'}: {r['state']}: {r['message'].removeprefix(r['state'] + ': ')}")
         return 0
 
     return _run(args, body)
 
 
 def cmd_fetch(args) -> int:
+    from gonio.cli.common import writable_out
+
     out = Path(args.out)
     if out.is_dir():
         raise ValueError(f"--out: {out} is a folder; give a file name, e.g. {out / (args.id + '-brdf.h5')}")
-    if not (out.parent if str(out.parent) else Path(".")).is_dir():
-        raise ValueError(f"--out: folder {out.parent} does not exist")
+    out = writable_out(args.out, force=args.force)   # an existing file is replaced only with --force
 
     def body(c) -> int:
         n = c.fetch(args.id, out)
@@ -284,3 +290,4 @@ def add_parsers(sub, fmt, seed_type) -> None:
     client_parser("halt", "emergency stop: every axis stops now, mid-move too", cmd_control, False)
     p = client_parser("fetch", "download a finished campaign's brdf.h5", cmd_fetch)
     p.add_argument("--out", required=True, metavar="FILE", help="where to write it")
+    p.add_argument("--force", action="store_true", help="replace --out if it exists")

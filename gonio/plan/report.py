@@ -134,7 +134,8 @@ def _format_fly(s: dict) -> list[str]:
              f"{'estimated':<18}{hms(est):>14}{hms(fest):>14}{gain}",
              f"{'lower bound':<18}{hms(low):>14}{hms(flow):>14}",
              f"{'estimate / bound':<18}{ratio(est, low):>14}{ratio(fest, flow):>14}"]
-    exposures = ", ".join(f"{1000 * e:.3g} ms" for e in f["exposure_s"]) or "-"
+    # one exposure per sweeping axis's top speed (half a grid step of its travel): "125 ms or 167 ms"
+    exposures = " or ".join(f"{1000 * e:.3g} ms" for e in f["exposure_s"]) or "-"
     coordinated = f.get("coordinated_lines", 0)
     several = f" ({coordinated:,} of them coordinated: several axes along a path)" if coordinated else ""
     lines.append(f"fly          {f['lines']:,} lines{several} sweep "

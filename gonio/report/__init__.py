@@ -7,8 +7,8 @@ page with a short summary of verdict lines at the top, then sections:
   poses they saved, steps, campaign time against the plan's estimate, faults and retries from the
   journal's events;
 - **calibration**: the white-reference and dark readings over campaign time (drift, and readings the
-  calibration's linear interpolation cannot absorb), the reference albedo (the standard's reflectance
-  per channel where the campaign was calibrated with one);
+  calibration's cubic interpolation in time cannot absorb), the reference albedo (the standard's
+  reflectance per channel where the campaign was calibrated with one);
 - **data checks** (:mod:`gonio.report.checks`): reciprocity of the pairs measured both ways, directional
   albedo against θi (energy conservation), negative and NaN samples, and the scatter of repeated
   readings against the stddev they state;

@@ -268,7 +268,8 @@ def _section_fits(rep) -> str:
             continue
         res = m["result"].residual
         rows.append([m["rank"], m["model"], f"{m['per_dof']:.4g}", res["dof"],
-                     f"{100 * res['rms_relative']:.3g} %", f"{res['structure']:.2f}",
+                     f"{100 * res['rms_relative']:.3g} %",
+                     f"{res['structure']:.2f}" if np.isfinite(res["structure"]) else "– (too few samples)",
                      "structured misfit" if res["misfit"] else ""])
     html = ("<p>Each model fitted to every measured sample (χ² with the measured stddev, "
             "<code>gonio fit</code>), ranked by its error per degree of freedom.</p>")

@@ -41,6 +41,12 @@ def test_submit_watch_queue_fetch(serve, env, tmp_path, capsys):
     assert main(["fetch", "c00001", "--out", str(tmp_path / "b.h5")]) == 0
     with h5py.File(tmp_path / "b.h5") as f:
         assert "samples" in f
+    capsys.readouterr()
+    (tmp_path / "b.h5").write_bytes(b"mine")   # an existing file is replaced only with --force, as by export
+    assert main(["fetch", "c00001", "--out", str(tmp_path / "b.h5")]) == 2
+    assert "--out: " in capsys.readouterr().err and (tmp_path / "b.h5").read_bytes() == b"mine"
+    assert main(["fetch", "c00001", "--out", str(tmp_path / "b.h5"), "--force"]) == 0
+    assert h5py.is_hdf5(tmp_path / "b.h5")
     assert main(["submit", "lambert:albedo=0.5", "--grid", "iso:step=30", "--exposure-s", "0.05",
                  "--watch"]) == 0
 
@@ -50,7 +56,10 @@ def test_pause_resume_abort_halt_from_the_command_line(serve, env, capsys):
     env(r.url)
     submit(r.client, grid="iso:step=15")
     wait_for(lambda: r.client.get("/campaigns/c00001").json()["steps_done"] >= 1, "a committed step")
+    capsys.readouterr()
     assert main(["pause", "c00001"]) == 0
+    said = capsys.readouterr().out   # the state once: it read "c00001: pausing: pausing: the step ..."
+    assert said.startswith("c00001: ") and said.count("pausing") == 1 and "the step in flight" in said
     wait_state(r.client, "c00001", "paused")
     assert main(["resume", "c00001"]) == 0
     wait_state(r.client, "c00001", ("running", "done", "finishing"))
@@ -75,7 +84,7 @@ def test_one_clear_line_when_there_is_no_daemon_or_it_refuses(serve, env, capsys
     err = capsys.readouterr().err.strip()
     assert "needs its token" in err and "\n" not in err
     env(r.url, TOKEN)
-    assert main(["submit", "lambert:albedo=3", "--grid", "iso:step=30"]) == 1
+    assert main(["submit", "lambert:albedo=3", "--grid", "iso:step=30"]) == 2   # bad input: 2, as elsewhere
     err = capsys.readouterr().err.strip()
     assert "refused (422)" in err and "material" in err and "\n" not in err
     assert main(["fetch", "c00042", "--out", "x.h5"]) == 1

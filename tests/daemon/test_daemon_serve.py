@@ -61,6 +61,15 @@ def test_serve_refuses_weak_tokens_and_bad_options_before_writing_anything(tmp_p
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "d").exists()
 
 
+def test_serve_refuses_a_data_folder_that_is_a_file(tmp_path, monkeypatch, capsys):
+    """It said `gonio serve: FILE: File exists`, naming neither --data nor what it wants."""
+    (tmp_path / "d").write_text("notes")
+    code, err = _serve_here(monkeypatch, capsys, ["--data", str(tmp_path / "d")], "")
+    assert code == 2 and err.strip() == (f"gonio serve: --data: {tmp_path / 'd'} is a file, not a folder; "
+                                         "give the folder that holds (or will hold) the daemon's campaigns")
+    assert (tmp_path / "d").read_text() == "notes"
+
+
 def _serve_here(monkeypatch, capsys, args: list[str], token: str) -> tuple[int, str]:
     """``gonio serve ARGS`` in this process with GONIO_TOKEN=``token``, for what it refuses before it
     listens: (exit status, stderr). One that gets as far as serving fails the test instead (its logging
