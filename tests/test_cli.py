@@ -65,6 +65,17 @@ def test_a_mistake_in_the_grid_names_the_grid_argument(argv, capsys, tmp_path):
     assert not (tmp_path / "X").exists()
 
 
+@pytest.mark.parametrize("grid, says", [
+    ("adaptive:poses=2", "grid 'adaptive': option 'poses' must be at least the pilot's 3 poses"),
+    ("iso:step=0.001", "grid 'iso': 1,152,000,000,160,001 poses exceed the 3,000,000 a plan can hold"),
+])
+def test_a_grid_the_planner_refuses_names_the_grid_argument_in_gonio_plan_too(grid, says, capsys):
+    """What only the planner finds (an adaptive budget below its pilot, a lattice past the pose limit) is
+    the grid's fault in `gonio plan` as in `gonio simulate`, which says --grid."""
+    assert main(["plan", "--grid", grid]) == 2
+    _one_clear_line(capsys, f"gonio plan: --grid: {says}")
+
+
 @pytest.mark.parametrize("argv, message", [
     (["simulate", "lambert:albedo=0.5", "--grid", "iso:step=45"],
      "gonio simulate: the following arguments are required: --out; `gonio simulate --help`"),

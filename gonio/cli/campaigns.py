@@ -47,7 +47,10 @@ def cmd_plan(args) -> int:
     if grid_kind(grid.kind).campaign == "adaptive":
         return _plan_adaptive(args, cfg, show)
     with planning(_Out(), args.grid, show):
-        plan = build_plan(args.grid, cfg)
+        try:
+            plan = build_plan(args.grid, cfg)
+        except ValueError as err:   # what the planner refuses is the grid, as a campaign's creation says
+            raise UsageError(f"--grid: {err}") from None
         fly = None
         if not plan.grid.startswith("merl:"):  # lattices have lines to sweep: fly side by side
             from gonio.plan.fly import fly_plan
@@ -71,7 +74,10 @@ def _plan_adaptive(args, cfg, show: bool) -> int:
     from gonio.plan import format_plan, plan_summary
 
     with planning(_Out(), args.grid, show):
-        planned = plan_campaign(args.grid, cfg)
+        try:
+            planned = plan_campaign(args.grid, cfg)
+        except ValueError as err:   # what the planner refuses is the grid, as a campaign's creation says
+            raise UsageError(f"--grid: {err}") from None
     a = planned.meta["adaptive"]
     if args.json:
         print(json.dumps({"adaptive": a, "pilot": plan_summary(planned.plan)}, indent=2))
