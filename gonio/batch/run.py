@@ -92,6 +92,22 @@ def check_store(store: BatchStore, attrs: dict, materials: list[str]) -> str | N
     return None
 
 
+def refuse_another_batch(out: Path, materials: list[str], grid: str, seed: int, cfg) -> None:
+    """ValueError (naming --out) where the store at ``out`` holds another batch than this one: what
+    :func:`run_batch` finds, said before any worker starts."""
+    if Path(out).exists():
+        _same_batch(Path(out), batch_attrs(grid, seed, cfg), materials)
+
+
+def _same_batch(out: Path, attrs: dict, materials: list[str]) -> BatchStore:
+    store = BatchStore(out)
+    diff = check_store(store, attrs, materials)
+    if diff is not None:
+        raise ValueError(f"--out: {out} holds another batch ({diff}); repeat the original command to "
+                         "continue it, or choose another --out")
+    return store
+
+
 def run_batch(materials: list[str], *, grid: str, seed: int, cfg, out: Path, client,
               threads: int | None = None, on_row: Callable[[int, Row], None] | None = None,
               planned=None) -> BatchSummary:
@@ -144,11 +160,7 @@ def _run(materials, grid, seed, cfg, out, client, threads, on_row, attrs, planne
     todo = list(range(len(materials)))
     done_before = 0
     if out.exists():
-        store = BatchStore(out)
-        diff = check_store(store, attrs, materials)
-        if diff is not None:
-            raise ValueError(f"--out: {out} holds another batch ({diff}); repeat the original command to "
-                             "continue it, or choose another --out")
+        store = _same_batch(out, attrs, materials)
         todo = [int(i) for i in np.flatnonzero(store.status() != DONE)]
         done_before = len(materials) - len(todo)
     written, failed, held = 0, [], []

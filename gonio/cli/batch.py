@@ -62,6 +62,9 @@ def cmd_batch(args) -> int:
         raise UsageError(f"--config: the detector of config '{cfg.name}' is '{cfg.detector.driver}'; a batch "
                          "simulates, so it needs a simulated detector (driver 'sim')")
     n = len(materials)
+    from gonio.batch.run import refuse_another_batch
+
+    refuse_another_batch(store, materials, args.grid, args.seed, cfg)   # before any worker starts
     if args.scheduler is None:
         from gonio.batch.cluster import start_fork_server
 

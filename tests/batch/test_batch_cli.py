@@ -162,6 +162,23 @@ def _other_zarr(path: Path) -> None:
     group.create_array("x", shape=(3,), dtype="f8")
 
 
+def test_a_store_of_another_batch_is_refused_before_any_worker_starts(whole, tmp_path, capsys, monkeypatch):
+    """The store was compared with the batch only once the local cluster ran (1.7 s, and a line saying the
+    batch started on its workers)."""
+    import gonio.batch.cluster
+    import gonio.cli.batch
+
+    def no_workers(*a, **kw):
+        raise AssertionError("a worker was started")
+    monkeypatch.setattr(gonio.cli.batch, "connected", no_workers)
+    monkeypatch.setattr(gonio.batch.cluster, "start_fork_server", no_workers)
+    before = _rows(whole)
+    assert main(["batch", "lambert:albedo=0.5", *ARGS, "--out", str(whole)]) == 2
+    one_clear_line(capsys, f"gonio batch: --out: {whole} holds another batch (its materials differ")
+    after = _rows(whole)
+    assert before.keys() == after.keys() and all(np.array_equal(before[k], after[k]) for k in before)
+
+
 def test_a_file_or_a_folder_that_is_no_store_is_refused_as_out(tmp_path, capsys):
     """A file, a folder, and a Zarr store of something else: one line, exit 2, left as they were (the
     Zarr store was read for its materials and ended in a KeyError traceback, after a cluster started)."""
