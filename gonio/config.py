@@ -252,6 +252,8 @@ class RunnerConfig(Strict):
 
 
 class GonioConfig(Strict):
+    #: Printed at the head of plans and campaigns, journaled, served by the daemon: no control characters
+    #: (an escape sequence or a line break would rewrite what a terminal shows).
     name: str
     kinematics: KinematicsConfig
     buses: dict[str, AnyBus] = {}
@@ -261,6 +263,16 @@ class GonioConfig(Strict):
     reference: ReferenceConfig = ReferenceConfig()
     target: TargetConfig = TargetConfig()
     runner: RunnerConfig = RunnerConfig()
+
+    @field_validator("name")
+    @classmethod
+    def _printable_name(cls, name: str) -> str:
+        """Printed at the head of plans and campaigns, journaled and served by the daemon: an escape
+        sequence or a line break in it would rewrite what a terminal shows."""
+        if not 1 <= len(name) <= 120 or any(ord(c) < 0x20 or ord(c) == 0x7f for c in name):
+            raise ValueError("must be 1 to 120 printable characters (no control characters: escape "
+                             "sequences, tabs, line breaks)")
+        return name
 
     @model_validator(mode="after")
     def _axes_match_design(self):
@@ -392,8 +404,8 @@ def _format(err: ValidationError, source: str) -> str:
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
-        lines.append(f"{source}: {loc}: {msg}" if loc else f"{source}: {msg}")
-    return "\n".join(lines)
+        lines.append(f"{loc}: {msg}" if loc else msg)
+    return f"{source}: {'; '.join(lines)}"   # one line, every field named
 
 
 def parse_config(data: dict, source: str = "<config>") -> GonioConfig:

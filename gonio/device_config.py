@@ -33,9 +33,10 @@ __all__ = ["Strict", "changed_fields", "driver_name", "DeviceConfig", "AxisConfi
 
 
 class Strict(BaseModel):
-    """A config table: every key known, values frozen once validated."""
+    """A config table: every key known, values frozen once validated, every number finite (TOML spells
+    nan and inf; no setting of a gantry means either)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def changed_fields(model: BaseModel) -> set[str]:
@@ -166,8 +167,9 @@ class AxisConfig(DeviceConfig):
     min_deg: float
     max_deg: float
     #: The axis's speed and acceleration: the planner's, and the profile written to a real controller.
-    max_velocity_deg_s: float = Field(gt=0.0)
-    max_accel_deg_s2: float = Field(gt=0.0)
+    #: (From 0.001°/s: slower makes a plan of years, which the planner's arithmetic does not hold.)
+    max_velocity_deg_s: float = Field(ge=1e-3, le=1e5)
+    max_accel_deg_s2: float = Field(ge=1e-3, le=1e7)
     home_deg: float = 0.0
     sim: AxisSimConfig = AxisSimConfig()
 

@@ -1,5 +1,6 @@
 """The `gonio` command as a user runs it (in-process through main(), and once as a real process)."""
 
+import io
 import json
 import os
 import re
@@ -578,3 +579,43 @@ def test_a_full_disk_is_one_line_and_the_same_command_resumes(tmp_path, capsys, 
     resume = [*SIM, "--out", str(out)] + (["--clear-fault"] if "--clear-fault" in says else [])
     assert main(resume) == 0
     assert (out / "brdf.h5").exists()
+
+
+@pytest.mark.parametrize("old, new, says", [
+    ("min_deg = -200.0", "min_deg = nan", "axes.light_azimuth.min_deg: Input should be a finite number"),
+    ("home_deg = 180.0", "home_deg = inf", "axes.detector_azimuth.home_deg: Input should be a finite number"),
+    # 1e-300 °/s passed and the planner failed on it: "--grid: cannot reshape array of size 0"
+    ("max_velocity_deg_s = 60.0", "max_velocity_deg_s = 1e-300",
+     "axes.light_azimuth.max_velocity_deg_s: Input should be greater than or equal to 0.001"),
+    # an escape sequence and a line break went to the terminal as they were
+    ('name = "sim-two-arm"', 'name = "a\\u001b[2Jb\\nc"', "name: must be 1 to 120 printable characters"),
+    # three missing keys were three lines
+    ("[axes.light_azimuth]", "[axes.extra]\nmin_deg = 0\n[axes.light_azimuth]",
+     "axes.extra.max_deg: Field required; axes.extra.max_velocity_deg_s: Field required; "
+     "axes.extra.max_accel_deg_s2: Field required"),
+])
+def test_a_config_value_no_gantry_has_is_one_line(tmp_path, capsys, old, new, says):
+    from gonio.config import resolve_config
+
+    text = resolve_config("sim").read_text()
+    assert old in text
+    path = tmp_path / "c.toml"
+    path.write_text(text.replace(old, new, 1))
+    assert main(["plan", "--grid", "iso:step=45", "--config", str(path)]) == 2
+    _one_clear_line(capsys, f"gonio plan: {path}: {says}")
+
+
+def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly(monkeypatch):
+    """`gonio plan --json | head -2`: the rest of the output goes nowhere; it said "gonio plan: [Errno 32]
+    Broken pipe" and exit 2."""
+    read, write = os.pipe()
+    os.close(read)
+    out = os.fdopen(write, "w")
+    err = io.StringIO()
+    monkeypatch.setattr(sys, "stdout", out)
+    monkeypatch.setattr(sys, "stderr", err)
+    try:
+        assert main(["plan", "--grid", "iso:step=45", "--json"]) == 128 + signal.SIGPIPE
+    finally:
+        out.close()
+    assert err.getvalue() == ""

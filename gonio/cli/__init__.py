@@ -15,6 +15,7 @@ one line on stderr naming the field or path and what is allowed, exit code 2, an
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 from pathlib import Path
@@ -118,11 +119,18 @@ def main(argv: list[str] | None = None) -> int:
     previous = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) if main_thread else None
     install_startup_handlers()
     try:
-        return args.func(args)
+        code = args.func(args)
+        sys.stdout.flush()   # a reader that left is found here, not by the interpreter's flush at exit
+        return code
     except Interrupted as err:
         print(f"gonio {args.command}: interrupted ({err}){_kept(args, 'run the same command')}",
               file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader of stdout left (`gonio plan --json | head`): end quietly as a Unix tool does, with
+        # SIGPIPE's status, and let nothing flush into the closed pipe at exit.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
     except Exception as err:
         if args.debug:
             raise
