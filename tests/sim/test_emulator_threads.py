@@ -1,0 +1,72 @@
+"""An emulator's serving thread outlives whatever a driver sends (it answers as the device's manual says),
+and a thread that still dies (a bug) is told at once to whoever watches it, not kept where nobody looks.
+
+Every emulator here is stopped by its test; every wait is bounded (an event, a condition), none a sleep.
+"""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+import serial
+
+from gonio.clock import VirtualClock
+from gonio.drivers.serial.transport import open_transport
+from gonio.sim.emulators.dxl_packet import Inst, PacketReader, instruction_packet
+from gonio.sim.emulators.dynamixel import DynamixelBusEmulator, EmulatedServo
+from gonio.sim.emulators.scpi import Pm100Emulator
+
+#: A bound on every wait for an emulator's thread (it answers within ms; a loaded machine may take more).
+WAIT_S = 5.0
+
+
+def _dxl(emu, packet: bytes):
+    """Send ``packet`` on the bus; the status packets that came back once the emulator handled it."""
+    n = emu.handled
+    with serial.Serial(emu.port, 1_000_000, timeout=0) as port:
+        port.write(packet)
+        assert emu.wait_received(n + 1, WAIT_S), f"the bus emulator died: {emu.error!r}"
+        return PacketReader().feed(port.read(1024))
+
+
+def _write(dxl_id: int, address: int, data: bytes) -> bytes:
+    return instruction_packet(dxl_id, Inst.WRITE, address.to_bytes(2, "little") + data)
+
+
+def test_indirect_addresses_that_point_at_each_other_are_one_level_deep_and_the_bus_serves_on():
+    """Indirect Address 1 at Indirect Data 2 and Indirect Address 2 at Indirect Data 1: a write to Indirect
+    Data 1 lands one level down, as a read of it does; it used to chase the pointers until the serving
+    thread died of a RecursionError, and the bus never answered again."""
+    emu = DynamixelBusEmulator([EmulatedServo(1, clock=VirtualClock())])
+    emu.start()
+    try:
+        assert [p.params for p in _dxl(emu, _write(1, 168, (225).to_bytes(2, "little")))] == [b"\x00"]
+        assert [p.params for p in _dxl(emu, _write(1, 170, (224).to_bytes(2, "little")))] == [b"\x00"]
+        # error 0: written at Indirect Data 2's own byte, which a read of Indirect Data 1 then returns
+        assert [p.params for p in _dxl(emu, _write(1, 224, b"\x2a"))] == [b"\x00"]
+        read = _dxl(emu, instruction_packet(1, Inst.READ, (224).to_bytes(2, "little") + b"\x01\x00"))
+        assert [p.params for p in read] == [b"\x00\x2a"]
+        assert [p.dxl_id for p in _dxl(emu, instruction_packet(1, Inst.PING))] == [1]
+        assert emu.error is None
+    finally:
+        emu.stop()
+
+
+@pytest.mark.parametrize("count", ["1E999", "-1E999"])
+def test_a_number_past_any_double_is_out_of_range_in_the_error_queue_and_the_meter_serves_on(count):
+    """``SENS:AVER:COUN 1E999`` is decimal numeric data (IEEE 488.2) too large for the meter: -222 in the
+    error queue, as for any count past its range. It used to kill the meter's thread (OverflowError
+    converting infinity to an integer): every later query timed out."""
+    emu = Pm100Emulator(lambda exposure_s: 1e-6, clock=VirtualClock())
+    emu.start()
+    port = open_transport(emu.port, 115200, b"\n")
+    try:
+        port.write(f"SENS:AVER:COUN {count};SYST:ERR?\n".encode())
+        assert port.read_until(b"\n", time.monotonic() + WAIT_S) == b'-222,"Data out of range"\n'
+        port.write(b"SENS:AVER:COUN?;*IDN?\n")
+        assert port.read_until(b"\n", time.monotonic() + WAIT_S) == f"1;{emu.idn}\n".encode()
+        assert emu.error is None
+    finally:
+        port.close()
+        emu.stop()
