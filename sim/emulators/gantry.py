@@ -131,6 +131,8 @@ class EmulatedGantry:
         self.any_port = any_port
         self.referenced = referenced
         self.emulators: dict[str, object] = {}
+        #: Bus name -> what its emulator is, in words ("the Dynamixel servos of light_azimuth, ...").
+        self.devices: dict[str, str] = {}
         self.servos: dict[str, EmulatedServo] = {}
         self.motors: dict[str, ModbusMotorEmulator] = {}
         self.lamp: LightSourceEmulator | None = None
@@ -180,6 +182,7 @@ class EmulatedGantry:
                     self.servos[n] = servo
                     servos.append(servo)
                 self.emulators[bus_name] = DynamixelBusEmulator(servos)
+                self.devices[bus_name] = f"the Dynamixel servo{'s' * (len(axes) != 1)} of {', '.join(axes)}"
             elif bus.driver == "modbus":
                 if not axes or (len(axes) > 1 and not bus.url.startswith("rtu:")):
                     raise ValueError(f"emulate: buses.{bus_name}: the Modbus emulator serves one controller "
@@ -196,10 +199,13 @@ class EmulatedGantry:
                     self.motors[n] = emu
                     units.append(emu)
                 self.emulators[bus_name] = units[0] if len(units) == 1 else ModbusBusEmulator(units)
+                self.devices[bus_name] = (f"the Modbus controller{'s' * (len(axes) != 1)} of "
+                                          f"{', '.join(axes)}")
             elif cfg.light.driver == "serial" and cfg.light.bus == bus_name:
                 make = self._emulator_for("light", cfg.light.profile, LAMP_EMULATORS)
                 self.lamp = make(clock=self.clock, link=self._link(bus_name))
                 self.emulators[bus_name] = self.lamp
+                self.devices[bus_name] = f"the lamp ({cfg.light.profile})"
             elif cfg.detector.driver == "serial" and cfg.detector.bus == bus_name:
                 if cfg.detector.kind == "power_meter":
                     make = self._emulator_for("detector", cfg.detector.profile, METER_EMULATORS)
@@ -217,6 +223,7 @@ class EmulatedGantry:
                     self.meter = SpectrometerEmulator(SPECTROMETER_BANDS_NM, self._spectrum, clock=self.clock,
                                                       link=self._link(bus_name))
                 self.emulators[bus_name] = self.meter
+                self.devices[bus_name] = f"the detector ({cfg.detector.profile})"
 
     @staticmethod
     def _emulator_for(device: str, profile: str, table: dict):
@@ -340,7 +347,11 @@ class EmulatedGantry:
                     u = urlparse(url)
                     if u.scheme == "tcp":
                         port = 0 if self.any_port or u.hostname not in ("127.0.0.1", "localhost") else u.port
-                        host, port = emu.start_tcp(port or 0)
+                        try:
+                            host, port = emu.start_tcp(port or 0)
+                        except OSError as err:  # another server holds the port: one line, nothing runs
+                            raise ValueError(f"buses.{name}: {err}; stop what holds it, or serve on a free "
+                                             "port (--any-port)") from None
                         self._locations[name] = f"tcp://{host}:{port}"
                     else:
                         baud = self.cfg.buses[name].url.partition("baudrate=")[2] or "115200"
@@ -370,6 +381,21 @@ class EmulatedGantry:
         if _VISA_ASRL.match(port):
             return f"ASRL{emu.port}::INSTR"
         return emu.port
+
+    def watch(self, callback) -> None:
+        """Call ``callback(bus_name, exc)`` when the serving thread of a bus's emulator dies of ``exc`` (a
+        bug: nothing a driver sends kills one), at once, from that thread (keep it short: record, set an
+        event); for a thread that died already, at once from this one. Call it before :meth:`start`."""
+        for name, emu in self.emulators.items():
+            emu.watch(lambda exc, name=name: callback(name, exc))
+
+    def failure(self) -> tuple[str, BaseException] | None:
+        """The first bus (in the config's order) whose emulator's thread died, with what killed it, or
+        None while every one serves."""
+        for name, emu in self.emulators.items():
+            if emu.error is not None:
+                return name, emu.error
+        return None
 
     def stop(self) -> None:
         """Stop every emulator that was started (each, even if another fails to stop)."""

@@ -49,7 +49,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from gonio.clock import WallClock
 from gonio.drivers.modbus.profile import MotorProfile, load_profile
 from gonio.motion.trapezoid import move_time, position_at
-from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, mangle
+from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, Watched, mangle
 
 __all__ = ["ModbusMotorEmulator", "ModbusBusEmulator", "StartLine", "DATA_ALARM"]
 
@@ -96,8 +96,10 @@ class StartLine:
                 self.late += 1
 
 
-class ModbusMotorEmulator:
-    """A motor controller following ``profile`` (a MotorProfile or a shipped profile's name).
+class ModbusMotorEmulator(Watched):
+    """A motor controller following ``profile`` (a MotorProfile or a shipped profile's name). Its
+    server's thread and, on RTU, the relay between the ptys are watched (:class:`Watched`): pymodbus
+    answers a request the unit cannot serve with an exception response, so only a bug ends them.
 
     Parameters
     ----------
@@ -109,6 +111,7 @@ class ModbusMotorEmulator:
     """
 
     def __init__(self, profile: MotorProfile | str = "generic", clock=None, device_id: int = 1):
+        super().__init__()
         self.profile = profile if isinstance(profile, MotorProfile) else load_profile(profile)
         self.clock = clock or WallClock()
         self.device_id = device_id
@@ -402,7 +405,7 @@ class ModbusMotorEmulator:
         return SimDevice(self.device_id, simdata=[SimData(address=self._base, count=len(self._regs), values=0,
                                                           datatype=DataType.REGISTERS)], action=self._action)
 
-    def _serve(self, make_server, ready: threading.Event) -> None:
+    def _serve(self, make_server, ready: threading.Event, failed: list) -> None:
         loop = asyncio.new_event_loop()
         self._loop = loop
         asyncio.set_event_loop(loop)
@@ -420,6 +423,11 @@ class ModbusMotorEmulator:
         self._stopping = False
         try:
             loop.run_until_complete(main())
+        except BaseException as exc:
+            if ready.is_set():
+                self._died(exc)          # it was serving
+            else:
+                failed.append(exc)       # it never served: _start raises it
         finally:
             ready.set()
             loop.close()
@@ -427,22 +435,34 @@ class ModbusMotorEmulator:
     def _start(self, make_server) -> None:
         if self._thread is not None:
             raise RuntimeError("modbus emulator is already running")
-        ready = threading.Event()
-        self._thread = threading.Thread(target=self._serve, args=(make_server, ready), daemon=True,
+        ready, failed = threading.Event(), []
+        self._thread = threading.Thread(target=self._serve, args=(make_server, ready, failed), daemon=True,
                                         name="emu-modbus")
         self._thread.start()
-        if not ready.wait(5.0) or self._server is None:
+        if not ready.wait(5.0) or self._server is None or failed:
             self.stop()
+            if failed:
+                raise RuntimeError(f"modbus emulator could not start: {failed[0]}") from failed[0]
             raise RuntimeError("modbus emulator did not start within 5 s")
 
     def start_tcp(self, port: int = 0) -> tuple[str, int]:
-        """Serve Modbus TCP on 127.0.0.1 at ``port`` (0: a free one); returns (host, port)."""
-        if not port:
-            with socket.socket() as s:
-                s.bind(("127.0.0.1", 0))
-                port = s.getsockname()[1]
+        """Serve Modbus TCP on 127.0.0.1 at ``port`` (0: a free one); returns (host, port). A port that
+        another server holds is refused here (OSError naming it), not left to the server's thread."""
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as asyncio's server binds
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError as err:
+                raise OSError(f"modbus emulator: cannot listen on 127.0.0.1:{port} "
+                              f"({(err.strerror or str(err)).lower()})") from None
+            port = s.getsockname()[1]
         self.address = ("127.0.0.1", port)
-        self._start(lambda: ModbusTcpServer(self._device(), address=self.address, trace_packet=self._trace))
+        try:
+            self._start(lambda: ModbusTcpServer(self._device(), address=self.address,
+                                                trace_packet=self._trace))
+        except BaseException:
+            self.address = None
+            raise
         return self.address
 
     def start_rtu(self, baudrate: int = 115200, *, units=None, trace=None, line=None) -> str:
@@ -465,7 +485,14 @@ class ModbusMotorEmulator:
         return self.port
 
     def _bridge(self) -> None:
-        """Copy bytes between the client's pty and the server's, waiting on both at once."""
+        """Copy bytes between the client's pty and the server's, waiting on both at once (watched: an
+        exception that ends it is told to the watchers)."""
+        try:
+            self._relay_loop()
+        except BaseException as exc:
+            self._died(exc)
+
+    def _relay_loop(self) -> None:
         a, b = self._links
         while not self._relay_stop.is_set():
             fds = {fd: (src, dst) for src, dst in ((a, b), (b, a)) if (fd := src.master) is not None}
@@ -573,6 +600,15 @@ class ModbusBusEmulator:
         values = [int.from_bytes(frame[7 + 2 * i:9 + 2 * i], "big") for i in range(count)]
         for u in self.units.values():
             u.execute_silently(address, values)
+
+    @property
+    def error(self) -> BaseException | None:
+        """What ended the line's serving threads (:attr:`ModbusMotorEmulator.error`), or None."""
+        return self._host.error
+
+    def watch(self, callback) -> None:
+        """As :meth:`ModbusMotorEmulator.watch`, for the line's threads."""
+        self._host.watch(callback)
 
     def start_rtu(self, baudrate: int = 115200) -> str:
         """Serve the line on a pty; returns the port name a client opens."""

@@ -6,6 +6,9 @@ Every emulator here is stopped by its test; every wait is bounded (an event, a c
 
 from __future__ import annotations
 
+import logging
+import os
+import threading
 import time
 
 import pytest
@@ -15,6 +18,8 @@ from gonio.clock import VirtualClock
 from gonio.drivers.serial.transport import open_transport
 from gonio.sim.emulators.dxl_packet import Inst, PacketReader, instruction_packet
 from gonio.sim.emulators.dynamixel import DynamixelBusEmulator, EmulatedServo
+from gonio.sim.emulators.link import PtyLink
+from gonio.sim.emulators.modbus import ModbusBusEmulator, ModbusMotorEmulator
 from gonio.sim.emulators.scpi import Pm100Emulator
 
 #: A bound on every wait for an emulator's thread (it answers within ms; a loaded machine may take more).
@@ -70,3 +75,84 @@ def test_a_number_past_any_double_is_out_of_range_in_the_error_queue_and_the_met
     finally:
         port.close()
         emu.stop()
+
+
+class Deaths:
+    """A watcher's callback: what it was told, and an event set by the first telling."""
+
+    def __init__(self):
+        self.told: list[tuple] = []
+        self.event = threading.Event()
+
+    def __call__(self, *what) -> None:
+        self.told.append(what)
+        self.event.set()
+
+
+def test_a_bus_emulator_whose_thread_dies_tells_its_watcher_at_once_with_the_exception(monkeypatch):
+    """A bug in the serving loop (injected: the packet handler raises) ends the thread; the watcher is
+    called from it with the exception, once, and :attr:`error` keeps it. The emulator still stops cleanly
+    (its pty gone)."""
+    bug = RuntimeError("injected: a bug in the packet handler")
+
+    def handle(self, packet):
+        raise bug
+
+    monkeypatch.setattr(DynamixelBusEmulator, "_handle", handle)
+    emu = DynamixelBusEmulator([EmulatedServo(1, clock=VirtualClock())])
+    deaths = Deaths()
+    emu.watch(deaths)
+    emu.start()
+    try:
+        with serial.Serial(emu.port, 1_000_000, timeout=0) as port:
+            port.write(instruction_packet(1, Inst.PING))
+            assert deaths.event.wait(WAIT_S)
+        assert deaths.told == [(bug,)] and emu.error is bug
+        late = Deaths()
+        emu.watch(late)  # watching a thread that died already: told at once
+        assert late.told == [(bug,)]
+    finally:
+        emu.stop()
+    assert not (emu.link.plugged or os.path.lexists(emu.port))
+
+
+@pytest.mark.parametrize("line", ["one unit", "two units"])
+def test_a_modbus_rtu_relay_that_dies_tells_its_watcher(monkeypatch, line):
+    """On an RTU line (one unit, or several sharing it) the relay thread between the client's pty and
+    pymodbus's server is watched as the server's thread is (a bug injected where it reads the bytes)."""
+    bug = RuntimeError("injected: a bug on the line")
+
+    def broken(self, timeout_s, wake=None):
+        raise bug
+
+    clock = VirtualClock()
+    units = [ModbusMotorEmulator("generic", clock=clock, device_id=i) for i in (1, 2)]
+    emu = units[0] if line == "one unit" else ModbusBusEmulator(units)
+    deaths = Deaths()
+    emu.watch(deaths)
+    port = emu.start_rtu(115200)
+    try:
+        monkeypatch.setattr(PtyLink, "read", broken)
+        with serial.Serial(port, 115200, timeout=0) as client:
+            client.write(b"\x01\x03\x00\x00\x00\x01\x84\x0a")
+            assert deaths.event.wait(WAIT_S)
+        assert deaths.told == [(bug,)] and emu.error is bug
+    finally:
+        monkeypatch.undo()
+        emu.stop()
+
+
+def test_a_modbus_tcp_port_in_use_is_refused_at_start_naming_the_address(caplog):
+    """A second server on a port another holds could not listen: its thread died while start_tcp
+    returned as if it served (a traceback on stderr, then time-outs). Now start_tcp raises, naming the
+    address, and nothing runs."""
+    clock = VirtualClock()
+    first, second = ModbusMotorEmulator(clock=clock), ModbusMotorEmulator(clock=clock)
+    host, port = first.start_tcp(0)
+    try:
+        with caplog.at_level(logging.CRITICAL), pytest.raises(OSError, match=f"{host}:{port}.*in use"):
+            second.start_tcp(port)
+        assert second.error is None and second.address is None
+    finally:
+        second.stop()
+        first.stop()
