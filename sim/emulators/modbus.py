@@ -13,7 +13,9 @@ bit and code are set until the profile's alarm reset), :meth:`go_silent` stops a
 that hangs), :meth:`power_cycle` cuts and restores its power (an incremental drive loses its position and
 origin: it counts from 0 where the shaft stands); :attr:`ModbusMotorEmulator.refuse_gaps` answers a read
 that touches a register the profile does not name with exception 2, as some units do. Function 23
-(Read/Write Multiple Registers) writes, then reads.
+(Read/Write Multiple Registers) writes, then reads. A request for a function the unit does not implement
+gets exception 1 under that function's code, on TCP and RTU; on an RTU line a frame with a bad CRC gets
+no reply, and neither costs the request after it.
 
 A profile with a ``[sync_start]`` table (Oriental Motor's direct data operation) holds the data of a
 block written with the hold trigger value (0): a later write of the trigger register alone starts the
@@ -43,6 +45,7 @@ from collections import deque
 
 from pymodbus.constants import ExcCodes
 from pymodbus.framer.rtu import FramerRTU
+from pymodbus.pdu.decoders import DecodePDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -370,6 +373,11 @@ class ModbusMotorEmulator(Watched):
             self._answer_trigger = False
             self.start_line.wait()
         fc = data[7] if self.address is not None else data[1]
+        if fc == 0x80 and self._asked:
+            # pymodbus answers a function it does not decode with exception 1 under function 0x80; the
+            # spec's exception response carries the request's function code with its high bit set
+            fc = (self._asked[0] & 0x7F) | 0x80
+            data = data[:7] + bytes([fc]) + data[8:]
         fault = self.faults.take(fc & 0x7F)
         if fault is not None and fault.kind == "disconnect":
             self._disconnect()
@@ -398,6 +406,7 @@ class ModbusMotorEmulator(Watched):
     def replug(self) -> None:
         """After a serial disconnect: a fresh pty behind the same port name."""
         if self._links:
+            self._unheard = b""  # a frame cut short by the pull is not continued by the next one
             self._links[0].replug()
 
     # -- serving ---------------------------------------------------------------------------------------------
@@ -470,7 +479,8 @@ class ModbusMotorEmulator(Watched):
         default this one) share the line, each answering its own address; ``trace`` replaces this unit's
         packet hook and ``line`` (bytes from the master -> the bytes the units' server is given) sits on
         the wire (:class:`ModbusBusEmulator` gives both)."""
-        self._line = line
+        self._line = line or self._own_line
+        self._unheard = b""
         client_side, server_side = PtyLink("ttyMB"), PtyLink("ttyMBsrv")
         self._links = [client_side, server_side]
         self._relay_stop.clear()
@@ -483,6 +493,22 @@ class ModbusMotorEmulator(Watched):
                                                trace_packet=trace or self._trace,
                                                ignore_missing_devices=units is not None))
         return self.port
+
+    def _own_line(self, data: bytes) -> bytes:
+        """The master's bytes as this unit's server is given them, frame by frame: a frame with a bad CRC
+        dropped, a request for a function no unit implements answered here (:func:`_screened`)."""
+        frames, self._unheard = _frames(self._unheard + data)
+        out = b""
+        for frame in frames:
+            if _screened(frame, {self.device_id}, self.answer_line):
+                continue
+            out += frame
+        return out
+
+    def answer_line(self, frame: bytes) -> None:
+        """Write ``frame`` to the RTU line's master (a reply the units' server does not make)."""
+        if self._links:
+            self._links[0].write(frame)
 
     def _bridge(self) -> None:
         """Copy bytes between the client's pty and the server's, waiting on both at once (watched: an
@@ -576,21 +602,24 @@ class ModbusBusEmulator:
         return data
 
     def _line(self, data: bytes) -> bytes:
-        """The master's bytes as the units see them, frame by frame: each recorded; a broadcast executed
-        by every unit (and given to none to answer); a frame to an address nobody has, dropped."""
-        self._pending += data
+        """The master's bytes as the units see them, frame by frame: each recorded; one with a bad CRC
+        dropped, one for a function no unit implements answered here (:func:`_screened`); a broadcast
+        executed by every unit (and given to none to answer); a frame to an address nobody has, dropped."""
+        frames, self._pending = _frames(self._pending + data)
         out = b""
-        while self._pending:
-            n = _request_len(self._pending)
-            if n > len(self._pending):
-                break
-            frame, self._pending = self._pending[:n], self._pending[n:]
+        for frame in frames:
             self.requests.append(frame)
+            if _screened(frame, set(self.units), self._answer):
+                continue
             if frame[0] == 0:
                 self._broadcast(frame)
             elif frame[0] in self.units:
                 out += frame
         return out
+
+    def _answer(self, frame: bytes) -> None:
+        self.replies.append(frame)
+        self._host.answer_line(frame)
 
     def _broadcast(self, frame: bytes) -> None:
         if frame[1] != 16 or FramerRTU.compute_CRC(frame[:-2]) != int.from_bytes(frame[-2:], "big"):
@@ -633,3 +662,30 @@ def _request_len(buf: bytes) -> int:
     if fc == 23:
         return 13 + buf[10] if len(buf) > 10 else 11
     return len(buf)  # a function this line does not frame: passed on whole
+
+
+def _frames(buf: bytes) -> tuple[list[bytes], bytes]:
+    """The whole request frames at the head of ``buf``, and what follows them (a frame not whole yet)."""
+    frames = []
+    while buf and (n := _request_len(buf)) <= len(buf):
+        frames.append(buf[:n])
+        buf = buf[n:]
+    return frames, buf
+
+
+def _screened(frame: bytes, units: set[int], answer) -> bool:
+    """Whether ``frame`` (a request from the master) is handled here rather than by pymodbus, whose RTU
+    framer skips an unknown function byte by byte, and throws the whole buffer away after a bad CRC: the
+    next request went with either. As the Modbus over serial line spec says, a frame with a bad CRC gets
+    no reply (dropped here); a unit on the line answers a request for a function it does not implement
+    with exception 1 (illegal function), the request's code with its high bit set (``answer`` writes
+    it); nobody answers a broadcast, or a code that is no function (0, or 128 and above: an exception
+    response's)."""
+    if len(frame) < 4 or FramerRTU.compute_CRC(frame[:-2]) != int.from_bytes(frame[-2:], "big"):
+        return True
+    if frame[1] in DecodePDU.pdu_table:
+        return False
+    if 0 < frame[1] < 0x80 and frame[0] in units:
+        reply = bytes([frame[0], frame[1] | 0x80, 0x01])
+        answer(reply + FramerRTU.compute_CRC(reply).to_bytes(2, "big"))
+    return True

@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import threading
 import time
 
 import pytest
 import serial
+from pymodbus.framer.rtu import FramerRTU
 
 from gonio.clock import VirtualClock
 from gonio.drivers.serial.transport import open_transport
@@ -156,3 +158,54 @@ def test_a_modbus_tcp_port_in_use_is_refused_at_start_naming_the_address(caplog)
     finally:
         second.stop()
         first.stop()
+
+
+def _rtu(unit: int, pdu: bytes) -> bytes:
+    frame = bytes([unit]) + pdu
+    return frame + FramerRTU.compute_CRC(frame).to_bytes(2, "big")
+
+
+#: Read Holding Registers of the generic profile's status word (address 274), one register.
+READ_STATUS = b"\x03\x01\x12\x00\x01"
+
+
+@pytest.mark.parametrize("line", ["one unit", "two units"])
+def test_a_modbus_rtu_unit_answers_a_function_it_lacks_with_exception_1_and_drops_a_bad_crc(line):
+    """Modbus over serial line: a request with a good CRC for a function the unit does not implement gets
+    exception 1 (illegal function: the code with its high bit set); a request with a bad CRC gets no
+    reply; the next request is answered either way. pymodbus's RTU framer answered the first with
+    nothing and threw the request after it away (it skipped the unknown frame byte by byte into it)."""
+    clock = VirtualClock()
+    units = [ModbusMotorEmulator("generic", clock=clock, device_id=i) for i in (1, 2)]
+    emu = units[0] if line == "one unit" else ModbusBusEmulator(units)
+    status = _rtu(1, b"\x03\x02\x00\x01")  # its reply: one register, the ready bit (0) set
+    try:
+        with serial.Serial(emu.start_rtu(115200), 115200, timeout=WAIT_S) as client:
+            client.write(_rtu(1, b"\x41\x00\x00\x00\x01"))
+            assert client.read(5) == _rtu(1, b"\xc1\x01")
+            client.write(_rtu(1, READ_STATUS))
+            assert client.read(7) == status
+            bad = bytearray(_rtu(1, READ_STATUS))
+            bad[-1] ^= 0xFF
+            client.write(bytes(bad))
+            client.write(_rtu(1, READ_STATUS))  # what comes back first is this one's reply
+            assert client.read(7) == status
+        assert emu.error is None
+    finally:
+        emu.stop()
+
+
+def test_a_modbus_tcp_unit_answers_a_function_it_lacks_with_exception_1_under_that_function():
+    """Over TCP pymodbus answered exception 1 under function 0x80, whatever the request's; the spec's
+    exception response carries the request's code with its high bit set (0x41 -> 0xC1)."""
+    emu = ModbusMotorEmulator("generic", clock=VirtualClock())
+    host, port = emu.start_tcp(0)
+    try:
+        with socket.create_connection((host, port), timeout=WAIT_S) as client:
+            client.sendall(b"\x00\x07\x00\x00\x00\x06\x01\x41\x00\x00\x00\x01")
+            reply = b""
+            while len(reply) < 9:
+                reply += client.recv(9 - len(reply))
+            assert reply == b"\x00\x07\x00\x00\x00\x03\x01\xc1\x01"
+    finally:
+        emu.stop()
