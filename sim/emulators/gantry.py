@@ -28,7 +28,8 @@ Everything runs on one clock (the wall clock by default; a test shares a virtual
 it builds: a :class:`~gonio.sim.emulators.link.SyncedVirtualClock`, so that a Sync Write, which gets no
 reply, acts at the virtual instant it was sent). :meth:`EmulatedGantry.config` is the config with each
 bus's port or url replaced by where its emulator listens; :meth:`EmulatedGantry.config_toml` writes it
-out for another process.
+out for another process. :meth:`EmulatedGantry.watch` tells at once of an emulator whose serving thread
+died (:attr:`EmulatedGantry.devices` says what it emulated).
 """
 
 from __future__ import annotations
@@ -388,14 +389,6 @@ class EmulatedGantry:
         event); for a thread that died already, at once from this one. Call it before :meth:`start`."""
         for name, emu in self.emulators.items():
             emu.watch(lambda exc, name=name: callback(name, exc))
-
-    def failure(self) -> tuple[str, BaseException] | None:
-        """The first bus (in the config's order) whose emulator's thread died, with what killed it, or
-        None while every one serves."""
-        for name, emu in self.emulators.items():
-            if emu.error is not None:
-                return name, emu.error
-        return None
 
     def stop(self) -> None:
         """Stop every emulator that was started (each, even if another fails to stop)."""
