@@ -60,6 +60,27 @@ def test_indirect_addresses_that_point_at_each_other_are_one_level_deep_and_the_
         emu.stop()
 
 
+def test_a_corrupt_packet_gets_a_crc_error_from_its_servo_and_noise_is_skipped():
+    """Protocol 2.0: a servo answers an instruction packet whose CRC does not match with a status packet of
+    error 3 (CRC error); nobody answers a corrupt broadcast; bytes before a header are noise. The bus
+    answers the next packet either way (coverage of what the emulator already did)."""
+    clock = VirtualClock()
+    emu = DynamixelBusEmulator([EmulatedServo(1, clock=clock), EmulatedServo(2, clock=clock)])
+    emu.start()
+    try:
+        corrupt = bytearray(instruction_packet(1, Inst.PING))
+        corrupt[-1] ^= 0x5A
+        assert [(p.dxl_id, p.params) for p in _dxl(emu, bytes(corrupt))] == [(1, b"\x03")]
+        broadcast = bytearray(instruction_packet(0xFE, Inst.PING))
+        broadcast[-2] ^= 0x01
+        assert _dxl(emu, bytes(broadcast)) == []
+        noisy = b"\x00\xff\xfd\x13\xff\xff" + instruction_packet(2, Inst.PING)
+        assert [p.dxl_id for p in _dxl(emu, noisy)] == [2]
+    finally:
+        emu.stop()
+    assert emu.error is None
+
+
 @pytest.mark.parametrize("count", ["1E999", "-1E999"])
 def test_a_number_past_any_double_is_out_of_range_in_the_error_queue_and_the_meter_serves_on(count):
     """``SENS:AVER:COUN 1E999`` is decimal numeric data (IEEE 488.2) too large for the meter: -222 in the
