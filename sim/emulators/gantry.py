@@ -408,8 +408,15 @@ class EmulatedGantry:
     def __enter__(self) -> EmulatedGantry:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
+        """Stop every emulator; leaving the block without an exception, one whose serving thread died is
+        one (a test whose emulator died would otherwise show only its driver's time-outs)."""
         self.stop()
+        if exc_type is None:
+            for name, emu in self.emulators.items():
+                if emu.error is not None:
+                    raise RuntimeError(f"buses.{name}: the emulator of {self.devices[name]} died of "
+                                       f"{emu.error!r}") from emu.error
 
     def locations(self) -> dict[str, str]:
         """Where each bus's emulator listens: a pty path, or a Modbus url."""

@@ -17,9 +17,11 @@ import serial
 from pymodbus.framer.rtu import FramerRTU
 
 from gonio.clock import VirtualClock
+from gonio.config import load_config
 from gonio.drivers.serial.transport import open_transport
 from gonio.sim.emulators.dxl_packet import Inst, PacketReader, instruction_packet
 from gonio.sim.emulators.dynamixel import DynamixelBusEmulator, EmulatedServo
+from gonio.sim.emulators.gantry import EmulatedGantry
 from gonio.sim.emulators.link import PtyLink
 from gonio.sim.emulators.modbus import ModbusBusEmulator, ModbusMotorEmulator
 from gonio.sim.emulators.scpi import Pm100Emulator
@@ -230,3 +232,24 @@ def test_a_modbus_tcp_unit_answers_a_function_it_lacks_with_exception_1_under_th
             assert reply == b"\x00\x07\x00\x00\x00\x03\x01\xc1\x01"
     finally:
         emu.stop()
+
+
+def test_an_emulated_gantry_left_cleanly_with_a_dead_emulator_says_which(monkeypatch):
+    """``with EmulatedGantry(...)``, as the campaign tests use it: a serving thread that died is an error
+    when the block ends (naming the bus and the device), not a test that passes or fails on time-outs."""
+    bug = RuntimeError("injected: a bug in the serving loop")
+
+    def step(self):
+        raise bug
+
+    monkeypatch.setattr(DynamixelBusEmulator, "step", step)
+    emulated = EmulatedGantry(load_config("emulated-two-arm-dynamixel"), clock=VirtualClock(), any_port=True)
+    deaths = Deaths()
+    emulated.watch(deaths)
+    says = r"buses\.arm: the emulator of the Dynamixel servos of light_azimuth, .* died of RuntimeError"
+    with pytest.raises(RuntimeError, match=says) as err:
+        with emulated:
+            assert deaths.event.wait(WAIT_S)
+    assert err.value.__cause__ is bug and deaths.told == [("arm", bug)]
+    assert emulated.locations() == {}  # every emulator stopped
+    assert not [t for t in threading.enumerate() if t.name.startswith("emu-")]
