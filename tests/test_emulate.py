@@ -33,8 +33,11 @@ def _served(out: str) -> list[str]:
             if line.split(":", 1)[0] in ("arm", "lamp", "photodiode")]
 
 
-def _emulators_alive() -> list[str]:
-    return [t.name for t in threading.enumerate() if t.name.startswith("emu-")]
+@pytest.fixture
+def emulator_threads():
+    """The emulator threads started during the test that are still alive (a call: at the end, none)."""
+    before = set(threading.enumerate())
+    return lambda: [t.name for t in threading.enumerate() if t not in before and t.name.startswith("emu-")]
 
 
 def _bounded(argv: list[str]) -> list[int]:
@@ -63,7 +66,7 @@ def _when_config_written(monkeypatch, target, act) -> list[bool]:
 
 
 def test_an_emulator_that_dies_is_one_line_exit_1_and_the_rest_stops_and_the_config_goes(
-        tmp_path, capsys, monkeypatch):
+        tmp_path, capsys, monkeypatch, emulator_threads):
     """The servos' emulator dies of a bug after the config was written: one line naming the servos, their
     bus and the exception (its two lines joined), exit 1, every pty closed, the config removed. Before,
     the command went on serving the lamp and the photodiode, silent, until a signal (the thread's
@@ -83,11 +86,12 @@ def test_an_emulator_that_dies_is_one_line_exit_1_and_the_rest_stops_and_the_con
     assert f"config: {target}" in captured.out and not list(tmp_path.iterdir())
     ports = _served(captured.out)
     assert len(ports) == 3 and not [p for p in ports if os.path.lexists(p)]
-    assert _emulators_alive() == []
+    assert emulator_threads() == []
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_stops_every_emulator_and_removes_the_config_exit_0(tmp_path, capsys, monkeypatch, signum):
+def test_a_signal_stops_every_emulator_and_removes_the_config_exit_0(tmp_path, capsys, monkeypatch, signum,
+                                                                    emulator_threads):
     """SIGTERM or SIGINT (sent once the config is written): exit 0, as `gonio serve` on a signal (stopping
     is how a server ends; a campaign cut short is 130), no line on stderr, every pty closed, the config
     removed."""
@@ -100,10 +104,11 @@ def test_a_signal_stops_every_emulator_and_removes_the_config_exit_0(tmp_path, c
     assert f"config: {target}" in captured.out
     ports = _served(captured.out)
     assert len(ports) == 3 and not [p for p in ports if os.path.lexists(p)]
-    assert not target.exists() and _emulators_alive() == []
+    assert not target.exists() and emulator_threads() == []
 
 
-def test_a_modbus_port_another_server_holds_is_one_line_exit_2_before_anything_serves(tmp_path, capsys):
+def test_a_modbus_port_another_server_holds_is_one_line_exit_2_before_anything_serves(tmp_path, capsys,
+                                                                                    emulator_threads):
     """The shipped Modbus stage's rotation controller on a port this test listens on: refused in one line
     naming the bus, the address and --any-port (exit 2); before, its server's thread died with a
     traceback while the command said it emulated (and served on: it never returned), and `gonio run`
@@ -121,4 +126,4 @@ def test_a_modbus_port_another_server_holds_is_one_line_exit_2_before_anything_s
     one_clear_line(capsys, "gonio emulate: buses.rotation: modbus emulator: cannot listen on "
                    f"127.0.0.1:{port} (address already in use)", "--any-port")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["stage.toml"]
-    assert _emulators_alive() == []
+    assert emulator_threads() == []
