@@ -20,6 +20,7 @@ from gonio.cli import main
 from gonio.config import load_config
 from gonio.sim.emulators.dynamixel import DynamixelBusEmulator
 from gonio.sim.emulators.gantry import to_toml
+from gonio.sim.emulators.instruments import LightSourceEmulator
 
 CONFIG = "emulated-two-arm-dynamixel"
 SERVOS = "the Dynamixel servos of light_azimuth, light_tilt, detector_azimuth, detector_tilt, changer"
@@ -126,4 +127,36 @@ def test_a_modbus_port_another_server_holds_is_one_line_exit_2_before_anything_s
     one_clear_line(capsys, "gonio emulate: buses.rotation: modbus emulator: cannot listen on "
                    f"127.0.0.1:{port} (address already in use)", "--any-port")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["stage.toml"]
+    assert emulator_threads() == []
+
+
+def test_an_emulator_that_does_not_stop_in_time_is_one_line_exit_1(tmp_path, capsys, monkeypatch,
+                                                                    emulator_threads):
+    """A signal while the lamp's emulator is busy past the stop's wait (as a PM100 averaging for minutes
+    on the wall clock): one line naming it, exit 1, the others stopped, its port and the config gone;
+    before, a traceback. (The wait is cut to 0.05 s here; the busy lamp is released at the end.)"""
+    assert threading.current_thread() is threading.main_thread()
+    target, busy = tmp_path / "emu.toml", threading.Event()
+    real_step, real_stop = LightSourceEmulator.step, LightSourceEmulator.stop
+
+    def lamp_step(self):
+        if target.exists():
+            busy.wait(WAIT_S)  # busy until the test ends it
+        real_step(self)
+
+    monkeypatch.setattr(LightSourceEmulator, "step", lamp_step)
+    monkeypatch.setattr(LightSourceEmulator, "stop", lambda self, timeout_s=5.0: real_stop(self, 0.05))
+    _when_config_written(monkeypatch, target, lambda: os.kill(os.getpid(), signal.SIGTERM))
+    try:
+        assert main(["emulate", "--config", CONFIG, "--write-config", str(target)]) == 1
+    finally:
+        busy.set()
+    captured = capsys.readouterr()
+    assert captured.err == ("gonio emulate: emulator 'LAMP' did not stop within 0.05 s; the others stopped, "
+                            "and it ends with this process\n")
+    ports = _served(captured.out)
+    assert len(ports) == 3 and not [p for p in ports if os.path.lexists(p)] and not target.exists()
+    for thread in threading.enumerate():
+        if thread.name == "emu-LAMP":
+            thread.join(WAIT_S)  # released: it sees its stop and ends
     assert emulator_threads() == []

@@ -21,7 +21,8 @@ def cmd_emulate(args) -> int:
     is how a server ends). If an emulator's serving thread dies (a bug: nothing a driver sends kills one),
     one line on stderr names the device and the exception, every other emulator is stopped (ptys and
     sockets closed), the ``--write-config`` file is removed (a config naming ports nothing serves would
-    only time out), and the exit code is 1."""
+    only time out), and the exit code is 1. An emulator still busy when the stop's wait runs out is one
+    line too (exit 1): the process ends it."""
     from gonio.sim.emulators.gantry import EmulatedGantry
     from gonio.sim.materials import load as load_material
 
@@ -64,7 +65,16 @@ def cmd_emulate(args) -> int:
     finally:
         if target is not None:  # first: no client may read ports that are about to close
             target.unlink(missing_ok=True)
-        emu.stop()
+        try:
+            emu.stop()
+        except RuntimeError as err:  # a thread busy past the stop's wait (a PM100 averaging for minutes)
+            stuck = err
+        else:
+            stuck = None
+    if stuck is not None and not dead:
+        print(f"gonio emulate: {stuck}; the others stopped, and it ends with this process", file=sys.stderr,
+              flush=True)
+        return 1
     if dead:
         bus, exc = dead[0]
         what = " ".join(f"{type(exc).__name__}: {exc}".split())  # one line, whatever the message holds
