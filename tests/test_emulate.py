@@ -136,21 +136,26 @@ def test_an_emulator_that_does_not_stop_in_time_is_one_line_exit_1(tmp_path, cap
     on the wall clock): one line naming it, exit 1, the others stopped, its port and the config gone;
     before, a traceback. (The wait is cut to 0.05 s here; the busy lamp is released at the end.)"""
     assert threading.current_thread() is threading.main_thread()
-    target, busy = tmp_path / "emu.toml", threading.Event()
+    target, lamp_busy, release = tmp_path / "emu.toml", threading.Event(), threading.Event()
     real_step, real_stop = LightSourceEmulator.step, LightSourceEmulator.stop
 
     def lamp_step(self):
-        if target.exists():
-            busy.wait(WAIT_S)  # busy until the test ends it
+        if target.exists() and not release.is_set():
+            lamp_busy.set()
+            release.wait(WAIT_S)  # busy until the test releases it
         real_step(self)
+
+    def busy_then_signal():  # the signal once the lamp is busy
+        assert lamp_busy.wait(WAIT_S)
+        os.kill(os.getpid(), signal.SIGTERM)
 
     monkeypatch.setattr(LightSourceEmulator, "step", lamp_step)
     monkeypatch.setattr(LightSourceEmulator, "stop", lambda self, timeout_s=5.0: real_stop(self, 0.05))
-    _when_config_written(monkeypatch, target, lambda: os.kill(os.getpid(), signal.SIGTERM))
+    _when_config_written(monkeypatch, target, busy_then_signal)
     try:
         assert main(["emulate", "--config", CONFIG, "--write-config", str(target)]) == 1
     finally:
-        busy.set()
+        release.set()
     captured = capsys.readouterr()
     assert captured.err == ("gonio emulate: emulator 'LAMP' did not stop within 0.05 s; the others stopped, "
                             "and it ends with this process\n")
