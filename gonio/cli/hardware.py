@@ -18,6 +18,12 @@ from gonio.config import load_config
 
 
 def cmd_emulate(args) -> int:
+    """Serve the emulated devices of a config until SIGINT or SIGTERM (exit 0, as ``gonio serve``: stopping
+    is how a server ends). If an emulator's serving thread dies (a bug: nothing a driver sends kills one),
+    one line on stderr names the device and the exception, every other emulator is stopped (ptys and
+    sockets closed), the ``--write-config`` file is removed (a config naming ports nothing serves would
+    only time out), and the exit code is 1. An emulator still busy when the stop's wait runs out is one
+    line too (exit 1): the process ends it."""
     from gonio.sim.emulators.gantry import EmulatedGantry
     from gonio.sim.materials import load as load_material
 
@@ -28,6 +34,14 @@ def cmd_emulate(args) -> int:
         raise UsageError(f"--write-config: {target} must be a file in an existing folder")
     emu = EmulatedGantry(cfg, material, seed=args.seed, any_port=args.any_port)
     stop = threading.Event()
+    dead: list[tuple[str, BaseException]] = []
+    written = False
+
+    def died(bus: str, exc: BaseException) -> None:  # in the dying thread: record, wake the main one
+        dead.append((bus, exc))
+        stop.set()
+
+    emu.watch(died)
     if _in_main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda signum, frame: stop.set())
@@ -35,11 +49,12 @@ def cmd_emulate(args) -> int:
     try:
         for bus, where in emu.locations().items():
             print(f"{bus}: {where}", flush=True)
-        if target is not None:
+        if target is not None and not stop.is_set():
             tmp = target.with_name(target.name + ".tmp")
             tmp.write_text(emu.config_toml(f"# {cfg.name}, emulated by gonio emulate (pid {os.getpid()}); "
                                            "valid while it runs\n"))
             tmp.replace(target)
+            written = True
             print(f"config: {target}", flush=True)
         print(f"emulating '{cfg.name}' (material {material.spec}); SIGINT or SIGTERM stops", flush=True)
         fresh = [n for n, a in cfg.axes.items() if not a.simulated and a.reference_method != "none"]
@@ -49,9 +64,25 @@ def cmd_emulate(args) -> int:
         while not stop.wait(0.5):
             pass
     finally:
-        emu.stop()
-        if target is not None:
+        if target is not None:  # first: no client may read ports that are about to close
             target.unlink(missing_ok=True)
+        try:
+            emu.stop()
+        except RuntimeError as err:  # a thread busy past the stop's wait (a PM100 averaging for minutes)
+            stuck = err
+        else:
+            stuck = None
+    if stuck is not None and not dead:
+        print(f"gonio emulate: {stuck}; the others stopped, and it ends with this process", file=sys.stderr,
+              flush=True)
+        return 1
+    if dead:
+        bus, exc = dead[0]
+        what = " ".join(f"{type(exc).__name__}: {exc}".split())  # one line, whatever the message holds
+        gone = "" if target is None else f"; {target} {'removed' if written else 'not written'}"
+        print(f"gonio emulate: {emu.devices[bus]} (bus '{bus}') stopped answering: its emulator died of "
+              f"{what}; every other emulator stopped{gone}", file=sys.stderr, flush=True)
+        return 1
     return 0
 
 

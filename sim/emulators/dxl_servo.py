@@ -370,15 +370,18 @@ class EmulatedServo:
             out.append(self._mem[target] if 0 <= target < _TABLE_SIZE else 0)
         return 0, bytes(out)
 
-    def write(self, addr: int, data: bytes) -> int:
-        """Apply a write; returns the error number (0 when accepted)."""
+    def write(self, addr: int, data: bytes, *, indirect: bool = True) -> int:
+        """Apply a write; returns the error number (0 when accepted). A byte of Indirect Data goes where
+        its Indirect Address points, one level deep as a read goes (``indirect`` False: the bytes at
+        ``addr`` themselves): an Indirect Address pointing at another Indirect Data names that byte, not
+        the address it holds in turn, so two pointing at each other are no loop."""
         end = addr + len(data)
         if not data or not _DEFINED.issuperset(range(addr, end)):
             return ERR_ACCESS
-        if any(self._resolve(a) != a for a in range(addr, end)):
+        if indirect and any(self._resolve(a) != a for a in range(addr, end)):
             # Indirect Data pointing elsewhere: each byte written at the item it points at.
             for a, byte in zip(range(addr, end), data, strict=True):
-                err = self.write(self._resolve(a), bytes([byte]))
+                err = self.write(self._resolve(a), bytes([byte]), indirect=False)
                 if err:
                     return err
             return 0

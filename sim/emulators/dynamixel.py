@@ -86,8 +86,10 @@ class DynamixelBusEmulator(EmulatorThread):
             self.link.replug()
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        super().stop(timeout_s)
-        self.link.close()
+        try:
+            super().stop(timeout_s)
+        finally:  # a thread that did not stop in time loses its port all the same
+            self.link.close()
 
     # -- serving ---------------------------------------------------------------------------------------
     def step(self) -> None:

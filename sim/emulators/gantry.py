@@ -28,7 +28,8 @@ Everything runs on one clock (the wall clock by default; a test shares a virtual
 it builds: a :class:`~gonio.sim.emulators.link.SyncedVirtualClock`, so that a Sync Write, which gets no
 reply, acts at the virtual instant it was sent). :meth:`EmulatedGantry.config` is the config with each
 bus's port or url replaced by where its emulator listens; :meth:`EmulatedGantry.config_toml` writes it
-out for another process.
+out for another process. :meth:`EmulatedGantry.watch` tells at once of an emulator whose serving thread
+died (:attr:`EmulatedGantry.devices` says what it emulated).
 """
 
 from __future__ import annotations
@@ -131,6 +132,8 @@ class EmulatedGantry:
         self.any_port = any_port
         self.referenced = referenced
         self.emulators: dict[str, object] = {}
+        #: Bus name -> what its emulator is, in words ("the Dynamixel servos of light_azimuth, ...").
+        self.devices: dict[str, str] = {}
         self.servos: dict[str, EmulatedServo] = {}
         self.motors: dict[str, ModbusMotorEmulator] = {}
         self.lamp: LightSourceEmulator | None = None
@@ -180,6 +183,7 @@ class EmulatedGantry:
                     self.servos[n] = servo
                     servos.append(servo)
                 self.emulators[bus_name] = DynamixelBusEmulator(servos)
+                self.devices[bus_name] = f"the Dynamixel servo{'s' * (len(axes) != 1)} of {', '.join(axes)}"
             elif bus.driver == "modbus":
                 if not axes or (len(axes) > 1 and not bus.url.startswith("rtu:")):
                     raise ValueError(f"emulate: buses.{bus_name}: the Modbus emulator serves one controller "
@@ -196,10 +200,13 @@ class EmulatedGantry:
                     self.motors[n] = emu
                     units.append(emu)
                 self.emulators[bus_name] = units[0] if len(units) == 1 else ModbusBusEmulator(units)
+                self.devices[bus_name] = (f"the Modbus controller{'s' * (len(axes) != 1)} of "
+                                          f"{', '.join(axes)}")
             elif cfg.light.driver == "serial" and cfg.light.bus == bus_name:
                 make = self._emulator_for("light", cfg.light.profile, LAMP_EMULATORS)
                 self.lamp = make(clock=self.clock, link=self._link(bus_name))
                 self.emulators[bus_name] = self.lamp
+                self.devices[bus_name] = f"the lamp ({cfg.light.profile})"
             elif cfg.detector.driver == "serial" and cfg.detector.bus == bus_name:
                 if cfg.detector.kind == "power_meter":
                     make = self._emulator_for("detector", cfg.detector.profile, METER_EMULATORS)
@@ -217,6 +224,7 @@ class EmulatedGantry:
                     self.meter = SpectrometerEmulator(SPECTROMETER_BANDS_NM, self._spectrum, clock=self.clock,
                                                       link=self._link(bus_name))
                 self.emulators[bus_name] = self.meter
+                self.devices[bus_name] = f"the detector ({cfg.detector.profile})"
 
     @staticmethod
     def _emulator_for(device: str, profile: str, table: dict):
@@ -340,7 +348,11 @@ class EmulatedGantry:
                     u = urlparse(url)
                     if u.scheme == "tcp":
                         port = 0 if self.any_port or u.hostname not in ("127.0.0.1", "localhost") else u.port
-                        host, port = emu.start_tcp(port or 0)
+                        try:
+                            host, port = emu.start_tcp(port or 0)
+                        except OSError as err:  # another server holds the port: one line, nothing runs
+                            raise ValueError(f"buses.{name}: {err}; stop what holds it, or serve on a free "
+                                             "port (--any-port)") from None
                         self._locations[name] = f"tcp://{host}:{port}"
                     else:
                         baud = self.cfg.buses[name].url.partition("baudrate=")[2] or "115200"
@@ -371,6 +383,13 @@ class EmulatedGantry:
             return f"ASRL{emu.port}::INSTR"
         return emu.port
 
+    def watch(self, callback) -> None:
+        """Call ``callback(bus_name, exc)`` when the serving thread of a bus's emulator dies of ``exc`` (a
+        bug: nothing a driver sends kills one), at once, from that thread (keep it short: record, set an
+        event); for a thread that died already, at once from this one. Call it before :meth:`start`."""
+        for name, emu in self.emulators.items():
+            emu.watch(lambda exc, name=name: callback(name, exc))
+
     def stop(self) -> None:
         """Stop every emulator that was started (each, even if another fails to stop)."""
         first = None
@@ -389,8 +408,15 @@ class EmulatedGantry:
     def __enter__(self) -> EmulatedGantry:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
+        """Stop every emulator; leaving the block without an exception, one whose serving thread died is
+        one (a test whose emulator died would otherwise show only its driver's time-outs)."""
         self.stop()
+        if exc_type is None:
+            for name, emu in self.emulators.items():
+                if emu.error is not None:
+                    raise RuntimeError(f"buses.{name}: the emulator of {self.devices[name]} died of "
+                                       f"{emu.error!r}") from emu.error
 
     def locations(self) -> dict[str, str]:
         """Where each bus's emulator listens: a pty path, or a Modbus url."""

@@ -72,8 +72,10 @@ class LineInstrumentEmulator(EmulatorThread):
         """The instrument's power-on state (subclasses)."""
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        super().stop(timeout_s)
-        self.link.close()
+        try:
+            super().stop(timeout_s)
+        finally:  # a thread that did not stop in time loses its port all the same
+            self.link.close()
 
     def step(self) -> None:
         if not self.link.plugged:

@@ -18,12 +18,13 @@ import threading
 import time
 import tty
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from gonio.clock import VirtualClock
 
-__all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "EmulatorThread", "mangle", "SyncedVirtualClock",
-           "Deferred"]
+__all__ = ["PtyLink", "Fault", "FaultPlan", "FAULT_KINDS", "Watched", "EmulatorThread", "mangle",
+           "SyncedVirtualClock", "Deferred"]
 
 #: Kinds of fault an emulator applies to its next matching reply: ``drop`` it, ``corrupt`` its last
 #: byte, ``truncate`` it to half, ``delay`` it (the emulator waits ``delay_s`` before it goes on),
@@ -285,19 +286,50 @@ class Deferred:
             return len(self._late) + len(self._held)
 
 
-class EmulatorThread:
+class Watched:
+    """An emulator whose serving threads are watched: the first exception that ends one (a bug: nothing a
+    driver sends may) is kept in :attr:`error` and told at once, from the dying thread, to every callback
+    given to :meth:`watch`; ``gonio emulate`` stops on it instead of serving on with a dead device."""
+
+    def __init__(self) -> None:
+        self._watch_lock = threading.Lock()
+        self._watchers: list[Callable[[BaseException], None]] = []
+        #: What ended a serving thread first (None while none has died).
+        self.error: BaseException | None = None
+
+    def watch(self, callback: Callable[[BaseException], None]) -> None:
+        """Call ``callback(exc)`` when a serving thread dies of ``exc`` (at once if one has died)."""
+        with self._watch_lock:
+            self._watchers.append(callback)
+            error = self.error
+        if error is not None:
+            callback(error)
+
+    def _died(self, exc: BaseException) -> None:
+        """A serving thread ends with ``exc``: keep the first, tell the watchers (in this thread)."""
+        with self._watch_lock:
+            if self.error is not None:
+                return
+            self.error = exc
+            watchers = list(self._watchers)
+        for callback in watchers:
+            callback(exc)
+
+
+class EmulatorThread(Watched):
     """A daemon thread running ``step()`` until :meth:`stop`; each step waits at most ``poll_s``, and
     ends its wait at once when :meth:`stop` is called if it waits on :attr:`wake_fd` too (a link's
-    ``read``/``readable`` take it as ``wake``)."""
+    ``read``/``readable`` take it as ``wake``). An exception out of ``step()`` ends the thread and is
+    told to the watchers (:class:`Watched`)."""
 
     poll_s = 0.02
 
     def __init__(self, name: str):
+        super().__init__()
         self._name = name
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._wake: tuple[int, int] | None = None
-        self.error: BaseException | None = None
 
     @property
     def wake_fd(self) -> int | None:
@@ -316,8 +348,8 @@ class EmulatorThread:
         try:
             while not self._stop.is_set():
                 self.step()
-        except BaseException as exc:  # kept for the test to see; the thread must not die silently
-            self.error = exc
+        except BaseException as exc:  # the thread must not die silently
+            self._died(exc)
 
     def step(self) -> None:  # pragma: no cover - overridden
         raise NotImplementedError

@@ -13,7 +13,9 @@ bit and code are set until the profile's alarm reset), :meth:`go_silent` stops a
 that hangs), :meth:`power_cycle` cuts and restores its power (an incremental drive loses its position and
 origin: it counts from 0 where the shaft stands); :attr:`ModbusMotorEmulator.refuse_gaps` answers a read
 that touches a register the profile does not name with exception 2, as some units do. Function 23
-(Read/Write Multiple Registers) writes, then reads.
+(Read/Write Multiple Registers) writes, then reads. A request for a function the unit does not implement
+gets exception 1 under that function's code, on TCP and RTU; on an RTU line a frame with a bad CRC gets
+no reply, and neither costs the request after it.
 
 A profile with a ``[sync_start]`` table (Oriental Motor's direct data operation) holds the data of a
 block written with the hold trigger value (0): a later write of the trigger register alone starts the
@@ -43,13 +45,14 @@ from collections import deque
 
 from pymodbus.constants import ExcCodes
 from pymodbus.framer.rtu import FramerRTU
+from pymodbus.pdu.decoders import DecodePDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from gonio.clock import WallClock
 from gonio.drivers.modbus.profile import MotorProfile, load_profile
 from gonio.motion.trapezoid import move_time, position_at
-from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, mangle
+from gonio.sim.emulators.link import Deferred, FaultPlan, PtyLink, Watched, mangle
 
 __all__ = ["ModbusMotorEmulator", "ModbusBusEmulator", "StartLine", "DATA_ALARM"]
 
@@ -96,8 +99,10 @@ class StartLine:
                 self.late += 1
 
 
-class ModbusMotorEmulator:
-    """A motor controller following ``profile`` (a MotorProfile or a shipped profile's name).
+class ModbusMotorEmulator(Watched):
+    """A motor controller following ``profile`` (a MotorProfile or a shipped profile's name). Its
+    server's thread and, on RTU, the relay between the ptys are watched (:class:`Watched`): pymodbus
+    answers a request the unit cannot serve with an exception response, so only a bug ends them.
 
     Parameters
     ----------
@@ -109,6 +114,7 @@ class ModbusMotorEmulator:
     """
 
     def __init__(self, profile: MotorProfile | str = "generic", clock=None, device_id: int = 1):
+        super().__init__()
         self.profile = profile if isinstance(profile, MotorProfile) else load_profile(profile)
         self.clock = clock or WallClock()
         self.device_id = device_id
@@ -367,6 +373,11 @@ class ModbusMotorEmulator:
             self._answer_trigger = False
             self.start_line.wait()
         fc = data[7] if self.address is not None else data[1]
+        if fc == 0x80 and self._asked:
+            # pymodbus answers a function it does not decode with exception 1 under function 0x80; the
+            # spec's exception response carries the request's function code with its high bit set
+            fc = (self._asked[0] & 0x7F) | 0x80
+            data = data[:7] + bytes([fc]) + data[8:]
         fault = self.faults.take(fc & 0x7F)
         if fault is not None and fault.kind == "disconnect":
             self._disconnect()
@@ -395,6 +406,7 @@ class ModbusMotorEmulator:
     def replug(self) -> None:
         """After a serial disconnect: a fresh pty behind the same port name."""
         if self._links:
+            self._unheard = b""  # a frame cut short by the pull is not continued by the next one
             self._links[0].replug()
 
     # -- serving ---------------------------------------------------------------------------------------------
@@ -402,7 +414,7 @@ class ModbusMotorEmulator:
         return SimDevice(self.device_id, simdata=[SimData(address=self._base, count=len(self._regs), values=0,
                                                           datatype=DataType.REGISTERS)], action=self._action)
 
-    def _serve(self, make_server, ready: threading.Event) -> None:
+    def _serve(self, make_server, ready: threading.Event, failed: list) -> None:
         loop = asyncio.new_event_loop()
         self._loop = loop
         asyncio.set_event_loop(loop)
@@ -420,6 +432,11 @@ class ModbusMotorEmulator:
         self._stopping = False
         try:
             loop.run_until_complete(main())
+        except BaseException as exc:
+            if ready.is_set():
+                self._died(exc)          # it was serving
+            else:
+                failed.append(exc)       # it never served: _start raises it
         finally:
             ready.set()
             loop.close()
@@ -427,22 +444,34 @@ class ModbusMotorEmulator:
     def _start(self, make_server) -> None:
         if self._thread is not None:
             raise RuntimeError("modbus emulator is already running")
-        ready = threading.Event()
-        self._thread = threading.Thread(target=self._serve, args=(make_server, ready), daemon=True,
+        ready, failed = threading.Event(), []
+        self._thread = threading.Thread(target=self._serve, args=(make_server, ready, failed), daemon=True,
                                         name="emu-modbus")
         self._thread.start()
-        if not ready.wait(5.0) or self._server is None:
+        if not ready.wait(5.0) or self._server is None or failed:
             self.stop()
+            if failed:
+                raise RuntimeError(f"modbus emulator could not start: {failed[0]}") from failed[0]
             raise RuntimeError("modbus emulator did not start within 5 s")
 
     def start_tcp(self, port: int = 0) -> tuple[str, int]:
-        """Serve Modbus TCP on 127.0.0.1 at ``port`` (0: a free one); returns (host, port)."""
-        if not port:
-            with socket.socket() as s:
-                s.bind(("127.0.0.1", 0))
-                port = s.getsockname()[1]
+        """Serve Modbus TCP on 127.0.0.1 at ``port`` (0: a free one); returns (host, port). A port that
+        another server holds is refused here (OSError naming it), not left to the server's thread."""
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as asyncio's server binds
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError as err:
+                raise OSError(f"modbus emulator: cannot listen on 127.0.0.1:{port} "
+                              f"({(err.strerror or str(err)).lower()})") from None
+            port = s.getsockname()[1]
         self.address = ("127.0.0.1", port)
-        self._start(lambda: ModbusTcpServer(self._device(), address=self.address, trace_packet=self._trace))
+        try:
+            self._start(lambda: ModbusTcpServer(self._device(), address=self.address,
+                                                trace_packet=self._trace))
+        except BaseException:
+            self.address = None
+            raise
         return self.address
 
     def start_rtu(self, baudrate: int = 115200, *, units=None, trace=None, line=None) -> str:
@@ -450,7 +479,8 @@ class ModbusMotorEmulator:
         default this one) share the line, each answering its own address; ``trace`` replaces this unit's
         packet hook and ``line`` (bytes from the master -> the bytes the units' server is given) sits on
         the wire (:class:`ModbusBusEmulator` gives both)."""
-        self._line = line
+        self._line = line or self._own_line
+        self._unheard = b""
         client_side, server_side = PtyLink("ttyMB"), PtyLink("ttyMBsrv")
         self._links = [client_side, server_side]
         self._relay_stop.clear()
@@ -464,8 +494,31 @@ class ModbusMotorEmulator:
                                                ignore_missing_devices=units is not None))
         return self.port
 
+    def _own_line(self, data: bytes) -> bytes:
+        """The master's bytes as this unit's server is given them, frame by frame: a frame with a bad CRC
+        dropped, a request for a function no unit implements answered here (:func:`_screened`)."""
+        frames, self._unheard = _frames(self._unheard + data)
+        out = b""
+        for frame in frames:
+            if _screened(frame, {self.device_id}, self.answer_line):
+                continue
+            out += frame
+        return out
+
+    def answer_line(self, frame: bytes) -> None:
+        """Write ``frame`` to the RTU line's master (a reply the units' server does not make)."""
+        if self._links:
+            self._links[0].write(frame)
+
     def _bridge(self) -> None:
-        """Copy bytes between the client's pty and the server's, waiting on both at once."""
+        """Copy bytes between the client's pty and the server's, waiting on both at once (watched: an
+        exception that ends it is told to the watchers)."""
+        try:
+            self._relay_loop()
+        except BaseException as exc:
+            self._died(exc)
+
+    def _relay_loop(self) -> None:
         a, b = self._links
         while not self._relay_stop.is_set():
             fds = {fd: (src, dst) for src, dst in ((a, b), (b, a)) if (fd := src.master) is not None}
@@ -549,21 +602,24 @@ class ModbusBusEmulator:
         return data
 
     def _line(self, data: bytes) -> bytes:
-        """The master's bytes as the units see them, frame by frame: each recorded; a broadcast executed
-        by every unit (and given to none to answer); a frame to an address nobody has, dropped."""
-        self._pending += data
+        """The master's bytes as the units see them, frame by frame: each recorded; one with a bad CRC
+        dropped, one for a function no unit implements answered here (:func:`_screened`); a broadcast
+        executed by every unit (and given to none to answer); a frame to an address nobody has, dropped."""
+        frames, self._pending = _frames(self._pending + data)
         out = b""
-        while self._pending:
-            n = _request_len(self._pending)
-            if n > len(self._pending):
-                break
-            frame, self._pending = self._pending[:n], self._pending[n:]
+        for frame in frames:
             self.requests.append(frame)
+            if _screened(frame, set(self.units), self._answer):
+                continue
             if frame[0] == 0:
                 self._broadcast(frame)
             elif frame[0] in self.units:
                 out += frame
         return out
+
+    def _answer(self, frame: bytes) -> None:
+        self.replies.append(frame)
+        self._host.answer_line(frame)
 
     def _broadcast(self, frame: bytes) -> None:
         if frame[1] != 16 or FramerRTU.compute_CRC(frame[:-2]) != int.from_bytes(frame[-2:], "big"):
@@ -573,6 +629,15 @@ class ModbusBusEmulator:
         values = [int.from_bytes(frame[7 + 2 * i:9 + 2 * i], "big") for i in range(count)]
         for u in self.units.values():
             u.execute_silently(address, values)
+
+    @property
+    def error(self) -> BaseException | None:
+        """What ended the line's serving threads (:attr:`ModbusMotorEmulator.error`), or None."""
+        return self._host.error
+
+    def watch(self, callback) -> None:
+        """As :meth:`ModbusMotorEmulator.watch`, for the line's threads."""
+        self._host.watch(callback)
 
     def start_rtu(self, baudrate: int = 115200) -> str:
         """Serve the line on a pty; returns the port name a client opens."""
@@ -597,3 +662,30 @@ def _request_len(buf: bytes) -> int:
     if fc == 23:
         return 13 + buf[10] if len(buf) > 10 else 11
     return len(buf)  # a function this line does not frame: passed on whole
+
+
+def _frames(buf: bytes) -> tuple[list[bytes], bytes]:
+    """The whole request frames at the head of ``buf``, and what follows them (a frame not whole yet)."""
+    frames = []
+    while buf and (n := _request_len(buf)) <= len(buf):
+        frames.append(buf[:n])
+        buf = buf[n:]
+    return frames, buf
+
+
+def _screened(frame: bytes, units: set[int], answer) -> bool:
+    """Whether ``frame`` (a request from the master) is handled here rather than by pymodbus, whose RTU
+    framer skips an unknown function byte by byte, and throws the whole buffer away after a bad CRC: the
+    next request went with either. As the Modbus over serial line spec says, a frame with a bad CRC gets
+    no reply (dropped here); a unit on the line answers a request for a function it does not implement
+    with exception 1 (illegal function), the request's code with its high bit set (``answer`` writes
+    it); nobody answers a broadcast, or a code that is no function (0, or 128 and above: an exception
+    response's)."""
+    if len(frame) < 4 or FramerRTU.compute_CRC(frame[:-2]) != int.from_bytes(frame[-2:], "big"):
+        return True
+    if frame[1] in DecodePDU.pdu_table:
+        return False
+    if 0 < frame[1] < 0x80 and frame[0] in units:
+        reply = bytes([frame[0], frame[1] | 0x80, 0x01])
+        answer(reply + FramerRTU.compute_CRC(reply).to_bytes(2, "big"))
+    return True

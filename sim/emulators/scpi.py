@@ -29,6 +29,7 @@ Instruments: :class:`Pm100Emulator` (Thorlabs PM100-family power meter) and
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from collections import deque
@@ -106,7 +107,10 @@ def number(arg: str | None, *, units: tuple[str, ...] = (), minmax: tuple[float,
             break
     if not _NUMBER.fullmatch(text):
         raise ScpiError(-104, "Data type error")
-    return float(text)
+    value = float(text)
+    if not math.isfinite(value):  # 1E999: decimal numeric data, past any setting the instrument has
+        raise ScpiError(-222, "Data out of range")
+    return value
 
 
 def boolean(arg: str | None) -> bool:

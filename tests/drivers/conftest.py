@@ -23,3 +23,5 @@ def dxl_emu(clock):
         yield emu
     finally:
         emu.stop()
+    # a thread a driver's bytes killed would otherwise show only as the driver's time-outs
+    assert emu.error is None, f"the bus emulator's thread died of {emu.error!r}"

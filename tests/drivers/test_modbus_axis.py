@@ -61,6 +61,7 @@ def motor(clock, transport, reply_timeout_s):
     finally:
         axis.close()
         emu.stop()
+    assert emu.error is None, f"the emulator's thread died of {emu.error!r}"
 
 
 def test_profiles_load_and_validate():

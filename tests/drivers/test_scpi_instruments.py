@@ -70,6 +70,7 @@ def running(emu, dev):
     finally:
         dev.close()
         emu.stop()
+    assert emu.error is None, f"the emulator's thread died of {emu.error!r}"
 
 
 def _meter(port, clock, **kw):

@@ -29,6 +29,7 @@ def lamp(clock):
     finally:
         dev.close()
         emu.stop()
+    assert emu.error is None, f"the emulator's thread died of {emu.error!r}"
 
 
 @pytest.fixture
@@ -42,6 +43,7 @@ def meter(clock):
     finally:
         dev.close()
         emu.stop()
+    assert emu.error is None, f"the emulator's thread died of {emu.error!r}"
 
 
 def test_protocols_and_no_io_in_constructor():
@@ -143,3 +145,4 @@ def test_spectrometer_bins(clock):
     finally:
         dev.close()
         emu.stop()
+    assert emu.error is None, f"the emulator's thread died of {emu.error!r}"

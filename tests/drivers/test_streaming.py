@@ -58,6 +58,7 @@ def streaming():
         dev.close()
         clock.detach(emu.drain)
         emu.stop()
+        assert emu.error is None, f"the emulator's thread died of {emu.error!r}"
 
 
 def test_declares_the_stream_ability_and_does_no_io_in_its_constructor():
