@@ -456,7 +456,20 @@ class Journal:
 
     def close(self) -> None:
         with self._lock:
+            if not self.readonly:
+                self._checkpoint()
             self._conn.close()
+
+    def _checkpoint(self) -> None:
+        """Copy every commit into the journal's file and empty the WAL, so that the file alone is the whole
+        journal even when a reader held it open at this close (SQLite checkpoints by itself only at the
+        last connection's): later readers open it immutable, and a copy of the file alone misses nothing.
+        Best effort, waiting on no reader: what stays in the WAL is read from there."""
+        try:
+            self._conn.execute("PRAGMA busy_timeout=0")
+            self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
+        except sqlite3.Error:
+            pass
 
     # -- writing ---------------------------------------------------------------------------------
     def _write(self, sql: str, params=()) -> None:

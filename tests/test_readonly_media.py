@@ -204,3 +204,25 @@ def test_a_folder_named_with_uri_characters_is_read(tmp_path):
     reader = Journal.open(path, readonly=True)
     assert reader.done_count() == 1
     reader.close()
+
+
+def test_a_writer_closing_under_a_live_reader_leaves_the_whole_journal_in_its_file(tmp_path):
+    """SQLite checkpoints at the last connection's close only: a reader open then (``gonio status``, the
+    daemon's event stream) left the last commits in the WAL, for every later reader to read live (and a copy
+    of the journal file alone to miss)."""
+    path = _campaign_journal(tmp_path / "c")
+    lock = CampaignLock(path.parent).acquire()
+    writer = Journal.open(path)
+    reader = Journal.open(path, readonly=True)
+    writer.commit_measurement(_m(1))
+    assert reader.done_count() == 2
+    writer.close()
+    lock.release()
+    reader.close()
+    assert path.with_name(JOURNAL_NAME + "-wal").stat().st_size == 0
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    shutil.copy(path, alone / JOURNAL_NAME)
+    copy = Journal.open(alone / JOURNAL_NAME, readonly=True)
+    assert copy.done_count() == 2
+    copy.close()
