@@ -28,7 +28,7 @@ import numpy as np
 from gonio import SEED_MAX, software_version
 from gonio.plan.grids import grid_kind, parse_grid
 from gonio.plan.schedule import step_table
-from gonio.store import JOURNAL_NAME, Journal, JournalError
+from gonio.store import JOURNAL_NAME, LOCK_NAME, Journal, JournalError, lock_holder
 from gonio.units import ADAPTIVE, FLY, KINDS, STOP_AND_GO
 
 # The planner, the config's models, the calibration and HDF5 are imported by the functions that use
@@ -42,8 +42,6 @@ if TYPE_CHECKING:
 __all__ = ["Campaign", "CampaignLock", "Planned", "plan_campaign", "create_campaign", "open_campaign",
            "finish_campaign", "software_version", "config_hash", "config_snapshot", "compare_campaign",
            "LOCK_NAME", "journal_devices", "kind_of", "gantry_state"]
-
-LOCK_NAME = "campaign.lock"
 
 
 def config_snapshot(cfg: GonioConfig) -> dict:
@@ -107,20 +105,7 @@ class CampaignLock:
     def holder(folder: str | Path) -> int | None:
         """The pid of the process holding ``folder``'s lock (running its campaign now; -1 when it wrote
         none), or None."""
-        path = Path(folder) / LOCK_NAME
-        if not path.exists():
-            return None
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except BlockingIOError:
-            text = os.read(fd, 64).decode(errors="replace").strip()
-            return int(text) if text.isdigit() else -1
-        else:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            return None
-        finally:
-            os.close(fd)
+        return lock_holder(Path(folder) / LOCK_NAME)
 
 
 def kind_of(meta: dict) -> str:

@@ -27,11 +27,23 @@ naming it, with the SHA-256 of its pixels in the row: a crash between the two le
 which the replayed step (same key, same frame) overwrites. :meth:`Journal.frame` reads it back and checks
 the hash: a missing or altered file is a :class:`gonio.frames.FrameError` naming the file and the step.
 Schema 2 journals are upgraded to 3 when opened for writing and read as they are when opened read-only.
+
+Reading. A writer holds an exclusive ``flock`` on ``campaign.lock`` beside the journal
+(:class:`gonio.campaign.CampaignLock`) for as long as it has the journal open. A reader
+(``Journal.open(readonly=True)``) of a journal nobody writes (that lock free, no commits waiting in the
+WAL) opens it ``immutable``: SQLite then creates no ``-shm``/``-wal`` beside it, which a read-only
+connection could not remove, and needs no write access to the folder (a finished campaign archived on a
+read-only share, a DVD, a folder the analysis account cannot write). Otherwise it is a live WAL reader,
+which sees every step committed so far. Before it trusts a query's answer, an immutable reader checks
+that nobody has written since it opened (lock free, WAL empty, file unchanged); when a writer has come, it
+becomes a live reader and asks again, so a reader held open across a resume (the daemon's event stream)
+misses nothing.
 """
 
 from __future__ import annotations
 
 import errno
+import fcntl
 import json
 import math
 import os
@@ -48,10 +60,13 @@ import numpy as np
 from gonio.protocols import detector_descriptor
 
 __all__ = ["Journal", "JournalError", "Measurement", "SCHEMA_VERSION", "JOURNAL_NAME", "FRAMES_DIR",
-           "detector_descriptor", "is_disk_full", "disk_full_error"]
+           "LOCK_NAME", "detector_descriptor", "is_disk_full", "disk_full_error", "lock_holder"]
 
 SCHEMA_VERSION = 3
 JOURNAL_NAME = "campaign.sqlite"
+#: The lock file beside the journal whose exclusive ``flock`` its writer holds
+#: (:class:`gonio.campaign.CampaignLock`).
+LOCK_NAME = "campaign.lock"
 #: Folder (beside the journal) of the frames that measurements name.
 FRAMES_DIR = "frames"
 
@@ -237,10 +252,60 @@ def _step_rows(steps: dict, first: int):
     )
 
 
+def lock_holder(path: str | Path) -> int | None:
+    """The pid of the process holding the ``flock`` on the lock file ``path`` (-1 when it wrote none), or
+    None: no such file, nobody holds it, or a filesystem without locks (where no writer can take one)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        text = os.read(fd, 64).decode(errors="replace").strip()
+        return int(text) if text.isdigit() else -1
+    except OSError:   # ENOLCK (an NFS export without lockd): a writer's flock fails there too
+        return None
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
+def _still(path: Path) -> bool:
+    """Whether nobody writes the journal at ``path`` now, so that it may be read ``immutable``: no commits
+    wait in its WAL (a writer killed before its checkpoint leaves them there, where only a WAL reader sees
+    them), and its lock file is free, or absent from a folder this process cannot write (a writer creates
+    it); a journal with no lock file in a writable folder may have a writer that takes none."""
+    try:
+        if os.stat(path.with_name(path.name + "-wal")).st_size:
+            return False
+    except FileNotFoundError:
+        pass
+    lock = path.with_name(LOCK_NAME)
+    if lock.exists():
+        return lock_holder(lock) is None
+    return not os.access(path.parent, os.W_OK)
+
+
+def _signature(path: Path) -> tuple:
+    """What changes when the journal's file is written: an immutable reader's answers hold while it
+    does not."""
+    st = os.stat(path)
+    return st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
+
+
+def _reader(path: Path, immutable: bool) -> sqlite3.Connection:
+    """A read-only connection (the path as a URI: a folder named with ``?`` or ``#`` is a folder)."""
+    uri = path.absolute().as_uri() + ("?mode=ro&immutable=1" if immutable else "?mode=ro")
+    return sqlite3.connect(uri, uri=True, isolation_level=None, check_same_thread=False)
+
+
 def _is_stub(path: Path) -> bool:
     """True for a journal that an old gonio left empty when killed during creation (no schema)."""
     try:
-        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        conn = _reader(path, _still(path))
         try:
             version = conn.execute("PRAGMA user_version").fetchone()[0]
             tables = conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0]
@@ -271,6 +336,8 @@ class Journal:
         self.path = path
         self.version = version
         self.readonly = readonly
+        # An immutable reader's (:func:`_still`): the journal file's signature when it was opened; else None.
+        self._still_as: tuple | None = None
         self._write_hook = write_hook
         self._writes = 0
         # The runner writes from its thread; pause/abort/halt requests and readers may come from others
@@ -350,15 +417,22 @@ class Journal:
         path = Path(path)
         if not path.is_file():
             raise JournalError(f"{path}: no campaign journal here")
+        still_as = None
         if readonly:
-            conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True, isolation_level=None,
-                                   check_same_thread=False)
+            still = _still(path)
+            still_as = _signature(path) if still else None
+            conn = _reader(path, still)
         else:
             conn = cls._connect(path)
         try:
             version = conn.execute("PRAGMA user_version").fetchone()[0]
         except sqlite3.DatabaseError as err:
             conn.close()
+            if (readonly and still_as is None and isinstance(err, sqlite3.OperationalError)
+                    and not os.access(path.parent, os.W_OK)):
+                raise JournalError(f"{path}: cannot be read from a folder this process cannot write ({err}): "
+                                   "its WAL holds commits, which SQLite reads only with a -shm file beside "
+                                   "it; copy the folder somewhere writable") from None
             raise JournalError(f"{path}: not a campaign journal ({err})") from None
         if version == 0 and _is_stub(path):
             conn.close()
@@ -371,18 +445,31 @@ class Journal:
                     _UPGRADES[v](conn)
                 conn.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
             version = SCHEMA_VERSION
-        if readonly and version == 2:
-            return cls(conn, path, write_hook, readonly=readonly, version=version)
-        if version != SCHEMA_VERSION:
+        if version != SCHEMA_VERSION and not (readonly and version == 2):
             conn.close()
             raise JournalError(f"{path}: journal schema version {version}; this gonio reads "
                                f"version {SCHEMA_VERSION}" + (" (open it for writing to upgrade it)"
                                                               if version in _UPGRADES else ""))
-        return cls(conn, path, write_hook, readonly=readonly)
+        j = cls(conn, path, write_hook, readonly=readonly, version=version)
+        j._still_as = still_as
+        return j
 
     def close(self) -> None:
         with self._lock:
+            if not self.readonly:
+                self._checkpoint()
             self._conn.close()
+
+    def _checkpoint(self) -> None:
+        """Copy every commit into the journal's file and empty the WAL, so that the file alone is the whole
+        journal even when a reader held it open at this close (SQLite checkpoints by itself only at the
+        last connection's): later readers open it immutable, and a copy of the file alone misses nothing.
+        Best effort, waiting on no reader: what stays in the WAL is read from there."""
+        try:
+            self._conn.execute("PRAGMA busy_timeout=0")
+            self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
+        except sqlite3.Error:
+            pass
 
     # -- writing ---------------------------------------------------------------------------------
     def _write(self, sql: str, params=()) -> None:
@@ -423,7 +510,24 @@ class Journal:
 
     def _query(self, sql: str, params=()) -> list:
         with self._lock:
+            if self._still_as is None:
+                return self._conn.execute(sql, params).fetchall()
+            try:
+                rows = self._conn.execute(sql, params).fetchall()
+            except sqlite3.DatabaseError:
+                if self._stays_still():
+                    raise
+                rows = None
+            if rows is not None and self._stays_still():
+                return rows
+            # A writer has come since this immutable reader opened the journal (and may have written the
+            # file under it): read it live from now on, and ask again.
+            self._conn.close()
+            self._conn, self._still_as = _reader(self.path, False), None
             return self._conn.execute(sql, params).fetchall()
+
+    def _stays_still(self) -> bool:
+        return _still(self.path) and _signature(self.path) == self._still_as
 
     def commit_measurement(self, m: Measurement) -> None:
         """Commit one step's measurement in its own transaction; its frame (if any) first, as a file."""
