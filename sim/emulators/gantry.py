@@ -149,7 +149,7 @@ class EmulatedGantry:
         if cfg.detector.driver != "sim":
             missing = [a for a in cfg.axis_names if cfg.axes[a].driver == "sim"]
             if missing:
-                raise ValueError(f"emulate: the emulated detector renders at the emulated axes' poses, but "
+                raise ValueError(f"the emulated detector renders at the emulated axes' poses, but "
                                  f"{', '.join(missing)} {'is' if len(missing) == 1 else 'are'} 'sim'")
             self._detector, self._light = self._renderer(material, seed, self.clock)
         self._material, self._seed = material, seed
@@ -186,7 +186,7 @@ class EmulatedGantry:
                 self.devices[bus_name] = f"the Dynamixel servo{'s' * (len(axes) != 1)} of {', '.join(axes)}"
             elif bus.driver == "modbus":
                 if not axes or (len(axes) > 1 and not bus.url.startswith("rtu:")):
-                    raise ValueError(f"emulate: buses.{bus_name}: the Modbus emulator serves one controller "
+                    raise ValueError(f"buses.{bus_name}: the Modbus emulator serves one controller "
                                      f"per TCP bus, several on an RTU line; {len(axes)} axes are on it "
                                      f"({', '.join(axes) or 'none'})")
                 units = []
@@ -218,7 +218,7 @@ class EmulatedGantry:
                 else:
                     self._emulator_for("detector", cfg.detector.profile, SPECTROMETER_EMULATORS)
                     if len(cfg.detector.channels) != len(SPECTROMETER_BANDS_NM):
-                        raise ValueError(f"emulate: the emulated spectrometer reports the rendered R, G, B "
+                        raise ValueError(f"the emulated spectrometer reports the rendered R, G, B "
                                          f"as {len(SPECTROMETER_BANDS_NM)} bands; detector.channels names "
                                          f"{len(cfg.detector.channels)}")
                     self.meter = SpectrometerEmulator(SPECTROMETER_BANDS_NM, self._spectrum, clock=self.clock,
@@ -232,7 +232,7 @@ class EmulatedGantry:
 
         name = load_profile(profile).name
         if name not in table:
-            raise ValueError(f"emulate: {device}.profile {profile!r} (profile '{name}') has no emulator; "
+            raise ValueError(f"{device}.profile {profile!r} (profile '{name}') has no emulator; "
                              f"emulated profiles: {', '.join(table)}")
         return table[name]
 
