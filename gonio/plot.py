@@ -42,9 +42,11 @@ from gonio.slices import (
     albedo_slices,
     blocked_cone_deg,
     blocked_deg,
+    grid_step,
     hemisphere_slice,
     luminance,
     merl_slice,
+    polar_runs,
     polar_slice,
     reciprocity_slice,
     write_exr,
@@ -278,56 +280,6 @@ def _in_plane_samples(b, data, theta_i, phi_i, tol=0.5):
     return np.unique(pts, axis=0) if len(pts) else pts
 
 
-def _grid_step(b) -> float | None:
-    """The lattice step (degrees) of an ``iso`` or ``full`` campaign: its in-plane samples are neighbours one
-    step apart. None for other grids (their samples lie off any one plane)."""
-    from gonio.plan.grids import parse_grid
-
-    try:
-        return parse_grid(str(b.attrs.get("grid", ""))).step_deg
-    except ValueError:
-        return None
-
-
-def _polar_runs(b, theta_i, phi_i, signed, row, samples, step):
-    """The lines of one θi of the polar plot: a list of (x, Y) runs, each drawn as one unbroken line.
-
-    On a stepped grid a run joins neighbouring measured samples only (``samples``: (signed θo, planned
-    signed θo) rows; neighbours were planned one grid step apart), through the interpolant between them, so
-    that a gap (the blocked cone about ωo = ωi, an infeasible pose) breaks the line instead of bridging
-    it. Other grids: the stretches of ``row`` (the slice's values at ``signed``) where the interpolant has
-    a value."""
-    if step is None:
-        return _finite_runs(signed, row)
-    samples = np.unique(np.asarray(samples, dtype=np.float64).reshape(-1, 2), axis=0)
-    samples = samples[np.argsort(samples[:, 1], kind="stable")]
-    pieces = []
-    for (xa, pa), (xb, pb) in zip(samples[:-1], samples[1:], strict=True):
-        if not 0.0 <= pb - pa <= step * (1.0 + 1e-6) or xb <= xa:  # (the same pose read twice: joined)
-            continue
-        x = np.concatenate([[xa], signed[(signed > xa) & (signed < xb)], [xb]])
-        ti = np.full_like(x, theta_i)
-        pi_ = np.full_like(x, phi_i)
-        po = np.where(x >= 0, phi_i + 180.0, phi_i)
-        value = b.eval_deg(ti, pi_, np.abs(x), po).value.copy()
-        value[blocked_deg(b, ti, pi_, np.abs(x), po)] = np.nan
-        pieces.extend(_finite_runs(x, luminance(value, b.channels)))
-    runs = []
-    for x, y in pieces:  # one line through neighbouring pieces that share a sample
-        if runs and runs[-1][0][-1] == x[0]:
-            runs[-1] = (np.concatenate([runs[-1][0], x[1:]]), np.concatenate([runs[-1][1], y[1:]]))
-        else:
-            runs.append((x, y))
-    return runs
-
-
-def _finite_runs(x, y):
-    """The maximal stretches of (x, y) where y is finite, as (x, y) pairs of at least two points."""
-    ok = np.isfinite(y)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
-    return [(x[a:e], y[a:e]) for a, e in zip(edges[::2], edges[1::2], strict=True) if e - a >= 2]
-
-
 def _unmeasured_spans(runs, top):
     """The spans of [−top, top] (signed θo, degrees) that no run covers, wider than half a degree."""
     spans, at = [], -top
@@ -355,10 +307,10 @@ def _draw_polar(b, data, s, title, report):
     phi_i = s.attrs["phi_i_deg"]
     signed = -90.0 + 180.0 * (np.arange(s.image.shape[1]) + 0.5) / s.image.shape[1]
     y = luminance(s.image, b.channels)
-    step = _grid_step(b)
+    step = grid_step(b)
     top = min(b.theta_max_deg, 90.0)
     points = [_in_plane_samples(b, data, t, phi_i) for t in rows]
-    lines = [_polar_runs(b, t, phi_i, signed, y[k], p[np.isfinite(p[:, 1])][:, [0, 3]], step)
+    lines = [polar_runs(b, t, phi_i, signed, y[k], p[np.isfinite(p[:, 1])][:, [0, 3]], step)
              for k, (t, p) in enumerate(zip(rows, points, strict=True))]
     gaps = [_unmeasured_spans(runs, top) for runs in lines]
     report.shown.update(polar_lines=lines, polar_unmeasured=gaps, polar_step=step)
@@ -420,7 +372,8 @@ def _draw_polar(b, data, s, title, report):
                 Patch(facecolor=_NAN_COLOUR, lw=0)]
     labels += ["not measured at that θi\n(near ωo = ωi the light arm\nblocks the detector)",
                f"beyond θmax = {top:.3g}°:\nnot measured"]
-    joined = "lines join neighbouring\nmeasured samples" if step is not None else "lines: interpolant"
+    joined = "lines join neighbouring\nmeasured samples" if step is not None else \
+        "lines: interpolant where\nsomething was measured"
     cx.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
               title=f"{joined}\npoints: measured ±1σ\ndotted: mirror θo", title_fontsize=8)
     fig.text(0.5, 1.0 - PAD_IN / fig.get_figheight(), f"{title}\nin-plane f_r, plane of incidence "
@@ -527,7 +480,8 @@ def _draw_reciprocity(b, data, s, title, report):
     ax.set_xlabel("θi (°)")
     ax.set_ylabel("θo (°)")
     median = 100 * np.median(finite) if finite.size else 0.0
-    ax.set_title(f"in-plane, φo = φi + 180°; median |diff| {median:.2g} %", fontsize=9)
+    ax.set_title(f"in-plane, φo = φi + 180°; median |diff| {median:.2g} %\ngrey: not measured, or θi > θo "
+                 "(the same with the opposite sign)", fontsize=9)
     from gonio.report.checks import reciprocity_pairs
 
     # Each pair measured both ways, once: the same pairs, z-scores and counts as the report's check.

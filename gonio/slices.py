@@ -39,7 +39,7 @@ from gonio.brdf import MeasuredBRDF, Reason
 from gonio.geometry import from_half_diff, sph_to_vec
 
 __all__ = ["Slice", "polar_slice", "hemisphere_slice", "merl_slice", "reciprocity_slice", "albedo_slice",
-           "write_exr", "luminance", "blocked_cone_deg", "blocked", "blocked_deg"]
+           "write_exr", "luminance", "blocked_cone_deg", "blocked", "blocked_deg", "grid_step", "polar_runs"]
 
 #: Rec. 709 luminance weights of linear R, G, B (the house's RGB; also the Radiance export's).
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -112,6 +112,56 @@ def _eval(b: MeasuredBRDF, ti, pi_, to, po) -> np.ndarray:
     value = ev.value.copy()
     value[blocked_deg(b, ti, pi_, to, po)] = np.nan
     return value
+
+
+def grid_step(b: MeasuredBRDF) -> float | None:
+    """The lattice step (degrees) of an ``iso`` or ``full`` campaign: its in-plane samples are neighbours one
+    step apart. None for other grids (their samples lie off any one plane)."""
+    from gonio.plan.grids import parse_grid
+
+    try:
+        return parse_grid(str(b.attrs.get("grid", ""))).step_deg
+    except ValueError:
+        return None
+
+
+def polar_runs(b, theta_i, phi_i, signed, row, samples, step):
+    """The lines of one θi of an in-plane plot: a list of (x, Y) runs, each drawn as one unbroken line.
+
+    On a stepped grid a run joins neighbouring measured samples only (``samples``: (signed θo, planned
+    signed θo) rows; neighbours were planned one grid step apart), through the interpolant between them, so
+    that a gap (the blocked cone about ωo = ωi, an infeasible pose) breaks the line instead of bridging
+    it. Other grids: the stretches of ``row`` (the slice's values at ``signed``) where the interpolant has
+    a value."""
+    if step is None:
+        return _finite_runs(signed, row)
+    samples = np.unique(np.asarray(samples, dtype=np.float64).reshape(-1, 2), axis=0)
+    samples = samples[np.argsort(samples[:, 1], kind="stable")]
+    pieces = []
+    for (xa, pa), (xb, pb) in zip(samples[:-1], samples[1:], strict=True):
+        if not 0.0 <= pb - pa <= step * (1.0 + 1e-6) or xb <= xa:  # (the same pose read twice: joined)
+            continue
+        x = np.concatenate([[xa], signed[(signed > xa) & (signed < xb)], [xb]])
+        ti = np.full_like(x, theta_i)
+        pi_ = np.full_like(x, phi_i)
+        po = np.where(x >= 0, phi_i + 180.0, phi_i)
+        value = b.eval_deg(ti, pi_, np.abs(x), po).value.copy()
+        value[blocked_deg(b, ti, pi_, np.abs(x), po)] = np.nan
+        pieces.extend(_finite_runs(x, luminance(value, b.channels)))
+    runs = []
+    for x, y in pieces:  # one line through neighbouring pieces that share a sample
+        if runs and runs[-1][0][-1] == x[0]:
+            runs[-1] = (np.concatenate([runs[-1][0], x[1:]]), np.concatenate([runs[-1][1], y[1:]]))
+        else:
+            runs.append((x, y))
+    return runs
+
+
+def _finite_runs(x, y):
+    """The maximal stretches of (x, y) where y is finite, as (x, y) pairs of at least two points."""
+    ok = np.isfinite(y)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
+    return [(x[a:e], y[a:e]) for a, e in zip(edges[::2], edges[1::2], strict=True) if e - a >= 2]
 
 
 def polar_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0, width: int = 361) -> Slice:
