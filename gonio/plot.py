@@ -134,7 +134,9 @@ def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float 
     b = open_brdf(data)
     s = how.slice(b, data, theta_i_deg, phi_i_deg)
     meta = {"campaign": name, "material": _what(b), "grid": str(b.attrs.get("grid", "")),
-            "units": s.quantity, "cosine": "none"}
+            "units": s.quantity, "cosine": "none",
+            # NaN within this cone about ωi: the light arm hides the detector (gonio.slices)
+            "blocked_cone_deg": blocked_cone_deg(b)}
     report = PlotReport(kind, out, s)
     if out.suffix.lower() == ".exr":
         write_exr(out, s, meta)

@@ -87,6 +87,7 @@ def test_exr_pixels_are_the_brdf_at_their_directions(campaign, tmp_path):
                      "--out", str(out)]) == 0
         got, channels, header = _exr(out)
         assert tuple(channels) == ("R", "G", "B") and header["gonio:kind"] == kind
+        assert float(header["gonio:blocked_cone_deg"]) == 5.0  # the sim gantry's clearance: NaN there
         h, w, _ = got.shape
         u, v = np.meshgrid(_centres(w), _centres(h))
         if kind == "polar":
