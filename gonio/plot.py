@@ -5,10 +5,14 @@ one of the kinds of :data:`gonio.registries.PLOT_KINDS` (each a :class:`PlotKind
 gets the float values of the same slice instead of a figure (pixel mapping in :mod:`gonio.slices`,
 repeated in the EXR header). The built-in kinds:
 
-- ``polar``: in-plane f_r for several θi on polar axes (normal up, specular side right), the interpolant
-  as lines and the measured samples of that plane as points with ±1σ error bars; log radius when the
-  values span more than a decade and a half (glossy lobes).
-- ``hemisphere``: f_r over ωo for one ωi (``theta_i_deg``, ``phi_i_deg``), seen from above.
+- ``polar``: in-plane f_r for several θi on polar axes (normal up, specular side right), the measured
+  samples of that plane as points with ±1σ error bars, and lines through the interpolant that join
+  neighbouring samples only (one grid step apart on an ``iso`` or ``full`` grid): a line never crosses
+  what was not measured (the blocked cone about ωo = ωi, where the light arm hides the detector; beyond
+  θmax), which is hatched per θi along the bottom instead; log radius when the values span more than a
+  decade and a half (glossy lobes), down to the least measured point.
+- ``hemisphere``: f_r over ωo for one ωi (``theta_i_deg``, ``phi_i_deg``), seen from above; the blocked
+  cone outlined.
 - ``merl``: f_r over (θh, θd) at φd = 90°, the usual image slice of MERL-style data.
 - ``reciprocity``: the relative difference f(ωi, ωo) vs f(ωo, ωi) over (θi, θo) in the plane of
   incidence, and the z-scores of every measured pair; only for campaigns measured without the
@@ -36,9 +40,13 @@ from gonio.slices import (
     LUMA,
     Slice,
     albedo_slices,
+    blocked_cone_deg,
+    blocked_deg,
+    grid_step,
     hemisphere_slice,
     luminance,
     merl_slice,
+    polar_runs,
     polar_slice,
     reciprocity_slice,
     write_exr,
@@ -82,7 +90,11 @@ class PlotReport:
     notes: list = field(default_factory=list)
     #: What a figure shows beyond the slice, by name (the albedo plot: ``hemisphere`` (T, C), the albedo
     #: over the whole hemisphere with its gaps filled, and ``peak_unmeasured`` (T,) bool; a log-polar
-    #: plot: ``polar_rlim``, its radial range, and ``least``, the least value drawn).
+    #: plot: ``polar_rlim``, its radial range, and ``least``, the least value drawn; every polar plot:
+    #: ``polar_lines``, per θi the (x, Y) runs drawn as unbroken lines, x the signed θo in degrees,
+    #: ``polar_unmeasured``, per θi the (lo, hi) spans of signed θo hatched as not measured,
+    #: ``polar_step``, the grid step that makes samples neighbours (None: off-lattice data), and
+    #: ``polar_ylim``, the right panel's range of f_r).
     shown: dict = field(default_factory=dict)
 
     def __str__(self) -> str:
@@ -122,7 +134,9 @@ def plot(source, kind: str, out, *, theta_i_deg: float = 30.0, phi_i_deg: float 
     b = open_brdf(data)
     s = how.slice(b, data, theta_i_deg, phi_i_deg)
     meta = {"campaign": name, "material": _what(b), "grid": str(b.attrs.get("grid", "")),
-            "units": s.quantity, "cosine": "none"}
+            "units": s.quantity, "cosine": "none",
+            # NaN within this cone about ωi: the light arm hides the detector (gonio.slices)
+            "blocked_cone_deg": blocked_cone_deg(b)}
     report = PlotReport(kind, out, s)
     if out.suffix.lower() == ".exr":
         write_exr(out, s, meta)
@@ -178,8 +192,9 @@ def wrap_items(text: str, width: int) -> list[str]:
 
 
 def _incidences(b: MeasuredBRDF, data: SampledBRDF, most: int = 6) -> np.ndarray:
-    """θi values to draw: the measured ones (at most ``most``, evenly chosen), else every 15°."""
-    src = data.planned[:, 0] if b.angles == "planned" else np.asarray(data.theta_i)
+    """θi values to draw: the planned ones (read-back angles scatter about them; at most ``most``, evenly
+    chosen), else every 15°."""
+    src = data.planned[:, 0] if data.planned is not None else np.asarray(data.theta_i)
     top = min(b.theta_max_deg, 89.0)
     values = np.unique(np.round(np.asarray(src, float), 1))
     values = values[values <= top + 1e-9]
@@ -237,34 +252,51 @@ def _ylabel(b) -> str:
 
 # -- polar --------------------------------------------------------------------------------------------
 def _in_plane_samples(b, data, theta_i, phi_i, tol=0.5):
-    """Measured samples in the plane of incidence at θi: (signed θo deg, Y, σY)."""
+    """Measured samples in the plane of incidence at θi: (signed θo deg, Y, σY, planned signed θo deg).
+    A sample belongs by its planned pose where the data have one (read-back angles scatter about it) and
+    sits at the θo where :mod:`gonio.brdf` places it."""
     ang = data.planned if b.angles == "planned" else np.stack(
         [data.theta_i, data.phi_i, data.theta_o, data.phi_o], axis=1)
     ang = np.asarray(ang, float)
+    plan = ang if data.planned is None else np.asarray(data.planned, float)
     y = luminance(data.value, b.channels)
     w2 = LUMA ** 2 if b.channels == ("R", "G", "B") else np.eye(1, len(b.channels))[0]
     sy = np.sqrt(np.asarray(data.stddev, float) ** 2 @ w2)
-    members = [(ang[:, 0], ang[:, 1], ang[:, 2], ang[:, 3])]
+    members = [(plan[:, 0], plan[:, 1], plan[:, 2], plan[:, 3], ang[:, 2])]
     if b.symmetries["reciprocity"]:
-        members.append((ang[:, 2], ang[:, 3], ang[:, 0], ang[:, 1]))
+        members.append((plan[:, 2], plan[:, 3], plan[:, 0], plan[:, 1], ang[:, 0]))
     out = []
-    for ti, pi_, to, po in members:
+    for ti, pi_, to, po, at in members:
         rel = np.mod(po - pi_, 360.0) if b.symmetries["isotropy"] else np.mod(po - phi_i, 360.0)
         same_plane = np.ones_like(ti, bool) if b.symmetries["isotropy"] else \
             (np.abs((pi_ - phi_i + 180.0) % 360.0 - 180.0) <= tol) | (ti <= tol)
         forward = np.abs(rel - 180.0) <= tol
         back = (rel <= tol) | (rel >= 360.0 - tol)
         pick = (np.abs(ti - theta_i) <= tol) & same_plane & (forward | back | (to <= tol))
-        out.append(np.stack([np.where(forward, to, -to)[pick], y[pick], sy[pick]], axis=1))
+        sign = np.where(forward, 1.0, -1.0)
+        out.append(np.stack([sign * at, y, sy, sign * to], axis=1)[pick])
         # ωi at the pole has no azimuth: its samples lie in every plane, on both sides.
         pole = pick & (ti <= tol)
-        out.append(np.stack([np.where(forward, -to, to)[pole], y[pole], sy[pole]], axis=1))
+        out.append(np.stack([-sign * at, y, sy, -sign * to], axis=1)[pole])
     pts = np.concatenate(out)
     return np.unique(pts, axis=0) if len(pts) else pts
 
 
+def _unmeasured_spans(runs, top):
+    """The spans of [−top, top] (signed θo, degrees) that no run covers, wider than half a degree."""
+    spans, at = [], -top
+    for x, _ in sorted(runs, key=lambda r: r[0][0]):
+        if x[0] - at > 0.5:
+            spans.append((float(at), float(x[0])))
+        at = max(at, float(x[-1]))
+    if top - at > 0.5:
+        spans.append((float(at), float(top)))
+    return spans
+
+
 def _draw_polar(b, data, s, title, report):
     import matplotlib
+    from matplotlib.patches import Patch
 
     fig = _figure(11.5, 5.2, layout=None)
     ax = fig.add_subplot(1, 2, 1, projection="polar")
@@ -274,31 +306,59 @@ def _draw_polar(b, data, s, title, report):
     ax.set_thetamin(-90)
     ax.set_thetamax(90)
     rows = s.attrs["rows_deg"]
+    phi_i = s.attrs["phi_i_deg"]
     signed = -90.0 + 180.0 * (np.arange(s.image.shape[1]) + 0.5) / s.image.shape[1]
     y = luminance(s.image, b.channels)
-    points = [_in_plane_samples(b, data, t, s.attrs["phi_i_deg"]) for t in rows]
-    allv = np.concatenate([y[np.isfinite(y)].ravel()] + [p[:, 1] for p in points])
+    step = grid_step(b)
+    top = min(b.theta_max_deg, 90.0)
+    points = [_in_plane_samples(b, data, t, phi_i) for t in rows]
+    lines = [polar_runs(b, t, phi_i, signed, y[k], p[np.isfinite(p[:, 1])][:, [0, 3]], step)
+             for k, (t, p) in enumerate(zip(rows, points, strict=True))]
+    gaps = [_unmeasured_spans(runs, top) for runs in lines]
+    report.shown.update(polar_lines=lines, polar_unmeasured=gaps, polar_step=step)
+    allv = np.concatenate([np.zeros(0)] + [r[1] for runs in lines for r in runs] + [p[:, 1] for p in points])
     norm, log = _norm(allv)
     colours = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.9, len(rows)))
+    least = norm.vmin
+    if log:  # every measured point stays on the axes, however far below the bulk of the values
+        pos = allv[np.isfinite(allv) & (allv > 0)]
+        least = min(least, float(pos.min()))
+    strip = min(0.035, 0.25 / max(len(rows), 1))
     for k, t in enumerate(rows):
         p = points[k]
-        for axis, x, px in ((ax, np.radians(signed), np.radians(p[:, 0])), (cx, signed, p[:, 0])):
-            axis.plot(x, y[k], color=colours[k], lw=1.6, label=f"θi = {t:g}°")
-            if len(p):
+        for x, v in lines[k]:
+            ax.plot(np.radians(x), v, color=colours[k], lw=1.6)
+            cx.plot(x, v, color=colours[k], lw=1.6)
+        if len(p):
+            for axis, px in ((ax, np.radians(p[:, 0])), (cx, p[:, 0])):
                 axis.errorbar(px, p[:, 1], yerr=p[:, 2], fmt="o", ms=3.2, color=colours[k], ecolor=colours[k],
                               elinewidth=1.0, capsize=1.5)
+        cx.plot([], [], color=colours[k], lw=1.6, marker="o", ms=3.2, label=f"θi = {t:g}°")
         cx.axvline(t, color=colours[k], lw=0.7, ls=":")  # the mirror direction of this θi
+        for lo, hi in gaps[k]:  # a strip per θi along the bottom: where that θi has no line
+            cx.axvspan(lo, hi, ymin=k * strip, ymax=(k + 1) * strip, facecolor=(*colours[k][:3], 0.12),
+                       edgecolor=colours[k], hatch="////", lw=0.0, zorder=0.5)
+    for lo, hi in ((-90.0, -top), (top, 90.0)):
+        if hi - lo > 0.1:
+            cx.axvspan(lo, hi, color=_NAN_COLOUR, lw=0, zorder=0.4)
+            ax.fill_between(np.radians(np.linspace(lo, hi, 30)), 0.0, 1.0, transform=ax.get_xaxis_transform(),
+                            color=_NAN_COLOUR, lw=0, zorder=0.4)
+    room = strip * len(rows) if any(gaps) else 0.0  # the strips' share of the height, below the data
     if log:
         ax.set_rscale("log")
         # The centre of a log-polar plot is a value, not zero: a decade below the least one drawn, so
         # that a diffuse body sits well out from the centre instead of crowding into it.
-        ax.set_rlim(polar_floor(norm.vmin), norm.vmax * 1.5)
-        report.shown.update(polar_rlim=ax.get_ylim(), least=float(norm.vmin))
+        ax.set_rlim(polar_floor(least), norm.vmax * 1.5)
+        report.shown.update(polar_rlim=ax.get_ylim(), least=float(least))
         cx.set_yscale("log")
-        cx.set_ylim(norm.vmin * 0.7, norm.vmax * 1.5)
+        lo, hi = np.log10(least * 0.7), np.log10(norm.vmax * 1.5)
+        cx.set_ylim(10.0 ** ((lo - room * hi) / (1.0 - room)), 10.0 ** hi)
     else:
         ax.set_rlim(0.0, norm.vmax * 1.08)
-        cx.set_ylim(0.0, norm.vmax * 1.08)
+        hi = norm.vmax * 1.08
+        cx.set_ylim(-room * hi / (1.0 - room), hi)
+        cx.set_yticks([t for t in cx.get_yticks() if 0.0 <= t <= hi])  # no negative f_r on the scale
+    report.shown.update(polar_ylim=cx.get_ylim())
     ax.set_thetagrids(range(-90, 91, 30), [f"{abs(a)}°" for a in range(-90, 91, 30)])
     ax.set_rlabel_position(-90)
     ax.tick_params(axis="y", labelsize=7)
@@ -309,10 +369,17 @@ def _draw_polar(b, data, s, title, report):
     cx.set_xlabel("signed θo (°):  ← light side (φo = φi)  |  specular side (φo = φi + 180°) →")
     cx.set_ylabel(_ylabel(b) + (", log scale" if log else ""))
     cx.grid(alpha=0.3, which="major")
-    cx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
-              title="lines: interpolant\npoints: measured ±1σ\ndotted: mirror θo", title_fontsize=8)
+    handles, labels = cx.get_legend_handles_labels()
+    handles += [Patch(facecolor="none", edgecolor="0.35", hatch="////", lw=0.0),
+                Patch(facecolor=_NAN_COLOUR, lw=0)]
+    labels += ["not measured at that θi\n(near ωo = ωi the light arm\nblocks the detector)",
+               f"beyond θmax = {top:.3g}°:\nnot measured"]
+    joined = "lines join neighbouring\nmeasured samples" if step is not None else \
+        "lines: interpolant where\nsomething was measured"
+    cx.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
+              title=f"{joined}\npoints: measured ±1σ\ndotted: mirror θo", title_fontsize=8)
     fig.text(0.5, 1.0 - PAD_IN / fig.get_figheight(), f"{title}\nin-plane f_r, plane of incidence "
-             f"φi = {s.attrs['phi_i_deg']:g}°", fontsize=10, ha="center", va="top")  # over both panels
+             f"φi = {phi_i:g}°", fontsize=10, ha="center", va="top")  # over both panels
     return fig
 
 
@@ -341,13 +408,33 @@ def _draw_hemisphere(b, data, s, title, report):
     ax.plot(ti * np.cos(pi_ + np.pi), ti * np.sin(pi_ + np.pi), "+", color="cyan", ms=12, mew=2,
             label="mirror direction")
     ax.plot(ti * np.cos(pi_), ti * np.sin(pi_), "x", color="cyan", ms=9, mew=2, label="light (ωi)")
+    cone = blocked_cone_deg(b)
+    if cone > 0.0:  # where the light arm hides the detector: NaN in the slice, outlined here
+        x, y = _cone_outline(ti, s.attrs["phi_i_deg"], cone)
+        ax.fill(x, y, facecolor="none", edgecolor="cyan", hatch="////", lw=0.8,
+                label=f"not measured: the light arm\nblocks the detector (< {cone:g}° from ωi)")
     ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
     ax.set_xlabel("θo cos φo (°)   (+x: sample reference direction)")
     ax.set_ylabel("θo sin φo (°)")
     ax.set_aspect("equal")
     ax.set_title(f"{title}\nf_r over ωo for θi = {ti:g}°, φi = {s.attrs['phi_i_deg']:g}° (seen from above); "
-                 "grey: no data", fontsize=10)
+                 "grey: not measured", fontsize=10)
     return fig
+
+
+def _cone_outline(theta_i_deg, phi_i_deg, cone_deg, n=121):
+    """The edge of the cone of half-angle ``cone_deg`` about ωi, in the hemisphere plot's projection
+    (θo cos φo, θo sin φo), degrees."""
+    from gonio.geometry import sph_to_vec, vec_to_sph
+
+    wi = sph_to_vec(np.radians(theta_i_deg), np.radians(phi_i_deg))
+    u = np.cross(wi, [0.0, 0.0, 1.0] if abs(wi[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(wi, u)
+    a = np.linspace(0.0, 2.0 * np.pi, n)[:, None]
+    c = np.radians(cone_deg)
+    t, p = vec_to_sph(np.cos(c) * wi + np.sin(c) * (np.cos(a) * u + np.sin(a) * v))
+    return np.degrees(t) * np.cos(p), np.degrees(t) * np.sin(p)
 
 
 def _with_colour_bar(w, h):
@@ -367,11 +454,17 @@ def _draw_merl(b, data, s, title, report):
     norm, log = _norm(y)
     im = ax.imshow(y, extent=(0, 90, 0, 90), cmap=_cmap("magma"), norm=norm, interpolation="nearest")
     fig.colorbar(im, cax=bar, label=_ylabel(b) + (" (log scale)" if log else ""))
+    cone = blocked_cone_deg(b)
+    if cone > 0.0:  # ωi·ωo = cos 2θd: the blocked cone is θd < cone / 2, NaN in the slice
+        ax.axhspan(0.0, 0.5 * cone, facecolor="none", edgecolor="0.35", hatch="////", lw=0.0,
+                   label=f"θd < {0.5 * cone:g}°: not measured,\nthe light arm blocks the detector")
+        ax.legend(loc="upper right", fontsize=7, framealpha=0.8)
     ax.set_xlabel("θh, half-vector angle from the normal (°)")
     ax.set_ylabel("θd, difference angle (°)")
     ax.set_xticks(range(0, 91, 15))
     ax.set_yticks(range(0, 91, 15))
-    ax.set_title(f"{title}\nf_r over (θh, θd) at φd = {s.attrs['phi_d_deg']:g}°; grey: no data", fontsize=10)
+    ax.set_title(f"{title}\nf_r over (θh, θd) at φd = {s.attrs['phi_d_deg']:g}°; grey: not measured",
+                 fontsize=10)
     return fig
 
 
@@ -389,7 +482,8 @@ def _draw_reciprocity(b, data, s, title, report):
     ax.set_xlabel("θi (°)")
     ax.set_ylabel("θo (°)")
     median = 100 * np.median(finite) if finite.size else 0.0
-    ax.set_title(f"in-plane, φo = φi + 180°; median |diff| {median:.2g} %", fontsize=9)
+    ax.set_title(f"in-plane, φo = φi + 180°; median |diff| {median:.2g} %\ngrey: not measured, or θi > θo "
+                 "(the same with the opposite sign)", fontsize=9)
     from gonio.report.checks import reciprocity_pairs
 
     # Each pair measured both ways, once: the same pairs, z-scores and counts as the report's check.
@@ -430,8 +524,9 @@ def _draw_albedo(b, data, s, title, report):
     whole = s.whole[0]
     from gonio.brdf import Reason
 
-    mirror = b.eval_deg(th, np.full_like(th, phi), th, np.full_like(th, phi + 180.0))
-    peak_gap = mirror.reason == Reason.NO_DATA
+    mirror = (th, np.full_like(th, phi), th, np.full_like(th, phi + 180.0))
+    # at small θi the mirror direction lies in the blocked cone about ωi, whatever an engine answers there
+    peak_gap = (b.eval_deg(*mirror).reason == Reason.NO_DATA) | blocked_deg(b, *mirror)
     report.shown.update(hemisphere=whole, peak_unmeasured=peak_gap)
     colours = {"R": "#d62728", "G": "#2ca02c", "B": "#1f77b4"}
     n = len(b.channels)

@@ -19,6 +19,12 @@ kind            pixels
 ``albedo``      one row; column c: θi = ``cols_deg[c]``: directional albedo ∫ f_r cos θo dωo over the
                 measured part of the hemisphere (midpoint rule, 1° in θo, 5° in φo); dimensionless.
 =============== ==========================================================================================
+
+Every slice is NaN where nothing was measured: where :mod:`gonio.brdf` has no value (its reason code), and
+within the blocked cone (:func:`blocked_cone_deg`), where ωo lies closer to ωi than the gantry's
+``clearance_deg`` (the light arm hides the detector there), whatever an interpolating engine would answer
+(the ``scattered`` and ``local`` engines of a real gantry's or an adaptive campaign's data reach across it
+from the samples around it; a lattice leaves it NaN by itself).
 """
 
 from __future__ import annotations
@@ -30,10 +36,10 @@ from pathlib import Path
 import numpy as np
 
 from gonio.brdf import MeasuredBRDF, Reason
-from gonio.geometry import from_half_diff
+from gonio.geometry import from_half_diff, sph_to_vec
 
 __all__ = ["Slice", "polar_slice", "hemisphere_slice", "merl_slice", "reciprocity_slice", "albedo_slice",
-           "write_exr", "luminance"]
+           "write_exr", "luminance", "blocked_cone_deg", "blocked", "blocked_deg", "grid_step", "polar_runs"]
 
 #: Rec. 709 luminance weights of linear R, G, B (the house's RGB; also the Radiance export's).
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -61,9 +67,101 @@ def _centres(n: int) -> np.ndarray:
     return (np.arange(n) + 0.5) / n
 
 
+def blocked_cone_deg(b: MeasuredBRDF) -> float:
+    """Half-angle (degrees) of the cone about ωi in which no ωo was measured: the gantry's
+    ``kinematics.clearance_deg`` (the light arm or housing hides the detector there) as the campaign's
+    config snapshot records it; 0 for data without one (nothing is assumed)."""
+    from gonio.config import KinematicsConfig
+
+    cfg = b.attrs.get("config")
+    kin = cfg.get("kinematics") if isinstance(cfg, dict) else None
+    if not isinstance(kin, dict):
+        return 0.0
+    # the snapshot leaves out what the config left at its default
+    cone = kin.get("clearance_deg", KinematicsConfig.model_fields["clearance_deg"].default)
+    try:
+        cone = float(cone)
+    except (TypeError, ValueError):
+        return 0.0
+    return cone if 0.0 < cone < 90.0 else 0.0
+
+
+def blocked(b: MeasuredBRDF, wi, wo) -> np.ndarray:
+    """bool, flattened as :meth:`~gonio.brdf.MeasuredBRDF.eval`: the pairs whose ωo lies within the blocked
+    cone about ωi (:func:`blocked_cone_deg`), where nothing can have been measured."""
+    cone = blocked_cone_deg(b)
+    wi, wo = (np.asarray(w, dtype=np.float64) for w in np.broadcast_arrays(wi, wo))
+    wi, wo = wi.reshape(-1, 3), wo.reshape(-1, 3)
+    if cone == 0.0:
+        return np.zeros(len(wi), dtype=bool)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.einsum("nk,nk->n", wi, wo) / (np.linalg.norm(wi, axis=1) * np.linalg.norm(wo, axis=1))
+    return cos > np.cos(np.radians(cone) - 1e-9)  # a pose at the clearance itself is measured
+
+
+def blocked_deg(b: MeasuredBRDF, ti, pi_, to, po) -> np.ndarray:
+    """:func:`blocked` of pairs given as angles in degrees (broadcast and flattened)."""
+    ti, pi_, to, po = (np.radians(np.asarray(a, dtype=np.float64)).ravel()
+                       for a in np.broadcast_arrays(ti, pi_, to, po))
+    return blocked(b, sph_to_vec(ti, pi_), sph_to_vec(to, po))
+
+
 def _eval(b: MeasuredBRDF, ti, pi_, to, po) -> np.ndarray:
+    """f_r, NaN where nothing was measured (the engine's gaps and the blocked cone)."""
     ev = b.eval_deg(ti, pi_, to, po)
-    return ev.value
+    value = ev.value.copy()
+    value[blocked_deg(b, ti, pi_, to, po)] = np.nan
+    return value
+
+
+def grid_step(b: MeasuredBRDF) -> float | None:
+    """The lattice step (degrees) of an ``iso`` or ``full`` campaign: its in-plane samples are neighbours one
+    step apart. None for other grids (their samples lie off any one plane)."""
+    from gonio.plan.grids import parse_grid
+
+    try:
+        return parse_grid(str(b.attrs.get("grid", ""))).step_deg
+    except ValueError:
+        return None
+
+
+def polar_runs(b, theta_i, phi_i, signed, row, samples, step):
+    """The lines of one θi of an in-plane plot: a list of (x, Y) runs, each drawn as one unbroken line.
+
+    On a stepped grid a run joins neighbouring measured samples only (``samples``: (signed θo, planned
+    signed θo) rows; neighbours were planned one grid step apart), through the interpolant between them, so
+    that a gap (the blocked cone about ωo = ωi, an infeasible pose) breaks the line instead of bridging
+    it. Other grids: the stretches of ``row`` (the slice's values at ``signed``) where the interpolant has
+    a value."""
+    if step is None:
+        return _finite_runs(signed, row)
+    samples = np.unique(np.asarray(samples, dtype=np.float64).reshape(-1, 2), axis=0)
+    samples = samples[np.argsort(samples[:, 1], kind="stable")]
+    pieces = []
+    for (xa, pa), (xb, pb) in zip(samples[:-1], samples[1:], strict=True):
+        if not 0.0 <= pb - pa <= step * (1.0 + 1e-6) or xb <= xa:  # (the same pose read twice: joined)
+            continue
+        x = np.concatenate([[xa], signed[(signed > xa) & (signed < xb)], [xb]])
+        ti = np.full_like(x, theta_i)
+        pi_ = np.full_like(x, phi_i)
+        po = np.where(x >= 0, phi_i + 180.0, phi_i)
+        value = b.eval_deg(ti, pi_, np.abs(x), po).value.copy()
+        value[blocked_deg(b, ti, pi_, np.abs(x), po)] = np.nan
+        pieces.extend(_finite_runs(x, luminance(value, b.channels)))
+    runs = []
+    for x, y in pieces:  # one line through neighbouring pieces that share a sample
+        if runs and runs[-1][0][-1] == x[0]:
+            runs[-1] = (np.concatenate([runs[-1][0], x[1:]]), np.concatenate([runs[-1][1], y[1:]]))
+        else:
+            runs.append((x, y))
+    return runs
+
+
+def _finite_runs(x, y):
+    """The maximal stretches of (x, y) where y is finite, as (x, y) pairs of at least two points."""
+    ok = np.isfinite(y)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
+    return [(x[a:e], y[a:e]) for a, e in zip(edges[::2], edges[1::2], strict=True) if e - a >= 2]
 
 
 def polar_slice(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0, width: int = 361) -> Slice:
@@ -99,7 +197,9 @@ def merl_slice(b: MeasuredBRDF, size: int = 180, phi_d_deg: float = 90.0) -> Sli
     td = np.radians(90.0 * (1.0 - _centres(size)))
     h, d = np.meshgrid(th, td)
     wi, wo = from_half_diff(h.ravel(), 0.0, d.ravel(), np.radians(phi_d_deg))
-    v = b.eval(wi, wo).value.reshape(size, size, -1)
+    v = b.eval(wi, wo).value.copy()
+    v[blocked(b, wi, wo)] = np.nan
+    v = v.reshape(size, size, -1)
     return Slice("merl", v, b.channels, "f_r [sr^-1]",
                  "theta_h = 90*(c+0.5)/W deg, theta_d = 90*(1 - (r+0.5)/H) deg (theta_d up), "
                  "phi_h = 0, phi_d given (Rusinkiewicz half/difference angles)",
@@ -164,7 +264,7 @@ def albedo_slices(b: MeasuredBRDF, thetas_i_deg, phi_i_deg: float = 0.0, *,
     coverage = np.zeros(len(cols))
     for k, ti in enumerate(cols):
         ev = b.eval_deg(ti, phi_i_deg, t, phi_i_deg + p)
-        measured = ev.reason == Reason.OK
+        measured = (ev.reason == Reason.OK) & ~blocked_deg(b, ti, phi_i_deg, t, phi_i_deg + p)
         coverage[k] = w[measured].sum() / np.pi
         for j, fill in enumerate(fills):
             value, ok = ev.value, measured

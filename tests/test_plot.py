@@ -87,6 +87,7 @@ def test_exr_pixels_are_the_brdf_at_their_directions(campaign, tmp_path):
                      "--out", str(out)]) == 0
         got, channels, header = _exr(out)
         assert tuple(channels) == ("R", "G", "B") and header["gonio:kind"] == kind
+        assert float(header["gonio:blocked_cone_deg"]) == 5.0  # the sim gantry's clearance: NaN there
         h, w, _ = got.shape
         u, v = np.meshgrid(_centres(w), _centres(h))
         if kind == "polar":
@@ -261,3 +262,88 @@ def test_one_pass_layout_keeps_every_label_legend_and_title_inside_and_apart():
     assert inside(fig)
     axes[0].set_title("a title far wider than its panel and than the whole figure " * 3)
     assert not inside(fig)
+
+
+
+def _gold_foil(sd_deg=0.4, seed=5):
+    """A gold foil (ggx α = 0.05: a 300 sr⁻¹ peak over a body near 1e-3 sr⁻¹) on iso:step=15 as a gantry
+    of the sim design measures it: no pose within its 5° clearance of retro-reflection (the config
+    snapshot records the design, the clearance its default), and read-back directions that scatter about
+    the plan by ``sd_deg``, farther than the plan tolerance: gonio.brdf places the samples at them and
+    interpolates with its scattered engine, which reaches across the blocked cone."""
+    from gonio.dataset import SampledBRDF
+
+    data = sampled("ggx:alpha=0.05,metal=gold", "iso:step=15", theta_max_deg=80.0)
+    plan = np.stack([data.theta_i, data.phi_i, data.theta_o, data.phi_o], axis=1)
+    ti, pi_, to, po = np.radians(plan).T
+    cos = np.cos(ti) * np.cos(to) + np.sin(ti) * np.sin(to) * np.cos(po - pi_)
+    keep = cos < np.cos(np.radians(5.0))
+    plan = plan[keep]
+    read = plan + np.random.default_rng(seed).normal(0.0, sd_deg, plan.shape)
+    read[:, [0, 2]] = np.abs(read[:, [0, 2]])
+    out = SampledBRDF(*read.T, data.value[keep], data.stddev[keep], planned=plan,
+                      attrs={**data.attrs, "config": {"kinematics": {"design": "two-arm"}}})
+    assert open_brdf(out).method == "scattered"
+    return out
+
+
+def test_polar_lines_join_neighbouring_samples_and_never_cross_the_blocked_cone(tmp_path):
+    """On a real gantry's read-back angles the polar plot drew the scattered interpolant straight across
+    the retro-reflection gap (θo = θi on the light side, where the light arm hides the detector): a line
+    through 15° of signed θo on each side of a direction never measured, as if a valley had been seen.
+    And the foil's light side (f_r near 1e-3 beside a 300 sr⁻¹ peak) lay below both panels' floor, set
+    from the 0.5th percentile of all values: those measured points were not drawn at all."""
+    data = _gold_foil()
+    rep = plot(data, "polar", tmp_path / "p.png")
+    rows = rep.slice.attrs["rows_deg"]
+    signed = -90.0 + 180.0 * _centres(rep.slice.image.shape[1])
+    for k, t in enumerate(rows):  # the slice (and so an EXR) holds nothing inside the blocked cone
+        assert np.isnan(rep.slice.image[k][np.abs(signed + t) < 5.0]).all(), t
+    from gonio.slices import blocked_cone_deg
+
+    assert blocked_cone_deg(open_brdf(data)) == 5.0  # the design's default clearance, from the config
+    step = rep.shown["polar_step"]
+    assert step == 15.0 and len(rows) >= 4
+    plan = np.round(np.asarray(data.planned, float), 6)
+    dphi = np.mod(plan[:, 3] - plan[:, 1], 360.0)
+    y = np.asarray(data.value) @ np.array([0.2126, 0.7152, 0.0722])
+    # each sample and its reciprocal (the campaign's shortcut): planned θi, θo, and the read-back θo
+    members = ((plan[:, 0], plan[:, 2], np.asarray(data.theta_o, float)),
+               (plan[:, 2], plan[:, 0], np.asarray(data.theta_i, float)))
+    least = np.inf
+    for k, t in enumerate(rows):
+        # this θi's samples in the plane of incidence (by their plan), at their read-back signed θo
+        xs = []
+        for ti, to, at in members:
+            mine = (ti == t) & (np.isin(dphi, (0.0, 180.0)) | (to == 0))
+            least = min(least, y[mine].min(initial=np.inf))
+            xs += [np.where(dphi[mine] == 180.0, 1.0, -1.0) * at[mine]]
+        xs = np.concatenate(xs)
+        xs = np.sort(np.concatenate([xs, -xs]) if t == 0 else xs)  # ωi at the pole: in every plane
+        runs = rep.shown["polar_lines"][k]
+        assert runs, t
+        for x, v in runs:
+            assert np.isfinite(v).all() and np.all(np.diff(x) > 0)
+            # a run starts and ends at measured samples, and the samples it passes are one step apart
+            assert np.abs(xs - x[0]).min() < 1e-9 and np.abs(xs - x[-1]).min() < 1e-9, (t, x[0], x[-1])
+            inside = xs[(xs >= x[0]) & (xs <= x[-1])]
+            assert np.diff(inside).max() <= step + 2.0, (t, inside)
+            assert not (x[0] < -t < x[-1]), (t, x[0], x[-1])  # no line over the retro-reflection direction
+        if t > 0:  # the gap there is hatched as not measured
+            assert any(lo <= -t <= hi for lo, hi in rep.shown["polar_unmeasured"][k]), t
+    # every measured point of the rows drawn lies on both panels' axes
+    assert 0 < least < 0.01 and rep.shown["polar_rlim"][0] <= least and rep.shown["polar_ylim"][0] <= least
+
+
+def test_the_hemisphere_leaves_the_blocked_cone_blank(tmp_path):
+    """The scattered engine filled the cone about ωi where the light arm hides the detector: the image
+    showed a smooth f_r under the light's own marker, which no gantry of this design can measure."""
+    rep = plot(_gold_foil(), "hemisphere", tmp_path / "h.png", theta_i_deg=45.0)
+    n = rep.slice.image.shape[0]
+    x, y = np.meshgrid(2 * _centres(n) - 1, 1 - 2 * _centres(n))
+    to, po = np.radians(90 * np.hypot(x, y)), np.arctan2(y, x)
+    ti = np.radians(45.0)
+    cos = np.cos(ti) * np.cos(to) + np.sin(ti) * np.sin(to) * np.cos(po)
+    sep = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))  # degrees from ωi (φi = 0)
+    assert (sep < 5.0).sum() > 20 and np.isnan(rep.slice.image[sep < 4.9]).all()
+    assert np.isfinite(rep.slice.image[(sep > 8.0) & (sep < 12.0)]).mean() > 0.9  # blank only where blocked

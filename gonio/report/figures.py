@@ -72,11 +72,12 @@ def _time_axis(seconds: np.ndarray) -> tuple[np.ndarray, str]:
 def overview(b, data) -> bytes:
     """In-plane f_r (luminance) against signed θo for up to six measured θi: the data at a glance.
 
-    Lines are the campaign's interpolant (:func:`gonio.slices.polar_slice`), points the measured samples
-    of the plane of incidence; ``gonio plot --kind polar`` draws the full figure.
+    Points are the measured samples of the plane of incidence, lines the campaign's interpolant
+    (:func:`gonio.slices.polar_slice`) between neighbouring ones only (:func:`gonio.slices.polar_runs`: no
+    line across what was not measured); ``gonio plot --kind polar`` draws the full figure.
     """
     from gonio.report.checks import sample_angles
-    from gonio.slices import luminance, polar_slice
+    from gonio.slices import grid_step, luminance, polar_runs, polar_slice
 
     ang = sample_angles(data)
     top = min(b.theta_max_deg, 89.0)
@@ -94,15 +95,22 @@ def overview(b, data) -> bytes:
     colours = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.9, len(thetas)))
     values = luminance(np.asarray(data.value, np.float64), b.channels)
     dphi = np.mod(ang[:, 3] - ang[:, 1], 360.0)
+    step = grid_step(b)
+    in_plane = (np.abs(dphi - 180.0) < 0.05) | (dphi < 0.05) | (dphi > 359.95)
+    # each sample, and where the campaign declares reciprocity its reciprocal (the same Δφ up to sign)
+    members = [(ang[:, 0], ang[:, 2])] + ([(ang[:, 2], ang[:, 0])] if b.symmetries["reciprocity"] else [])
     for k, t in enumerate(thetas):
-        ax.plot(signed, y[k], color=colours[k], lw=1.6, label=f"θi = {t:g}°")
-        pick = (np.abs(ang[:, 0] - t) < 0.05) & ((np.abs(dphi - 180.0) < 0.05) | (dphi < 0.05) |
-                                                 (dphi > 359.95) | (ang[:, 2] < 0.05))
-        x = np.where(np.abs(dphi[pick] - 180.0) < 0.05, ang[pick, 2], -ang[pick, 2])
-        v = values[pick]
+        x, v = [], []
+        for ti, to in members:
+            pick = (np.abs(ti - t) < 0.05) & (in_plane | (to < 0.05))
+            x.append(np.where(np.abs(dphi[pick] - 180.0) < 0.05, to[pick], -to[pick]))
+            v.append(values[pick])
+        x, v = np.concatenate(x), np.concatenate(v)
         if t < 0.05:  # light at the pole: its samples lie in every plane, on both sides
             x, v = np.concatenate([x, -x]), np.concatenate([v, v])
-        ax.plot(x, v, "o", ms=3.5, color=colours[k])
+        ax.plot(x, v, "o", ms=3.5, color=colours[k], label=f"θi = {t:g}°")
+        for lx, ly in polar_runs(b, t, 0.0, signed, y[k], np.stack([x, x], axis=1), step):
+            ax.plot(lx, ly, color=colours[k], lw=1.6)
     pos = y[np.isfinite(y) & (y > 0)]
     if pos.size and pos.max() / max(np.percentile(pos, 1), 1e-300) > 30:
         ax.set_yscale("log")
@@ -111,8 +119,9 @@ def overview(b, data) -> bytes:
     ax.set_xlabel("signed θo (°):  ← light side (φo = φi)  |  specular side (φo = φi + 180°) →")
     ax.set_ylabel("luminance Y of f_r (sr⁻¹)" if b.channels == ("R", "G", "B") else "f_r (sr⁻¹)")
     ax.grid(alpha=0.3, which="major")
+    lines = "between\nneighbouring samples" if step else "where\nsomething was measured"
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False,
-              title="lines: interpolant\npoints: measured", title_fontsize=8)
+              title=f"points: measured\nlines: interpolant {lines}", title_fontsize=8)
     ax.set_title("f_r in the plane of incidence (φi = 0°)", fontsize=10)
     return png(fig)
 
