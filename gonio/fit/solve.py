@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from gonio.fit.aperture import Aperture
 from gonio.fit.models import FitModel
 from gonio.geometry import to_half_diff
 from gonio.jit import array_types, exact_float64, resolve_backend
@@ -61,12 +62,15 @@ MISFIT_RELATIVE = 0.02
 
 @dataclass
 class FitData:
-    """Measured samples: unit directions (N, 3), f_r (N, C) in sr⁻¹, and its stddev (N, C) or None."""
+    """Measured samples: unit directions (N, 3), f_r (N, C) in sr⁻¹, and its stddev (N, C) or None;
+    ``aperture``: the cones the values were measured through (:class:`gonio.fit.aperture.Aperture`), or
+    None (the model is then evaluated at the directions themselves)."""
 
     wi: np.ndarray
     wo: np.ndarray
     value: np.ndarray
     stddev: np.ndarray | None = None
+    aperture: Aperture | None = None
 
     def __post_init__(self):
         self.value = np.asarray(self.value, dtype=np.float64).reshape(len(self.wi), -1)
@@ -116,7 +120,12 @@ class Problem:
         def vec(v):
             return self._vector(*(self._float(np.ascontiguousarray(v[:, j])) for j in range(3)))
 
-        self._wi, self._wo = vec(self.wi), vec(self.wo)
+        self.aperture = data.aperture
+        if self.aperture is None:
+            self._wi, self._wo, self._lane_weight = vec(self.wi), vec(self.wo), None
+        else:   # M lanes per sample, summed with the quadrature's weights (gonio.fit.aperture)
+            wi_q, wo_q, weight = self.aperture.expand(self.wi, self.wo)
+            self._wi, self._wo, self._lane_weight = vec(wi_q), vec(wo_q), self._float(weight)
         self._y = [self._float(np.ascontiguousarray(self.value[:, k])) for k in range(len(chans))]
         self._w = [self._float(np.ascontiguousarray(self.weight[:, k])) for k in range(len(chans))]
         self.evaluations = 0
@@ -129,8 +138,23 @@ class Problem:
                 dr.enable_grad(v)
         values = self.model.values(xs, colour=self._vector)
         f = self.model.base.eval_params(values, self._wi, self._wo)
+        if self._lane_weight is not None:   # f_r · weight per lane; summed per sample by _per_sample
+            return xs, [f[c] * self._lane_weight for c in self.model.channels]
         res = [(f[c] - y) * w for c, y, w in zip(self.model.channels, self._y, self._w, strict=True)]
         return xs, res
+
+    def _per_sample(self, arrays, residual: bool) -> np.ndarray:
+        """The arrays of :meth:`_residual_dr` (or their derivatives) as one vector, channel-major: the
+        residuals themselves at the axes; with an aperture, each sample's M lanes summed here (a sum in
+        Dr.Jit, ``block_sum``, launched a kernel of its own per channel, twice the cost of a small fit),
+        then the data subtracted (``residual``) and the weights applied."""
+        if self._lane_weight is None:
+            return np.concatenate([a.numpy() for a in arrays])
+        out = []
+        for k, a in enumerate(arrays):
+            f = a.numpy().reshape(-1, self.aperture.points).sum(axis=1)
+            out.append(((f - self.value[:, k]) if residual else f) * self.weight[:, k])
+        return np.concatenate(out)
 
     def residuals(self, x) -> np.ndarray:
         """Weighted residuals (n = samples × channels, channel-major) at the fit vector ``x``."""
@@ -138,7 +162,7 @@ class Problem:
         with dr.suspend_grad(), exact_float64(self._float):
             _, res = self._residual_dr(x, False)
             dr.eval(res)
-            return np.concatenate([r.numpy() for r in res])
+            return self._per_sample(res, True)
 
     def jacobian(self, x) -> np.ndarray:
         """∂residuals/∂x, (n, p), by forward-mode AD: one traversal per variable, one kernel launch."""
@@ -153,7 +177,7 @@ class Problem:
                 for r in res:
                     dr.clear_grad(r)
             dr.eval(cols)
-        return np.stack([np.concatenate([g.numpy() for g in col]) for col in cols], axis=1)
+        return np.stack([self._per_sample(col, False) for col in cols], axis=1)
 
     def set_shared(self, u: np.ndarray | None, weights: np.ndarray | None = None) -> None:
         """Errors shared between samples, used by :func:`covariance` with the ``chi2`` loss: U (N, C, M)
