@@ -29,8 +29,8 @@ angle over the lobe's width. Measured against a (6 rings × 18 spokes)² quadrat
 ``iso:step=15,reciprocity=false``, the largest relative error of the defaults (1 ring, 4 spokes, M = 16)
 on a GGX lobe is 3e-5 at α = 0.15, 1.5e-4 at α = 0.08, 8e-4 at α = 0.05 (the model at the axes: 3 %,
 11 %, 26 %); the Monte Carlo error of a simulated reading (256 aperture pairs) is ~1e-3 relative at the
-α = 0.15 lobe and grows as the lobe narrows. (2, 6), M = 144, halves to tenths those errors at 4-9x the
-model evaluations. tests/test_fit_aperture.py checks the defaults against the simulator's Monte Carlo.
+α = 0.15 lobe and grows as the lobe narrows. (2, 6), M = 144, nine times the evaluations, gives 3.5e-6,
+8.6e-5, 6.7e-4. tests/test_fit_aperture.py checks the defaults against the simulator's Monte Carlo.
 A lobe narrower than the cones (α below ~0.02 with these) is not resolved by 16 directions.
 
 Where the cones are not known (:class:`~gonio.fit.solve.FitData` given without them, a brdf.h5 of a real
