@@ -19,6 +19,9 @@ from gonio.sim.aperture import aperture_radiance_factor, seed_state
 from gonio.sim.materials import load
 from gonio.wiring import build_gantry
 
+# The fits and the simulator's Monte Carlo run on every Dr.Jit backend (CUDA skipped without a device).
+pytestmark = pytest.mark.usefixtures("backend")
+
 SOURCE, DETECTOR = 0.5, 1.0   # the default config's cones (config/sim.toml)
 COPPER = "ggx:alpha=0.15,metal=copper,rho_d=0.2,rho_s=0.8"
 
@@ -134,4 +137,5 @@ def test_cli_fit_of_a_campaign_says_it_averaged_over_its_cones_and_of_a_bare_fil
     assert main(["fit", str(tmp_path / "bad.h5"), "--model", "lambert"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0
-    assert "source_half_angle_deg: must be a number in (0, 10] degrees, got 45.0" in err
+    assert f"{tmp_path / 'bad.h5'}: attribute source_half_angle_deg: must be a number in (0, 10] degrees, " \
+           "got 45.0" in err

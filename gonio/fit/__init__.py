@@ -65,20 +65,25 @@ def _load(source) -> tuple[FitData, dict, tuple | None]:
     converted from: (values (N, B), stddev (N, B) or None, weights (B, 3)); None for RGB samples."""
     if isinstance(source, FitData):
         return source, {}, None
+    origin = "the data's attributes"
     if not isinstance(source, SampledBRDF):
         path = Path(source)
         h5 = path / BRDF_NAME if path.is_dir() else path
         if not h5.is_file():
             raise ValueError(f"{source}: not a finished campaign (no {BRDF_NAME}; it is written when every "
                              "step is measured) nor a brdf.h5 file")
-        source = read_brdf(h5)
+        source, origin = read_brdf(h5), f"{h5}: attribute"
     r = {k: np.radians(np.asarray(getattr(source, k), dtype=np.float64).ravel())
          for k in ("theta_i", "phi_i", "theta_o", "phi_o")}
     attrs = dict(source.attrs)
     value, stddev, bands = _as_rgb(np.asarray(source.value, np.float64), source.stddev, attrs)
-    cones = aperture_cones(attrs)
+    try:   # the cones the readings integrate, where the file says (gonio.fit.aperture)
+        cones = aperture_cones(attrs)
+        aperture = None if cones is None else Aperture(*cones)
+    except ValueError as err:
+        raise ValueError(f"{origin} {err}") from None
     data = FitData(sph_to_vec(r["theta_i"], r["phi_i"]), sph_to_vec(r["theta_o"], r["phi_o"]), value, stddev,
-                   None if cones is None else Aperture(*cones))
+                   aperture)
     return data, attrs, bands
 
 
