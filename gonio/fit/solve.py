@@ -11,8 +11,8 @@ The instrument. A reading averages f_r over the cone the source subtends and the
 a campaign folder or its brdf.h5, :func:`gonio.dataset.aperture_cones`), the model is evaluated as the
 instrument measures it: at M = 16 quadrature directions per sample (the same for every sample), weighted
 as the calibrated reading weights them, and summed per sample. The sum is taken in numpy after the one
-launch (``dr.block_sum`` launched a kernel per channel, twice the cost of a small fit), for the residuals
-and the Jacobian's columns alike, so the AD Jacobian is that of the averaged model. Where they are not
+launch (``dr.block_sum`` launched a kernel of its own per channel and call), for the residuals and the
+Jacobian's columns alike, so the AD Jacobian is that of the averaged model. Where they are not
 known, the model is evaluated at the measured directions (the cones' axes): a GGX lobe of α = 0.15
 through 0.5° and 1° cones is then fitted 36 σ off in α and 10 σ in rho_s (BENCHMARKS.md).
 A projected Levenberg-Marquardt on the p × p normal equations (:func:`_projected_lm`) takes the
