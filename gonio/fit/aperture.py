@@ -23,15 +23,17 @@ rho_s by 10 σ and alpha by 36 σ of a noise-free campaign's uncertainty (BENCHM
 solid angle) times ``spokes`` equally spaced azimuths from the plane of incidence (alternate rings turned
 by half a spoke), mapped to directions as :func:`gonio.sim.aperture.cone_directions` maps the
 simulator's uniform numbers, and every source point paired with every detector point: M = (rings ·
-spokes)² directions per pose. The quadrature reproduces the cones' mean direction and their second
-moments exactly and has no source-detector correlation, so its error is of fourth order in the cone's
-angle over the lobe's width. Measured against a (6 rings × 18 spokes)² quadrature at the 603 poses of
-``iso:step=15,reciprocity=false``, the largest relative error of the defaults (1 ring, 4 spokes, M = 16)
-on a GGX lobe is 3e-5 at α = 0.15, 1.5e-4 at α = 0.08, 8e-4 at α = 0.05 (the model at the axes: 3 %,
-11 %, 26 %); the Monte Carlo error of a simulated reading (256 aperture pairs) is ~1e-3 relative at the
-α = 0.15 lobe and grows as the lobe narrows. (2, 6), M = 144, nine times the evaluations, gives 3.5e-6,
-8.6e-5, 6.7e-4. tests/test_fit_aperture.py checks the defaults against the simulator's Monte Carlo.
-A lobe narrower than the cones (α below ~0.02 with these) is not resolved by 16 directions.
+spokes)² directions per pose. The quadrature reproduces the cones' mean direction exactly, their second
+moments up to a term of fourth order in the cone's angle, and has no source-detector correlation, so its
+error is of fourth order in the cone's angle over the lobe's width. Measured against a (6 rings × 18
+spokes)² quadrature at the 603 poses of ``iso:step=15,reciprocity=false``, the largest relative error of
+the defaults (1 ring, 4 spokes, M = 16) on a GGX lobe is 3e-5 at α = 0.15, 1.5e-4 at α = 0.08, 8e-4 at
+α = 0.05 (the model at the axes: 3 %, 11 %, 26 %); the Monte Carlo error of a simulated reading (256
+aperture pairs) is ~1e-3 relative at the α = 0.15 lobe and grows as the lobe narrows. (2, 6), M = 144,
+nine times the evaluations, gives 3.5e-6, 8.6e-5, 6.7e-4. tests/test_fit_aperture.py checks the defaults
+against the simulator's Monte Carlo. A lobe narrower than the cones (α below ~0.02 with these) is not
+resolved by 16 directions, nor its derivative: a fit start that overshoots to such a lobe crawls back
+slowly (BENCHMARKS.md, "The instrument's cones in the fit").
 
 Where the cones are not known (:class:`~gonio.fit.solve.FitData` given without them, a brdf.h5 of a real
 sample without ``source_half_angle_deg``/``detector_half_angle_deg``), the fit evaluates the model at the
@@ -88,7 +90,7 @@ class Aperture:
                 "detector_half_angle_deg": self.detector_half_angle_deg, "rings": self.rings,
                 "spokes": self.spokes, "points": self.points}
 
-    def _cone(self):
+    def _nodes(self):
         """(u1, u2, weight) of one cone's points, weights summing to 1."""
         x, w = np.polynomial.legendre.leggauss(self.rings)
         u1 = np.repeat((x + 1.0) / 2.0, self.spokes)
@@ -103,7 +105,7 @@ class Aperture:
         wi = np.asarray(wi, np.float64).reshape(-1, 3)
         wo = np.asarray(wo, np.float64).reshape(-1, 3)
         n, m = wi.shape[0], self.points
-        u1, u2, w = self._cone()
+        u1, u2, w = self._nodes()
         k = u1.size
         # lane (p, a, b): pose p, source point a, detector point b
         src = np.tile(np.repeat(np.arange(k), k), n)
