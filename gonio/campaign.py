@@ -302,7 +302,7 @@ def finish_campaign(c: Campaign) -> Path:
     """Calibrate every measured pose and write ``brdf.h5`` (format version 2: measured and planned
     angles, grid indices, steps, exposures, campaign times; see :mod:`gonio.dataset`)."""
     from gonio.calibrate import calibrate, reference_rho
-    from gonio.dataset import BRDF_NAME, campaign_dataset, write_brdf
+    from gonio.dataset import BRDF_NAME, CONE_DETECTORS, campaign_dataset, write_brdf
 
     meta = c.meta
     # The values come from the journal's rows; a frame file lost or altered since is recorded, not hidden.
@@ -312,9 +312,13 @@ def finish_campaign(c: Campaign) -> Path:
     rho, per_channel = reference_rho(c.cfg.reference, c.journal.detector())
     cal = calibrate(measurements, rho)
     exposure = {m.step: m.exposure_s for m in measurements}
+    # the cones a simulated reading averages over (gonio.sim.aperture; a camera's pixels see others)
+    sim = c.cfg.detector.sim
+    cones = (c.cfg.light.sim.half_angle_deg, sim.half_angle_deg) \
+        if meta.get("material") and sim.kind in CONE_DETECTORS else None
     data = campaign_dataset(cal, c.journal.steps(), meta, exposure_s=[exposure[int(s)] for s in cal.steps],
                             reference_albedo=c.cfg.reference.albedo, software_version=software_version(),
-                            reference_reflectance=rho if per_channel else None)
+                            reference_reflectance=rho if per_channel else None, cones=cones)
     return write_brdf(c.folder / BRDF_NAME, data)
 
 

@@ -37,7 +37,10 @@ Attributes (on the file and on the group, so that a reader of either sees them):
 ``symmetries`` (JSON: the shortcuts the plan used), ``grid``, ``gantry``, ``reference_albedo`` (the
 config's albedo of the white standard) and, where the standard was given per channel, as a spectrum or
 with an angular response, ``reference_reflectance`` (ρ_ref · response per channel: what the calibration
-divided by, in place of ``reference_albedo``), ``seed``,
+divided by, in place of ``reference_albedo``), ``source_half_angle_deg`` and ``detector_half_angle_deg``
+(the half-angles of the cones the source subtends and the detector sees, which every reading averages
+over: written for a simulated campaign's photodiode or spectrometer, from ``[light.sim]`` and
+``[detector.sim]``; :func:`aperture_cones` reads them, or for older files the config snapshot), ``seed``,
 ``software_version``, ``config_sha256`` and ``config`` (JSON: the config snapshot the campaign was
 planned with), ``created_unix``/``created_utc`` (campaign creation), ``written_unix``, and either
 ``material`` (the simulated material's spec; ``source`` = "simulated") or ``sample`` (a real sample's
@@ -60,7 +63,8 @@ import numpy as np
 from gonio.geometry import HALF_PI, MERL_SHAPE, sph_to_vec, to_half_diff, to_isotropic
 
 __all__ = ["BRDF_NAME", "FORMAT_VERSION", "SampledBRDF", "write_brdf", "read_brdf", "campaign_dataset",
-           "calibration_reference", "grid_indices", "FRAME", "ANGLE_CONVENTION"]
+           "calibration_reference", "aperture_cones", "CONE_DETECTORS", "grid_indices", "FRAME",
+           "ANGLE_CONVENTION"]
 
 BRDF_NAME = "brdf.h5"
 FORMAT_VERSION = 2
@@ -131,6 +135,43 @@ def calibration_reference(attrs: dict):
     return None if albedo is None else float(albedo)
 
 
+#: Simulated detectors whose reading is the aperture average of :mod:`gonio.sim.aperture` (a camera's
+#: pixels see other cones).
+CONE_DETECTORS = ("photodiode", "spectrometer")
+
+
+def aperture_cones(attrs: dict) -> tuple[float, float] | None:
+    """(source, detector) cone half-angles in degrees that the values of a brdf.h5 were measured through,
+    from its attributes ``attrs``: ``source_half_angle_deg`` and ``detector_half_angle_deg`` where the file
+    has them; else, for a simulated campaign's file written before they were recorded, its config
+    snapshot (``[light.sim]``, ``[detector.sim]``; the snapshot leaves out defaults); None where they are
+    not known (a real sample's file without them, a simulated camera, a file not written by a campaign)."""
+    names = ("source_half_angle_deg", "detector_half_angle_deg")
+    if all(attrs.get(n) is not None for n in names):
+        out = []
+        for n in names:
+            v = attrs[n]
+            if isinstance(v, bool) or not isinstance(v, int | float | np.number):
+                raise ValueError(f"{n}: must be a number in (0, 10] degrees, got {v!r}")
+            out.append(float(v))
+        return out[0], out[1]
+    config = attrs.get("config")
+    if not attrs.get("material") or not isinstance(config, dict):
+        return None
+    from gonio.device_config import DetectorSimConfig, LightSimConfig
+
+    light = (config.get("light") or {}).get("sim") or {}
+    detector = (config.get("detector") or {}).get("sim") or {}
+    if detector.get("kind", DetectorSimConfig.model_fields["kind"].default) not in CONE_DETECTORS:
+        return None
+    key = "half_angle_deg"
+    try:
+        return (float(light.get(key, LightSimConfig.model_fields[key].default)),
+                float(detector.get(key, DetectorSimConfig.model_fields[key].default)))
+    except (TypeError, ValueError):
+        return None
+
+
 def grid_indices(grid: str, planned_deg: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]] | None:
     """Indices of planned directions on the campaign's grid, or None where the grid has none.
 
@@ -186,7 +227,7 @@ def grid_indices(grid: str, planned_deg: np.ndarray) -> tuple[np.ndarray, tuple[
 
 
 def campaign_dataset(cal, steps: dict, meta: dict, *, exposure_s, reference_albedo: float,
-                     software_version: str, reference_reflectance=None) -> SampledBRDF:
+                     software_version: str, reference_reflectance=None, cones=None) -> SampledBRDF:
     """The dataset of a finished campaign, from its calibration and its journal.
 
     Parameters
@@ -207,6 +248,9 @@ def campaign_dataset(cal, steps: dict, meta: dict, *, exposure_s, reference_albe
         ``reference_reflectance``).
     software_version : str
         The gonio version writing the file.
+    cones : (float, float), optional
+        Half-angles (degrees) of the source's and the detector's cones, where they are known
+        (attributes ``source_half_angle_deg``, ``detector_half_angle_deg``).
     """
     n = len(cal.value)
     planned = np.stack([np.asarray(steps[f"{a}_deg"], float)[cal.steps] for a in _ANGLES], axis=1) \
@@ -224,6 +268,8 @@ def campaign_dataset(cal, steps: dict, meta: dict, *, exposure_s, reference_albe
         "created_utc": _dt.datetime.fromtimestamp(created, _dt.UTC).isoformat(timespec="seconds"),
         "material": material, "sample": sample, "source": "simulated" if material else "measured",
     }
+    if cones is not None:
+        attrs["source_half_angle_deg"], attrs["detector_half_angle_deg"] = (float(a) for a in cones)
     if reference_reflectance is not None:
         attrs["reference_reflectance"] = [float(r) for r in np.asarray(reference_reflectance, float)]
     wavelengths = (meta.get("detector") or {}).get("wavelengths_nm")

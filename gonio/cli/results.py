@@ -63,6 +63,10 @@ def cmd_fit(args) -> int:
               f"{res['rms_relative']:.3g}; {structure}"
               f"{'; MISFIT: the model leaves a structured residual' if res['misfit'] else ''}",
               file=sys.stderr)
+        print("  model averaged over the cones the readings integrate: " + result.aperture.describe()
+              if result.aperture is not None else "  model evaluated at the measured directions: the source "
+              "and detector cones the readings integrate are not known (recorded in a simulated campaign's "
+              "brdf.h5), so their smoothing of a sharp lobe is not modelled", file=sys.stderr)
         if result.loss == "chi2":   # the only loss whose uncertainties take shared errors in
             print(f"  errors the samples share: those of {res['shared_errors']} dark and white-reference "
                   "readings" if res["shared_errors"] else "  samples taken as independent: the errors "

@@ -3,8 +3,9 @@
 ``fit(source, model)`` fits a material model (:mod:`gonio.fit.models` for the MODEL grammar and the free
 parameters) to the measured f_r of a campaign folder, a ``brdf.h5``, a
 :class:`~gonio.dataset.SampledBRDF` or :class:`FitData`, at the directions actually measured (no
-interpolation). Gradients come from Dr.Jit's AD through the material code the simulator renders with
-(:meth:`gonio.sim.materials.Material.eval_params`); the loss, the optimizer, the bounds and the
+interpolation), averaged over the source and detector cones they were measured through where those are
+known (:mod:`gonio.fit.aperture`). Gradients come from Dr.Jit's AD through the material code the simulator
+renders with (:meth:`gonio.sim.materials.Material.eval_params`); the loss, the optimizer, the bounds and the
 uncertainties are described in :mod:`gonio.fit.solve`.
 
 The result's ``material`` is a MATERIAL string that ``gonio simulate`` and
@@ -26,14 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.dataset import BRDF_NAME, SampledBRDF, calibration_reference, read_brdf
+from gonio.dataset import BRDF_NAME, SampledBRDF, aperture_cones, calibration_reference, read_brdf
+from gonio.fit.aperture import Aperture
 from gonio.fit.models import FIT_MODELS, FitModel, parse_model
 from gonio.fit.shared import shared_errors
 from gonio.fit.solve import LOSSES, FitData, Problem, covariance, residual_statistics, solve
 from gonio.geometry import sph_to_vec
 from gonio.sim.materials.spec import RGB
 
-__all__ = ["fit", "FitResult", "FitData", "load_samples", "parse_channels", "parse_model", "FIT_MODELS",
+__all__ = ["fit", "FitResult", "FitData", "Aperture", "load_samples", "parse_channels", "parse_model",
+           "FIT_MODELS",
            "LOSSES"]
 
 
@@ -50,7 +53,9 @@ def parse_channels(text: str | None, available=RGB) -> tuple[int, ...]:
 
 
 def load_samples(source) -> tuple[FitData, dict]:
-    """The measured samples of a campaign folder, ``brdf.h5`` or SampledBRDF, and their attributes."""
+    """The measured samples of a campaign folder, ``brdf.h5`` or SampledBRDF, and their attributes; the
+    samples' ``aperture`` is the cones they were measured through where the attributes give them
+    (:func:`gonio.dataset.aperture_cones`), else None."""
     data, attrs, _ = _load(source)
     return data, attrs
 
@@ -60,18 +65,25 @@ def _load(source) -> tuple[FitData, dict, tuple | None]:
     converted from: (values (N, B), stddev (N, B) or None, weights (B, 3)); None for RGB samples."""
     if isinstance(source, FitData):
         return source, {}, None
+    origin = "the data's attributes"
     if not isinstance(source, SampledBRDF):
         path = Path(source)
         h5 = path / BRDF_NAME if path.is_dir() else path
         if not h5.is_file():
             raise ValueError(f"{source}: not a finished campaign (no {BRDF_NAME}; it is written when every "
                              "step is measured) nor a brdf.h5 file")
-        source = read_brdf(h5)
+        source, origin = read_brdf(h5), f"{h5}: attribute"
     r = {k: np.radians(np.asarray(getattr(source, k), dtype=np.float64).ravel())
          for k in ("theta_i", "phi_i", "theta_o", "phi_o")}
     attrs = dict(source.attrs)
     value, stddev, bands = _as_rgb(np.asarray(source.value, np.float64), source.stddev, attrs)
-    data = FitData(sph_to_vec(r["theta_i"], r["phi_i"]), sph_to_vec(r["theta_o"], r["phi_o"]), value, stddev)
+    try:   # the cones the readings integrate, where the file says (gonio.fit.aperture)
+        cones = aperture_cones(attrs)
+        aperture = None if cones is None else Aperture(*cones)
+    except ValueError as err:
+        raise ValueError(f"{origin} {err}") from None
+    data = FitData(sph_to_vec(r["theta_i"], r["phi_i"]), sph_to_vec(r["theta_o"], r["phi_o"]), value, stddev,
+                   aperture)
     return data, attrs, bands
 
 
@@ -105,6 +117,9 @@ class FitResult:
         uncertainty, same unit as the parameter), ``lo``/``hi`` (bounds) and ``at_bound``.
     residual : dict
         :func:`gonio.fit.solve.residual_statistics`.
+    aperture : Aperture or None
+        The cones the model was averaged over (:mod:`gonio.fit.aperture`), or None: evaluated at the
+        measured directions themselves.
     """
 
     model: str
@@ -118,6 +133,7 @@ class FitResult:
     seconds: float
     samples: int
     source: dict = field(default_factory=dict)
+    aperture: Aperture | None = None
 
     @property
     def dof(self) -> int:
@@ -130,7 +146,8 @@ class FitResult:
                 "uncertainty": "one standard deviation; (J^T J)^-1 s^2, see gonio.fit.solve",
                 "residual": self.residual,
                 "covariance": {"names": list(self.parameters), "matrix": self.covariance.tolist()},
-                "starts": self.runs, "seconds": self.seconds, "source": self.source}
+                "starts": self.runs, "seconds": self.seconds, "source": self.source,
+                "aperture": None if self.aperture is None else self.aperture.to_json()}
 
     def write(self, path) -> None:
         Path(path).write_text(json.dumps(self.to_json(), indent=2) + "\n")
@@ -234,4 +251,4 @@ def fit(source, model: str, *, channels: str | None = None, loss: str = "auto", 
     if isinstance(source, str | Path):
         src["path"] = str(source)
     return FitResult(m.text, m.spec(x), tuple(RGB[c] for c in chan), problem.loss, parameters, stats,
-                     cov, best["runs"], best["seconds"], problem.n_samples, src)
+                     cov, best["runs"], best["seconds"], problem.n_samples, src, problem.aperture)

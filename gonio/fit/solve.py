@@ -5,6 +5,16 @@ of the chosen Dr.Jit backend (:func:`gonio.jit.resolve_backend`: CUDA when prese
 are opaque size-1 arrays with gradients enabled, so one compiled kernel serves every iteration, and the
 Jacobian's columns are forward-mode derivatives (one ``dr.forward_from`` per variable through the same
 graph, all columns evaluated in one launch).
+
+The instrument. A reading averages f_r over the cone the source subtends and the cone the detector sees
+(:mod:`gonio.fit.aperture`). Where the data say what those cones are (:class:`FitData`'s ``aperture``:
+a campaign folder or its brdf.h5, :func:`gonio.dataset.aperture_cones`), the model is evaluated as the
+instrument measures it: at M = 16 quadrature directions per sample (the same for every sample), weighted
+as the calibrated reading weights them, and summed per sample. The sum is taken in numpy after the one
+launch (``dr.block_sum`` launched a kernel of its own per channel and call), for the residuals and the
+Jacobian's columns alike, so the AD Jacobian is that of the averaged model. Where they are not
+known, the model is evaluated at the measured directions (the cones' axes): a GGX lobe of α = 0.15
+through 0.5° and 1° cones is then fitted 36 σ off in α and 10 σ in rho_s (BENCHMARKS.md).
 A projected Levenberg-Marquardt on the p × p normal equations (:func:`_projected_lm`) takes the
 residuals, that Jacobian and the bounds (scipy's ``least_squares(method="trf")`` is the alternative,
 ``jac="trf-ad"``, and with finite differences the speed baseline of ``tools/bench_fit.py``).
@@ -31,9 +41,8 @@ that the truth lies within 2σ. A variable at a bound is flagged (``at_bound``):
 one-sided and the quadratic approximation does not hold there. Errors shared between samples (a
 white reference or a dark reading calibrates many samples) enter the covariance when the data come with
 their campaign's journal (:mod:`gonio.fit.shared`, a sandwich estimator); a brdf.h5 alone is taken as
-independent samples. The aperture (the source and detector cones the gantry averages over) is not
-modelled: the model is evaluated at the cones' axes, a bias of ~0.1 % in roughness for 1° cones on
-α = 0.2, below the 2 % bar but above the Monte Carlo error bars of a noise-free simulation.
+independent samples. The uncertainties are those of the averaged model where the cones are known; the
+quadrature's own error (:mod:`gonio.fit.aperture`: ~3e-5 relative on an α = 0.15 lobe) is not in them.
 """
 
 from __future__ import annotations
@@ -44,6 +53,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from gonio.fit.aperture import Aperture
 from gonio.fit.models import FitModel
 from gonio.geometry import to_half_diff
 from gonio.jit import array_types, exact_float64, resolve_backend
@@ -61,12 +71,15 @@ MISFIT_RELATIVE = 0.02
 
 @dataclass
 class FitData:
-    """Measured samples: unit directions (N, 3), f_r (N, C) in sr⁻¹, and its stddev (N, C) or None."""
+    """Measured samples: unit directions (N, 3), f_r (N, C) in sr⁻¹, and its stddev (N, C) or None;
+    ``aperture``: the cones the values were measured through (:class:`gonio.fit.aperture.Aperture`), or
+    None (the model is then evaluated at the directions themselves)."""
 
     wi: np.ndarray
     wo: np.ndarray
     value: np.ndarray
     stddev: np.ndarray | None = None
+    aperture: Aperture | None = None
 
     def __post_init__(self):
         self.value = np.asarray(self.value, dtype=np.float64).reshape(len(self.wi), -1)
@@ -116,7 +129,12 @@ class Problem:
         def vec(v):
             return self._vector(*(self._float(np.ascontiguousarray(v[:, j])) for j in range(3)))
 
-        self._wi, self._wo = vec(self.wi), vec(self.wo)
+        self.aperture = data.aperture
+        if self.aperture is None:
+            self._wi, self._wo, self._lane_weight = vec(self.wi), vec(self.wo), None
+        else:   # M lanes per sample, summed with the quadrature's weights (gonio.fit.aperture)
+            wi_q, wo_q, weight = self.aperture.expand(self.wi, self.wo)
+            self._wi, self._wo, self._lane_weight = vec(wi_q), vec(wo_q), self._float(weight)
         self._y = [self._float(np.ascontiguousarray(self.value[:, k])) for k in range(len(chans))]
         self._w = [self._float(np.ascontiguousarray(self.weight[:, k])) for k in range(len(chans))]
         self.evaluations = 0
@@ -129,8 +147,22 @@ class Problem:
                 dr.enable_grad(v)
         values = self.model.values(xs, colour=self._vector)
         f = self.model.base.eval_params(values, self._wi, self._wo)
+        if self._lane_weight is not None:   # f_r · weight per lane; summed per sample by _per_sample
+            return xs, [f[c] * self._lane_weight for c in self.model.channels]
         res = [(f[c] - y) * w for c, y, w in zip(self.model.channels, self._y, self._w, strict=True)]
         return xs, res
+
+    def _per_sample(self, arrays, residual: bool) -> np.ndarray:
+        """The arrays of :meth:`_residual_dr` (or their derivatives) as one vector, channel-major: the
+        residuals themselves at the axes; with an aperture, each sample's M lanes summed here (module
+        docstring), then the data subtracted (``residual``) and the weights applied."""
+        if self._lane_weight is None:
+            return np.concatenate([a.numpy() for a in arrays])
+        out = []
+        for k, a in enumerate(arrays):
+            f = a.numpy().reshape(-1, self.aperture.points).sum(axis=1)
+            out.append(((f - self.value[:, k]) if residual else f) * self.weight[:, k])
+        return np.concatenate(out)
 
     def residuals(self, x) -> np.ndarray:
         """Weighted residuals (n = samples × channels, channel-major) at the fit vector ``x``."""
@@ -138,7 +170,7 @@ class Problem:
         with dr.suspend_grad(), exact_float64(self._float):
             _, res = self._residual_dr(x, False)
             dr.eval(res)
-            return np.concatenate([r.numpy() for r in res])
+            return self._per_sample(res, True)
 
     def jacobian(self, x) -> np.ndarray:
         """∂residuals/∂x, (n, p), by forward-mode AD: one traversal per variable, one kernel launch."""
@@ -153,7 +185,7 @@ class Problem:
                 for r in res:
                     dr.clear_grad(r)
             dr.eval(cols)
-        return np.stack([np.concatenate([g.numpy() for g in col]) for col in cols], axis=1)
+        return np.stack([self._per_sample(col, False) for col in cols], axis=1)
 
     def set_shared(self, u: np.ndarray | None, weights: np.ndarray | None = None) -> None:
         """Errors shared between samples, used by :func:`covariance` with the ``chi2`` loss: U (N, C, M)

@@ -271,8 +271,16 @@ def _section_fits(rep) -> str:
                      f"{100 * res['rms_relative']:.3g} %",
                      f"{res['structure']:.2f}" if np.isfinite(res["structure"]) else "– (too few samples)",
                      "structured misfit" if res["misfit"] else ""])
+    fitted = next((m["result"] for m in rep.fits if m["result"] is not None), None)
+    optics = ""
+    if fitted is not None and fitted.aperture is not None:
+        optics = (" Each model is averaged over the cones the readings integrate, as the instrument "
+                  f"measures it: {escape(fitted.aperture.describe())}.")
+    elif fitted is not None:
+        optics = (" Each model is evaluated at the measured directions: the source and detector cones the "
+                  "readings integrate are not recorded, so their smoothing of a sharp lobe is not modelled.")
     html = ("<p>Each model fitted to every measured sample (χ² with the measured stddev, "
-            "<code>gonio fit</code>), ranked by its error per degree of freedom.</p>")
+            f"<code>gonio fit</code>), ranked by its error per degree of freedom.{optics}</p>")
     html += _table(["rank", "model", "χ²/dof", "dof", "rms / data", "structure", "fit flag"], rows,
                    num={0, 2, 3, 4, 5})
     html += '<div class="cards">'

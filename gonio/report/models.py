@@ -163,7 +163,9 @@ def fit_models(source, models: list[str], *, starts: int = 3) -> list[dict]:
             row["words"] = f"the fit failed: {err}"
             out.append(row)
             continue
-        fm = load(r.material).eval(wi, wo, precision="float64")
+        # the model as the fit saw it: averaged over the cones where the data gave them
+        fm = load(r.material).eval(wi, wo, precision="float64") if r.aperture is None else \
+            r.aperture.evaluate(load(r.material), wi, wo)
         d = fm - f
         row.update(result=r, per_dof=float(r.residual["chi2_reduced"]), seconds=time.perf_counter() - t0)
         row["regions"] = _region_stats(d, f, sd, masks)
