@@ -27,7 +27,7 @@ python3 -c "import sys, drjit as dr, gonio; print(sys.version.split()[0], 'drjit
 dr.has_backend(dr.JitBackend.CUDA), gonio.__file__)"
 echo "== tests on every backend (CUDA the default where present)"
 timeout "${GPU_TEST_TIMEOUT:-240}" python3 -m pytest -q -p no:cacheprovider -rfs --durations=5 -n "${GPU_TEST_WORKERS:-4}" \
-  tests/test_jit.py tests/sim tests/test_fit.py 2>&1 | tail -60
+  tests/test_jit.py tests/sim tests/test_fit.py tests/test_fit_aperture.py 2>&1 | tail -60
 echo "== camera frames"
 timeout 120 python3 "$repo/tools/bench_camera.py" --frames 20
 for b in llvm cuda; do
