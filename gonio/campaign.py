@@ -64,17 +64,30 @@ class LockHeld(Exception):
         self.holder = holder
 
 
+#: How long :func:`pid_lock` tries before it says the lock is held: a reader that asks whether anyone
+#: holds it (:func:`gonio.store.lock_holder`) takes a shared lock for microseconds, and a writer arriving
+#: in that instant must not take it for a campaign running elsewhere.
+LOCK_PATIENCE_S = 0.25
+
+
 def pid_lock(path: Path) -> int:
-    """Take the exclusive ``flock`` on ``path`` (created if missing) without waiting and write this
-    process's pid into it; the open descriptor (closing it releases the lock). LockHeld if another
-    process holds it. The kernel drops the lock when its holder dies, even by SIGKILL."""
+    """Take the exclusive ``flock`` on ``path`` (created if missing) and write this process's pid into
+    it; the open descriptor (closing it releases the lock). LockHeld if another process holds it for
+    :data:`LOCK_PATIENCE_S` (a reader's probe is over long before). The kernel drops the lock when its
+    holder dies, even by SIGKILL."""
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
-        os.close(fd)
-        raise LockHeld(holder) from None
+    deadline, pause = time.monotonic() + LOCK_PATIENCE_S, 0.001
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            break
+        except BlockingIOError:
+            if time.monotonic() >= deadline:
+                holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
+                os.close(fd)
+                raise LockHeld(holder) from None
+            time.sleep(pause)
+            pause = min(2 * pause, 0.05)
     os.ftruncate(fd, 0)
     os.write(fd, str(os.getpid()).encode())
     return fd

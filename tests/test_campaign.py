@@ -155,3 +155,32 @@ def test_simulated_gantry_time_is_the_plans_estimate(tmp_path, config):
     park = c.journal.last_event("park")
     assert park["campaign_s"] == pytest.approx(c.meta["estimated_s"], rel=1e-9)
     c.close()
+
+
+def test_a_readers_lock_probe_never_makes_a_writer_think_the_campaign_runs_elsewhere(tmp_path):
+    """A reader asks whether anyone writes a journal by taking the lock file's shared flock for a few
+    microseconds (gonio.store.lock_holder); a writer's exclusive flock in that instant found it held, and
+    the daemon's worker failed a campaign ("another gonio process ... is running this campaign") while an
+    event stream read its journal: 37 of 200 acquisitions beside a probing thread, without the patience."""
+    import os
+    import threading
+
+    from gonio.campaign import LockHeld, pid_lock
+    from gonio.store import LOCK_NAME, lock_holder
+
+    path = tmp_path / LOCK_NAME
+    stop = threading.Event()
+    prober = threading.Thread(target=lambda: [lock_holder(path) for _ in iter(stop.is_set, True)])
+    prober.start()
+    try:
+        for _ in range(200):
+            os.close(pid_lock(path))
+    finally:
+        stop.set()
+        prober.join(10)
+    held = pid_lock(path)                 # a lock really held stays refused, after the patience
+    try:
+        with pytest.raises(LockHeld):
+            pid_lock(path)
+    finally:
+        os.close(held)

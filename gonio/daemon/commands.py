@@ -146,7 +146,8 @@ def cmd_queue(args) -> int:
 
 
 def _watch(c, cid: str) -> int:
-    """Follow ``cid``'s event stream with a progress bar until it ends; 0 when done, 1 when aborted."""
+    """Follow ``cid``'s event stream with a progress bar until it ends; 0 when done, 1 when aborted or
+    when the daemon could not run it (``failed``: nothing happens until an operator resumes it)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -164,6 +165,10 @@ def _watch(c, cid: str) -> int:
                     progress.update(task, completed=data["done"])
                 elif event == "state":
                     progress.update(task, state=data["state"])
+                    if data["state"] == "failed":
+                        progress.console.print(data["message"], markup=False)
+                        final = "failed"
+                        break
                 elif event == "fault":
                     progress.console.print(f"fault: {data['message']}", markup=False)
                 elif event == "end":
@@ -179,9 +184,13 @@ def _watch(c, cid: str) -> int:
                           f"({100 * data['done'] / data['steps']:.0f} %)", file=sys.stderr, flush=True)
             elif event in ("state", "fault"):
                 print(f"{cid}: {data['state'] or event}: {data['message']}", file=sys.stderr, flush=True)
+                if event == "state" and data["state"] == "failed":
+                    final = "failed"
+                    break
             elif event == "end":
                 final = data["state"]
-    print(f"campaign {cid}: {final}", file=sys.stderr)
+    print(f"campaign {cid}: {final}" + (f" (`gonio resume {cid}` tries again)" if final == "failed" else ""),
+          file=sys.stderr)
     return 0 if final == "done" else 1
 
 

@@ -117,6 +117,7 @@ async def stream(queue, rec, cursor: tuple[int, int], limit: StreamLimit,
         journal = await asyncio.to_thread(queue.journal, rec)
         yield "retry: 1000\n\n"
         last_sent = time.monotonic()
+        failed = None   # the error last said: a failure is the daemon's, not in the journal
         while not queue.stopping:
             batch = await asyncio.to_thread(_read, journal, cursor)
             for kind, data, cursor in batch:
@@ -125,6 +126,18 @@ async def stream(queue, rec, cursor: tuple[int, int], limit: StreamLimit,
                 last_sent = time.monotonic()
                 continue
             state = await asyncio.to_thread(queue.state, rec)
+            if state == "failed" and rec.error != failed:
+                # The daemon could not run it (its journal says nothing of that): said once per failure,
+                # and the stream stays open, since a resume tries again.
+                failed = rec.error
+                yield _sse("state", cursor, {"id": None, "kind": "state", "state": "failed", "step": None,
+                                             "message": f"the daemon could not run it: {rec.error}; a "
+                                                        "resume tries again", "campaign_s": None,
+                                             "wall_s": time.time(), "axes_deg": None})
+                last_sent = time.monotonic()
+                continue
+            if state != "failed":
+                failed = None
             if state in ("done", "aborted"):
                 # Everything committed before the final state is sent: one more read settles it.
                 tail = await asyncio.to_thread(_read, journal, cursor)

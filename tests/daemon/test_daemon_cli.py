@@ -208,3 +208,29 @@ def test_watch_after_the_daemon_accepted_says_so_when_it_loses_the_daemon(serve,
     assert main(["submit", "lambert:albedo=0.5", "--grid", "iso:step=30", "--watch"]) == 4
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "campaign c00001 was accepted" in err and "gonio watch c00001" in err and "do not submit" in err
+
+
+def test_watch_ends_when_the_daemon_cannot_run_the_campaign(serve, env, capsys, monkeypatch):
+    """A campaign the daemon could not run is `failed` until an operator resumes it, and its journal says
+    nothing of it: `gonio submit --watch` waited on its event stream for ever (seen when a reader's lock
+    probe met the worker's lock)."""
+    import threading
+
+    import gonio.daemon.queue
+    from gonio.store import JournalError
+
+    def held(folder, **kw):
+        raise JournalError(f"{folder}: another gonio process (pid 1) is running this campaign")
+    monkeypatch.setattr(gonio.daemon.queue, "open_campaign", held)
+    r = serve()
+    env(r.url)
+    codes = []
+    watcher = threading.Thread(target=lambda: codes.append(
+        main(["submit", "lambert:albedo=0.5", "--grid", "iso:step=30", "--watch"])), daemon=True)
+    watcher.start()
+    watcher.join(WAIT_S)
+    assert codes == [1], "gonio submit --watch did not end"
+    err = capsys.readouterr().err
+    assert "c00001: failed: the daemon could not run it: JournalError: " in err
+    assert "another gonio process (pid 1) is running this campaign; a resume tries again" in err
+    assert err.rstrip().endswith("campaign c00001: failed (`gonio resume c00001` tries again)")
