@@ -17,7 +17,8 @@ ROOT = Path(__file__).resolve().parent.parent
 PYTHON3 = """#!/bin/sh
 if [ "$1" = "-m" ] && [ "$2" = "venv" ]; then
   mkdir -p "$3/bin"
-  printf '#!/bin/sh\\necho "python $*" >> "$LOG"\\nexit 0\\n' > "$3/bin/python"
+  printf '#!/bin/sh\\necho "python $*" >> "$LOG"\\n' > "$3/bin/python"
+  printf '[ "$1 $2" = "-m uv" ] && [ -n "$UV_FAILS" ] && exit 1\\nexit 0\\n' >> "$3/bin/python"
   chmod +x "$3/bin/python"
   exit 0
 fi
@@ -61,14 +62,29 @@ def _make(tree, target):
 def test_make_demo_installs_the_runtime_dependencies_only(tree):
     log, out = _make(tree, ".venv/.runtime-stamp")
     pip = [line for line in log.splitlines() if " pip install" in line]
-    assert pip == ["python -m pip install -q --no-compile -e ."], log
+    # uv installs (pip fetches it), as pip would: editable, the runtime dependencies only
+    assert pip == ["python -m pip install -q uv",
+                   "python -m uv pip install -q --python .venv/bin/python -e ."], log
     assert "chromium" not in log and "[dev]" not in log
     assert "warning" not in out.lower()
 
 
+def test_where_uv_fails_pip_installs_as_before(tree):
+    folder, env = tree
+    log, out = _make((folder, {**env, "UV_FAILS": "1"}), ".venv/.runtime-stamp")
+    pip = [line for line in log.splitlines() if " pip install" in line]
+    assert pip[-1] == "python -m pip install -q --no-compile -e .", log
+    assert "uv could not install; pip installs instead" in out
+    (folder / "log").unlink()
+    (folder / ".venv" / ".runtime-stamp").unlink()
+    log, _ = _make((folder, {**env, "GONIO_NO_UV": "1"}), ".venv/.runtime-stamp")
+    assert [line for line in log.splitlines() if " pip install" in line] == \
+        ["python -m pip install -q --no-compile -e ."], log
+
+
 def test_make_test_adds_the_development_extras_and_chromium(tree):
     log, _ = _make(tree, ".venv/.dev-stamp")
-    assert "python -m pip install -q --no-compile -e .[dev]" in log.splitlines()
+    assert "python -m uv pip install -q --python .venv/bin/python -e .[dev]" in log.splitlines()
     if os.getuid() == 0:
         assert "apt-get install -y -q chromium" in log
     # and a `make demo` afterwards installs nothing more
