@@ -43,10 +43,30 @@ fi
 spec=.
 [ "$what" = dev ] && spec='.[dev]'
 # uv (Astral's installer, fetched by pip into the venv) installs the ~150 packages in about 10 s where pip
-# takes about 40 s. It reads no pip.conf: where the packages come from elsewhere than PyPI (a mirror set in
-# pip.conf, no network), or uv cannot be fetched or fails, pip installs them as before. GONIO_NO_UV=1: pip.
+# takes about 40 s. It reads no pip.conf, so it is given pip's own sources (index, extra indexes,
+# find-links, constraints: `pip config list`, environment included) and pip's way of choosing among them
+# (the best match over every index). Where uv cannot be fetched or fails, pip installs as before.
+# GONIO_NO_UV=1: pip.
+uv_sources() {
+  "$venv/bin/python" - <<'PY'
+import subprocess, sys
+out = subprocess.run([sys.executable, "-m", "pip", "config", "list"], capture_output=True, text=True).stdout
+rank, found = {"global": 0, "user": 1, "site": 2, ":env:": 3}, {}
+for line in out.splitlines():
+    key, _, value = line.partition("=")
+    scope, _, name = key.rpartition(".")
+    r = rank.get(scope, 0)
+    if name in ("index-url", "extra-index-url", "find-links", "constraint") and r >= found.get(name, (-1,))[0]:
+        found[name] = (r, value.strip().strip("'\""))
+print("--index-strategy\nunsafe-best-match")
+for name, (_, value) in found.items():
+    for v in value.split():
+        print(f"--{name}\n{v}")
+PY
+}
 if [ -n "${GONIO_NO_UV:-}" ] || ! { "$venv/bin/python" -m pip install -q uv >/dev/null 2>&1 \
-    && "$venv/bin/python" -m uv pip install -q --python "$venv/bin/python" -e "$spec"; }; then
+    && mapfile -t sources < <(uv_sources) \
+    && "$venv/bin/python" -m uv pip install -q --python "$venv/bin/python" "${sources[@]}" -e "$spec"; }; then
   [ -n "${GONIO_NO_UV:-}" ] || echo "gonio setup: uv could not install; pip installs instead" >&2
   "$venv/bin/python" -m pip install -q --no-compile -e "$spec"
 fi
