@@ -165,3 +165,31 @@ def test_an_emulator_that_does_not_stop_in_time_is_one_line_exit_1(tmp_path, cap
         if thread.name == "emu-LAMP":
             thread.join(WAIT_S)  # released: it sees its stop and ends
     assert emulator_threads() == []
+
+
+def test_a_bad_material_names_the_material_option(capsys):
+    assert main(["emulate", "--config", "sim", "--material", "ggz:alpha=0.2"]) == 2
+    one_clear_line(capsys, "gonio emulate: --material: unknown material model 'ggz'")
+
+
+def test_the_config_of_a_running_emulator_is_not_taken_over(tmp_path, capsys):
+    """A second `gonio emulate --write-config` to the same file replaced the first one's config, and
+    removed it when it stopped: the first one's devices were left without one. The file's first line
+    names the emulator that wrote it; while that one runs (a waiting child process stands in for it),
+    the file is refused, left as it was."""
+    import subprocess
+    import sys
+
+    target = tmp_path / "emu.toml"
+    other = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        target.write_text(f"# sim-two-arm, emulated by gonio emulate (pid {other.pid}); valid while it "
+                          "runs\n")
+        before = target.read_bytes()
+        assert main(["emulate", "--config", "sim", "--write-config", str(target)]) == 2
+        one_clear_line(capsys, f"gonio emulate: --write-config: {target} is the config of the gonio emulate "
+                               f"that runs as pid {other.pid}")
+        assert target.read_bytes() == before
+    finally:
+        other.stdin.close()
+        other.wait(10)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -15,6 +16,29 @@ import numpy as np
 from gonio.cli.common import UsageError, refuse_emulated_placeholders
 from gonio.cli.common import in_main_thread as _in_main_thread
 from gonio.config import load_config
+
+#: The first line of the config ``gonio emulate --write-config`` writes: the emulator's name and pid.
+_CONFIG_HEAD = "# {name}, emulated by gonio emulate (pid {pid}); valid while it runs\n"
+
+
+def _emulator_of(path: Path) -> int | None:
+    """The pid of the running ``gonio emulate`` whose config ``path`` is (its first line says so and that
+    process lives), or None."""
+    try:
+        with path.open(encoding="utf-8", errors="replace") as fh:
+            head = fh.readline(200)
+    except OSError:
+        return None
+    m = re.search(r"emulated by gonio emulate \(pid (\d+)\)", head)
+    if m is None or int(m.group(1)) == os.getpid():
+        return None
+    try:
+        os.kill(int(m.group(1)), 0)
+    except ProcessLookupError:
+        return None          # a config left by an emulator that is gone: replaced
+    except PermissionError:
+        pass                 # alive, another user's
+    return int(m.group(1))
 
 
 def cmd_emulate(args) -> int:
@@ -28,10 +52,17 @@ def cmd_emulate(args) -> int:
     from gonio.sim.materials import load as load_material
 
     cfg = load_config(args.config)
-    material = load_material(args.material)
+    try:
+        material = load_material(args.material)
+    except ValueError as err:
+        raise UsageError(f"--material: {err}") from None
     target = Path(args.write_config) if args.write_config else None
     if target is not None and (target.is_dir() or not target.parent.is_dir()):
         raise UsageError(f"--write-config: {target} must be a file in an existing folder")
+    if target is not None and (owner := _emulator_of(target)) is not None:
+        raise UsageError(f"--write-config: {target} is the config of the gonio emulate that runs as pid "
+                         f"{owner}; its devices would lose their config when this one stops: give another "
+                         "file, or stop that one first")
     emu = EmulatedGantry(cfg, material, seed=args.seed, any_port=args.any_port)
     stop = threading.Event()
     dead: list[tuple[str, BaseException]] = []
@@ -51,8 +82,7 @@ def cmd_emulate(args) -> int:
             print(f"{bus}: {where}", flush=True)
         if target is not None and not stop.is_set():
             tmp = target.with_name(target.name + ".tmp")
-            tmp.write_text(emu.config_toml(f"# {cfg.name}, emulated by gonio emulate (pid {os.getpid()}); "
-                                           "valid while it runs\n"))
+            tmp.write_text(emu.config_toml(_CONFIG_HEAD.format(name=cfg.name, pid=os.getpid())))
             tmp.replace(target)
             written = True
             print(f"config: {target}", flush=True)
